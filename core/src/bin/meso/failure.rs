@@ -1,0 +1,71 @@
+//! How the `meso` binary fails: one `error:` line on stderr and an exit code that
+//! tells bad input (2) from other failures (1), as spec/cli.md requires.
+
+use std::process::ExitCode;
+
+/// Exit code for bad input or usage: an unreadable or invalid file, an unknown
+/// model, an out-of-range parameter, a malformed row.
+pub const EXIT_BAD_INPUT: u8 = 2;
+/// Exit code for every other failure (an output that cannot be written, ...).
+pub const EXIT_FAILURE: u8 = 1;
+
+#[derive(Debug)]
+pub struct CliError {
+    pub bad_input: bool,
+    pub error: anyhow::Error,
+}
+
+impl CliError {
+    pub fn bad_input(error: impl Into<anyhow::Error>) -> Self {
+        Self { bad_input: true, error: error.into() }
+    }
+    pub fn failure(error: impl Into<anyhow::Error>) -> Self {
+        Self { bad_input: false, error: error.into() }
+    }
+}
+
+/// Classifies a library error with a context that names the place at fault.
+pub trait ResultExt<T> {
+    fn bad_input_ctx(self, context: impl FnOnce() -> String) -> Result<T, CliError>;
+    fn failure_ctx(self, context: impl FnOnce() -> String) -> Result<T, CliError>;
+}
+
+impl<T, E: Into<anyhow::Error>> ResultExt<T> for Result<T, E> {
+    fn bad_input_ctx(self, context: impl FnOnce() -> String) -> Result<T, CliError> {
+        self.map_err(|e| CliError::bad_input(e.into().context(context())))
+    }
+    fn failure_ctx(self, context: impl FnOnce() -> String) -> Result<T, CliError> {
+        self.map_err(|e| CliError::failure(e.into().context(context())))
+    }
+}
+
+/// Prints the error chain on one line and returns the matching exit code.
+pub fn report(err: &CliError) -> ExitCode {
+    // `{:#}` joins anyhow's context chain with ": " on one line.
+    let line = format!("{:#}", err.error).replace('\n', " ");
+    eprintln!("error: {line}");
+    ExitCode::from(if err.bad_input { EXIT_BAD_INPUT } else { EXIT_FAILURE })
+}
+
+/// Help and version go to stdout with exit 0; a usage error becomes one `error:`
+/// line (clap's first line, without its multi-line usage block) and exit 2.
+pub fn report_clap_error(err: clap::Error) -> ExitCode {
+    use clap::error::ErrorKind;
+    match err.kind() {
+        ErrorKind::DisplayHelp | ErrorKind::DisplayVersion => {
+            print!("{err}");
+            ExitCode::SUCCESS
+        }
+        _ => {
+            let rendered = err.to_string();
+            let first = rendered
+                .lines()
+                .find(|l| !l.trim().is_empty())
+                .unwrap_or("invalid usage")
+                .trim();
+            let message = first.strip_prefix("error:").unwrap_or(first).trim();
+            eprintln!("error: {message} (see `meso --help`)");
+            ExitCode::from(EXIT_BAD_INPUT)
+        }
+    }
+}

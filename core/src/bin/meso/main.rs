@@ -1,0 +1,55 @@
+//! `meso`: the headless command line (spec/cli.md). Every subcommand prints one
+//! `error:` line on failure and exits 2 for bad input or usage, 1 for anything else;
+//! `--json` prints exactly one JSON object on stdout.
+
+mod brdf_cmd;
+mod compare_cmd;
+mod failure;
+mod plot;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+use failure::CliError;
+
+#[derive(Parser, Debug)]
+#[command(name = "meso", version, about = "Meso: headless material rendering tools")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// The analytic BRDF dictionary: evaluate, measure albedo, plot lobes.
+    Brdf {
+        #[command(subcommand)]
+        command: brdf_cmd::BrdfCommand,
+    },
+    /// Image error of B against the reference A: RMSE, PSNR, MSSIM, largest pixel error.
+    Compare(compare_cmd::CompareArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(err) => return failure::report_clap_error(err),
+    };
+    let result = match cli.command {
+        Command::Brdf { command } => brdf_cmd::run(command),
+        Command::Compare(args) => compare_cmd::run(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => failure::report(&err),
+    }
+}
+
+/// Shared by subcommands: prints `value` as the one JSON object on stdout.
+fn print_json(value: &serde_json::Value) -> Result<(), CliError> {
+    let text = serde_json::to_string_pretty(value)
+        .map_err(|e| CliError::failure(anyhow::anyhow!("cannot encode the JSON report: {e}")))?;
+    println!("{text}");
+    Ok(())
+}

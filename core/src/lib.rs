@@ -1,0 +1,12 @@
+//! Meso's core library: everything that works without a window.
+//!
+//! Modules depend downwards only: render modes on materials and geometry, materials on
+//! the BRDF dictionary, everything on `rng`, `atomic` and `image`. `docs/ARCHITECTURE.md`
+//! is the map; the `meso` binary (`src/bin/meso`) and the `meso-studio` app use this
+//! crate through its public API only.
+
+pub mod atomic;
+pub mod brdf;
+pub mod image;
+pub mod metrics;
+pub mod rng;

@@ -26,8 +26,8 @@ pub fn read_exr(path: &Path) -> Result<Image, ImageError> {
         format: FORMAT,
         reason: e.to_string(),
     };
-    // Pedantic: a truncated or inconsistent file is an error, not an image with missing
-    // blocks silently filled with zeros.
+    // Pedantic, as the C++ library: contradicting or missing header values and leftover
+    // bytes after decompression are errors, rather than guessed around.
     let exr = exr::prelude::read()
         .no_deep_data()
         .largest_resolution_level()

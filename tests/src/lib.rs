@@ -1,0 +1,2 @@
+//! Workspace-level tests.
+#[cfg(test)] mod metrics_reference;

@@ -354,30 +354,3 @@ mod tests {
         assert_eq!(json["max_error_pixel"], serde_json::json!([0, 0]));
     }
 }
-
-#[cfg(test)]
-mod timing {
-    use super::*;
-
-    /// Not a pass/fail gate on shared machines; run with
-    /// `cargo test --release -p meso-core --lib metrics::timing -- --ignored --nocapture`.
-    #[test]
-    #[ignore = "timing, for humans"]
-    fn compare_1024_squared() {
-        let n = 1024u32;
-        let pixels: Vec<[f32; 3]> = (0..n * n)
-            .map(|i| {
-                let t = i as f32 * 1e-3;
-                [t.sin().abs(), t.cos().abs(), (0.3 * t).sin().abs()]
-            })
-            .collect();
-        let a = Image::from_pixels(n, n, pixels).expect("n * n");
-        let mut b = a.clone();
-        for (i, p) in b.pixels_mut().iter_mut().enumerate() {
-            p[1] += if i % 7 == 0 { 0.05 } else { -0.01 };
-        }
-        let start = std::time::Instant::now();
-        let c = compare(&a, &b, 0.0).expect("same size");
-        eprintln!("1024x1024 compare: {:?} ({c:?})", start.elapsed());
-    }
-}

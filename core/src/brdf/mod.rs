@@ -17,6 +17,9 @@ mod oren_nayar;
 mod ward;
 pub mod warp;
 
+#[cfg(test)]
+mod tests;
+
 
 use glam::{DVec2, DVec3};
 

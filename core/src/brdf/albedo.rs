@@ -21,7 +21,12 @@ pub struct AlbedoEstimate {
 const CHUNK: u32 = 1 << 14;
 
 /// Albedo for the fixed direction `wo` (unit, local frame) from `samples` samples.
-pub fn directional_albedo(brdf: &AnalyticBrdf, wo: DVec3, samples: u32, seed: u64) -> AlbedoEstimate {
+pub fn directional_albedo(
+    brdf: &AnalyticBrdf,
+    wo: DVec3,
+    samples: u32,
+    seed: u64,
+) -> AlbedoEstimate {
     let samples = samples.max(1);
     let chunks = samples.div_ceil(CHUNK);
     let partial: Vec<(f64, f64)> = (0..chunks)
@@ -40,9 +45,19 @@ pub fn directional_albedo(brdf: &AnalyticBrdf, wo: DVec3, samples: u32, seed: u6
             (sum, sum2)
         })
         .collect();
-    let (sum, sum2) = partial.iter().fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+    let (sum, sum2) = partial
+        .iter()
+        .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
     let n = f64::from(samples);
     let mean = sum / n;
-    let var = if samples > 1 { ((sum2 - n * mean * mean) / (n - 1.0)).max(0.0) } else { 0.0 };
-    AlbedoEstimate { mean, std_error: (var / n).sqrt(), samples }
+    let var = if samples > 1 {
+        ((sum2 - n * mean * mean) / (n - 1.0)).max(0.0)
+    } else {
+        0.0
+    };
+    AlbedoEstimate {
+        mean,
+        std_error: (var / n).sqrt(),
+        samples,
+    }
 }

@@ -20,7 +20,11 @@ impl AshikhminShirley {
     /// Exponents `nu`, `nv` in [1, 1e5], specular reflectance `rs` in [0, 1].
     pub fn new(nu: f64, nv: f64, rs: f64) -> Result<Self, BrdfError> {
         let m = BrdfModel::AshikhminShirley;
-        Ok(Self { nu: validate(m, 0, nu)?, nv: validate(m, 1, nv)?, rs: validate(m, 2, rs)? })
+        Ok(Self {
+            nu: validate(m, 0, nu)?,
+            nv: validate(m, 1, nv)?,
+            rs: validate(m, 2, rs)?,
+        })
     }
 
     pub fn nu(&self) -> f64 {

@@ -18,9 +18,14 @@ impl BasisFunction {
     pub fn new(brdf: AnalyticBrdf, normal: DVec3) -> Result<Self, BrdfError> {
         let len = normal.length();
         if !normal.is_finite() || (len - 1.0).abs() > 1e-3 || normal.z <= 0.0 {
-            return Err(BrdfError::BadNormal { normal: normal.to_array() });
+            return Err(BrdfError::BadNormal {
+                normal: normal.to_array(),
+            });
         }
-        Ok(Self { brdf, frame: Frame::from_normal_spmm(normal / len) })
+        Ok(Self {
+            brdf,
+            frame: Frame::from_normal_spmm(normal / len),
+        })
     }
 
     pub fn brdf(&self) -> &AnalyticBrdf {
@@ -42,6 +47,8 @@ impl BasisFunction {
         if cos <= 0.0 {
             return 0.0;
         }
-        self.brdf.eval(self.frame.to_local(wi), self.frame.to_local(wo)) * cos
+        self.brdf
+            .eval(self.frame.to_local(wi), self.frame.to_local(wo))
+            * cos
     }
 }

@@ -16,7 +16,9 @@ pub struct BlinnPhong {
 impl BlinnPhong {
     /// Exponent `n` in [0, 1e5].
     pub fn new(n: f64) -> Result<Self, BrdfError> {
-        Ok(Self { n: validate(BrdfModel::BlinnPhong, 0, n)? })
+        Ok(Self {
+            n: validate(BrdfModel::BlinnPhong, 0, n)?,
+        })
     }
 
     pub fn n(&self) -> f64 {
@@ -32,7 +34,11 @@ impl BlinnPhong {
     /// cos_h^n through ln(cos_h) from h's tangential part (exact for n = 0).
     #[inline]
     fn cos_h_pow(&self, h: DVec3) -> f64 {
-        if self.n == 0.0 { 1.0 } else { (self.n * warp::ln_cos_from_tangential(h)).exp() }
+        if self.n == 0.0 {
+            1.0
+        } else {
+            (self.n * warp::ln_cos_from_tangential(h)).exp()
+        }
     }
 
     #[inline]

@@ -19,7 +19,11 @@ impl Frame {
         let x_proj = DVec3::X - n.x * n;
         if x_proj.length() >= 1e-6 {
             let x = x_proj.normalize();
-            Self { x, y: n.cross(x), z: n }
+            Self {
+                x,
+                y: n.cross(x),
+                z: n,
+            }
         } else {
             // The spec's fallback: build from the bitangent, then complete.
             let x0 = (DVec3::Y - n.y * n).normalize();

@@ -18,7 +18,11 @@ impl Lafortune {
     pub fn new(cx: f64, cy: f64, cz: f64, n: f64) -> Result<Self, BrdfError> {
         let m = BrdfModel::Lafortune;
         Ok(Self {
-            c: DVec3::new(validate(m, 0, cx)?, validate(m, 1, cy)?, validate(m, 2, cz)?),
+            c: DVec3::new(
+                validate(m, 0, cx)?,
+                validate(m, 1, cy)?,
+                validate(m, 2, cz)?,
+            ),
             n: validate(m, 3, n)?,
         })
     }

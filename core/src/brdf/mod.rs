@@ -18,8 +18,9 @@ mod ward;
 pub mod warp;
 
 #[cfg(test)]
+mod chi2_tests;
+#[cfg(test)]
 mod tests;
-
 
 use glam::{DVec2, DVec3};
 
@@ -61,8 +62,22 @@ pub struct ParamSpec {
     pub doc: &'static str,
 }
 
-const fn spec(name: &'static str, min: f64, max: f64, default: f64, log_scale: bool, doc: &'static str) -> ParamSpec {
-    ParamSpec { name, min, max, default, log_scale, doc }
+const fn spec(
+    name: &'static str,
+    min: f64,
+    max: f64,
+    default: f64,
+    log_scale: bool,
+    doc: &'static str,
+) -> ParamSpec {
+    ParamSpec {
+        name,
+        min,
+        max,
+        default,
+        log_scale,
+        doc,
+    }
 }
 
 const OREN_NAYAR_PARAMS: [ParamSpec; 1] = [spec(
@@ -73,15 +88,49 @@ const OREN_NAYAR_PARAMS: [ParamSpec; 1] = [spec(
     false,
     "roughness: standard deviation of the facet slope angle (radians)",
 )];
-const BLINN_PHONG_PARAMS: [ParamSpec; 1] =
-    [spec("n", 0.0, 1e5, 50.0, true, "specular exponent (dimensionless)")];
+const BLINN_PHONG_PARAMS: [ParamSpec; 1] = [spec(
+    "n",
+    0.0,
+    1e5,
+    50.0,
+    true,
+    "specular exponent (dimensionless)",
+)];
 const WARD_PARAMS: [ParamSpec; 2] = [
-    spec("ax", 1e-4, 1.0, 0.2, true, "roughness along the tangent x (slope std. dev.)"),
-    spec("ay", 1e-4, 1.0, 0.2, true, "roughness along the bitangent y (slope std. dev.)"),
+    spec(
+        "ax",
+        1e-4,
+        1.0,
+        0.2,
+        true,
+        "roughness along the tangent x (slope std. dev.)",
+    ),
+    spec(
+        "ay",
+        1e-4,
+        1.0,
+        0.2,
+        true,
+        "roughness along the bitangent y (slope std. dev.)",
+    ),
 ];
 const COOK_TORRANCE_PARAMS: [ParamSpec; 2] = [
-    spec("m", 1e-4, 1.0, 0.3, true, "Beckmann roughness (RMS facet slope)"),
-    spec("f0", 0.0, 1.0, 0.04, false, "Fresnel reflectance at normal incidence (Schlick)"),
+    spec(
+        "m",
+        1e-4,
+        1.0,
+        0.3,
+        true,
+        "Beckmann roughness (RMS facet slope)",
+    ),
+    spec(
+        "f0",
+        0.0,
+        1.0,
+        0.04,
+        false,
+        "Fresnel reflectance at normal incidence (Schlick)",
+    ),
 ];
 const LAFORTUNE_PARAMS: [ParamSpec; 4] = [
     spec("cx", -1e3, 1e3, -1.0, false, "lobe weight on wi.x wo.x"),
@@ -91,8 +140,22 @@ const LAFORTUNE_PARAMS: [ParamSpec; 4] = [
 ];
 const ASHIKHMIN_SHIRLEY_PARAMS: [ParamSpec; 3] = [
     spec("nu", 1.0, 1e5, 100.0, true, "exponent along the tangent x"),
-    spec("nv", 1.0, 1e5, 100.0, true, "exponent along the bitangent y"),
-    spec("rs", 0.0, 1.0, 0.5, false, "specular reflectance at normal incidence (Schlick)"),
+    spec(
+        "nv",
+        1.0,
+        1e5,
+        100.0,
+        true,
+        "exponent along the bitangent y",
+    ),
+    spec(
+        "rs",
+        0.0,
+        1.0,
+        0.5,
+        false,
+        "specular reflectance at normal incidence (Schlick)",
+    ),
 ];
 
 impl BrdfModel {
@@ -123,7 +186,9 @@ impl BrdfModel {
         Self::ALL
             .into_iter()
             .find(|m| m.name() == name)
-            .ok_or_else(|| BrdfError::UnknownModel { name: name.to_string() })
+            .ok_or_else(|| BrdfError::UnknownModel {
+                name: name.to_string(),
+            })
     }
 
     /// The parameters in their fixed order (the order of `AnalyticBrdf::param_values`).
@@ -146,7 +211,11 @@ fn known_models() -> String {
 
 fn param_names(model: BrdfModel) -> String {
     let names: Vec<&str> = model.param_specs().iter().map(|p| p.name).collect();
-    if names.is_empty() { "none".to_string() } else { names.join(", ") }
+    if names.is_empty() {
+        "none".to_string()
+    } else {
+        names.join(", ")
+    }
 }
 
 /// Everything that can be wrong with a model name or its parameters.
@@ -159,10 +228,23 @@ pub enum BrdfError {
     #[error("parameter `{param}` of model `{}` is given twice", model.name())]
     DuplicateParam { model: BrdfModel, param: String },
     #[error("model `{}` needs parameter `{param}` in [{min}, {max}]", model.name())]
-    MissingParam { model: BrdfModel, param: &'static str, min: f64, max: f64 },
+    MissingParam {
+        model: BrdfModel,
+        param: &'static str,
+        min: f64,
+        max: f64,
+    },
     #[error("parameter `{param}` of model `{}` is {value}, outside its range [{min}, {max}]", model.name())]
-    OutOfRange { model: BrdfModel, param: &'static str, value: f64, min: f64, max: f64 },
-    #[error("basis normal {normal:?} is not a unit vector in the upper hemisphere (|n| must be 1 within 1e-3 and n.z > 0)")]
+    OutOfRange {
+        model: BrdfModel,
+        param: &'static str,
+        value: f64,
+        min: f64,
+        max: f64,
+    },
+    #[error(
+        "basis normal {normal:?} is not a unit vector in the upper hemisphere (|n| must be 1 within 1e-3 and n.z > 0)"
+    )]
     BadNormal { normal: [f64; 3] },
 }
 
@@ -173,7 +255,13 @@ fn validate(model: BrdfModel, index: usize, value: f64) -> Result<f64, BrdfError
     if value >= s.min && value <= s.max {
         Ok(value)
     } else {
-        Err(BrdfError::OutOfRange { model, param: s.name, value, min: s.min, max: s.max })
+        Err(BrdfError::OutOfRange {
+            model,
+            param: s.name,
+            value,
+            min: s.min,
+            max: s.max,
+        })
     }
 }
 
@@ -204,18 +292,28 @@ impl AnalyticBrdf {
         let specs = model.param_specs();
         let mut values: Vec<Option<f64>> = vec![None; specs.len()];
         for &(name, value) in params {
-            let index = specs
-                .iter()
-                .position(|s| s.name == name)
-                .ok_or_else(|| BrdfError::UnknownParam { model, param: name.to_string() })?;
+            let index = specs.iter().position(|s| s.name == name).ok_or_else(|| {
+                BrdfError::UnknownParam {
+                    model,
+                    param: name.to_string(),
+                }
+            })?;
             if values[index].is_some() {
-                return Err(BrdfError::DuplicateParam { model, param: name.to_string() });
+                return Err(BrdfError::DuplicateParam {
+                    model,
+                    param: name.to_string(),
+                });
             }
             values[index] = Some(validate(model, index, value)?);
         }
         let mut checked = Vec::with_capacity(specs.len());
         for (s, v) in specs.iter().zip(values) {
-            checked.push(v.ok_or(BrdfError::MissingParam { model, param: s.name, min: s.min, max: s.max })?);
+            checked.push(v.ok_or(BrdfError::MissingParam {
+                model,
+                param: s.name,
+                min: s.min,
+                max: s.max,
+            })?);
         }
         Self::from_values(model, &checked)
     }
@@ -234,7 +332,9 @@ impl AnalyticBrdf {
             BrdfModel::BlinnPhong => AnalyticBrdf::BlinnPhong(BlinnPhong::new(v[0])?),
             BrdfModel::Ward => AnalyticBrdf::Ward(Ward::new(v[0], v[1])?),
             BrdfModel::CookTorrance => AnalyticBrdf::CookTorrance(CookTorrance::new(v[0], v[1])?),
-            BrdfModel::Lafortune => AnalyticBrdf::Lafortune(Lafortune::new(v[0], v[1], v[2], v[3])?),
+            BrdfModel::Lafortune => {
+                AnalyticBrdf::Lafortune(Lafortune::new(v[0], v[1], v[2], v[3])?)
+            }
             BrdfModel::AshikhminShirley => {
                 AnalyticBrdf::AshikhminShirley(AshikhminShirley::new(v[0], v[1], v[2])?)
             }
@@ -273,7 +373,10 @@ impl AnalyticBrdf {
             .param_specs()
             .iter()
             .position(|s| s.name == name)
-            .ok_or_else(|| BrdfError::UnknownParam { model, param: name.to_string() })?;
+            .ok_or_else(|| BrdfError::UnknownParam {
+                model,
+                param: name.to_string(),
+            })?;
         let mut values = self.param_values();
         values[index] = validate(model, index, value)?;
         Self::from_values(model, &values)
@@ -325,7 +428,9 @@ impl AnalyticBrdf {
             return 0.0;
         }
         match self {
-            AnalyticBrdf::Lambertian(_) | AnalyticBrdf::OrenNayar(_) => warp::cosine_hemisphere_pdf(wi),
+            AnalyticBrdf::Lambertian(_) | AnalyticBrdf::OrenNayar(_) => {
+                warp::cosine_hemisphere_pdf(wi)
+            }
             AnalyticBrdf::BlinnPhong(b) => warp::half_to_wi_pdf(wo, wi, |h| b.pdf_half(h)),
             AnalyticBrdf::Ward(b) => warp::half_to_wi_pdf(wo, wi, |h| b.pdf_half(h)),
             AnalyticBrdf::CookTorrance(b) => warp::half_to_wi_pdf(wo, wi, |h| b.pdf_half(h)),

@@ -24,7 +24,11 @@ impl OrenNayar {
     pub fn new(sigma: f64) -> Result<Self, BrdfError> {
         let sigma = validate(BrdfModel::OrenNayar, 0, sigma)?;
         let s2 = sigma * sigma;
-        Ok(Self { sigma, a: 1.0 - 0.5 * s2 / (s2 + 0.33), b: 0.45 * s2 / (s2 + 0.09) })
+        Ok(Self {
+            sigma,
+            a: 1.0 - 0.5 * s2 / (s2 + 0.33),
+            b: 0.45 * s2 / (s2 + 0.09),
+        })
     }
 
     pub fn sigma(&self) -> f64 {

@@ -26,11 +26,16 @@ pub(super) fn parameter_grid(model: BrdfModel) -> Vec<AnalyticBrdf> {
     for (i, s) in specs.iter().enumerate() {
         for v in choices(s) {
             let base = AnalyticBrdf::with_defaults(model);
-            out.push(base.with_param(s.name, v).expect("grid values lie in range"));
+            out.push(
+                base.with_param(s.name, v)
+                    .expect("grid values lie in range"),
+            );
             // Also vary the other parameters to their extremes together with this one.
             for (j, t) in specs.iter().enumerate() {
                 if i != j {
-                    let b = base.with_param(s.name, v).and_then(|b| b.with_param(t.name, t.max));
+                    let b = base
+                        .with_param(s.name, v)
+                        .and_then(|b| b.with_param(t.name, t.max));
                     out.push(b.expect("range ends are valid"));
                 }
             }
@@ -47,7 +52,10 @@ fn random_dir(key: &[u64]) -> DVec3 {
 }
 
 fn all_grids() -> Vec<AnalyticBrdf> {
-    BrdfModel::ALL.into_iter().flat_map(parameter_grid).collect()
+    BrdfModel::ALL
+        .into_iter()
+        .flat_map(parameter_grid)
+        .collect()
 }
 
 #[test]
@@ -59,7 +67,10 @@ fn reciprocity_for_every_model() {
             let wo = random_dir(&[2, b_index as u64, k]);
             let (a, b) = (brdf.eval(wi, wo), brdf.eval(wo, wi));
             let scale = a.abs().max(b.abs()).max(f64::MIN_POSITIVE);
-            assert!((a - b).abs() <= 1e-12 * scale, "{brdf:?} wi {wi} wo {wo}: {a} vs {b}");
+            assert!(
+                (a - b).abs() <= 1e-12 * scale,
+                "{brdf:?} wi {wi} wo {wo}: {a} vs {b}"
+            );
         }
     }
 }
@@ -101,7 +112,10 @@ fn finite_and_non_negative_on_extreme_inputs() {
                 let f = brdf.eval(wi, wo);
                 assert!(f.is_finite() && f >= 0.0, "{brdf:?} wi {wi} wo {wo}: {f}");
                 let p = brdf.pdf(wo, wi);
-                assert!(p.is_finite() && p >= 0.0, "{brdf:?} pdf wi {wi} wo {wo}: {p}");
+                assert!(
+                    p.is_finite() && p >= 0.0,
+                    "{brdf:?} pdf wi {wi} wo {wo}: {p}"
+                );
             }
         }
     }
@@ -121,8 +135,11 @@ fn removable_limits_of_the_spec() {
     }
     // Ashikhmin-Shirley at h = n (wi = wo = n): cos_h^e = 1, wi.h = 1, F = rs:
     // f = sqrt((nu+1)(nv+1)) / (8 pi) * rs.
-    let as_brdf = AnalyticBrdf::new(BrdfModel::AshikhminShirley, &[("nu", 1e5), ("nv", 10.0), ("rs", 0.3)])
-        .expect("valid");
+    let as_brdf = AnalyticBrdf::new(
+        BrdfModel::AshikhminShirley,
+        &[("nu", 1e5), ("nv", 10.0), ("rs", 0.3)],
+    )
+    .expect("valid");
     let expected = ((1e5 + 1.0) * 11.0f64).sqrt() / (8.0 * PI) * 0.3;
     let f = as_brdf.eval(n, n);
     assert!((f - expected).abs() < 1e-12 * expected, "{f} vs {expected}");
@@ -130,11 +147,15 @@ fn removable_limits_of_the_spec() {
     let wi = warp::spherical(0.3, PI);
     let wo = warp::spherical(0.3, 0.0);
     let f = as_brdf.eval(wi, wo);
-    let expected = ((1e5 + 1.0) * 11.0f64).sqrt() / (8.0 * PI) / (0.3 * 0.3) * warp::schlick(0.3, 0.3);
+    let expected =
+        ((1e5 + 1.0) * 11.0f64).sqrt() / (8.0 * PI) / (0.3 * 0.3) * warp::schlick(0.3, 0.3);
     assert!((f - expected).abs() < 1e-9 * expected, "{f} vs {expected}");
     // Lafortune: s <= 0 gives 0 even above the horizon.
-    let laf = AnalyticBrdf::new(BrdfModel::Lafortune, &[("cx", 1.0), ("cy", 1.0), ("cz", -1.0), ("n", 2.0)])
-        .expect("valid");
+    let laf = AnalyticBrdf::new(
+        BrdfModel::Lafortune,
+        &[("cx", 1.0), ("cy", 1.0), ("cz", -1.0), ("n", 2.0)],
+    )
+    .expect("valid");
     assert_eq!(laf.eval(n, n), 0.0);
 }
 
@@ -144,41 +165,106 @@ fn closed_forms_at_the_normal() {
     let n = DVec3::Z;
     let check = |model, params: &[(&str, f64)], expected: f64| {
         let f = AnalyticBrdf::new(model, params).expect("valid").eval(n, n);
-        assert!((f - expected).abs() <= 1e-13 * expected, "{model:?}: {f} vs {expected}");
+        assert!(
+            (f - expected).abs() <= 1e-13 * expected,
+            "{model:?}: {f} vs {expected}"
+        );
     };
     check(BrdfModel::Lambertian, &[], FRAC_1_PI);
-    check(BrdfModel::BlinnPhong, &[("n", 1e5)], (1e5 + 8.0) / (8.0 * PI));
-    check(BrdfModel::Ward, &[("ax", 1e-4), ("ay", 0.5)], 1.0 / (4.0 * PI * 1e-4 * 0.5));
+    check(
+        BrdfModel::BlinnPhong,
+        &[("n", 1e5)],
+        (1e5 + 8.0) / (8.0 * PI),
+    );
+    check(
+        BrdfModel::Ward,
+        &[("ax", 1e-4), ("ay", 0.5)],
+        1.0 / (4.0 * PI * 1e-4 * 0.5),
+    );
     // Beckmann D(n) = 1/(pi m^2), F = f0, G = 1.
-    check(BrdfModel::CookTorrance, &[("m", 0.01), ("f0", 0.5)], 0.5 / (PI * 1e-4 * 4.0));
-    check(BrdfModel::Lafortune, &[("cx", -1.0), ("cy", -1.0), ("cz", 2.0), ("n", 3.0)], 8.0);
+    check(
+        BrdfModel::CookTorrance,
+        &[("m", 0.01), ("f0", 0.5)],
+        0.5 / (PI * 1e-4 * 4.0),
+    );
+    check(
+        BrdfModel::Lafortune,
+        &[("cx", -1.0), ("cy", -1.0), ("cz", 2.0), ("n", 3.0)],
+        8.0,
+    );
 }
 
 #[test]
 fn constructor_rejects_bad_parameters_by_name() {
     use BrdfModel::*;
     let err = |m, p: &[(&str, f64)]| AnalyticBrdf::new(m, p).expect_err("must be rejected");
-    assert!(matches!(err(Ward, &[("ax", 0.1)]), BrdfError::MissingParam { param: "ay", .. }));
-    assert!(matches!(err(Ward, &[("ax", 0.1), ("ay", 1.5)]), BrdfError::OutOfRange { param: "ay", .. }));
-    assert!(matches!(err(Ward, &[("ax", 0.0), ("ay", 0.5)]), BrdfError::OutOfRange { param: "ax", .. }));
-    assert!(matches!(err(Ward, &[("ax", f64::NAN), ("ay", 0.5)]), BrdfError::OutOfRange { .. }));
-    assert!(matches!(err(BlinnPhong, &[("n", f64::INFINITY)]), BrdfError::OutOfRange { .. }));
-    assert!(matches!(err(BlinnPhong, &[("n", -1.0)]), BrdfError::OutOfRange { .. }));
-    assert!(matches!(err(Lambertian, &[("n", 1.0)]), BrdfError::UnknownParam { .. }));
-    assert!(matches!(err(BlinnPhong, &[("n", 1.0), ("n", 2.0)]), BrdfError::DuplicateParam { .. }));
-    assert!(matches!(err(OrenNayar, &[("sigma", 1.6)]), BrdfError::OutOfRange { .. }));
-    assert!(matches!(err(AshikhminShirley, &[("nu", 0.5), ("nv", 2.0), ("rs", 0.1)]), BrdfError::OutOfRange { .. }));
-    assert!(matches!(err(Lafortune, &[("cx", -1001.0), ("cy", 0.0), ("cz", 1.0), ("n", 1.0)]), BrdfError::OutOfRange { .. }));
-    assert!(matches!(BrdfModel::from_name("phong"), Err(BrdfError::UnknownModel { .. })));
+    assert!(matches!(
+        err(Ward, &[("ax", 0.1)]),
+        BrdfError::MissingParam { param: "ay", .. }
+    ));
+    assert!(matches!(
+        err(Ward, &[("ax", 0.1), ("ay", 1.5)]),
+        BrdfError::OutOfRange { param: "ay", .. }
+    ));
+    assert!(matches!(
+        err(Ward, &[("ax", 0.0), ("ay", 0.5)]),
+        BrdfError::OutOfRange { param: "ax", .. }
+    ));
+    assert!(matches!(
+        err(Ward, &[("ax", f64::NAN), ("ay", 0.5)]),
+        BrdfError::OutOfRange { .. }
+    ));
+    assert!(matches!(
+        err(BlinnPhong, &[("n", f64::INFINITY)]),
+        BrdfError::OutOfRange { .. }
+    ));
+    assert!(matches!(
+        err(BlinnPhong, &[("n", -1.0)]),
+        BrdfError::OutOfRange { .. }
+    ));
+    assert!(matches!(
+        err(Lambertian, &[("n", 1.0)]),
+        BrdfError::UnknownParam { .. }
+    ));
+    assert!(matches!(
+        err(BlinnPhong, &[("n", 1.0), ("n", 2.0)]),
+        BrdfError::DuplicateParam { .. }
+    ));
+    assert!(matches!(
+        err(OrenNayar, &[("sigma", 1.6)]),
+        BrdfError::OutOfRange { .. }
+    ));
+    assert!(matches!(
+        err(AshikhminShirley, &[("nu", 0.5), ("nv", 2.0), ("rs", 0.1)]),
+        BrdfError::OutOfRange { .. }
+    ));
+    assert!(matches!(
+        err(
+            Lafortune,
+            &[("cx", -1001.0), ("cy", 0.0), ("cz", 1.0), ("n", 1.0)]
+        ),
+        BrdfError::OutOfRange { .. }
+    ));
+    assert!(matches!(
+        BrdfModel::from_name("phong"),
+        Err(BrdfError::UnknownModel { .. })
+    ));
     // The message names the parameter, the value and the range.
     let msg = err(Ward, &[("ax", 0.1), ("ay", 1.5)]).to_string();
-    assert!(msg.contains("ay") && msg.contains("1.5") && msg.contains("[0.0001, 1]"), "{msg}");
+    assert!(
+        msg.contains("ay") && msg.contains("1.5") && msg.contains("[0.0001, 1]"),
+        "{msg}"
+    );
     // Spec ranges exactly, and every model round-trips through its values.
     for m in BrdfModel::ALL {
         assert_eq!(BrdfModel::from_name(m.name()), Ok(m));
         let b = AnalyticBrdf::with_defaults(m);
-        let named: Vec<(&str, f64)> =
-            m.param_specs().iter().map(|s| s.name).zip(b.param_values()).collect();
+        let named: Vec<(&str, f64)> = m
+            .param_specs()
+            .iter()
+            .map(|s| s.name)
+            .zip(b.param_values())
+            .collect();
         assert_eq!(AnalyticBrdf::new(m, &named), Ok(b));
     }
 }
@@ -192,7 +278,10 @@ fn sampled_directions_carry_their_pdf() {
             let wo = wo.with_z(wo.z.abs().max(1e-3)).normalize();
             let u = SampleStream::new(&[6, i as u64, k]).next_2d();
             if let Some(s) = brdf.sample(wo, u) {
-                assert!(s.wi.z > 0.0 && (s.wi.length() - 1.0).abs() < 1e-9, "{brdf:?} {s:?}");
+                assert!(
+                    s.wi.z > 0.0 && (s.wi.length() - 1.0).abs() < 1e-9,
+                    "{brdf:?} {s:?}"
+                );
                 let p = brdf.pdf(wo, s.wi);
                 assert!((p - s.pdf).abs() <= 1e-9 * p, "{brdf:?}: {p} vs {}", s.pdf);
             }
@@ -202,8 +291,16 @@ fn sampled_directions_carry_their_pdf() {
 
 #[test]
 fn lambertian_albedo_is_one_and_cosine_sampling_is_exact() {
-    let est = directional_albedo(&AnalyticBrdf::with_defaults(BrdfModel::Lambertian), DVec3::Z, 10_000, 1);
-    assert!((est.mean - 1.0).abs() < 1e-12 && est.std_error < 1e-12, "{est:?}");
+    let est = directional_albedo(
+        &AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
+        DVec3::Z,
+        10_000,
+        1,
+    );
+    assert!(
+        (est.mean - 1.0).abs() < 1e-12 && est.std_error < 1e-12,
+        "{est:?}"
+    );
 }
 
 #[test]
@@ -211,7 +308,10 @@ fn albedo_is_replayable_and_thread_count_independent() {
     let brdf = AnalyticBrdf::with_defaults(BrdfModel::Ward);
     let wo = warp::spherical(0.5, 0.2);
     let a = directional_albedo(&brdf, wo, 100_000, 9);
-    let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("pool");
+    let one_thread = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool");
     let b = one_thread.install(|| directional_albedo(&brdf, wo, 100_000, 9));
     assert_eq!(a, b);
 }
@@ -285,7 +385,10 @@ fn energy_conserving_models_reflect_at_most_what_arrives() {
     for model in bounded {
         for brdf in parameter_grid(model) {
             let (max, se, cos_o) = max_albedo(&brdf, 20_000);
-            assert!(max <= 1.0 + 4.0 * se + 1e-9, "{brdf:?}: albedo {max} +- {se} at cos_o {cos_o}");
+            assert!(
+                max <= 1.0 + 4.0 * se + 1e-9,
+                "{brdf:?}: albedo {max} +- {se} at cos_o {cos_o}"
+            );
         }
     }
 }
@@ -298,11 +401,15 @@ fn blinn_phong_albedo_at_normal_incidence_matches_closed_form() {
     // approximate normalisation.
     for n in [0.0, 1.0, 8.0, 50.0, 1000.0] {
         let k = n / 2.0;
-        let antiderivative = |t: f64| 2.0 * t.powf(k + 2.0) / (k + 2.0) - t.powf(k + 1.0) / (k + 1.0);
+        let antiderivative =
+            |t: f64| 2.0 * t.powf(k + 2.0) / (k + 2.0) - t.powf(k + 1.0) / (k + 1.0);
         let exact = (n + 8.0) / 4.0 * 2.0 * (antiderivative(1.0) - antiderivative(0.5));
         let brdf = AnalyticBrdf::new(BrdfModel::BlinnPhong, &[("n", n)]).expect("valid");
         let mc = directional_albedo(&brdf, DVec3::Z, 200_000, 4);
-        assert!((mc.mean - exact).abs() < 4.0 * mc.std_error + 1e-12, "n {n}: {mc:?} vs {exact}");
+        assert!(
+            (mc.mean - exact).abs() < 4.0 * mc.std_error + 1e-12,
+            "n {n}: {mc:?} vs {exact}"
+        );
         if n == 8.0 {
             assert!((exact - 1.075).abs() < 1e-12, "{exact}");
         }
@@ -315,12 +422,22 @@ fn ward_albedo_grows_as_one_over_sqrt_cos_at_grazing() {
     // 1/sqrt(cos_o) at grazing view: it passes 1 near 89.9 degrees for ax = ay = 0.5
     // and triples for every tenfold decrease of cos_o.
     let brdf = AnalyticBrdf::new(BrdfModel::Ward, &[("ax", 0.5), ("ay", 0.5)]).expect("valid");
-    let at = |deg: f64| directional_albedo(&brdf, warp::spherical(deg.to_radians().cos(), 0.0), 200_000, 5);
+    let at = |deg: f64| {
+        directional_albedo(
+            &brdf,
+            warp::spherical(deg.to_radians().cos(), 0.0),
+            200_000,
+            5,
+        )
+    };
     let (a, b) = (at(89.99), at(89.999));
     assert!(a.mean > 2.0, "{a:?}");
     let ratio = b.mean / a.mean;
     let expected = ((89.99f64).to_radians().cos() / (89.999f64).to_radians().cos()).sqrt();
-    assert!((ratio - expected).abs() < 0.03 * expected, "ratio {ratio} vs {expected}");
+    assert!(
+        (ratio - expected).abs() < 0.03 * expected,
+        "ratio {ratio} vs {expected}"
+    );
 }
 
 #[test]
@@ -328,10 +445,17 @@ fn lafortune_albedo_scales_with_its_weights() {
     // s^n is homogeneous of degree n in (cx, cy, cz): doubling every weight multiplies
     // f, hence the albedo, by 2^n, so no bound holds over the spec range.
     let make = |c: f64| {
-        AnalyticBrdf::new(BrdfModel::Lafortune, &[("cx", -c), ("cy", -c), ("cz", c), ("n", 3.0)]).expect("valid")
+        AnalyticBrdf::new(
+            BrdfModel::Lafortune,
+            &[("cx", -c), ("cy", -c), ("cz", c), ("n", 3.0)],
+        )
+        .expect("valid")
     };
     let wo = warp::spherical(0.8, 0.1);
-    let (a, b) = (directional_albedo(&make(1.0), wo, 50_000, 6), directional_albedo(&make(2.0), wo, 50_000, 6));
+    let (a, b) = (
+        directional_albedo(&make(1.0), wo, 50_000, 6),
+        directional_albedo(&make(2.0), wo, 50_000, 6),
+    );
     assert!((b.mean / a.mean - 8.0).abs() < 1e-9, "{a:?} {b:?}");
     assert!(b.mean > 1.0);
 }
@@ -372,8 +496,14 @@ fn basis_function_frame_rule_and_cosine() {
 fn lobe_slice_peaks_at_the_mirror_direction() {
     let brdf = AnalyticBrdf::new(BrdfModel::BlinnPhong, &[("n", 400.0)]).expect("valid");
     let lobe = incidence_plane_lobe(&brdf, 40f64.to_radians(), 0.0, 721);
-    let peak = lobe.iter().max_by(|a, b| a.value.total_cmp(&b.value)).expect("points");
-    assert!((peak.theta_o_rad.to_degrees() - 40.0).abs() < 0.5, "{peak:?}");
+    let peak = lobe
+        .iter()
+        .max_by(|a, b| a.value.total_cmp(&b.value))
+        .expect("points");
+    assert!(
+        (peak.theta_o_rad.to_degrees() - 40.0).abs() < 0.5,
+        "{peak:?}"
+    );
     assert!(lobe.iter().all(|p| p.theta_o_rad.abs() < FRAC_PI_2));
     let u = DVec2::new(0.3, 0.6);
     assert!(brdf.sample(DVec3::new(0.0, 0.0, -1.0), u).is_none());

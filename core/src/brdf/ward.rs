@@ -20,7 +20,10 @@ pub struct Ward {
 impl Ward {
     /// Roughnesses `ax`, `ay` in [1e-4, 1].
     pub fn new(ax: f64, ay: f64) -> Result<Self, BrdfError> {
-        Ok(Self { ax: validate(BrdfModel::Ward, 0, ax)?, ay: validate(BrdfModel::Ward, 1, ay)? })
+        Ok(Self {
+            ax: validate(BrdfModel::Ward, 0, ax)?,
+            ay: validate(BrdfModel::Ward, 1, ay)?,
+        })
     }
 
     pub fn ax(&self) -> f64 {

@@ -88,7 +88,11 @@ pub fn phong_lobe(axis: DVec3, n: f64, u: DVec2) -> DVec3 {
 #[inline]
 pub fn phong_lobe_pdf(axis: DVec3, n: f64, w: DVec3) -> f64 {
     let c = axis.dot(w);
-    if c <= 0.0 { 0.0 } else { (n + 1.0) / (2.0 * PI) * c.powf(n) }
+    if c <= 0.0 {
+        0.0
+    } else {
+        (n + 1.0) / (2.0 * PI) * c.powf(n)
+    }
 }
 
 /// Schlick's Fresnel approximation F = f0 + (1 - f0)(1 - c)^5.

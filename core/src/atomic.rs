@@ -8,7 +8,11 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 pub enum AtomicWriteError {
     #[error("cannot create a temporary file in `{dir}` to write `{path}`: {source}")]
-    CreateTemp { path: PathBuf, dir: PathBuf, source: io::Error },
+    CreateTemp {
+        path: PathBuf,
+        dir: PathBuf,
+        source: io::Error,
+    },
     #[error("cannot write `{path}`: {source}")]
     Write { path: PathBuf, source: io::Error },
     #[error("cannot replace `{path}` with the new version: {source}")]
@@ -34,7 +38,10 @@ where
             dir: dir.clone(),
             source,
         })?;
-    let write_err = |source| AtomicWriteError::Write { path: path.to_path_buf(), source };
+    let write_err = |source| AtomicWriteError::Write {
+        path: path.to_path_buf(),
+        source,
+    };
     {
         let mut out = BufWriter::new(temp.as_file());
         fill(&mut out).map_err(write_err)?;

@@ -42,13 +42,18 @@ pub struct SampleStream {
 
 impl SampleStream {
     pub fn new(key: &[u64]) -> Self {
-        Self { key_hash: hash_key(key), next_dim: 0 }
+        Self {
+            key_hash: hash_key(key),
+            next_dim: 0,
+        }
     }
 
     /// The uniform number of dimension `dim`, independent of the stream position.
     #[inline]
     pub fn at(&self, dim: u64) -> f64 {
-        unit_f64(mix64(self.key_hash ^ mix64(dim.wrapping_add(0x632b_e59b_d9b4_e019))))
+        unit_f64(mix64(
+            self.key_hash ^ mix64(dim.wrapping_add(0x632b_e59b_d9b4_e019)),
+        ))
     }
 
     /// The next dimension's uniform number.
@@ -106,7 +111,9 @@ mod tests {
     fn neighbouring_keys_are_uncorrelated() {
         // Lag-1 correlation between consecutive pixels' first dimension.
         let n = 200_000u64;
-        let xs: Vec<f64> = (0..n).map(|i| SampleStream::new(&[0, 0, i]).at(0) - 0.5).collect();
+        let xs: Vec<f64> = (0..n)
+            .map(|i| SampleStream::new(&[0, 0, i]).at(0) - 0.5)
+            .collect();
         let cov: f64 = xs.windows(2).map(|w| w[0] * w[1]).sum::<f64>() / (n - 1) as f64;
         let corr = cov / (1.0 / 12.0);
         assert!(corr.abs() < 0.01, "lag-1 correlation {corr}");

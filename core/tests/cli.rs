@@ -38,7 +38,11 @@ fn assert_bad_input(o: &Output, needles: &[&str]) {
     for needle in needles {
         assert!(lines[0].contains(needle), "`{needle}` missing from: {err}");
     }
-    assert!(o.stdout.is_empty(), "stdout must stay empty on error: {}", stdout(o));
+    assert!(
+        o.stdout.is_empty(),
+        "stdout must stay empty on error: {}",
+        stdout(o)
+    );
     assert!(!err.contains("panicked"), "{err}");
 }
 
@@ -48,8 +52,16 @@ fn brdf_eval_prints_one_value_per_row() {
     // unnormalised input directions are normalised by the tool.
     let input = "0,0,1,0,0,1\n\n# a comment\n0.3,0.1,2,0,-0.2,5\n0,0,-1,0,0,1\n";
     let o = meso(&["brdf", "eval", "--model", "lambertian"], input);
-    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
-    let values: Vec<f64> = stdout(&o).lines().map(|l| l.parse().expect("a number")).collect();
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let values: Vec<f64> = stdout(&o)
+        .lines()
+        .map(|l| l.parse().expect("a number"))
+        .collect();
     let inv_pi = std::f64::consts::FRAC_1_PI;
     assert_eq!(values.len(), 3);
     assert!((values[0] - inv_pi).abs() < 1e-8 * inv_pi);
@@ -60,8 +72,16 @@ fn brdf_eval_prints_one_value_per_row() {
 #[test]
 fn brdf_eval_blinn_phong_matches_closed_form() {
     // wi = wo = normal: cos_h = 1, so f = (n + 8) / (8 pi) exactly.
-    let o = meso(&["brdf", "eval", "--model", "blinn_phong", "--param", "n=120"], "0,0,1,0,0,1\n");
-    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = meso(
+        &["brdf", "eval", "--model", "blinn_phong", "--param", "n=120"],
+        "0,0,1,0,0,1\n",
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     let v: f64 = stdout(&o).trim().parse().expect("a number");
     let expected = 128.0 / (8.0 * std::f64::consts::PI);
     assert!((v - expected).abs() < 1e-8 * expected, "{v} vs {expected}");
@@ -70,10 +90,17 @@ fn brdf_eval_blinn_phong_matches_closed_form() {
 #[test]
 fn brdf_eval_json_is_one_object() {
     let o = meso(
-        &["brdf", "eval", "--model", "ward", "--param", "ax=0.2", "--param", "ay=0.1", "--json"],
+        &[
+            "brdf", "eval", "--model", "ward", "--param", "ax=0.2", "--param", "ay=0.1", "--json",
+        ],
         "0,0,1,0,0,1\n0.5,0,0.8,-0.5,0,0.8\n",
     );
-    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("stdout is JSON");
     assert_eq!(v["model"], "ward");
     assert_eq!(v["params"]["ax"], 0.2);
@@ -83,35 +110,78 @@ fn brdf_eval_json_is_one_object() {
 #[test]
 fn brdf_eval_bad_input_names_the_fault() {
     let ok_row = "0,0,1,0,0,1\n";
-    assert_bad_input(&meso(&["brdf", "eval", "--model", "phong"], ok_row), &["phong"]);
-    assert_bad_input(&meso(&["brdf", "eval", "--model", "ward", "--param", "ax=0.1"], ok_row), &["ay"]);
     assert_bad_input(
-        &meso(&["brdf", "eval", "--model", "ward", "--param", "ax=0.1", "--param", "ay=2"], ok_row),
+        &meso(&["brdf", "eval", "--model", "phong"], ok_row),
+        &["phong"],
+    );
+    assert_bad_input(
+        &meso(
+            &["brdf", "eval", "--model", "ward", "--param", "ax=0.1"],
+            ok_row,
+        ),
+        &["ay"],
+    );
+    assert_bad_input(
+        &meso(
+            &[
+                "brdf", "eval", "--model", "ward", "--param", "ax=0.1", "--param", "ay=2",
+            ],
+            ok_row,
+        ),
         &["ay", "2"],
     );
     assert_bad_input(
-        &meso(&["brdf", "eval", "--model", "ward", "--param", "ax=abc", "--param", "ay=0.1"], ok_row),
+        &meso(
+            &[
+                "brdf", "eval", "--model", "ward", "--param", "ax=abc", "--param", "ay=0.1",
+            ],
+            ok_row,
+        ),
         &["ax=abc"],
     );
-    assert_bad_input(&meso(&["brdf", "eval", "--model", "lambertian", "--param", "n=3"], ok_row), &["n"]);
     assert_bad_input(
-        &meso(&["brdf", "eval", "--model", "lambertian"], "0,0,1,0,0,1\n0,0,1,0,0\n"),
+        &meso(
+            &["brdf", "eval", "--model", "lambertian", "--param", "n=3"],
+            ok_row,
+        ),
+        &["n"],
+    );
+    assert_bad_input(
+        &meso(
+            &["brdf", "eval", "--model", "lambertian"],
+            "0,0,1,0,0,1\n0,0,1,0,0\n",
+        ),
         &["line 2", "6"],
     );
     assert_bad_input(
-        &meso(&["brdf", "eval", "--model", "lambertian"], "0,0,1,0,0,1\n0,0,1,0,zero,1\n"),
+        &meso(
+            &["brdf", "eval", "--model", "lambertian"],
+            "0,0,1,0,0,1\n0,0,1,0,zero,1\n",
+        ),
         &["line 2", "zero"],
     );
     assert_bad_input(
-        &meso(&["brdf", "eval", "--model", "lambertian"], "0,0,1,0,0,1\n\n0,0,0,0,0,1\n"),
+        &meso(
+            &["brdf", "eval", "--model", "lambertian"],
+            "0,0,1,0,0,1\n\n0,0,0,0,0,1\n",
+        ),
         &["line 3", "wi", "zero vector"],
     );
-    assert_bad_input(&meso(&["brdf", "eval", "--model", "lambertian"], "0,0,1,nan,0,1\n"), &["line 1", "wo"]);
+    assert_bad_input(
+        &meso(
+            &["brdf", "eval", "--model", "lambertian"],
+            "0,0,1,nan,0,1\n",
+        ),
+        &["line 1", "wo"],
+    );
 }
 
 #[test]
 fn usage_errors_are_one_line_and_exit_2() {
-    assert_bad_input(&meso(&["brdf", "eval", "--modle", "ward"], ""), &["--modle"]);
+    assert_bad_input(
+        &meso(&["brdf", "eval", "--modle", "ward"], ""),
+        &["--modle"],
+    );
     assert_bad_input(&meso(&["render-everything"], ""), &["render-everything"]);
     let help = meso(&["--help"], "");
     assert_eq!(help.status.code(), Some(0));
@@ -121,10 +191,25 @@ fn usage_errors_are_one_line_and_exit_2() {
 #[test]
 fn brdf_albedo_of_lambertian_is_one() {
     let o = meso(
-        &["brdf", "albedo", "--model", "lambertian", "--theta-deg", "0,60", "--samples", "20000", "--json"],
+        &[
+            "brdf",
+            "albedo",
+            "--model",
+            "lambertian",
+            "--theta-deg",
+            "0,60",
+            "--samples",
+            "20000",
+            "--json",
+        ],
         "",
     );
-    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
     let rows = v["albedo"].as_array().expect("table");
     assert_eq!(rows.len(), 2);
@@ -134,7 +219,17 @@ fn brdf_albedo_of_lambertian_is_one() {
         assert!((a - 1.0).abs() < 1e-9, "{row}");
     }
     assert_bad_input(
-        &meso(&["brdf", "albedo", "--model", "lambertian", "--theta-deg", "95"], ""),
+        &meso(
+            &[
+                "brdf",
+                "albedo",
+                "--model",
+                "lambertian",
+                "--theta-deg",
+                "95",
+            ],
+            "",
+        ),
         &["95", "[0, 90)"],
     );
 }
@@ -165,7 +260,12 @@ fn compare_reports_metrics_and_rejects_bad_pairs() {
     let (a_s, b_s) = (a.to_str().expect("utf-8"), b.to_str().expect("utf-8"));
 
     let same = meso(&["compare", a_s, a_s, "--json"], "");
-    assert_eq!(same.status.code(), Some(0), "{}", String::from_utf8_lossy(&same.stderr));
+    assert_eq!(
+        same.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&same.stderr)
+    );
     let v: serde_json::Value = serde_json::from_str(&stdout(&same)).expect("JSON");
     assert_eq!(v["rmse"], 0.0);
     assert_eq!(v["mssim"], 1.0);
@@ -177,7 +277,10 @@ fn compare_reports_metrics_and_rejects_bad_pairs() {
     // RMSE over 32*24 pixels x 3 channels with one entry off by 0.1.
     let expected_rmse = (0.01f64 / (32.0 * 24.0 * 3.0)).sqrt();
     let rmse = v["rmse"].as_f64().expect("rmse");
-    assert!((rmse - expected_rmse).abs() < 1e-6 * expected_rmse + 1e-9, "{rmse}");
+    assert!(
+        (rmse - expected_rmse).abs() < 1e-6 * expected_rmse + 1e-9,
+        "{rmse}"
+    );
     assert!((v["max_abs_error"].as_f64().expect("max") - 0.1).abs() < 1e-6);
     assert_eq!(v["max_error_pixel"], serde_json::json!([5, 7]));
     assert!(v["mssim"].as_f64().expect("mssim") < 1.0);
@@ -189,10 +292,16 @@ fn compare_reports_metrics_and_rejects_bad_pairs() {
     let small_s = small.to_str().expect("utf-8");
     assert_bad_input(&meso(&["compare", a_s, small_s], ""), &["32x24", "16x24"]);
     let missing = dir.path().join("missing.exr");
-    assert_bad_input(&meso(&["compare", a_s, missing.to_str().expect("utf-8")], ""), &["missing.exr"]);
+    assert_bad_input(
+        &meso(&["compare", a_s, missing.to_str().expect("utf-8")], ""),
+        &["missing.exr"],
+    );
     let garbage = dir.path().join("garbage.exr");
     std::fs::write(&garbage, b"not an exr at all").expect("write");
-    assert_bad_input(&meso(&["compare", garbage.to_str().expect("utf-8"), a_s], ""), &["garbage.exr"]);
+    assert_bad_input(
+        &meso(&["compare", garbage.to_str().expect("utf-8"), a_s], ""),
+        &["garbage.exr"],
+    );
 }
 
 #[test]
@@ -200,8 +309,19 @@ fn plot_writes_a_png_and_a_failed_write_keeps_what_was_there() {
     let dir = tempfile::tempdir().expect("temp dir");
     let out = dir.path().join("lobe.png");
     let out_s = out.to_str().expect("utf-8");
-    let o = meso(&["brdf", "plot", "--model", "ward", "--param", "ax=0.2", "--param", "ay=0.2", "-o", out_s], "");
-    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = meso(
+        &[
+            "brdf", "plot", "--model", "ward", "--param", "ax=0.2", "--param", "ay=0.2", "-o",
+            out_s,
+        ],
+        "",
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     let png = meso_core::image::read_image(&out).expect("a readable PNG");
     assert_eq!(png.width(), 480);
     // The plot is not blank: some pixels are far from the white background.
@@ -212,11 +332,32 @@ fn plot_writes_a_png_and_a_failed_write_keeps_what_was_there() {
     let blocker = dir.path().join("blocker.png");
     std::fs::create_dir(&blocker).expect("mkdir");
     std::fs::write(blocker.join("keep.txt"), b"keep me").expect("write");
-    let o = meso(&["brdf", "plot", "--model", "lambertian", "-o", blocker.to_str().expect("utf-8")], "");
-    assert_eq!(o.status.code(), Some(1), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = meso(
+        &[
+            "brdf",
+            "plot",
+            "--model",
+            "lambertian",
+            "-o",
+            blocker.to_str().expect("utf-8"),
+        ],
+        "",
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.starts_with("error: ") && err.contains("blocker.png"), "{err}");
-    assert_eq!(std::fs::read(blocker.join("keep.txt")).expect("kept"), b"keep me");
+    assert!(
+        err.starts_with("error: ") && err.contains("blocker.png"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(blocker.join("keep.txt")).expect("kept"),
+        b"keep me"
+    );
     let leftovers: Vec<_> = std::fs::read_dir(dir.path())
         .expect("list")
         .filter_map(|e| e.ok())

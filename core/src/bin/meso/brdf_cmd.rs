@@ -91,10 +91,21 @@ impl ModelArgs {
 pub fn run(command: BrdfCommand) -> Result<(), CliError> {
     match command {
         BrdfCommand::Eval { model, json } => eval(&model, json),
-        BrdfCommand::Albedo { model, theta_deg, phi_deg, samples, seed, json } => {
-            albedo(&model, &theta_deg, phi_deg, samples, seed, json)
-        }
-        BrdfCommand::Plot { model, theta_i_deg, phi_deg, size, output } => {
+        BrdfCommand::Albedo {
+            model,
+            theta_deg,
+            phi_deg,
+            samples,
+            seed,
+            json,
+        } => albedo(&model, &theta_deg, phi_deg, samples, seed, json),
+        BrdfCommand::Plot {
+            model,
+            theta_i_deg,
+            phi_deg,
+            size,
+            output,
+        } => {
             let brdf = model.build()?;
             crate::plot::write_lobe_plot(&brdf, theta_i_deg, phi_deg, size, &output)
         }
@@ -144,7 +155,10 @@ pub fn parse_direction_rows(input: impl BufRead) -> Result<Vec<(DVec3, DVec3)>, 
         let mut v = [0.0f64; 6];
         for (k, field) in fields.iter().enumerate() {
             v[k] = field.parse().map_err(|_| {
-                CliError::bad_input(anyhow!("stdin line {line_no}, field {}: `{field}` is not a number", k + 1))
+                CliError::bad_input(anyhow!(
+                    "stdin line {line_no}, field {}: `{field}` is not a number",
+                    k + 1
+                ))
             })?;
         }
         let wi = unit_direction(DVec3::new(v[0], v[1], v[2]), "wi", line_no)?;
@@ -156,7 +170,9 @@ pub fn parse_direction_rows(input: impl BufRead) -> Result<Vec<(DVec3, DVec3)>, 
 
 fn unit_direction(v: DVec3, name: &str, line_no: usize) -> Result<DVec3, CliError> {
     if !v.is_finite() {
-        return Err(CliError::bad_input(anyhow!("stdin line {line_no}: {name} = {v} is not finite")));
+        return Err(CliError::bad_input(anyhow!(
+            "stdin line {line_no}: {name} = {v} is not finite"
+        )));
     }
     let len = v.length();
     if len == 0.0 || !len.is_finite() {
@@ -190,7 +206,9 @@ fn albedo(
         return Err(CliError::bad_input(anyhow!("--samples must be at least 1")));
     }
     if !phi_deg.is_finite() {
-        return Err(CliError::bad_input(anyhow!("--phi-deg {phi_deg} is not finite")));
+        return Err(CliError::bad_input(anyhow!(
+            "--phi-deg {phi_deg} is not finite"
+        )));
     }
     let mut rows = Vec::with_capacity(theta_deg.len());
     for &theta in theta_deg {

@@ -25,12 +25,20 @@ pub struct CompareArgs {
 
 pub fn run(args: &CompareArgs) -> Result<(), CliError> {
     if !args.exposure.is_finite() {
-        return Err(CliError::bad_input(anyhow!("--exposure {} is not finite", args.exposure)));
+        return Err(CliError::bad_input(anyhow!(
+            "--exposure {} is not finite",
+            args.exposure
+        )));
     }
-    let reference = image::read_image(&args.reference).bad_input_ctx(|| "reference image".into())?;
+    let reference =
+        image::read_image(&args.reference).bad_input_ctx(|| "reference image".into())?;
     let test = image::read_image(&args.test).bad_input_ctx(|| "test image".into())?;
     let c = metrics::compare(&reference, &test, args.exposure).bad_input_ctx(|| {
-        format!("comparing `{}` with `{}`", args.test.display(), args.reference.display())
+        format!(
+            "comparing `{}` with `{}`",
+            args.test.display(),
+            args.reference.display()
+        )
     })?;
     if args.json {
         return crate::print_json(&json!({
@@ -47,7 +55,12 @@ pub fn run(args: &CompareArgs) -> Result<(), CliError> {
             "max_error_pixel": c.max_error_pixel,
         }));
     }
-    println!("reference  {} ({}x{})", args.reference.display(), c.width, c.height);
+    println!(
+        "reference  {} ({}x{})",
+        args.reference.display(),
+        c.width,
+        c.height
+    );
     println!("test       {}", args.test.display());
     println!("RMSE       {:.6e}", c.rmse);
     if c.psnr_db.is_finite() {

@@ -17,10 +17,16 @@ pub struct CliError {
 
 impl CliError {
     pub fn bad_input(error: impl Into<anyhow::Error>) -> Self {
-        Self { bad_input: true, error: error.into() }
+        Self {
+            bad_input: true,
+            error: error.into(),
+        }
     }
     pub fn failure(error: impl Into<anyhow::Error>) -> Self {
-        Self { bad_input: false, error: error.into() }
+        Self {
+            bad_input: false,
+            error: error.into(),
+        }
     }
 }
 
@@ -44,7 +50,11 @@ pub fn report(err: &CliError) -> ExitCode {
     // `{:#}` joins anyhow's context chain with ": " on one line.
     let line = format!("{:#}", err.error).replace('\n', " ");
     eprintln!("error: {line}");
-    ExitCode::from(if err.bad_input { EXIT_BAD_INPUT } else { EXIT_FAILURE })
+    ExitCode::from(if err.bad_input {
+        EXIT_BAD_INPUT
+    } else {
+        EXIT_FAILURE
+    })
 }
 
 /// Help and version go to stdout with exit 0; a usage error becomes one `error:`

@@ -14,7 +14,11 @@ use clap::{Parser, Subcommand};
 use failure::CliError;
 
 #[derive(Parser, Debug)]
-#[command(name = "meso", version, about = "Meso: headless material rendering tools")]
+#[command(
+    name = "meso",
+    version,
+    about = "Meso: headless material rendering tools"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

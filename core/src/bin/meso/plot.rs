@@ -34,10 +34,14 @@ pub fn write_lobe_plot(
         )));
     }
     if !phi_deg.is_finite() {
-        return Err(CliError::bad_input(anyhow!("--phi-deg {phi_deg} is not finite")));
+        return Err(CliError::bad_input(anyhow!(
+            "--phi-deg {phi_deg} is not finite"
+        )));
     }
     if !(64..=4096).contains(&size) {
-        return Err(CliError::bad_input(anyhow!("--size {size}: must lie in [64, 4096] pixels")));
+        return Err(CliError::bad_input(anyhow!(
+            "--size {size}: must lie in [64, 4096] pixels"
+        )));
     }
     let lobe = incidence_plane_lobe(brdf, theta_i_deg.to_radians(), phi_deg.to_radians(), 721);
     let peak = lobe.iter().map(|p| p.value).fold(0.0f64, f64::max);
@@ -58,7 +62,12 @@ pub fn write_lobe_plot(
         canvas.polyline(&arc, width * 0.75, GRID);
     }
     for k in (-90..=90).step_by(15) {
-        canvas.line(origin, origin + dir((k as f64).to_radians()) * radius, width * 0.5, GRID);
+        canvas.line(
+            origin,
+            origin + dir((k as f64).to_radians()) * radius,
+            width * 0.5,
+            GRID,
+        );
     }
     canvas.line(
         origin - DVec2::new(radius * 1.05, 0.0),
@@ -67,8 +76,19 @@ pub fn write_lobe_plot(
         SURFACE,
     );
     let theta_i = theta_i_deg.to_radians();
-    canvas.line(origin, origin + dir(-theta_i) * radius, width * 1.5, INCIDENT);
-    canvas.dashed(origin, origin + dir(theta_i) * radius, width, MIRROR, s / 40.0);
+    canvas.line(
+        origin,
+        origin + dir(-theta_i) * radius,
+        width * 1.5,
+        INCIDENT,
+    );
+    canvas.dashed(
+        origin,
+        origin + dir(theta_i) * radius,
+        width,
+        MIRROR,
+        s / 40.0,
+    );
     if peak > 0.0 && peak.is_finite() {
         let curve: Vec<DVec2> = lobe
             .iter()
@@ -78,7 +98,10 @@ pub fn write_lobe_plot(
     }
     image::write_png(output, &canvas.image, 0.0)
         .failure_ctx(|| format!("writing the plot `{}`", output.display()))?;
-    println!("wrote {} (largest value {peak:.6e} 1/sr = outer ring)", output.display());
+    println!(
+        "wrote {} (largest value {peak:.6e} 1/sr = outer ring)",
+        output.display()
+    );
     Ok(())
 }
 
@@ -117,7 +140,8 @@ impl Canvas {
         for y in y0..=(y1 as u32) {
             for x in x0..=(x1 as u32) {
                 let p = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
-                let coverage = (width * 0.5 + 0.5 - distance_to_segment(p, a, b)).clamp(0.0, 1.0) as f32;
+                let coverage =
+                    (width * 0.5 + 0.5 - distance_to_segment(p, a, b)).clamp(0.0, 1.0) as f32;
                 if coverage > 0.0 {
                     let old = self.image.get(x, y);
                     let mixed = std::array::from_fn(|c| old[c] + (color[c] - old[c]) * coverage);
@@ -147,6 +171,10 @@ impl Canvas {
 fn distance_to_segment(p: DVec2, a: DVec2, b: DVec2) -> f64 {
     let ab = b - a;
     let len2 = ab.length_squared();
-    let t = if len2 > 0.0 { ((p - a).dot(ab) / len2).clamp(0.0, 1.0) } else { 0.0 };
+    let t = if len2 > 0.0 {
+        ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
     p.distance(a + ab * t)
 }

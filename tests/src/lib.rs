@@ -1,2 +1,8 @@
-//! Workspace-level tests.
-#[cfg(test)] mod metrics_reference;
+//! Workspace-level tests: Meso's code against values derived independently of it
+//! (the scripts that made them and their outputs live in tests/reference/), and,
+//! as render modes arrive, image regressions against golden references.
+
+#[cfg(test)]
+mod brdf_reference;
+#[cfg(test)]
+mod metrics_reference;

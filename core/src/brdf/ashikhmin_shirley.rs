@@ -47,7 +47,7 @@ impl AshikhminShirley {
             return 1.0;
         }
         let e = (self.nu * h.x * h.x + self.nv * h.y * h.y) / t;
-        (e * warp::ln_cos_from_tangential(h)).exp()
+        (e * warp::ln_cos(h)).exp()
     }
 
     #[inline]
@@ -63,7 +63,7 @@ impl AshikhminShirley {
             return 0.0;
         }
         self.norm() / (8.0 * PI) * self.cos_h_pow_e(h) / (wi_h * wi.z.max(wo.z))
-            * warp::schlick(self.rs, wi_h)
+            * warp::schlick(self.rs, wi, h)
     }
 
     /// phi = atan2(sqrt(nu+1) sin 2 pi u, sqrt(nv+1) cos 2 pi u),

@@ -37,7 +37,7 @@ impl BlinnPhong {
         if self.n == 0.0 {
             1.0
         } else {
-            (self.n * warp::ln_cos_from_tangential(h)).exp()
+            (self.n * warp::ln_cos(h)).exp()
         }
     }
 

@@ -56,11 +56,10 @@ impl CookTorrance {
         }
         let h = s.normalize();
         let wo_h = wo.dot(h);
-        let wi_h = wi.dot(h);
         let g = 1.0f64
             .min(2.0 * h.z * wo.z / wo_h)
             .min(2.0 * h.z * wi.z / wo_h);
-        d * warp::schlick(self.f0, wi_h) * g / (4.0 * wi.z * wo.z)
+        d * warp::schlick(self.f0, wi, h) * g / (4.0 * wi.z * wo.z)
     }
 
     /// tan^2 theta_h = -m^2 ln(1 - u), phi_h uniform.

@@ -53,13 +53,18 @@ pub fn half_to_wi_pdf(wo: DVec3, wi: DVec3, pdf_half: impl FnOnce(DVec3) -> f64)
     pdf_half(h) / (4.0 * d)
 }
 
-/// ln(cos_h) from the half vector's tangential part, accurate when h is near the
-/// normal: cos_h^n for n up to 1e5 is then exp(n ln cos_h) without amplifying the
-/// rounding of cos_h itself.
+/// ln(cos_h) of a unit half vector, accurate everywhere: near the normal it comes
+/// from the tangential part, ln cos = ln(1 - t)/2 with t = h.x^2 + h.y^2 (cos_h itself
+/// would carry a rounding error that cos_h^n amplifies n-fold, n up to 1e5); near the
+/// horizon 1 - t cancels, and ln(h.z) is the accurate form.
 #[inline]
-pub fn ln_cos_from_tangential(h: DVec3) -> f64 {
-    let t = (h.x * h.x + h.y * h.y).min(1.0);
-    0.5 * (-t).ln_1p()
+pub fn ln_cos(h: DVec3) -> f64 {
+    let t = h.x * h.x + h.y * h.y;
+    if t < 0.5 {
+        0.5 * (-t).ln_1p()
+    } else {
+        h.z.ln()
+    }
 }
 
 /// Two unit vectors completing `n` to a right-handed orthonormal basis (Duff et al.
@@ -95,10 +100,11 @@ pub fn phong_lobe_pdf(axis: DVec3, n: f64, w: DVec3) -> f64 {
     }
 }
 
-/// Schlick's Fresnel approximation F = f0 + (1 - f0)(1 - c)^5.
+/// Schlick's Fresnel approximation F = f0 + (1 - f0)(1 - c)^5 for c = wi.h, taking
+/// 1 - c = |wi - h|^2 / 2 (unit vectors): exact where wi ~ h, where 1 - wi.h cancels.
 #[inline]
-pub fn schlick(f0: f64, cos: f64) -> f64 {
-    let m = (1.0 - cos).clamp(0.0, 1.0);
+pub fn schlick(f0: f64, wi: DVec3, h: DVec3) -> f64 {
+    let m = (0.5 * (wi - h).length_squared()).clamp(0.0, 1.0);
     let m2 = m * m;
     f0 + (1.0 - f0) * m2 * m2 * m
 }

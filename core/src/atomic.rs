@@ -47,6 +47,14 @@ where
         fill(&mut out).map_err(write_err)?;
         out.flush().map_err(write_err)?;
     }
+    // The temporary is created private (0600); give the result the permissions of the
+    // file it replaces, or the usual 0644 for a new file.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = std::fs::metadata(path).map(|m| m.permissions().mode() & 0o7777).unwrap_or(0o644);
+        temp.as_file().set_permissions(std::fs::Permissions::from_mode(mode)).map_err(write_err)?;
+    }
     temp.as_file().sync_all().map_err(write_err)?;
     temp.persist(path).map_err(|e| AtomicWriteError::Persist {
         path: path.to_path_buf(),
@@ -90,6 +98,20 @@ mod tests {
             .map(|e| e.expect("entry").file_name())
             .collect();
         assert_eq!(names.len(), 1, "left behind: {names:?}");
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn new_files_are_readable_and_replaced_files_keep_their_mode() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().expect("temp dir");
+        let path = dir.path().join("out.txt");
+        write_bytes_atomic(&path, b"new").expect("write");
+        let mode = |p: &Path| std::fs::metadata(p).expect("stat").permissions().mode() & 0o777;
+        assert_eq!(mode(&path), 0o644);
+        std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).expect("chmod");
+        write_bytes_atomic(&path, b"again").expect("rewrite");
+        assert_eq!(mode(&path), 0o600);
     }
 
     #[test]

@@ -38,7 +38,8 @@ impl Default for Settings {
             plane_azimuth_deg: 0.0,
             light_elevation_deg: 35.0,
             light_azimuth_deg: 135.0,
-            exposure_stops: 0.0,
+            // Specular highlights of the defaults reach a few times the white level.
+            exposure_stops: -2.0,
             scale: Scale::Linear,
         }
     }

@@ -461,9 +461,11 @@ mod tests {
 
     #[test]
     fn settings_round_trip_and_invalid_ones_fall_back() {
-        let mut s = Settings::default();
-        s.model = "blinn_phong".into();
-        s.params = vec![("n".into(), 300.0)];
+        let mut s = Settings {
+            model: "blinn_phong".into(),
+            params: vec![("n".into(), 300.0)],
+            ..Default::default()
+        };
         let ex = Explorer::from_settings(s.clone());
         assert_eq!(ex.brdf().param_values(), vec![300.0]);
         assert_eq!(ex.settings(), s);

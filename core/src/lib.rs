@@ -10,3 +10,4 @@ pub mod brdf;
 pub mod image;
 pub mod metrics;
 pub mod rng;
+pub mod spmm;

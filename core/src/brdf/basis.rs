@@ -9,6 +9,8 @@ use super::{AnalyticBrdf, BrdfError, Frame};
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BasisFunction {
     brdf: AnalyticBrdf,
+    /// As given (unit within 1e-3), so a pack saves exactly what it loaded.
+    normal: DVec3,
     frame: Frame,
 }
 
@@ -24,6 +26,7 @@ impl BasisFunction {
         }
         Ok(Self {
             brdf,
+            normal,
             frame: Frame::from_normal_spmm(normal / len),
         })
     }
@@ -32,8 +35,9 @@ impl BasisFunction {
         &self.brdf
     }
 
+    /// The normal as given; `frame().z` is its normalised form used for shading.
     pub fn normal(&self) -> DVec3 {
-        self.frame.z
+        self.normal
     }
 
     pub fn frame(&self) -> &Frame {

@@ -1,0 +1,9 @@
+//! SPMM materials (Silva & Santos 2013 eq. 1-3, after Wu et al. 2011): per-texel
+//! sparse RGB weights over a per-cluster dictionary of analytic basis functions, plus
+//! a per-cluster PCA residual tabulated on the BTF's direction sets. `material.rs`
+//! holds the model with its invariants; `pack.rs` the `.spmm` file (docs/formats/spmm.md).
+
+mod material;
+pub mod pack;
+
+pub use material::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial};

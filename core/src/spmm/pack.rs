@@ -1,0 +1,604 @@
+//! The `.spmm` pack: an SPMM material in the safetensors container (named tensors and a
+//! string metadata map with `format = "meso-spmm"`, `version = "1"`), specified in
+//! docs/formats/spmm.md. Reading parses the container with the `safetensors` crate
+//! (offsets and sizes checked against the real file, so a lying header cannot make
+//! it allocate) and then checks every shape, dtype, index and range before building
+//! the material. Writing emits a deterministic header, so save -> load -> save is
+//! byte-identical, and goes through `atomic::write_atomic`.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+use safetensors::{Dtype, SafeTensors};
+use serde_json::json;
+
+use super::material::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial};
+use crate::atomic::{AtomicWriteError, write_bytes_atomic};
+use crate::brdf::{AnalyticBrdf, BasisFunction, BrdfError, BrdfModel};
+
+pub const FORMAT: &str = "meso-spmm";
+pub const VERSION: &str = "1";
+/// Columns of `basis_params`: enough for the model with the most parameters.
+pub const PARAM_COLUMNS: usize = 4;
+/// Packs larger than this are refused before reading (a material is MBs, not GBs).
+pub const MAX_FILE_BYTES: u64 = 1 << 31;
+
+/// Precision of the residual tables on disk (f16 halves the largest part of a pack).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ResidualPrecision {
+    F16,
+    F32,
+}
+
+/// A pack that cannot be read or written: the file and what is wrong with it.
+#[derive(Debug, thiserror::Error)]
+#[error("`{}`: {kind}", path.display())]
+pub struct PackError {
+    pub path: PathBuf,
+    pub kind: PackErrorKind,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum PackErrorKind {
+    #[error("cannot read: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("file is {0} bytes, more than the {MAX_FILE_BYTES} a pack may have")]
+    TooLarge(u64),
+    #[error("not a valid safetensors container: {0}")]
+    Container(String),
+    #[error("metadata `{key}`: {problem}")]
+    Metadata { key: &'static str, problem: String },
+    #[error("tensor `{0}` is missing")]
+    MissingTensor(&'static str),
+    #[error("tensor `{0}` is not part of format version 1")]
+    UnknownTensor(String),
+    #[error("tensor `{name}` has dtype {found}, expected {expected}")]
+    Dtype {
+        name: &'static str,
+        found: String,
+        expected: &'static str,
+    },
+    #[error("tensor `{name}` has shape {found:?}, expected {expected:?}")]
+    Shape {
+        name: &'static str,
+        found: Vec<usize>,
+        expected: Vec<usize>,
+    },
+    #[error(
+        "tensor `basis_model`[{index}] = {value}: model ids are 0..=6 (lambertian .. ashikhmin_shirley)"
+    )]
+    ModelId { index: usize, value: u8 },
+    #[error("basis {index} (tensors basis_params/basis_normal row {index}): {source}")]
+    Basis { index: usize, source: BrdfError },
+    #[error("tensor `cluster_basis_offsets`: {0}")]
+    ClusterOffsets(String),
+    #[error("{0}")]
+    Material(#[from] SpmmError),
+    #[error("cannot write: {0}")]
+    Write(#[from] AtomicWriteError),
+}
+
+/// The model id stored in `basis_model`: the index in `BrdfModel::ALL`.
+pub fn model_id(model: BrdfModel) -> u8 {
+    BrdfModel::ALL
+        .iter()
+        .position(|m| *m == model)
+        .expect("ALL lists every model") as u8
+}
+
+/// Reads and validates a pack file.
+pub fn read_pack(path: &Path) -> Result<SpmmMaterial, PackError> {
+    let at = |kind| PackError {
+        path: path.to_path_buf(),
+        kind,
+    };
+    let len = std::fs::metadata(path).map_err(|e| at(e.into()))?.len();
+    if len > MAX_FILE_BYTES {
+        return Err(at(PackErrorKind::TooLarge(len)));
+    }
+    let bytes = std::fs::read(path).map_err(|e| at(e.into()))?;
+    decode_pack(&bytes).map_err(at)
+}
+
+/// Writes a pack atomically (the previous file survives a failed write).
+pub fn write_pack(
+    path: &Path,
+    material: &SpmmMaterial,
+    precision: ResidualPrecision,
+) -> Result<(), PackError> {
+    write_bytes_atomic(path, &encode_pack(material, precision)).map_err(|e| PackError {
+        path: path.to_path_buf(),
+        kind: e.into(),
+    })
+}
+
+struct Tensor {
+    dtype: Dtype,
+    shape: Vec<usize>,
+    data: Vec<u8>,
+}
+
+fn le_bytes<T: Copy, const N: usize>(values: &[T], to: impl Fn(T) -> [u8; N]) -> Vec<u8> {
+    values.iter().flat_map(|v| to(*v)).collect()
+}
+
+fn dtype_name(d: Dtype) -> &'static str {
+    match d {
+        Dtype::U8 => "U8",
+        Dtype::U16 => "U16",
+        Dtype::U32 => "U32",
+        Dtype::F16 => "F16",
+        Dtype::F32 => "F32",
+        Dtype::F64 => "F64",
+        _ => "other",
+    }
+}
+
+/// Serialises a material. The header lists tensors by name with sorted keys, and the
+/// data follows in the order of decreasing element size then name, so every tensor
+/// starts aligned to its element size.
+pub fn encode_pack(m: &SpmmMaterial, precision: ResidualPrecision) -> Vec<u8> {
+    let mut tensors: BTreeMap<&'static str, Tensor> = BTreeMap::new();
+    let (w, h) = (m.width() as usize, m.height() as usize);
+    let mut put = |name, dtype, shape: Vec<usize>, data| {
+        tensors.insert(name, Tensor { dtype, shape, data });
+    };
+    put(
+        "texel_cluster",
+        Dtype::U32,
+        vec![h, w],
+        le_bytes(m.texel_cluster(), u32::to_le_bytes),
+    );
+    let bases: Vec<&BasisFunction> = m.clusters().iter().flat_map(|c| &c.bases).collect();
+    let mut offsets = vec![0u32];
+    for c in m.clusters() {
+        offsets.push(offsets.last().copied().unwrap_or(0) + c.bases.len() as u32);
+    }
+    put(
+        "cluster_basis_offsets",
+        Dtype::U32,
+        vec![offsets.len()],
+        le_bytes(&offsets, u32::to_le_bytes),
+    );
+    let models: Vec<u8> = bases.iter().map(|b| model_id(b.brdf().model())).collect();
+    put("basis_model", Dtype::U8, vec![bases.len()], models);
+    let params: Vec<f64> = bases
+        .iter()
+        .flat_map(|b| {
+            let mut row = [0.0; PARAM_COLUMNS];
+            for (slot, v) in row.iter_mut().zip(b.brdf().param_values()) {
+                *slot = v;
+            }
+            row
+        })
+        .collect();
+    put(
+        "basis_params",
+        Dtype::F64,
+        vec![bases.len(), PARAM_COLUMNS],
+        le_bytes(&params, f64::to_le_bytes),
+    );
+    let normals: Vec<f64> = bases.iter().flat_map(|b| b.normal().to_array()).collect();
+    put(
+        "basis_normal",
+        Dtype::F64,
+        vec![bases.len(), 3],
+        le_bytes(&normals, f64::to_le_bytes),
+    );
+    let wts = m.weights();
+    put(
+        "weight_offsets",
+        Dtype::U32,
+        vec![wts.offsets.len()],
+        le_bytes(&wts.offsets, u32::to_le_bytes),
+    );
+    put(
+        "weight_basis",
+        Dtype::U16,
+        vec![wts.basis.len()],
+        le_bytes(&wts.basis, u16::to_le_bytes),
+    );
+    put(
+        "weight_rgb",
+        Dtype::F32,
+        vec![wts.rgb.len(), 3],
+        le_bytes(wts.rgb.as_flattened(), f32::to_le_bytes),
+    );
+    if let Some(r) = m.residual() {
+        let dirs = |d: &[DVec3]| {
+            le_bytes(
+                &d.iter().flat_map(|v| v.to_array()).collect::<Vec<_>>(),
+                f64::to_le_bytes,
+            )
+        };
+        put(
+            "light_dirs",
+            Dtype::F64,
+            vec![r.light_dirs.len(), 3],
+            dirs(&r.light_dirs),
+        );
+        put(
+            "view_dirs",
+            Dtype::F64,
+            vec![r.view_dirs.len(), 3],
+            dirs(&r.view_dirs),
+        );
+        let (c, l, v, k) = (
+            m.clusters().len(),
+            r.light_dirs.len(),
+            r.view_dirs.len(),
+            r.npca,
+        );
+        let table = |values: &[f32]| match precision {
+            ResidualPrecision::F32 => (Dtype::F32, le_bytes(values, f32::to_le_bytes)),
+            ResidualPrecision::F16 => (
+                Dtype::F16,
+                le_bytes(values, |x| half::f16::from_f32(x).to_le_bytes()),
+            ),
+        };
+        let (dt, data) = table(&r.mean);
+        put("residual_mean", dt, vec![c, l, v, 3], data);
+        let (dt, data) = table(&r.components);
+        put("residual_components", dt, vec![c, k, l, v, 3], data);
+        put(
+            "residual_coefficients",
+            Dtype::F32,
+            vec![w * h, k],
+            le_bytes(&r.coefficients, f32::to_le_bytes),
+        );
+    }
+
+    let mut order: Vec<&'static str> = tensors.keys().copied().collect();
+    order.sort_by_key(|name| (std::cmp::Reverse(tensors[name].dtype.bitsize()), *name));
+    let mut header = serde_json::Map::new();
+    let metadata = json!({
+        "format": FORMAT,
+        "version": VERSION,
+        "name": m.name(),
+        "provenance": m.provenance(),
+        "edited": if m.edited() { "true" } else { "false" },
+        "width": m.width().to_string(),
+        "height": m.height().to_string(),
+        "clusters": m.clusters().len().to_string(),
+        "npca": m.npca().to_string(),
+    });
+    header.insert("__metadata__".into(), metadata);
+    let mut offset = 0usize;
+    for name in &order {
+        let t = &tensors[name];
+        header.insert(
+            name.to_string(),
+            json!({"dtype": dtype_name(t.dtype), "shape": t.shape, "data_offsets": [offset, offset + t.data.len()]}),
+        );
+        offset += t.data.len();
+    }
+    let mut header_bytes = serde_json::to_vec(&serde_json::Value::Object(header))
+        .expect("a JSON map always serialises");
+    // The container pads the header with spaces so the data starts 8-byte aligned.
+    while header_bytes.len() % 8 != 0 {
+        header_bytes.push(b' ');
+    }
+    let mut out = Vec::with_capacity(8 + header_bytes.len() + offset);
+    out.extend_from_slice(&(header_bytes.len() as u64).to_le_bytes());
+    out.extend_from_slice(&header_bytes);
+    for name in &order {
+        out.extend_from_slice(&tensors[name].data);
+    }
+    out
+}
+
+const KNOWN_TENSORS: [&str; 13] = [
+    "texel_cluster",
+    "cluster_basis_offsets",
+    "basis_model",
+    "basis_params",
+    "basis_normal",
+    "weight_offsets",
+    "weight_basis",
+    "weight_rgb",
+    "light_dirs",
+    "view_dirs",
+    "residual_mean",
+    "residual_components",
+    "residual_coefficients",
+];
+
+/// The validated contents of one tensor, typed.
+struct Reader<'a> {
+    st: SafeTensors<'a>,
+}
+
+impl<'a> Reader<'a> {
+    fn view(
+        &self,
+        name: &'static str,
+        dtypes: &[Dtype],
+        expected: &[Option<usize>],
+    ) -> Result<(Dtype, Vec<usize>, &'a [u8]), PackErrorKind> {
+        let t = self
+            .st
+            .tensor(name)
+            .map_err(|_| PackErrorKind::MissingTensor(name))?;
+        if !dtypes.contains(&t.dtype()) {
+            let expected = if dtypes.len() == 1 {
+                dtype_name(dtypes[0])
+            } else {
+                "F16 or F32"
+            };
+            return Err(PackErrorKind::Dtype {
+                name,
+                found: format!("{:?}", t.dtype()),
+                expected,
+            });
+        }
+        let shape = t.shape().to_vec();
+        let matches = shape.len() == expected.len()
+            && shape
+                .iter()
+                .zip(expected)
+                .all(|(s, e)| e.is_none_or(|e| e == *s));
+        if !matches {
+            return Err(PackErrorKind::Shape {
+                name,
+                found: shape,
+                expected: expected.iter().map(|e| e.unwrap_or(0)).collect(),
+            });
+        }
+        Ok((t.dtype(), shape, t.data()))
+    }
+}
+
+fn u32s(data: &[u8]) -> Vec<u32> {
+    data.chunks_exact(4)
+        .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+fn u16s(data: &[u8]) -> Vec<u16> {
+    data.chunks_exact(2)
+        .map(|c| u16::from_le_bytes([c[0], c[1]]))
+        .collect()
+}
+fn f32s(data: &[u8]) -> Vec<f32> {
+    data.chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+fn f64s(data: &[u8]) -> Vec<f64> {
+    data.chunks_exact(8)
+        .map(|c| f64::from_le_bytes(c.try_into().expect("chunks of 8")))
+        .collect()
+}
+fn table_f32(dtype: Dtype, data: &[u8]) -> Vec<f32> {
+    match dtype {
+        Dtype::F16 => data
+            .chunks_exact(2)
+            .map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32())
+            .collect(),
+        _ => f32s(data),
+    }
+}
+
+fn meta_usize(
+    meta: &std::collections::HashMap<String, String>,
+    key: &'static str,
+    max: usize,
+) -> Result<usize, PackErrorKind> {
+    let raw = meta.get(key).ok_or(PackErrorKind::Metadata {
+        key,
+        problem: "missing".into(),
+    })?;
+    let v: usize = raw.parse().map_err(|_| PackErrorKind::Metadata {
+        key,
+        problem: format!("`{raw}` is not a count"),
+    })?;
+    if v > max {
+        return Err(PackErrorKind::Metadata {
+            key,
+            problem: format!("{v} exceeds the limit {max}"),
+        });
+    }
+    Ok(v)
+}
+
+/// Parses and validates pack bytes (see `read_pack`); also used by the fuzz tests.
+pub fn decode_pack(bytes: &[u8]) -> Result<SpmmMaterial, PackErrorKind> {
+    let (_, header) =
+        SafeTensors::read_metadata(bytes).map_err(|e| PackErrorKind::Container(e.to_string()))?;
+    let st =
+        SafeTensors::deserialize(bytes).map_err(|e| PackErrorKind::Container(e.to_string()))?;
+    let meta = header.metadata().clone().unwrap_or_default();
+    let text = |key: &'static str| {
+        meta.get(key).cloned().ok_or(PackErrorKind::Metadata {
+            key,
+            problem: "missing".into(),
+        })
+    };
+    let format = text("format")?;
+    if format != FORMAT {
+        return Err(PackErrorKind::Metadata {
+            key: "format",
+            problem: format!("`{format}`, expected `{FORMAT}`"),
+        });
+    }
+    let version = text("version")?;
+    if version != VERSION {
+        return Err(PackErrorKind::Metadata {
+            key: "version",
+            problem: format!("`{version}`, this build reads `{VERSION}`"),
+        });
+    }
+    let name = text("name")?;
+    let provenance = text("provenance")?;
+    let edited = match text("edited")?.as_str() {
+        "true" => true,
+        "false" => false,
+        other => {
+            return Err(PackErrorKind::Metadata {
+                key: "edited",
+                problem: format!("`{other}`, expected true or false"),
+            });
+        }
+    };
+    let width = meta_usize(&meta, "width", 16384)?;
+    let height = meta_usize(&meta, "height", 16384)?;
+    let n_clusters = meta_usize(&meta, "clusters", 1 << 20)?;
+    let npca = meta_usize(&meta, "npca", 4096)?;
+    for name in st.names() {
+        if !KNOWN_TENSORS.contains(&&*name) {
+            return Err(PackErrorKind::UnknownTensor(name.to_string()));
+        }
+    }
+
+    let r = Reader { st };
+    let texels = width * height;
+    let (_, _, data) = r.view("texel_cluster", &[Dtype::U32], &[Some(height), Some(width)])?;
+    let texel_cluster = u32s(data);
+    let (_, _, data) = r.view(
+        "cluster_basis_offsets",
+        &[Dtype::U32],
+        &[Some(n_clusters + 1)],
+    )?;
+    let cluster_offsets = u32s(data);
+    let (_, shape, data) = r.view("basis_model", &[Dtype::U8], &[None])?;
+    let n_bases = shape[0];
+    let models = data.to_vec();
+    let (_, _, data) = r.view(
+        "basis_params",
+        &[Dtype::F64],
+        &[Some(n_bases), Some(PARAM_COLUMNS)],
+    )?;
+    let params = f64s(data);
+    let (_, _, data) = r.view("basis_normal", &[Dtype::F64], &[Some(n_bases), Some(3)])?;
+    let normals = f64s(data);
+
+    if cluster_offsets.first() != Some(&0)
+        || cluster_offsets.last().map(|&v| v as usize) != Some(n_bases)
+    {
+        return Err(PackErrorKind::ClusterOffsets(format!(
+            "must start at 0 and end at the basis count {n_bases}, found {:?} .. {:?}",
+            cluster_offsets.first(),
+            cluster_offsets.last()
+        )));
+    }
+    if let Some(i) = cluster_offsets.windows(2).position(|w| w[1] < w[0]) {
+        return Err(PackErrorKind::ClusterOffsets(format!(
+            "element {} decreases",
+            i + 1
+        )));
+    }
+    let mut bases = Vec::with_capacity(n_bases);
+    for i in 0..n_bases {
+        let model = *BrdfModel::ALL
+            .get(usize::from(models[i]))
+            .ok_or(PackErrorKind::ModelId {
+                index: i,
+                value: models[i],
+            })?;
+        let row = &params[i * PARAM_COLUMNS..(i + 1) * PARAM_COLUMNS];
+        let named: Vec<(&str, f64)> = model
+            .param_specs()
+            .iter()
+            .map(|s| s.name)
+            .zip(row.iter().copied())
+            .collect();
+        let brdf = AnalyticBrdf::new(model, &named)
+            .map_err(|source| PackErrorKind::Basis { index: i, source })?;
+        let n = DVec3::from_slice(&normals[i * 3..i * 3 + 3]);
+        bases.push(
+            BasisFunction::new(brdf, n)
+                .map_err(|source| PackErrorKind::Basis { index: i, source })?,
+        );
+    }
+    let clusters: Vec<Cluster> = cluster_offsets
+        .windows(2)
+        .map(|w| Cluster {
+            bases: bases[w[0] as usize..w[1] as usize].to_vec(),
+        })
+        .collect();
+
+    let (_, _, data) = r.view("weight_offsets", &[Dtype::U32], &[Some(texels + 1)])?;
+    let offsets = u32s(data);
+    let (_, shape, data) = r.view("weight_basis", &[Dtype::U16], &[None])?;
+    let nnz = shape[0];
+    let basis = u16s(data);
+    let (_, _, data) = r.view("weight_rgb", &[Dtype::F32], &[Some(nnz), Some(3)])?;
+    let rgb: Vec<[f32; 3]> = f32s(data)
+        .chunks_exact(3)
+        .map(|c| [c[0], c[1], c[2]])
+        .collect();
+
+    let has_residual = KNOWN_TENSORS[8..].iter().any(|n| r.st.tensor(n).is_ok());
+    let residual = if has_residual {
+        let (_, shape, data) = r.view("light_dirs", &[Dtype::F64], &[None, Some(3)])?;
+        let light_dirs: Vec<DVec3> = f64s(data).chunks_exact(3).map(DVec3::from_slice).collect();
+        let l = shape[0];
+        let (_, shape, data) = r.view("view_dirs", &[Dtype::F64], &[None, Some(3)])?;
+        let view_dirs: Vec<DVec3> = f64s(data).chunks_exact(3).map(DVec3::from_slice).collect();
+        let v = shape[0];
+        let halves = [Dtype::F16, Dtype::F32];
+        let (dt, _, data) = r.view(
+            "residual_mean",
+            &halves,
+            &[Some(n_clusters), Some(l), Some(v), Some(3)],
+        )?;
+        let mean = table_f32(dt, data);
+        let (dt, _, data) = r.view(
+            "residual_components",
+            &halves,
+            &[Some(n_clusters), Some(npca), Some(l), Some(v), Some(3)],
+        )?;
+        let components = table_f32(dt, data);
+        let (_, _, data) = r.view(
+            "residual_coefficients",
+            &[Dtype::F32],
+            &[Some(texels), Some(npca)],
+        )?;
+        Some(Residual {
+            light_dirs,
+            view_dirs,
+            npca,
+            mean,
+            components,
+            coefficients: f32s(data),
+        })
+    } else {
+        if npca != 0 {
+            return Err(PackErrorKind::Metadata {
+                key: "npca",
+                problem: format!("{npca} but the pack has no residual tensors"),
+            });
+        }
+        None
+    };
+
+    let mut material = SpmmMaterial::new(
+        name,
+        provenance,
+        width as u32,
+        height as u32,
+        clusters,
+        texel_cluster,
+        SparseWeights {
+            offsets,
+            basis,
+            rgb,
+        },
+        residual,
+    )?;
+    if edited {
+        material.mark_edited();
+    }
+    Ok(material)
+}
+
+/// The precision a pack's residual tables were stored in (F32 when it has none).
+pub fn residual_precision(bytes: &[u8]) -> ResidualPrecision {
+    match SafeTensors::deserialize(bytes)
+        .ok()
+        .and_then(|st| st.tensor("residual_mean").ok().map(|t| t.dtype()))
+    {
+        Some(Dtype::F16) => ResidualPrecision::F16,
+        _ => ResidualPrecision::F32,
+    }
+}

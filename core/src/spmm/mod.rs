@@ -6,4 +6,7 @@
 mod material;
 pub mod pack;
 
+#[cfg(test)]
+mod tests;
+
 pub use material::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial};

@@ -71,6 +71,16 @@ pub enum PackErrorKind {
     ModelId { index: usize, value: u8 },
     #[error("basis {index} (tensors basis_params/basis_normal row {index}): {source}")]
     Basis { index: usize, source: BrdfError },
+    #[error(
+        "tensor `basis_params`[{index}][{column}] = {value}: model `{model}` has {used} parameter(s), unused columns must be 0"
+    )]
+    UnusedParam {
+        index: usize,
+        column: usize,
+        value: f64,
+        model: &'static str,
+        used: usize,
+    },
     #[error("tensor `cluster_basis_offsets`: {0}")]
     ClusterOffsets(String),
     #[error("{0}")]
@@ -496,6 +506,19 @@ pub fn decode_pack(bytes: &[u8]) -> Result<SpmmMaterial, PackErrorKind> {
                 value: models[i],
             })?;
         let row = &params[i * PARAM_COLUMNS..(i + 1) * PARAM_COLUMNS];
+        let used = model.param_specs().len();
+        // Garbage in an unused column would hide a model id written wrongly.
+        if let Some(column) =
+            (used..PARAM_COLUMNS).find(|&k| row[k] != 0.0 || row[k].is_sign_negative())
+        {
+            return Err(PackErrorKind::UnusedParam {
+                index: i,
+                column,
+                value: row[column],
+                model: model.name(),
+                used,
+            });
+        }
         let named: Vec<(&str, f64)> = model
             .param_specs()
             .iter()

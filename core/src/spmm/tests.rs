@@ -1,0 +1,450 @@
+//! Pack round trips, validation messages and a corruption corpus: every rejection
+//! names the tensor or metadata key at fault, and no input makes the reader panic.
+
+use glam::DVec3;
+use proptest::prelude::*;
+
+use super::pack::{PackErrorKind, ResidualPrecision, decode_pack, encode_pack};
+use super::*;
+use crate::brdf::{AnalyticBrdf, BasisFunction, BrdfModel};
+use crate::rng::SampleStream;
+
+/// A small but complete material: `clusters` clusters of mixed models, 1-4 weights
+/// per texel, and (optionally) a residual on 5 x 4 directions with `npca` terms.
+pub(crate) fn sample_material(
+    w: u32,
+    h: u32,
+    clusters: usize,
+    residual: Option<usize>,
+) -> SpmmMaterial {
+    let models = [
+        AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
+        AnalyticBrdf::new(BrdfModel::Ward, &[("ax", 0.1), ("ay", 0.3)]).expect("valid"),
+        AnalyticBrdf::new(
+            BrdfModel::AshikhminShirley,
+            &[("nu", 300.0), ("nv", 20.0), ("rs", 0.4)],
+        )
+        .expect("valid"),
+        AnalyticBrdf::new(
+            BrdfModel::Lafortune,
+            &[("cx", -1.0), ("cy", -0.7), ("cz", 0.9), ("n", 12.0)],
+        )
+        .expect("valid"),
+        AnalyticBrdf::new(BrdfModel::OrenNayar, &[("sigma", 0.6)]).expect("valid"),
+    ];
+    let clusters: Vec<Cluster> = (0..clusters)
+        .map(|c| Cluster {
+            bases: (0..3 + c % 3)
+                .map(|j| {
+                    let n = DVec3::new(0.05 * j as f64, -0.03 * c as f64, 1.0).normalize();
+                    BasisFunction::new(models[(c + j) % models.len()], n).expect("unit normal")
+                })
+                .collect(),
+        })
+        .collect();
+    let texels = (w * h) as usize;
+    let texel_cluster: Vec<u32> = (0..texels)
+        .map(|t| (t * 7 % clusters.len()) as u32)
+        .collect();
+    let mut weights = SparseWeights {
+        offsets: vec![0],
+        ..Default::default()
+    };
+    for (t, &c) in texel_cluster.iter().enumerate() {
+        let dict = clusters[c as usize].bases.len();
+        for j in 0..(1 + t % 4).min(dict) {
+            weights.basis.push(((j + t) % dict) as u16);
+            let u = SampleStream::new(&[3, t as u64, j as u64]);
+            weights
+                .rgb
+                .push([u.at(0) as f32, u.at(1) as f32 * 0.5, u.at(2) as f32 * 0.25]);
+        }
+        weights.offsets.push(weights.basis.len() as u32);
+    }
+    let residual = residual.map(|npca| {
+        let light_dirs: Vec<DVec3> = (0..5)
+            .map(|i| crate::brdf::warp::spherical(0.3 + 0.15 * i as f64, i as f64))
+            .collect();
+        let view_dirs: Vec<DVec3> = (0..4)
+            .map(|i| crate::brdf::warp::spherical(0.4 + 0.2 * i as f64, 2.0 * i as f64))
+            .collect();
+        let table = light_dirs.len() * view_dirs.len() * 3;
+        let noise = |n: usize, key: u64| -> Vec<f32> {
+            (0..n)
+                .map(|i| (SampleStream::new(&[key, i as u64]).at(0) - 0.5) as f32 * 0.1)
+                .collect()
+        };
+        Residual {
+            light_dirs,
+            view_dirs,
+            npca,
+            mean: noise(clusters.len() * table, 1),
+            components: noise(clusters.len() * npca * table, 2),
+            coefficients: noise(texels * npca, 3),
+        }
+    });
+    SpmmMaterial::new(
+        "sample".into(),
+        "unit test".into(),
+        w,
+        h,
+        clusters,
+        texel_cluster,
+        weights,
+        residual,
+    )
+    .expect("the sample material is valid")
+}
+
+#[test]
+fn save_load_save_is_byte_identical() {
+    for (residual, precision) in [
+        (None, ResidualPrecision::F32),
+        (Some(3), ResidualPrecision::F32),
+        (Some(2), ResidualPrecision::F16),
+    ] {
+        let m = sample_material(6, 5, 4, residual);
+        let bytes = encode_pack(&m, precision);
+        let back = decode_pack(&bytes).expect("a valid pack");
+        assert_eq!(
+            encode_pack(&back, precision),
+            bytes,
+            "{residual:?} {precision:?}"
+        );
+        assert_eq!(pack::residual_precision(&bytes), precision);
+        if precision == ResidualPrecision::F32 {
+            assert_eq!(back, m, "f32 tables load back exactly");
+        }
+    }
+    // f16 tables round to the nearest half: within 2^-11 relative of the original.
+    let m = sample_material(4, 4, 2, Some(2));
+    let back = decode_pack(&encode_pack(&m, ResidualPrecision::F16)).expect("valid");
+    let (a, b) = (
+        m.residual().expect("residual"),
+        back.residual().expect("residual"),
+    );
+    for (x, y) in a.mean.iter().zip(&b.mean) {
+        assert!((x - y).abs() <= x.abs() * 4.9e-4 + 6e-8, "{x} {y}");
+    }
+}
+
+#[test]
+fn edited_flag_round_trips() {
+    let mut m = sample_material(3, 3, 2, None);
+    assert!(
+        !decode_pack(&encode_pack(&m, ResidualPrecision::F32))
+            .expect("valid")
+            .edited()
+    );
+    m.mark_edited();
+    assert!(
+        decode_pack(&encode_pack(&m, ResidualPrecision::F32))
+            .expect("valid")
+            .edited()
+    );
+}
+
+#[test]
+fn file_round_trip_is_atomic_and_names_the_file() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("m.spmm");
+    let m = sample_material(5, 3, 3, Some(1));
+    pack::write_pack(&path, &m, ResidualPrecision::F32).expect("write");
+    assert_eq!(pack::read_pack(&path).expect("read"), m);
+    std::fs::write(&path, b"garbage").expect("write");
+    let err = pack::read_pack(&path).expect_err("garbage");
+    assert!(err.to_string().contains("m.spmm"), "{err}");
+}
+
+/// Re-encodes a pack with one tensor's raw data replaced (same dtype and shape).
+fn with_tensor(bytes: &[u8], name: &str, edit: impl FnOnce(&mut Vec<u8>)) -> Vec<u8> {
+    let n = u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes")) as usize;
+    let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).expect("JSON header");
+    let info = &header[name]["data_offsets"];
+    let (b, e) = (
+        info[0].as_u64().expect("offset") as usize,
+        info[1].as_u64().expect("offset") as usize,
+    );
+    let mut data = bytes[8 + n + b..8 + n + e].to_vec();
+    edit(&mut data);
+    assert_eq!(data.len(), e - b, "edits keep the size");
+    let mut out = bytes.to_vec();
+    out[8 + n + b..8 + n + e].copy_from_slice(&data);
+    out
+}
+
+/// Re-encodes a pack with its JSON header edited.
+fn with_header(bytes: &[u8], edit: impl FnOnce(&mut serde_json::Value)) -> Vec<u8> {
+    let n = u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes")) as usize;
+    let mut header: serde_json::Value =
+        serde_json::from_slice(&bytes[8..8 + n]).expect("JSON header");
+    edit(&mut header);
+    let mut h = serde_json::to_vec(&header).expect("JSON");
+    while h.len() % 8 != 0 {
+        h.push(b' ');
+    }
+    let mut out = (h.len() as u64).to_le_bytes().to_vec();
+    out.extend_from_slice(&h);
+    out.extend_from_slice(&bytes[8 + n..]);
+    out
+}
+
+fn rejection(bytes: &[u8]) -> String {
+    match decode_pack(bytes) {
+        Ok(_) => panic!("a corrupted pack was accepted"),
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn each_fault_is_named() {
+    let good = encode_pack(&sample_material(4, 3, 3, Some(2)), ResidualPrecision::F32);
+    let cases: Vec<(Vec<u8>, &[&str])> = vec![
+        (
+            with_tensor(&good, "basis_model", |d| d[1] = 9),
+            &["basis_model", "[1]", "9"],
+        ),
+        (
+            with_tensor(&good, "basis_params", |d| {
+                d[..8].copy_from_slice(&f64::NAN.to_le_bytes())
+            }),
+            &["basis_params`[0][0]", "lambertian"],
+        ),
+        (
+            with_tensor(&good, "basis_params", |d| {
+                d[32..40].copy_from_slice(&f64::NAN.to_le_bytes())
+            }),
+            &["basis 1", "ax", "NaN"],
+        ),
+        (
+            with_tensor(&good, "basis_params", |d| {
+                d[4 * 8 + 8..4 * 8 + 16].copy_from_slice(&5.0f64.to_le_bytes())
+            }),
+            &["basis 1", "ay", "5"],
+        ),
+        (
+            with_tensor(&good, "basis_normal", |d| {
+                d[16..24].copy_from_slice(&2.0f64.to_le_bytes())
+            }),
+            &["basis 0", "normal"],
+        ),
+        (
+            with_tensor(&good, "basis_normal", |d| {
+                d[16..24].copy_from_slice(&(-1.0f64).to_le_bytes())
+            }),
+            &["basis 0", "normal"],
+        ),
+        (
+            with_tensor(&good, "texel_cluster", |d| {
+                d[4..8].copy_from_slice(&77u32.to_le_bytes())
+            }),
+            &["texel_cluster[1]", "77"],
+        ),
+        (
+            with_tensor(&good, "weight_basis", |d| {
+                d[..2].copy_from_slice(&500u16.to_le_bytes())
+            }),
+            &["weight_basis[0]", "500"],
+        ),
+        (
+            with_tensor(&good, "weight_offsets", |d| {
+                d[8..12].copy_from_slice(&0u32.to_le_bytes())
+            }),
+            &["weight_offsets[2]"],
+        ),
+        (
+            with_tensor(&good, "weight_rgb", |d| {
+                d[4..8].copy_from_slice(&f32::INFINITY.to_le_bytes())
+            }),
+            &["weight_rgb[1]", "inf"],
+        ),
+        (
+            with_tensor(&good, "residual_mean", |d| {
+                d[..4].copy_from_slice(&f32::NAN.to_le_bytes())
+            }),
+            &["residual_mean[0]"],
+        ),
+        (
+            with_tensor(&good, "light_dirs", |d| {
+                d[16..24].copy_from_slice(&(-0.5f64).to_le_bytes())
+            }),
+            &["light_dirs[0]"],
+        ),
+        (
+            with_header(&good, |h| h["__metadata__"]["format"] = "other".into()),
+            &["format", "other"],
+        ),
+        (
+            with_header(&good, |h| h["__metadata__"]["version"] = "2".into()),
+            &["version", "2"],
+        ),
+        (
+            with_header(&good, |h| h["__metadata__"]["width"] = "5".into()),
+            &["texel_cluster", "shape"],
+        ),
+        (
+            with_header(&good, |h| h["__metadata__"]["clusters"] = "x".into()),
+            &["clusters", "x"],
+        ),
+        (
+            with_header(&good, |h| h["__metadata__"]["npca"] = "99999".into()),
+            &["npca", "99999"],
+        ),
+        (
+            with_header(&good, |h| h["texel_cluster"]["dtype"] = "I32".into()),
+            &["texel_cluster", "dtype"],
+        ),
+        (
+            with_header(&good, |h| {
+                let v = h["basis_model"].clone();
+                h.as_object_mut().expect("map").remove("basis_model");
+                h["basis_mdoel"] = v;
+            }),
+            &["basis_mdoel"],
+        ),
+        (
+            with_header(&good, |h| {
+                h["weight_rgb"]["data_offsets"][1] = 10_000_000.into()
+            }),
+            &["safetensors"],
+        ),
+    ];
+    for (i, (bytes, needles)) in cases.iter().enumerate() {
+        let msg = match decode_pack(bytes) {
+            Ok(_) => panic!("case {i} ({needles:?}) was accepted"),
+            Err(e) => e.to_string(),
+        };
+        for needle in *needles {
+            assert!(
+                msg.contains(needle),
+                "case {i}: `{needle}` missing from: {msg}"
+            );
+        }
+    }
+}
+
+#[test]
+fn truncation_at_every_length_is_rejected() {
+    let good = encode_pack(&sample_material(3, 2, 2, Some(1)), ResidualPrecision::F16);
+    for len in 0..good.len() {
+        let msg = rejection(&good[..len]);
+        assert!(!msg.is_empty());
+    }
+}
+
+#[test]
+fn a_header_claiming_huge_sizes_does_not_allocate() {
+    // A header length of 2^60 and a tensor declaring 2^40 elements: both rejected
+    // from the real buffer size, before any allocation of that size.
+    let good = encode_pack(&sample_material(2, 2, 1, None), ResidualPrecision::F32);
+    let mut huge = good.clone();
+    huge[..8].copy_from_slice(&(1u64 << 60).to_le_bytes());
+    assert!(rejection(&huge).contains("safetensors"));
+    let claim = with_header(&good, |h| {
+        h["weight_rgb"]["shape"] = serde_json::json!([1u64 << 40, 3])
+    });
+    assert!(!rejection(&claim).is_empty());
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 2000, ..ProptestConfig::default() })]
+    /// Random byte edits anywhere (header or data): the reader returns Ok or a named
+    /// error, never panics. 2000 cases x 64 edits each = 128 000 mutated inputs.
+    #[test]
+    fn mutated_packs_never_panic(edits in proptest::collection::vec((any::<usize>(), any::<u8>()), 1..8), seed in any::<u64>()) {
+        let good = encode_pack(&sample_material(3, 3, 2, Some(1)), ResidualPrecision::F32);
+        for k in 0..64u64 {
+            let mut bytes = good.clone();
+            for (i, (pos, value)) in edits.iter().enumerate() {
+                let at = (*pos ^ (seed.wrapping_mul(k + 1) as usize).rotate_left(i as u32)) % bytes.len();
+                bytes[at] = *value ^ (k as u8);
+            }
+            if let Err(e) = decode_pack(&bytes) {
+                prop_assert!(!e.to_string().is_empty());
+            }
+        }
+    }
+}
+
+#[test]
+fn errors_have_the_expected_kind() {
+    let good = encode_pack(&sample_material(2, 2, 1, None), ResidualPrecision::F32);
+    let missing = with_header(&good, |h| {
+        h.as_object_mut().expect("map").remove("weight_basis");
+    });
+    assert!(matches!(
+        decode_pack(&missing),
+        Err(PackErrorKind::Container(_)) | Err(PackErrorKind::MissingTensor(_))
+    ));
+}
+
+/// Python (`safetensors.numpy.load_file`) reads a pack with the documented names,
+/// shapes and dtypes. Runs when `MESO_PYTHON` (default `python3`) has safetensors and
+/// numpy; otherwise it says so and passes, since tests must not require Python.
+#[test]
+fn python_reads_the_documented_tensors() {
+    let python = std::env::var("MESO_PYTHON").unwrap_or_else(|_| "python3".into());
+    let probe = std::process::Command::new(&python)
+        .args(["-c", "import safetensors.numpy, numpy"])
+        .output();
+    if !probe.is_ok_and(|o| o.status.success()) {
+        eprintln!("skipped: `{python}` lacks safetensors/numpy (set MESO_PYTHON)");
+        return;
+    }
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("m.spmm");
+    let m = sample_material(5, 4, 3, Some(2));
+    pack::write_pack(&path, &m, ResidualPrecision::F16).expect("write");
+    let script = r#"
+import sys, json
+from safetensors import safe_open
+from safetensors.numpy import load_file
+t = load_file(sys.argv[1])
+with safe_open(sys.argv[1], framework="np") as f:
+    meta = f.metadata()
+print(json.dumps({"meta": meta, "tensors": {k: [str(v.dtype), list(v.shape)] for k, v in t.items()},
+                  "weight_rgb_sum": float(t["weight_rgb"].astype("float64").sum())}))
+"#;
+    let out = std::process::Command::new(&python)
+        .args(["-c", script, path.to_str().expect("utf-8")])
+        .output()
+        .expect("python runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    assert_eq!(v["meta"]["format"], "meso-spmm");
+    assert_eq!(v["meta"]["version"], "1");
+    let nnz = m.weights().basis.len();
+    let expect = |name: &str, dtype: &str, shape: serde_json::Value| {
+        assert_eq!(
+            v["tensors"][name],
+            serde_json::json!([dtype, shape]),
+            "{name}"
+        );
+    };
+    expect("texel_cluster", "uint32", serde_json::json!([4, 5]));
+    expect("cluster_basis_offsets", "uint32", serde_json::json!([4]));
+    expect("weight_basis", "uint16", serde_json::json!([nnz]));
+    expect("weight_rgb", "float32", serde_json::json!([nnz, 3]));
+    expect(
+        "basis_params",
+        "float64",
+        serde_json::json!([m.clusters().iter().map(|c| c.bases.len()).sum::<usize>(), 4]),
+    );
+    expect("residual_mean", "float16", serde_json::json!([3, 5, 4, 3]));
+    expect(
+        "residual_components",
+        "float16",
+        serde_json::json!([3, 2, 5, 4, 3]),
+    );
+    expect(
+        "residual_coefficients",
+        "float32",
+        serde_json::json!([20, 2]),
+    );
+    let sum: f64 = m.weights().rgb.iter().flatten().map(|&x| x as f64).sum();
+    assert!((v["weight_rgb_sum"].as_f64().expect("sum") - sum).abs() < 1e-9 * sum.max(1.0));
+}

@@ -368,3 +368,127 @@ fn plot_writes_a_png_and_a_failed_write_keeps_what_was_there() {
         .collect();
     assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
 }
+
+/// A two-cluster pack built through the public API (Ward + Lambertian, one weight
+/// per texel, no residual).
+fn write_small_pack(path: &Path) {
+    use glam::DVec3;
+    use meso_core::brdf::{AnalyticBrdf, BasisFunction, BrdfModel};
+    use meso_core::spmm::{Cluster, SparseWeights, SpmmMaterial, pack};
+    let ward = AnalyticBrdf::new(BrdfModel::Ward, &[("ax", 0.1), ("ay", 0.3)]).expect("valid");
+    let lamb = AnalyticBrdf::with_defaults(BrdfModel::Lambertian);
+    let clusters = vec![
+        Cluster {
+            bases: vec![
+                BasisFunction::new(ward, DVec3::Z).expect("unit"),
+                BasisFunction::new(lamb, DVec3::Z).expect("unit"),
+            ],
+        },
+        Cluster {
+            bases: vec![
+                BasisFunction::new(lamb, DVec3::new(0.1, 0.0, 1.0).normalize()).expect("unit"),
+            ],
+        },
+    ];
+    let texel_cluster = vec![0, 1, 1, 0];
+    let weights = SparseWeights {
+        offsets: vec![0, 2, 3, 4, 6],
+        basis: vec![0, 1, 0, 0, 0, 1],
+        rgb: vec![
+            [0.2, 0.2, 0.2],
+            [0.5, 0.4, 0.3],
+            [0.7, 0.1, 0.1],
+            [0.6, 0.1, 0.1],
+            [0.3, 0.3, 0.3],
+            [0.4, 0.4, 0.4],
+        ],
+    };
+    let m = SpmmMaterial::new(
+        "small".into(),
+        "cli test".into(),
+        2,
+        2,
+        clusters,
+        texel_cluster,
+        weights,
+        None,
+    )
+    .expect("valid material");
+    pack::write_pack(path, &m, pack::ResidualPrecision::F32).expect("write pack");
+}
+
+#[test]
+fn pack_info_and_validate() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let good = dir.path().join("small.spmm");
+    write_small_pack(&good);
+    let good_s = good.to_str().expect("utf-8");
+    let o = meso(&["pack", "validate", good_s], "");
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let o = meso(&["pack", "info", good_s, "--json"], "");
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    assert_eq!(v["width"], 2);
+    assert_eq!(v["clusters"][0]["bases"][0]["model"], "ward");
+    assert_eq!(v["clusters"][0]["bases"][0]["params"]["ay"], 0.3);
+    assert_eq!(v["clusters"][1]["texels"], 2);
+    assert_eq!(v["weights_per_texel"]["max"], 2);
+    assert_eq!(v["weights_per_texel"]["mean"], 1.5);
+    let total: u64 = v["bytes"]
+        .as_array()
+        .expect("parts")
+        .iter()
+        .map(|p| p["bytes"].as_u64().expect("n"))
+        .sum();
+    assert_eq!(
+        total,
+        std::fs::metadata(&good).expect("stat").len(),
+        "parts add up to the file size"
+    );
+    let o = meso(&["pack", "info", good_s], "");
+    assert!(stdout(&o).contains("cluster 1: 2 texels"));
+
+    // A corrupted model id: exit 2, the file and the tensor element named.
+    let mut bytes = std::fs::read(&good).expect("read");
+    let n = u64::from_le_bytes(bytes[..8].try_into().expect("8")) as usize;
+    let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).expect("header");
+    let at = 8
+        + n
+        + header["basis_model"]["data_offsets"][0]
+            .as_u64()
+            .expect("offset") as usize;
+    bytes[at + 1] = 42;
+    let bad = dir.path().join("bad.spmm");
+    std::fs::write(&bad, &bytes).expect("write");
+    assert_bad_input(
+        &meso(&["pack", "validate", bad.to_str().expect("utf-8")], ""),
+        &["bad.spmm", "basis_model", "[1]", "42"],
+    );
+    assert_bad_input(
+        &meso(&["pack", "info", bad.to_str().expect("utf-8")], ""),
+        &["bad.spmm", "basis_model"],
+    );
+    let truncated = dir.path().join("truncated.spmm");
+    std::fs::write(&truncated, &bytes[..bytes.len() / 2]).expect("write");
+    assert_bad_input(
+        &meso(
+            &["pack", "validate", truncated.to_str().expect("utf-8")],
+            "",
+        ),
+        &["truncated.spmm"],
+    );
+    assert_bad_input(
+        &meso(&["pack", "validate", "/no/such.spmm"], ""),
+        &["/no/such.spmm"],
+    );
+}

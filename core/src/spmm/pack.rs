@@ -625,3 +625,20 @@ pub fn residual_precision(bytes: &[u8]) -> ResidualPrecision {
         _ => ResidualPrecision::F32,
     }
 }
+
+/// Bytes taken by each tensor of a pack, and by the header, for `meso pack info`.
+pub fn tensor_sizes(bytes: &[u8]) -> Result<Vec<(String, usize)>, PackErrorKind> {
+    let (header_len, _) =
+        SafeTensors::read_metadata(bytes).map_err(|e| PackErrorKind::Container(e.to_string()))?;
+    let mut sizes: Vec<(String, usize)> = vec![("(header)".into(), 8 + header_len)];
+    let st =
+        SafeTensors::deserialize(bytes).map_err(|e| PackErrorKind::Container(e.to_string()))?;
+    let mut tensors: Vec<(String, usize)> = st
+        .tensors()
+        .into_iter()
+        .map(|(n, v)| (n, v.data().len()))
+        .collect();
+    tensors.sort();
+    sizes.extend(tensors);
+    Ok(sizes)
+}

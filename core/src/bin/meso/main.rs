@@ -5,6 +5,7 @@
 mod brdf_cmd;
 mod compare_cmd;
 mod failure;
+mod pack_cmd;
 mod plot;
 
 use std::process::ExitCode;
@@ -33,6 +34,11 @@ enum Command {
     },
     /// Image error of B against the reference A: RMSE, PSNR, MSSIM, largest pixel error.
     Compare(compare_cmd::CompareArgs),
+    /// SPMM material packs (.spmm): summarise and validate.
+    Pack {
+        #[command(subcommand)]
+        command: pack_cmd::PackCommand,
+    },
 }
 
 fn main() -> ExitCode {
@@ -43,6 +49,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Brdf { command } => brdf_cmd::run(command),
         Command::Compare(args) => compare_cmd::run(&args),
+        Command::Pack { command } => pack_cmd::run(command),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

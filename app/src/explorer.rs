@@ -5,13 +5,16 @@
 
 use egui::{ColorImage, TextureHandle, TextureOptions, Ui};
 use glam::DVec3;
-use meso_core::brdf::{AnalyticBrdf, BrdfModel, LobePoint, incidence_plane_lobe};
+use meso_core::brdf::{AnalyticBrdf, BrdfModel, LobePoint, ParamSpec, incidence_plane_lobe};
 use meso_core::image::{Image, to_srgb8};
 
 use crate::lobe_plot::{self, Scale};
 use crate::sphere_preview::{PreviewWorker, Request};
 
-const SPHERE_SIZE: u32 = 320;
+/// The sphere is rendered at the size it is shown, in steps of this many pixels so
+/// that resizing the window does not re-render on every pixel of the drag.
+const SPHERE_PX_STEP: u32 = 64;
+const SPHERE_PX_MAX: u32 = 768;
 const LOBE_STEPS: usize = 361;
 
 /// What survives a restart: the chosen model and parameters and the view settings.
@@ -45,6 +48,23 @@ impl Default for Settings {
     }
 }
 
+/// Logarithmic where the spec says so, and also for ranges many times wider than the
+/// default's magnitude (Lafortune's cx, cy, cz in [-1000, 1000] around -1 or 1), so
+/// that the useful values are not crowded into a few pixels of the rail.
+fn slider_is_logarithmic(spec: &ParamSpec) -> bool {
+    spec.log_scale || (spec.default != 0.0 && spec.max - spec.min > 100.0 * spec.default.abs())
+}
+
+/// For a logarithmic slider whose range reaches zero: six decades below the largest
+/// magnitude (exponent n of Blinn-Phong: 0.1 .. 1e5).
+fn smallest_positive(spec: &ParamSpec) -> f64 {
+    if spec.min > 0.0 {
+        spec.min
+    } else {
+        spec.max.abs().max(spec.min.abs()) * 1e-6
+    }
+}
+
 fn named_params(brdf: &AnalyticBrdf) -> Vec<(String, f64)> {
     brdf.model()
         .param_specs()
@@ -68,6 +88,8 @@ pub struct Explorer {
     /// Bumped by every edit that changes what the sphere shows.
     version: u64,
     requested: u64,
+    /// Side of the sphere image in physical pixels, following the space it has.
+    sphere_px: u32,
     lobe: Vec<LobePoint>,
     worker: PreviewWorker,
     sphere: Option<ShownSphere>,
@@ -99,6 +121,7 @@ impl Explorer {
             brdf,
             version: 1,
             requested: 0,
+            sphere_px: 0,
             lobe: Vec::new(),
             worker: PreviewWorker::spawn(),
             sphere: None,
@@ -174,12 +197,12 @@ impl Explorer {
             });
         egui::Panel::bottom("status").show(ui, |ui| self.status(ui));
         egui::CentralPanel::default().show(ui, |ui| self.views(ui));
-        if self.requested != self.version {
+        if self.requested != self.version && self.sphere_px > 0 {
             let request = Request {
                 version: self.version,
                 brdf: self.brdf,
                 light_dir: self.light_dir(),
-                size: SPHERE_SIZE,
+                size: self.sphere_px,
                 repaint: Some(ui.ctx().clone()),
             };
             if self.worker.request(request) {
@@ -248,8 +271,8 @@ impl Explorer {
         for (spec, mut value) in specs.iter().zip(self.brdf.param_values()) {
             let slider = egui::Slider::new(&mut value, spec.min..=spec.max)
                 .text(spec.name)
-                .logarithmic(spec.log_scale)
-                .smallest_positive(1e-4)
+                .logarithmic(slider_is_logarithmic(spec))
+                .smallest_positive(smallest_positive(spec))
                 .max_decimals(6);
             let changed = ui.add(slider).on_hover_text(spec.doc).changed();
             if changed {
@@ -313,41 +336,83 @@ impl Explorer {
     }
 
     fn views(&mut self, ui: &mut Ui) {
+        let light = self.light_dir();
         ui.columns(2, |cols| {
-            cols[0].heading("Lobe in the plane of incidence");
-            lobe_plot::show(
-                &mut cols[0],
-                &self.lobe,
-                self.settings.theta_i_deg.to_radians(),
-                self.settings.scale,
-            );
-            cols[1].heading("Lit sphere");
+            let plot = &mut cols[0];
+            plot.heading("Lobe in the plane of incidence");
+            let max_height = plot.available_height() - 60.0;
+            let theta_i = self.settings.theta_i_deg.to_radians();
+            lobe_plot::show(plot, &self.lobe, theta_i, self.settings.scale, max_height);
+            if let Some(r) = lobe_plot::readout(&self.lobe, theta_i) {
+                plot.label(format!(
+                    "peak f = {} 1/sr at θo = {:.1}°;  at the mirror direction ({:.1}°) f = {} 1/sr",
+                    lobe_plot::format_value(r.peak_value),
+                    r.peak_theta_o_rad.to_degrees(),
+                    self.settings.theta_i_deg,
+                    lobe_plot::format_value(r.mirror_value),
+                ));
+            }
+            plot.weak("θo is negative on the light's side; hover the plot for values");
+
+            let sphere = &mut cols[1];
+            sphere.heading("Lit sphere");
+            let side = sphere
+                .available_width()
+                .min(sphere.available_height() - 40.0)
+                .max(64.0);
+            let physical = side * sphere.ctx().pixels_per_point() / SPHERE_PX_STEP as f32;
+            let px = (physical.round() as u32 * SPHERE_PX_STEP).clamp(SPHERE_PX_STEP, SPHERE_PX_MAX);
+            if px != self.sphere_px {
+                self.sphere_px = px;
+                self.version += 1;
+            }
             match self.sphere.as_ref().and_then(|s| s.texture.as_ref()) {
                 Some(t) => {
-                    let side = cols[1]
-                        .available_width()
-                        .min(cols[1].available_height())
-                        .max(64.0);
-                    cols[1].image((t.id(), egui::vec2(side, side)));
+                    let rect = sphere.image((t.id(), egui::vec2(side, side))).rect;
+                    overlay_sphere(sphere, rect, light);
                 }
                 None => {
-                    cols[1].spinner();
+                    sphere.spinner();
                 }
             }
+            sphere.weak(
+                "orthographic view, one directional light (ring: where it meets the \
+                 surface head-on); the tangent runs around the vertical axis",
+            );
         });
     }
 
     fn status(&self, ui: &mut Ui) {
         ui.horizontal(|ui| {
+            if let Some(problem) = self.worker.problem() {
+                ui.colored_label(ui.visuals().error_fg_color, problem);
+            }
             match &self.sphere {
                 Some(s) => ui.label(format!(
                     "sphere v{} of v{}: {}x{} rendered in {:.1} ms on the CPU",
-                    s.version, self.version, SPHERE_SIZE, SPHERE_SIZE, s.render_ms
+                    s.version,
+                    self.version,
+                    s.image.width(),
+                    s.image.height(),
+                    s.render_ms
                 )),
                 None => ui.label("rendering the sphere ..."),
             };
         });
     }
+}
+
+/// Over the sphere image: its silhouette, faint (a purely specular sphere is black
+/// away from its highlight), and a ring where the surface faces the light (n = l), so
+/// the light's direction can be read off the picture.
+fn overlay_sphere(ui: &Ui, image_rect: egui::Rect, light: DVec3) {
+    let painter = ui.painter_at(image_rect.expand(2.0));
+    let half = 0.5 * image_rect.width();
+    let outline = egui::Stroke::new(1.0, ui.visuals().weak_text_color().gamma_multiply(0.6));
+    painter.circle_stroke(image_rect.center(), half, outline);
+    let at = image_rect.center() + egui::vec2(light.x as f32, -(light.y as f32)) * half;
+    let ring = egui::Stroke::new(1.5, egui::Color32::from_rgb(255, 210, 80));
+    painter.circle_stroke(at, 6.0, ring);
 }
 
 #[cfg(test)]
@@ -423,7 +488,7 @@ mod tests {
         let expected = crate::sphere_preview::render_sphere(
             harness.state().brdf(),
             harness.state().light_dir(),
-            SPHERE_SIZE,
+            after_image.width(),
         );
         assert_eq!(after_image, &expected);
     }
@@ -457,6 +522,72 @@ mod tests {
                 .is_none()
         );
         wait_for_sphere(&mut harness);
+    }
+
+    #[test]
+    fn edits_invalidate_only_the_view_they_change() {
+        let mut harness = harness();
+        wait_for_sphere(&mut harness);
+        let version = harness.state().version();
+        let lobe = harness.state().lobe().to_vec();
+        let theta_i = harness.state().settings().theta_i_deg;
+
+        // The incidence angle, stepped with the keyboard, moves the lobe only: the
+        // sphere is lit by its own light, so no new render is requested.
+        harness
+            .get_by_role_and_label(Role::Slider, "incidence (deg)")
+            .focus();
+        harness.step();
+        harness.key_press(egui::Key::ArrowRight);
+        harness.run_steps(2);
+        let ex = harness.state();
+        assert!(
+            ex.settings().theta_i_deg > theta_i,
+            "the arrow key moved it"
+        );
+        assert_ne!(ex.lobe(), &lobe[..]);
+        assert_eq!(ex.version(), version, "the sphere is not re-rendered");
+
+        // The light moves the sphere only.
+        let lobe = ex.lobe().to_vec();
+        harness
+            .get_by_role_and_label(Role::Slider, "light azimuth (deg)")
+            .set_value_accesskit(60.0);
+        harness.step();
+        assert_eq!(harness.state().settings().light_azimuth_deg, 60.0);
+        assert_eq!(harness.state().lobe(), &lobe[..]);
+        assert!(harness.state().version() > version);
+        wait_for_sphere(&mut harness);
+    }
+
+    #[test]
+    fn reset_restores_the_model_defaults() {
+        let mut harness = harness();
+        harness.step();
+        harness
+            .get_by_role_and_label(Role::Slider, "ay")
+            .set_value_accesskit(0.7);
+        harness.step();
+        assert_ne!(
+            *harness.state().brdf(),
+            AnalyticBrdf::with_defaults(BrdfModel::Ward)
+        );
+        harness.get_by_label("Reset to defaults").click();
+        harness.run_steps(2);
+        assert_eq!(
+            *harness.state().brdf(),
+            AnalyticBrdf::with_defaults(BrdfModel::Ward)
+        );
+    }
+
+    #[test]
+    fn wide_ranges_get_logarithmic_sliders() {
+        let lafortune = BrdfModel::Lafortune.param_specs();
+        assert!(lafortune.iter().all(slider_is_logarithmic));
+        let cook = BrdfModel::CookTorrance.param_specs();
+        assert!(slider_is_logarithmic(&cook[0]) && !slider_is_logarithmic(&cook[1]));
+        let n = &BrdfModel::BlinnPhong.param_specs()[0];
+        assert!((smallest_positive(n) - 0.1).abs() < 1e-12);
     }
 
     #[test]

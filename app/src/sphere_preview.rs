@@ -71,6 +71,8 @@ pub struct PreviewWorker {
     requests: Option<Sender<Request>>,
     results: Receiver<Rendered>,
     thread: Option<JoinHandle<()>>,
+    /// Why the thread could not be started, for the status line.
+    spawn_error: Option<String>,
 }
 
 impl PreviewWorker {
@@ -100,12 +102,26 @@ impl PreviewWorker {
                         ctx.request_repaint();
                     }
                 }
-            })
-            .ok();
+            });
+        let (thread, spawn_error) = match thread {
+            Ok(t) => (Some(t), None),
+            Err(e) => (None, Some(e.to_string())),
+        };
         Self {
             requests: Some(request_tx),
             results: result_rx,
             thread,
+            spawn_error,
+        }
+    }
+
+    /// Why no more images will come, if so: the thread failed to start or has ended
+    /// (a panic inside a render ends it; the UI keeps the last image and says so).
+    pub fn problem(&self) -> Option<String> {
+        match (&self.thread, &self.spawn_error) {
+            (_, Some(e)) => Some(format!("the sphere worker could not start: {e}")),
+            (Some(t), None) if t.is_finished() => Some("the sphere worker stopped".into()),
+            _ => None,
         }
     }
 
@@ -128,6 +144,8 @@ impl Drop for PreviewWorker {
         // Closing the channel ends the worker's loop; then wait for it.
         self.requests = None;
         if let Some(thread) = self.thread.take() {
+            // A worker that panicked has nothing left to clean up; its panic message
+            // was already printed, so the join error carries nothing new.
             let _ = thread.join();
         }
     }

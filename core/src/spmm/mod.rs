@@ -3,6 +3,7 @@
 //! a per-cluster PCA residual tabulated on the BTF's direction sets. `material.rs`
 //! holds the model with its invariants; `pack.rs` the `.spmm` file (docs/formats/spmm.md).
 
+pub mod directions;
 mod material;
 pub mod pack;
 

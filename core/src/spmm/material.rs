@@ -5,6 +5,7 @@
 
 use glam::DVec3;
 
+use super::directions::{DirectionTable, DirectionTableError};
 use crate::brdf::BasisFunction;
 
 /// A cluster's dictionary: the basis functions its texels' weights refer to.
@@ -49,6 +50,8 @@ pub struct SpmmMaterial {
     texel_cluster: Vec<u32>,
     weights: SparseWeights,
     residual: Option<Residual>,
+    /// Interpolation tables of the residual's light and view directions, built once.
+    residual_tables: Option<(DirectionTable, DirectionTable)>,
 }
 
 /// What is wrong with a material; each message names the part, the element index and
@@ -95,6 +98,11 @@ pub enum SpmmError {
     TooManyBases { cluster: usize, count: usize },
     #[error("texel {texel} uses basis {basis} twice")]
     DuplicateBasis { texel: usize, basis: u16 },
+    #[error("{part}: {source}")]
+    DirectionSet {
+        part: &'static str,
+        source: DirectionTableError,
+    },
 }
 
 const MAX_SIDE: u32 = 16384;
@@ -244,6 +252,16 @@ impl SpmmMaterial {
             check_finite("residual_components", &r.components)?;
             check_finite("residual_coefficients", &r.coefficients)?;
         }
+        let table = |part, dirs: &[DVec3]| {
+            DirectionTable::new(dirs).map_err(|source| SpmmError::DirectionSet { part, source })
+        };
+        let residual_tables = match &residual {
+            Some(r) => Some((
+                table("light_dirs", &r.light_dirs)?,
+                table("view_dirs", &r.view_dirs)?,
+            )),
+            None => None,
+        };
         Ok(Self {
             name,
             provenance,
@@ -254,6 +272,7 @@ impl SpmmMaterial {
             texel_cluster,
             weights,
             residual,
+            residual_tables,
         })
     }
 
@@ -287,6 +306,9 @@ impl SpmmMaterial {
     }
     pub fn residual(&self) -> Option<&Residual> {
         self.residual.as_ref()
+    }
+    pub(super) fn residual_tables(&self) -> Option<&(DirectionTable, DirectionTable)> {
+        self.residual_tables.as_ref()
     }
     /// PCA terms stored per cluster (0 without a residual).
     pub fn npca(&self) -> usize {

@@ -4,10 +4,12 @@
 //! holds the model with its invariants; `pack.rs` the `.spmm` file (docs/formats/spmm.md).
 
 pub mod directions;
+mod eval;
 mod material;
 pub mod pack;
 
 #[cfg(test)]
 mod tests;
 
+pub use eval::{EvalSettings, TexelFilter};
 pub use material::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial};

@@ -286,7 +286,7 @@ pub fn encode_pack(m: &SpmmMaterial, precision: ResidualPrecision) -> Vec<u8> {
     let mut header_bytes = serde_json::to_vec(&serde_json::Value::Object(header))
         .expect("a JSON map always serialises");
     // The container pads the header with spaces so the data starts 8-byte aligned.
-    while header_bytes.len() % 8 != 0 {
+    while !header_bytes.len().is_multiple_of(8) {
         header_bytes.push(b' ');
     }
     let mut out = Vec::with_capacity(8 + header_bytes.len() + offset);
@@ -455,7 +455,7 @@ pub fn decode_pack(bytes: &[u8]) -> Result<SpmmMaterial, PackErrorKind> {
     let n_clusters = meta_usize(&meta, "clusters", 1 << 20)?;
     let npca = meta_usize(&meta, "npca", 4096)?;
     for name in st.names() {
-        if !KNOWN_TENSORS.contains(&&*name) {
+        if !KNOWN_TENSORS.contains(&name) {
             return Err(PackErrorKind::UnknownTensor(name.to_string()));
         }
     }

@@ -180,7 +180,7 @@ fn with_header(bytes: &[u8], edit: impl FnOnce(&mut serde_json::Value)) -> Vec<u
         serde_json::from_slice(&bytes[8..8 + n]).expect("JSON header");
     edit(&mut header);
     let mut h = serde_json::to_vec(&header).expect("JSON");
-    while h.len() % 8 != 0 {
+    while !h.len().is_multiple_of(8) {
         h.push(b' ');
     }
     let mut out = (h.len() as u64).to_le_bytes().to_vec();

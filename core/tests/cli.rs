@@ -492,3 +492,40 @@ fn pack_info_and_validate() {
         &["/no/such.spmm"],
     );
 }
+
+#[test]
+fn pack_eval_prints_rgb_per_row() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("small.spmm");
+    write_small_pack(&path);
+    let p = path.to_str().expect("utf-8");
+    // Texel (1, 0) (u = 0.75, v = 0.75: column 1, top row) is cluster 1: one Lambertian
+    // basis on a tilted normal n = normalize(0.1, 0, 1), weight (0.7, 0.1, 0.1). With
+    // wi = n the value is weight / pi * (n . wi) = weight / pi.
+    let n = [0.1f64 / 1.01f64.sqrt(), 0.0, 1.0 / 1.01f64.sqrt()];
+    let row = format!("{},{},{},0,0,1\n0,0,-1,0,0,1\n", n[0], n[1], n[2]);
+    let o = meso(&["pack", "eval", p, "--texel", "0.75,0.75"], &row);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let lines: Vec<Vec<f64>> = stdout(&o)
+        .lines()
+        .map(|l| l.split(',').map(|x| x.parse().expect("number")).collect())
+        .collect();
+    let inv_pi = std::f64::consts::FRAC_1_PI;
+    for (got, w) in lines[0].iter().zip([0.7f32, 0.1, 0.1]) {
+        assert!((got - w as f64 * inv_pi).abs() < 1e-8, "{got}");
+    }
+    assert_eq!(lines[1], vec![0.0, 0.0, 0.0]);
+    assert_bad_input(
+        &meso(&["pack", "eval", p, "--texel", "0.5"], &row),
+        &["--texel", "0.5"],
+    );
+    assert_bad_input(
+        &meso(&["pack", "eval", p, "--texel", "0.5,0.5"], "1,2\n"),
+        &["line 1"],
+    );
+}

@@ -3,9 +3,11 @@
 
 use std::path::{Path, PathBuf};
 
+use anyhow::anyhow;
 use clap::Subcommand;
-use meso_core::spmm::SpmmMaterial;
+use glam::DVec2;
 use meso_core::spmm::pack::{self, PackError};
+use meso_core::spmm::{EvalSettings, SpmmMaterial, TexelFilter};
 use serde_json::json;
 
 use crate::failure::{CliError, ResultExt};
@@ -24,10 +26,36 @@ pub enum PackCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Read CSV rows `wix,wiy,wiz,wox,woy,woz` from stdin, print the RGB BTF value of one texel per row.
+    Eval {
+        file: PathBuf,
+        /// Texture coordinates U,V of the texel (u right, v up, wrapping outside [0, 1)).
+        #[arg(long, value_name = "U,V")]
+        texel: String,
+        /// Leave out the PCA residual.
+        #[arg(long)]
+        no_residual: bool,
+        /// Use at most this many principal components.
+        #[arg(long)]
+        npca: Option<usize>,
+        /// Blend the four nearest texels instead of taking the nearest.
+        #[arg(long)]
+        bilinear: bool,
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 pub fn run(command: PackCommand) -> Result<(), CliError> {
     match command {
+        PackCommand::Eval {
+            file,
+            texel,
+            no_residual,
+            npca,
+            bilinear,
+            json,
+        } => eval(&file, &texel, !no_residual, npca, bilinear, json),
         PackCommand::Info { file, json } => info(&file, json),
         PackCommand::Validate { file, json } => {
             let m = load(&file)?;
@@ -154,6 +182,55 @@ fn info(file: &Path, as_json: bool) -> Result<(), CliError> {
     println!("bytes        {} in all", bytes.len());
     for (name, size) in &sizes {
         println!("  {name:<24} {size:>10}");
+    }
+    Ok(())
+}
+
+fn eval(
+    file: &Path,
+    texel: &str,
+    residual: bool,
+    npca: Option<usize>,
+    bilinear: bool,
+    json: bool,
+) -> Result<(), CliError> {
+    let uv = texel
+        .split_once(',')
+        .and_then(|(u, v)| Some(DVec2::new(u.trim().parse().ok()?, v.trim().parse().ok()?)))
+        .filter(|uv| uv.is_finite())
+        .ok_or_else(|| {
+            CliError::bad_input(anyhow!(
+                "--texel `{texel}`: expected two finite numbers U,V"
+            ))
+        })?;
+    let m = load(file)?;
+    let rows = crate::brdf_cmd::parse_direction_rows(std::io::stdin().lock())?;
+    let settings = EvalSettings {
+        residual,
+        max_npca: npca.unwrap_or(usize::MAX),
+        filter: if bilinear {
+            TexelFilter::Bilinear
+        } else {
+            TexelFilter::Nearest
+        },
+        uv_scale: DVec2::ONE,
+    };
+    let values: Vec<[f64; 3]> = rows
+        .iter()
+        .map(|&(wi, wo)| m.eval_uv(uv, wi, wo, &settings).to_array())
+        .collect();
+    if json {
+        return crate::print_json(&json!({
+            "file": file.display().to_string(),
+            "uv": [uv.x, uv.y],
+            "texel": m.texel_at(uv, DVec2::ONE),
+            "residual": residual,
+            "npca": m.npca().min(settings.max_npca),
+            "values": values,
+        }));
+    }
+    for v in values {
+        println!("{:.8e},{:.8e},{:.8e}", v[0], v[1], v[2]);
     }
     Ok(())
 }

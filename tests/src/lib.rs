@@ -6,3 +6,5 @@
 mod brdf_reference;
 #[cfg(test)]
 mod metrics_reference;
+#[cfg(test)]
+mod shipped_packs;

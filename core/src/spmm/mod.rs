@@ -7,6 +7,7 @@ pub mod directions;
 mod eval;
 mod material;
 pub mod pack;
+pub mod recipe;
 
 #[cfg(test)]
 mod tests;

@@ -30,7 +30,7 @@ pub enum BrdfCommand {
         #[arg(long, value_delimiter = ',', default_values_t = [0.0, 15.0, 30.0, 45.0, 60.0, 75.0, 85.0, 89.0])]
         theta_deg: Vec<f64>,
         /// Azimuth of the fixed direction in degrees (matters for anisotropic models).
-        #[arg(long, default_value_t = 0.0)]
+        #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
         phi_deg: f64,
         /// Monte Carlo samples per angle.
         #[arg(long, default_value_t = 1_000_000)]
@@ -49,7 +49,7 @@ pub enum BrdfCommand {
         #[arg(long, default_value_t = 45.0)]
         theta_i_deg: f64,
         /// Azimuth of the plane of incidence in degrees (matters for anisotropic models).
-        #[arg(long, default_value_t = 0.0)]
+        #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
         phi_deg: f64,
         /// Image width and height in pixels.
         #[arg(long, default_value_t = 480)]

@@ -17,7 +17,7 @@ pub struct CompareArgs {
     /// The image to measure against the reference.
     test: PathBuf,
     /// Exposure in stops applied to both images before measuring (scale 2^stops).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     exposure: f64,
     #[arg(long)]
     json: bool,

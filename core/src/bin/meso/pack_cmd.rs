@@ -6,8 +6,9 @@ use std::path::{Path, PathBuf};
 use anyhow::anyhow;
 use clap::Subcommand;
 use glam::DVec2;
+use meso_core::image::Image;
 use meso_core::spmm::pack::{self, PackError};
-use meso_core::spmm::{EvalSettings, SpmmMaterial, TexelFilter};
+use meso_core::spmm::{EvalSettings, SpmmMaterial, TexelFilter, recipe};
 use serde_json::json;
 
 use crate::failure::{CliError, ResultExt};
@@ -25,6 +26,29 @@ pub enum PackCommand {
         file: PathBuf,
         #[arg(long)]
         json: bool,
+    },
+    /// Build a pack from a TOML recipe (clusters, dictionaries, weight maps); no residual.
+    New {
+        recipe: PathBuf,
+        #[arg(short = 'o', long)]
+        output: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Render a tiled flat patch of the material under two directional lights, as PNG or EXR.
+    Preview {
+        file: PathBuf,
+        #[arg(short = 'o', long)]
+        output: PathBuf,
+        /// Image side in pixels.
+        #[arg(long, default_value_t = 256)]
+        size: u32,
+        /// Tiles of the texture across the image.
+        #[arg(long, default_value_t = 2.0)]
+        tiles: f64,
+        /// Exposure in stops for PNG output.
+        #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+        exposure: f64,
     },
     /// Read CSV rows `wix,wiy,wiz,wox,woy,woz` from stdin, print the RGB BTF value of one texel per row.
     Eval {
@@ -48,6 +72,18 @@ pub enum PackCommand {
 
 pub fn run(command: PackCommand) -> Result<(), CliError> {
     match command {
+        PackCommand::New {
+            recipe,
+            output,
+            json,
+        } => new(&recipe, &output, json),
+        PackCommand::Preview {
+            file,
+            output,
+            size,
+            tiles,
+            exposure,
+        } => preview(&file, &output, size, tiles, exposure),
         PackCommand::Eval {
             file,
             texel,
@@ -232,5 +268,87 @@ fn eval(
     for v in values {
         println!("{:.8e},{:.8e},{:.8e}", v[0], v[1], v[2]);
     }
+    Ok(())
+}
+
+fn new(recipe_path: &Path, output: &Path, json: bool) -> Result<(), CliError> {
+    let m = recipe::build_from_recipe(recipe_path).map_err(CliError::bad_input)?;
+    pack::write_pack(output, &m, pack::ResidualPrecision::F32).map_err(CliError::failure)?;
+    let bytes = std::fs::metadata(output).map(|md| md.len()).unwrap_or(0);
+    if json {
+        return crate::print_json(&json!({
+            "recipe": recipe_path.display().to_string(),
+            "output": output.display().to_string(),
+            "name": m.name(),
+            "clusters": m.clusters().len(),
+            "weights": m.weights().basis.len(),
+            "bytes": bytes,
+        }));
+    }
+    println!(
+        "wrote {} (`{}`: {}x{} texels, {} clusters, {} weights, {bytes} bytes)",
+        output.display(),
+        m.name(),
+        m.width(),
+        m.height(),
+        m.clusters().len(),
+        m.weights().basis.len()
+    );
+    Ok(())
+}
+
+/// A flat patch seen from 50 degrees elevation, lit by a key light (irradiance pi
+/// W/m^2) and a dimmer fill light from the other side, texture tiled `tiles` times:
+/// a quick look at a pack's colour, texture and anisotropy without a scene.
+fn preview(
+    file: &Path,
+    output: &Path,
+    size: u32,
+    tiles: f64,
+    exposure: f64,
+) -> Result<(), CliError> {
+    if !(16..=4096).contains(&size) {
+        return Err(CliError::bad_input(anyhow!(
+            "--size {size}: must lie in [16, 4096]"
+        )));
+    }
+    if !(tiles.is_finite() && tiles > 0.0 && exposure.is_finite()) {
+        return Err(CliError::bad_input(anyhow!(
+            "--tiles must be positive and --exposure finite"
+        )));
+    }
+    let m = load(file)?;
+    let dir = |elev_deg: f64, azim_deg: f64| {
+        let (e, a) = (elev_deg.to_radians(), azim_deg.to_radians());
+        glam::DVec3::new(e.cos() * a.cos(), e.cos() * a.sin(), e.sin())
+    };
+    let wo = dir(50.0, -90.0);
+    // The key light sits near the mirror direction of the view, so glossy packs show
+    // their highlight; the fill light shows the diffuse texture from the side.
+    let lights = [
+        (dir(45.0, 80.0), std::f64::consts::PI),
+        (dir(30.0, 200.0), 0.4 * std::f64::consts::PI),
+    ];
+    let settings = EvalSettings {
+        filter: TexelFilter::Bilinear,
+        ..EvalSettings::default()
+    };
+    let mut img = Image::new(size, size);
+    for y in 0..size {
+        for x in 0..size {
+            let uv = DVec2::new(
+                (x as f64 + 0.5) / size as f64 * tiles,
+                1.0 - (y as f64 + 0.5) / size as f64 * tiles,
+            );
+            let rgb: glam::DVec3 = lights
+                .iter()
+                .map(|&(wi, e)| e * m.eval_uv(uv, wi, wo, &settings))
+                .sum();
+            img.set(x, y, rgb.as_vec3().to_array());
+        }
+    }
+    meso_core::image::write_image(output, &img, exposure)
+        .failure_ctx(|| format!("writing `{}`", output.display()))?;
+    println!("wrote {}", output.display());
     Ok(())
 }

@@ -8,7 +8,7 @@ use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use glam::DVec3;
 use meso_core::brdf::{AnalyticBrdf, BasisFunction, BrdfModel, warp};
 use meso_core::rng::SampleStream;
-use meso_core::spmm::{Cluster, Residual, SparseWeights, SpmmMaterial};
+use meso_core::spmm::{Cluster, PrepareRequest, Residual, SparseWeights, SpmmMaterial};
 use rayon::prelude::*;
 
 const SIDE: u32 = 64;
@@ -157,6 +157,22 @@ fn bench_eval(c: &mut Criterion) {
         });
         group.bench_function(format!("{label}, all threads"), |b| b.iter(run));
     }
+    // The prepared data (cell-major residual layout) against the reference layout.
+    let prepared = m.prepare(&PrepareRequest {
+        used_clusters: None,
+        residual: true,
+        max_npca: NPCA,
+    });
+    let run = || {
+        points
+            .par_iter()
+            .map(|&(t, wi, wo)| prepared.eval_texel(t, black_box(wi), black_box(wo)))
+            .reduce(|| DVec3::ZERO, |a, b| a + b)
+    };
+    group.bench_function("prepared, residual on, 1 thread", |b| {
+        b.iter(|| one.install(run))
+    });
+    group.bench_function("prepared, residual on, all threads", |b| b.iter(run));
     group.finish();
 }
 

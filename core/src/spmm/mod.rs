@@ -7,6 +7,7 @@ pub mod directions;
 mod eval;
 mod material;
 pub mod pack;
+mod prepared;
 pub mod recipe;
 
 #[cfg(test)]
@@ -14,3 +15,4 @@ mod tests;
 
 pub use eval::{EvalSettings, TexelFilter};
 pub use material::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial};
+pub use prepared::{PrepareRequest, PreparedBytes, PreparedSpmm};

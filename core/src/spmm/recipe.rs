@@ -121,7 +121,12 @@ pub fn build_from_recipe(path: &Path) -> Result<SpmmMaterial, RecipeError> {
     let folder = path.parent().unwrap_or(Path::new("."));
     // Provenance names the recipe by its folder and file name only, so the same recipe
     // builds the same bytes wherever it is checked out.
-    let tail: Vec<String> = path.iter().rev().take(2).map(|c| c.to_string_lossy().into_owned()).collect();
+    let tail: Vec<String> = path
+        .iter()
+        .rev()
+        .take(2)
+        .map(|c| c.to_string_lossy().into_owned())
+        .collect();
     let source: Vec<&str> = tail.iter().rev().map(String::as_str).collect();
     build(&recipe, folder, &source.join("/")).map_err(at)
 }

@@ -619,3 +619,85 @@ mod evaluation {
         );
     }
 }
+
+mod prepared {
+    use glam::DVec3;
+
+    use super::sample_material;
+    use crate::brdf::warp::spherical;
+    use crate::rng::SampleStream;
+    use crate::spmm::PrepareRequest;
+
+    fn points(n: u64, texels: usize) -> Vec<(usize, DVec3, DVec3)> {
+        (0..n)
+            .map(|k| {
+                let mut s = SampleStream::new(&[21, k]);
+                let t = (s.next() * texels as f64) as usize;
+                (
+                    t,
+                    spherical(s.next().max(0.05), 6.3 * s.next()),
+                    spherical(s.next().max(0.05), 6.3 * s.next()),
+                )
+            })
+            .collect()
+    }
+
+    #[test]
+    fn prepared_evaluation_equals_the_reference() {
+        let m = sample_material(6, 5, 4, Some(3));
+        for (residual, max_npca) in [
+            (true, usize::MAX),
+            (true, 2),
+            (true, 0),
+            (false, usize::MAX),
+        ] {
+            let p = m.prepare(&PrepareRequest {
+                used_clusters: None,
+                residual,
+                max_npca,
+            });
+            for (t, wi, wo) in points(500, 30) {
+                assert_eq!(
+                    p.eval_texel(t, wi, wo),
+                    m.eval_texel(t, wi, wo, residual, max_npca),
+                    "{residual} {max_npca}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn only_used_clusters_and_kept_components_are_held() {
+        let m = sample_material(6, 5, 4, Some(3));
+        let (l, v, texels) = (5, 4, 30);
+        let used = m.clusters_of_texels((0..texels).filter(|&t| m.texel_cluster()[t] == 1));
+        assert_eq!(used, vec![false, true, false, false]);
+        let full = m.prepare(&PrepareRequest {
+            used_clusters: None,
+            residual: true,
+            max_npca: 3,
+        });
+        let part = m.prepare(&PrepareRequest {
+            used_clusters: Some(used),
+            residual: true,
+            max_npca: 2,
+        });
+        assert_eq!((full.clusters_used(), part.clusters_used()), (4, 1));
+        // Residual bytes: used clusters x L x V x (1 + k) RGB cells, plus k coefficients per texel.
+        assert_eq!(full.bytes().residual, (4 * l * v * 4 * 3 + texels * 3) * 4);
+        assert_eq!(part.bytes().residual, (l * v * 3 * 3 + texels * 2) * 4);
+        let off = m.prepare(&PrepareRequest {
+            used_clusters: None,
+            residual: false,
+            max_npca: 3,
+        });
+        assert_eq!(off.bytes().residual, 0);
+        assert!(off.bytes().total() < part.bytes().total());
+        // Texels of the used cluster evaluate exactly as the reference with N_PCA = 2.
+        for (t, wi, wo) in points(300, texels) {
+            if m.texel_cluster()[t] == 1 {
+                assert_eq!(part.eval_texel(t, wi, wo), m.eval_texel(t, wi, wo, true, 2));
+            }
+        }
+    }
+}

@@ -8,7 +8,7 @@ use clap::Subcommand;
 use glam::DVec2;
 use meso_core::image::Image;
 use meso_core::spmm::pack::{self, PackError};
-use meso_core::spmm::{EvalSettings, SpmmMaterial, TexelFilter, recipe};
+use meso_core::spmm::{EvalSettings, PrepareRequest, SpmmMaterial, TexelFilter, recipe};
 use serde_json::json;
 
 use crate::failure::{CliError, ResultExt};
@@ -154,6 +154,16 @@ fn info(file: &Path, as_json: bool) -> Result<(), CliError> {
             json!({"cluster": i, "texels": n, "bases": bases})
         })
         .collect();
+    // What a render of every cluster would hold, with and without the residual.
+    let eval_bytes = |residual| {
+        m.prepare(&PrepareRequest {
+            used_clusters: None,
+            residual,
+            max_npca: usize::MAX,
+        })
+        .bytes()
+    };
+    let (eval_on, eval_off) = (eval_bytes(true), eval_bytes(false));
     let residual = m.residual().map(|r| json!({"light_dirs": r.light_dirs.len(), "view_dirs": r.view_dirs.len(), "npca": r.npca}));
     if as_json {
         return crate::print_json(&json!({
@@ -169,6 +179,7 @@ fn info(file: &Path, as_json: bool) -> Result<(), CliError> {
             "clusters": clusters,
             "bytes": sizes.iter().map(|(n, s)| json!({"part": n, "bytes": s})).collect::<Vec<_>>(),
             "total_bytes": bytes.len(),
+            "evaluation_bytes": {"residual_on": eval_on, "residual_off": eval_off},
         }));
     }
     println!(
@@ -215,6 +226,14 @@ fn info(file: &Path, as_json: bool) -> Result<(), CliError> {
             );
         }
     }
+    println!(
+        "evaluation   {} bytes with the residual, {} without (bases {}, weights {}, residual {})",
+        eval_on.total(),
+        eval_off.total(),
+        eval_on.bases,
+        eval_on.weights,
+        eval_on.residual
+    );
     println!("bytes        {} in all", bytes.len());
     for (name, size) in &sizes {
         println!("  {name:<24} {size:>10}");

@@ -1,0 +1,200 @@
+//! Evaluation data for one render: built from a material for the clusters the render
+//! uses, the residual switched on or off and N_PCA limited, so a render holds (and a
+//! GPU would upload) only what it evaluates. Its size is reported by `bytes()`. The
+//! residual tables are re-laid out cell-major ([cluster][light][view][mean, b_1..b_K]
+//! x RGB) so one interpolation cell is one contiguous read.
+
+use glam::DVec3;
+
+use super::SpmmMaterial;
+use super::directions::DirectionTable;
+use crate::brdf::BasisFunction;
+
+/// What a render will evaluate.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PrepareRequest {
+    /// `used[c]`: some visible surface shows a texel of cluster `c`; `None` means all.
+    pub used_clusters: Option<Vec<bool>>,
+    pub residual: bool,
+    pub max_npca: usize,
+}
+
+/// Bytes held by each part of the prepared data.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize)]
+pub struct PreparedBytes {
+    pub bases: usize,
+    pub weights: usize,
+    pub residual: usize,
+}
+
+impl PreparedBytes {
+    pub fn total(&self) -> usize {
+        self.bases + self.weights + self.residual
+    }
+}
+
+struct PreparedResidual {
+    lights: DirectionTable,
+    views: DirectionTable,
+    /// Components kept (<= the pack's N_PCA).
+    k: usize,
+    /// Per cluster: offset of its tables in `cells`, or `None` when unused.
+    cluster_offset: Vec<Option<usize>>,
+    /// [used cluster][light][view][1 + k][3], mean first.
+    cells: Vec<f32>,
+    /// [texel][k]: only the kept components.
+    coefficients: Vec<f32>,
+}
+
+/// Evaluation data of one material for one render.
+pub struct PreparedSpmm {
+    bases: Vec<Vec<BasisFunction>>,
+    texel_cluster: Vec<u32>,
+    offsets: Vec<u32>,
+    basis: Vec<u16>,
+    rgb: Vec<[f32; 3]>,
+    residual: Option<PreparedResidual>,
+    clusters_used: usize,
+}
+
+impl SpmmMaterial {
+    /// Which clusters the given texels (row-major indices) belong to.
+    pub fn clusters_of_texels(&self, texels: impl IntoIterator<Item = usize>) -> Vec<bool> {
+        let mut used = vec![false; self.clusters().len()];
+        for t in texels {
+            if let Some(&c) = self.texel_cluster().get(t) {
+                used[c as usize] = true;
+            }
+        }
+        used
+    }
+
+    /// Builds the evaluation data a render with these settings needs.
+    pub fn prepare(&self, request: &PrepareRequest) -> PreparedSpmm {
+        let used = |c: usize| {
+            request
+                .used_clusters
+                .as_ref()
+                .is_none_or(|u| u.get(c).copied().unwrap_or(false))
+        };
+        let residual = match (request.residual, self.residual(), self.residual_tables()) {
+            (true, Some(r), Some((lights, views))) => {
+                let (nl, nv, npca) = (r.light_dirs.len(), r.view_dirs.len(), r.npca);
+                let k = npca.min(request.max_npca);
+                let stride = (1 + k) * 3;
+                let mut cluster_offset = Vec::with_capacity(self.clusters().len());
+                let mut cells = Vec::new();
+                for c in 0..self.clusters().len() {
+                    if !used(c) {
+                        cluster_offset.push(None);
+                        continue;
+                    }
+                    cluster_offset.push(Some(cells.len()));
+                    for l in 0..nl {
+                        for v in 0..nv {
+                            let m = ((c * nl + l) * nv + v) * 3;
+                            cells.extend_from_slice(&r.mean[m..m + 3]);
+                            for kk in 0..k {
+                                let b = (((c * npca + kk) * nl + l) * nv + v) * 3;
+                                cells.extend_from_slice(&r.components[b..b + 3]);
+                            }
+                        }
+                    }
+                }
+                debug_assert_eq!(cells.len() % (nl * nv * stride).max(1), 0);
+                let coefficients = r
+                    .coefficients
+                    .chunks_exact(npca.max(1))
+                    .flat_map(|row| &row[..k])
+                    .copied()
+                    .collect();
+                Some(PreparedResidual {
+                    lights: lights.clone(),
+                    views: views.clone(),
+                    k,
+                    cluster_offset,
+                    cells,
+                    coefficients,
+                })
+            }
+            _ => None,
+        };
+        PreparedSpmm {
+            bases: self.clusters().iter().map(|c| c.bases.clone()).collect(),
+            texel_cluster: self.texel_cluster().to_vec(),
+            offsets: self.weights().offsets.clone(),
+            basis: self.weights().basis.clone(),
+            rgb: self.weights().rgb.clone(),
+            residual,
+            clusters_used: (0..self.clusters().len()).filter(|&c| used(c)).count(),
+        }
+    }
+}
+
+impl PreparedSpmm {
+    /// BTF(t, wi, wo), RGB, as `SpmmMaterial::eval_texel` with the prepared settings.
+    /// Texels of clusters not marked used get no residual.
+    pub fn eval_texel(&self, t: usize, wi: DVec3, wo: DVec3) -> DVec3 {
+        if wi.z <= 0.0 || wo.z <= 0.0 {
+            return DVec3::ZERO;
+        }
+        let c = self.texel_cluster[t] as usize;
+        let bases = &self.bases[c];
+        let mut rgb = DVec3::ZERO;
+        for i in self.offsets[t] as usize..self.offsets[t + 1] as usize {
+            let w = self.rgb[i];
+            rgb += DVec3::new(w[0] as f64, w[1] as f64, w[2] as f64)
+                * bases[usize::from(self.basis[i])].eval(wi, wo);
+        }
+        if let Some(r) = &self.residual
+            && let Some(base) = r.cluster_offset[c]
+        {
+            let stride = (1 + r.k) * 3;
+            let nv = r.views.len();
+            let coef = &r.coefficients[t * r.k..(t + 1) * r.k];
+            for (l, wl) in r.lights.weights(wi) {
+                for (v, wv) in r.views.weights(wo) {
+                    let w = wl * wv;
+                    if w == 0.0 {
+                        continue;
+                    }
+                    let cell = &r.cells[base + (l as usize * nv + v as usize) * stride..][..stride];
+                    let mut e = DVec3::new(cell[0] as f64, cell[1] as f64, cell[2] as f64);
+                    for (k, &a) in coef.iter().enumerate() {
+                        let b = &cell[3 + 3 * k..6 + 3 * k];
+                        e += a as f64 * DVec3::new(b[0] as f64, b[1] as f64, b[2] as f64);
+                    }
+                    rgb += w * e;
+                }
+            }
+        }
+        rgb
+    }
+
+    /// Clusters whose residual tables were kept.
+    pub fn clusters_used(&self) -> usize {
+        self.clusters_used
+    }
+
+    /// Memory held, by part.
+    pub fn bytes(&self) -> PreparedBytes {
+        let bases = self
+            .bases
+            .iter()
+            .map(|b| b.len() * size_of::<BasisFunction>())
+            .sum();
+        let weights = self.texel_cluster.len() * 4
+            + self.offsets.len() * 4
+            + self.basis.len() * 2
+            + self.rgb.len() * 12;
+        let residual = self
+            .residual
+            .as_ref()
+            .map_or(0, |r| (r.cells.len() + r.coefficients.len()) * 4);
+        PreparedBytes {
+            bases,
+            weights,
+            residual,
+        }
+    }
+}

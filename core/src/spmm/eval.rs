@@ -89,44 +89,70 @@ impl SpmmMaterial {
         rgb
     }
 
-    /// Texel coordinates (continuous, texel centres at +0.5) of a UV position after
-    /// tiling: u to the right, v up (row 0 is the top), wrapping outside [0, 1).
-    fn texel_position(&self, uv: DVec2, scale: DVec2) -> DVec2 {
-        let u = (uv.x * scale.x).rem_euclid(1.0);
-        let v = (uv.y * scale.y).rem_euclid(1.0);
-        DVec2::new(u * self.width() as f64, (1.0 - v) * self.height() as f64)
-    }
-
     /// The row-major texel index a UV position falls in (nearest filtering).
     pub fn texel_at(&self, uv: DVec2, scale: DVec2) -> usize {
-        let p = self.texel_position(uv, scale);
-        let x = (p.x.floor() as i64).clamp(0, self.width() as i64 - 1) as usize;
-        let y = (p.y.floor() as i64).clamp(0, self.height() as i64 - 1) as usize;
-        y * self.width() as usize + x
+        TexelGrid::of(self).nearest(uv, scale)
     }
 
     /// BTF at a surface UV position, with the settings' filter, tiling and residual knobs.
     pub fn eval_uv(&self, uv: DVec2, wi: DVec3, wo: DVec3, s: &EvalSettings) -> DVec3 {
+        TexelGrid::of(self).filter(uv, s, |t| {
+            self.eval_texel(t, wi, wo, s.residual, s.max_npca)
+        })
+    }
+}
+
+/// UV to texel mapping, shared by the reference and the prepared evaluation.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct TexelGrid {
+    pub width: u32,
+    pub height: u32,
+}
+
+impl TexelGrid {
+    pub fn of(m: &SpmmMaterial) -> Self {
+        Self {
+            width: m.width(),
+            height: m.height(),
+        }
+    }
+
+    /// Texel coordinates (continuous, texel centres at +0.5) after tiling: u to the
+    /// right, v up (row 0 is the top), wrapping outside [0, 1).
+    fn position(&self, uv: DVec2, scale: DVec2) -> DVec2 {
+        let u = (uv.x * scale.x).rem_euclid(1.0);
+        let v = (uv.y * scale.y).rem_euclid(1.0);
+        DVec2::new(u * self.width as f64, (1.0 - v) * self.height as f64)
+    }
+
+    pub fn nearest(&self, uv: DVec2, scale: DVec2) -> usize {
+        let p = self.position(uv, scale);
+        let x = (p.x.floor() as i64).clamp(0, self.width as i64 - 1) as usize;
+        let y = (p.y.floor() as i64).clamp(0, self.height as i64 - 1) as usize;
+        y * self.width as usize + x
+    }
+
+    /// Applies the settings' filter to `texel_value`; 0 for a non-finite UV.
+    pub fn filter(
+        &self,
+        uv: DVec2,
+        s: &EvalSettings,
+        texel_value: impl Fn(usize) -> DVec3,
+    ) -> DVec3 {
         if !uv.is_finite() {
             return DVec3::ZERO;
         }
         match s.filter {
-            TexelFilter::Nearest => self.eval_texel(
-                self.texel_at(uv, s.uv_scale),
-                wi,
-                wo,
-                s.residual,
-                s.max_npca,
-            ),
+            TexelFilter::Nearest => texel_value(self.nearest(uv, s.uv_scale)),
             TexelFilter::Bilinear => {
-                let p = self.texel_position(uv, s.uv_scale) - DVec2::splat(0.5);
-                let (w, h) = (self.width() as i64, self.height() as i64);
+                let p = self.position(uv, s.uv_scale) - DVec2::splat(0.5);
+                let (w, h) = (self.width as i64, self.height as i64);
                 let (x0, y0) = (p.x.floor(), p.y.floor());
                 let (fx, fy) = (p.x - x0, p.y - y0);
                 let texel = |dx: i64, dy: i64| {
                     let x = (x0 as i64 + dx).rem_euclid(w) as usize;
                     let y = (y0 as i64 + dy).rem_euclid(h) as usize;
-                    self.eval_texel(y * w as usize + x, wi, wo, s.residual, s.max_npca)
+                    texel_value(y * w as usize + x)
                 };
                 (texel(0, 0) * (1.0 - fx) + texel(1, 0) * fx) * (1.0 - fy)
                     + (texel(0, 1) * (1.0 - fx) + texel(1, 1) * fx) * fy

@@ -4,10 +4,11 @@
 //! residual tables are re-laid out cell-major ([cluster][light][view][mean, b_1..b_K]
 //! x RGB) so one interpolation cell is one contiguous read.
 
-use glam::DVec3;
+use glam::{DVec2, DVec3};
 
-use super::SpmmMaterial;
 use super::directions::DirectionTable;
+use super::eval::TexelGrid;
+use super::{EvalSettings, SpmmMaterial};
 use crate::brdf::BasisFunction;
 
 /// What a render will evaluate.
@@ -48,6 +49,7 @@ struct PreparedResidual {
 
 /// Evaluation data of one material for one render.
 pub struct PreparedSpmm {
+    grid: TexelGrid,
     bases: Vec<Vec<BasisFunction>>,
     texel_cluster: Vec<u32>,
     offsets: Vec<u32>,
@@ -120,6 +122,7 @@ impl SpmmMaterial {
             _ => None,
         };
         PreparedSpmm {
+            grid: TexelGrid::of(self),
             bases: self.clusters().iter().map(|c| c.bases.clone()).collect(),
             texel_cluster: self.texel_cluster().to_vec(),
             offsets: self.weights().offsets.clone(),
@@ -169,6 +172,12 @@ impl PreparedSpmm {
             }
         }
         rgb
+    }
+
+    /// BTF at a surface UV position with the settings' filter and tiling (the residual
+    /// and N_PCA were fixed by `prepare`).
+    pub fn eval_uv(&self, uv: DVec2, wi: DVec3, wo: DVec3, s: &EvalSettings) -> DVec3 {
+        self.grid.filter(uv, s, |t| self.eval_texel(t, wi, wo))
     }
 
     /// Clusters whose residual tables were kept.

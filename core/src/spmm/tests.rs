@@ -621,12 +621,12 @@ mod evaluation {
 }
 
 mod prepared {
-    use glam::DVec3;
+    use glam::{DVec2, DVec3};
 
     use super::sample_material;
     use crate::brdf::warp::spherical;
     use crate::rng::SampleStream;
-    use crate::spmm::PrepareRequest;
+    use crate::spmm::{EvalSettings, PrepareRequest, TexelFilter};
 
     fn points(n: u64, texels: usize) -> Vec<(usize, DVec3, DVec3)> {
         (0..n)
@@ -662,6 +662,17 @@ mod prepared {
                     m.eval_texel(t, wi, wo, residual, max_npca),
                     "{residual} {max_npca}"
                 );
+            }
+            let s = EvalSettings {
+                residual,
+                max_npca,
+                filter: TexelFilter::Bilinear,
+                uv_scale: DVec2::new(2.0, 3.0),
+            };
+            let (wi, wo) = (spherical(0.7, 0.2), spherical(0.5, 2.2));
+            for k in 0..100 {
+                let uv = DVec2::new(0.013 * k as f64, 1.0 - 0.021 * k as f64);
+                assert_eq!(p.eval_uv(uv, wi, wo, &s), m.eval_uv(uv, wi, wo, &s));
             }
         }
     }

@@ -10,4 +10,5 @@ pub mod brdf;
 pub mod image;
 pub mod metrics;
 pub mod rng;
+pub mod scene;
 pub mod spmm;

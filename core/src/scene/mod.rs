@@ -1,0 +1,557 @@
+//! Scenes (spec/scene.md, docs/scenes.md): a TOML file read with serde and
+//! `deny_unknown_fields`, checked into a `Scene` whose every value is valid: camera,
+//! analytic / SPMM / mirror materials, OBJ meshes and quads in world space, point and
+//! area lights, ambient occlusion, background. Every error names the scene file, the
+//! line and the key (or the referenced file and its own fault).
+
+mod file;
+pub mod mesh;
+#[cfg(test)]
+mod tests;
+
+use std::collections::BTreeMap;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use glam::{DMat3, DVec2, DVec3};
+use toml::Spanned;
+
+use crate::brdf::{AnalyticBrdf, BrdfModel};
+use crate::image::{self, Image};
+use crate::spmm::SpmmMaterial;
+use crate::spmm::pack;
+pub use mesh::TriangleMesh;
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RenderSettings {
+    pub width: u32,
+    pub height: u32,
+    pub frames: u32,
+    pub seed: u64,
+    pub max_specular_depth: u32,
+}
+
+/// A pinhole camera (right-handed, y up).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Camera {
+    pub position: DVec3,
+    pub look_at: DVec3,
+    pub up: DVec3,
+    pub fov_y_deg: f64,
+}
+
+#[derive(Clone, Debug)]
+pub enum Material {
+    /// f_rgb = albedo * f(wi, wo).
+    Brdf {
+        brdf: AnalyticBrdf,
+        albedo: DVec3,
+    },
+    Spmm {
+        material: Arc<SpmmMaterial>,
+        uv_scale: DVec2,
+        residual: bool,
+        npca: usize,
+    },
+    Mirror {
+        reflectance: DVec3,
+    },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Light {
+    /// Intensity in W/sr, 1/r^2 fall-off.
+    Point { position: DVec3, intensity: DVec3 },
+    /// One-sided parallelogram emitting `radiance` towards edge_u x edge_v.
+    Area {
+        corner: DVec3,
+        edge_u: DVec3,
+        edge_v: DVec3,
+        radiance: DVec3,
+    },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ambient {
+    pub radiance: DVec3,
+    /// Occluders farther than this are ignored; `f64::INFINITY` = none ignored.
+    pub radius: f64,
+}
+
+#[derive(Clone, Debug)]
+pub enum Background {
+    Color(DVec3),
+    /// Lat-long environment, +y up (docs/scenes.md gives the column convention).
+    Environment(Arc<Image>),
+}
+
+#[derive(Clone, Debug)]
+pub struct Scene {
+    pub render: RenderSettings,
+    pub camera: Camera,
+    pub material_names: Vec<String>,
+    pub materials: Vec<Material>,
+    pub meshes: Vec<TriangleMesh>,
+    pub lights: Vec<Light>,
+    pub ambient: Option<Ambient>,
+    pub background: Background,
+}
+
+/// A scene that cannot be loaded: the file, the line (when known), the key, and why.
+#[derive(Debug, thiserror::Error)]
+#[error("`{}`{}{}: {message}", file.display(), line.map(|l| format!(" line {l}")).unwrap_or_default(), key.as_ref().map(|k| format!(", `{k}`")).unwrap_or_default())]
+pub struct SceneError {
+    pub file: PathBuf,
+    pub line: Option<usize>,
+    pub key: Option<String>,
+    pub message: String,
+}
+
+struct Ctx<'a> {
+    file: &'a Path,
+    text: &'a str,
+}
+
+impl Ctx<'_> {
+    fn line_of(&self, span: &Range<usize>) -> Option<usize> {
+        (span.end > 0 && span.start <= self.text.len())
+            .then(|| self.text[..span.start].matches('\n').count() + 1)
+    }
+    fn err<T>(
+        &self,
+        span: &Range<usize>,
+        key: impl Into<String>,
+        message: impl Into<String>,
+    ) -> Result<T, SceneError> {
+        Err(SceneError {
+            file: self.file.to_path_buf(),
+            line: self.line_of(span),
+            key: Some(key.into()),
+            message: message.into(),
+        })
+    }
+    fn finite3(&self, v: &Spanned<[f64; 3]>, key: &str) -> Result<DVec3, SceneError> {
+        let d = DVec3::from_array(*v.get_ref());
+        if d.is_finite() {
+            Ok(d)
+        } else {
+            self.err(&v.span(), key, format!("{:?} is not finite", v.get_ref()))
+        }
+    }
+    fn non_negative3(&self, v: &Spanned<[f64; 3]>, key: &str) -> Result<DVec3, SceneError> {
+        let d = self.finite3(v, key)?;
+        if d.min_element() >= 0.0 {
+            Ok(d)
+        } else {
+            self.err(&v.span(), key, format!("{d} has a negative component"))
+        }
+    }
+}
+
+/// Reads and checks a scene file; referenced files are relative to it.
+pub fn load_scene(path: &Path) -> Result<Scene, SceneError> {
+    let text = std::fs::read_to_string(path).map_err(|e| SceneError {
+        file: path.to_path_buf(),
+        line: None,
+        key: None,
+        message: format!("cannot read: {e}"),
+    })?;
+    let ctx = Ctx {
+        file: path,
+        text: &text,
+    };
+    let parsed: file::SceneFile = toml::from_str(&text).map_err(|e| {
+        let line = e.span().and_then(|s| ctx.line_of(&s));
+        // toml names the key for unknown or missing fields but not for a wrong type:
+        // take it from the offending line (`key = value`).
+        let key = line
+            .and_then(|l| text.lines().nth(l - 1))
+            .and_then(|l| l.split_once('='))
+            .map(|(k, _)| k.trim().to_string())
+            .filter(|k| !k.is_empty() && !k.starts_with('['));
+        SceneError {
+            file: path.to_path_buf(),
+            line,
+            key,
+            message: e.message().to_string(),
+        }
+    })?;
+    let folder = path.parent().unwrap_or(Path::new("."));
+    build(&ctx, parsed, folder)
+}
+
+fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneError> {
+    if *f.version.get_ref() != 1 {
+        return ctx.err(
+            &f.version.span(),
+            "version",
+            format!("{}: only version 1 exists", f.version.get_ref()),
+        );
+    }
+    let r = &f.render;
+    for (v, key) in [(&r.width, "render.width"), (&r.height, "render.height")] {
+        if !(1..=16384).contains(v.get_ref()) {
+            return ctx.err(
+                &v.span(),
+                key,
+                format!("{} is outside [1, 16384]", v.get_ref()),
+            );
+        }
+    }
+    if *r.frames.get_ref() == 0 {
+        return ctx.err(&r.frames.span(), "render.frames", "must be at least 1");
+    }
+    if *r.max_specular_depth.get_ref() > 64 {
+        return ctx.err(
+            &r.max_specular_depth.span(),
+            "render.max_specular_depth",
+            "must be at most 64",
+        );
+    }
+    let render = RenderSettings {
+        width: *r.width.get_ref(),
+        height: *r.height.get_ref(),
+        frames: *r.frames.get_ref(),
+        seed: r.seed,
+        max_specular_depth: *r.max_specular_depth.get_ref(),
+    };
+
+    let c = &f.camera;
+    let camera = Camera {
+        position: ctx.finite3(&c.position, "camera.position")?,
+        look_at: ctx.finite3(&c.look_at, "camera.look_at")?,
+        up: ctx.finite3(&c.up, "camera.up")?,
+        fov_y_deg: *c.fov_y_deg.get_ref(),
+    };
+    if !(camera.fov_y_deg > 0.0 && camera.fov_y_deg < 180.0) {
+        return ctx.err(
+            &c.fov_y_deg.span(),
+            "camera.fov_y_deg",
+            format!("{} is outside (0, 180)", camera.fov_y_deg),
+        );
+    }
+    let forward = camera.look_at - camera.position;
+    if forward.length() < 1e-9 {
+        return ctx.err(
+            &c.look_at.span(),
+            "camera.look_at",
+            "equals the camera position",
+        );
+    }
+    if forward.cross(camera.up).length() < 1e-9 * forward.length() * camera.up.length().max(1e-300)
+    {
+        return ctx.err(
+            &c.up.span(),
+            "camera.up",
+            "is zero or parallel to the viewing direction",
+        );
+    }
+
+    let mut material_names = Vec::new();
+    let mut materials = Vec::new();
+    let mut index_of: BTreeMap<String, usize> = BTreeMap::new();
+    for (name, m) in &f.materials {
+        index_of.insert(name.clone(), materials.len());
+        material_names.push(name.clone());
+        materials.push(build_material(ctx, name, m, folder)?);
+    }
+    let material_ref = |s: &Spanned<String>, key: &str| -> Result<usize, SceneError> {
+        match index_of.get(s.get_ref()) {
+            Some(&i) => Ok(i),
+            None => ctx.err(
+                &s.span(),
+                key,
+                format!(
+                    "no material named `{}` (defined: {})",
+                    s.get_ref(),
+                    material_names.join(", ")
+                ),
+            ),
+        }
+    };
+
+    let mut meshes = Vec::new();
+    for (i, m) in f.meshes.iter().enumerate() {
+        let key = |k: &str| format!("mesh[{i}].{k}");
+        let material = material_ref(&m.material, &key("material"))?;
+        let scale = *m.scale.get_ref();
+        if !(scale.is_finite() && scale > 0.0) {
+            return ctx.err(
+                &m.scale.span(),
+                key("scale"),
+                format!("{scale} must be positive and finite"),
+            );
+        }
+        let axis = ctx.finite3(&m.rotate_axis, &key("rotate_axis"))?;
+        let angle = *m.rotate_deg.get_ref();
+        if !angle.is_finite() {
+            return ctx.err(&m.rotate_deg.span(), key("rotate_deg"), "is not finite");
+        }
+        let Some(axis) = axis.try_normalize() else {
+            return ctx.err(
+                &m.rotate_axis.span(),
+                key("rotate_axis"),
+                "is the zero vector",
+            );
+        };
+        let placement = mesh::Placement {
+            scale,
+            rotation: DMat3::from_axis_angle(axis, angle.to_radians()),
+            translate: ctx.finite3(&m.translate, &key("translate"))?,
+        };
+        let path = folder.join(m.path.get_ref());
+        let loaded = mesh::load_obj(&path, &placement, material).map_err(|e| SceneError {
+            file: ctx.file.to_path_buf(),
+            line: ctx.line_of(&m.path.span()),
+            key: Some(key("path")),
+            message: e.to_string(),
+        })?;
+        meshes.push(loaded);
+    }
+    for (i, q) in f.quads.iter().enumerate() {
+        let key = |k: &str| format!("quad[{i}].{k}");
+        let material = material_ref(&q.material, &key("material"))?;
+        let corner = ctx.finite3(&q.corner, &key("corner"))?;
+        let (eu, ev) = (
+            ctx.finite3(&q.edge_u, &key("edge_u"))?,
+            ctx.finite3(&q.edge_v, &key("edge_v"))?,
+        );
+        if eu.cross(ev).length() <= 1e-12 {
+            return ctx.err(
+                &q.edge_v.span(),
+                key("edge_v"),
+                "the quad has zero area (edges parallel or zero)",
+            );
+        }
+        meshes.push(mesh::quad(corner, eu, ev, material));
+    }
+
+    let mut lights = Vec::new();
+    for (i, l) in f.lights.iter().enumerate() {
+        let span = l.span();
+        let l = l.get_ref();
+        let key = |k: &str| format!("light[{i}].{k}");
+        // Positions and edges may be negative; intensities and radiances may not.
+        let need =
+            |v: &Option<Spanned<[f64; 3]>>, k: &str, power: bool| -> Result<DVec3, SceneError> {
+                match v {
+                    Some(v) if power => ctx.non_negative3(v, &key(k)),
+                    Some(v) => ctx.finite3(v, &key(k)),
+                    None => ctx.err(
+                        &span,
+                        key(k),
+                        format!("a {} light needs `{k}`", l.kind.get_ref()),
+                    ),
+                }
+            };
+        let forbid = |v: bool, k: &str| -> Result<(), SceneError> {
+            if v {
+                ctx.err(
+                    &span,
+                    key(k),
+                    format!("does not belong to a {} light", l.kind.get_ref()),
+                )
+            } else {
+                Ok(())
+            }
+        };
+        match l.kind.get_ref().as_str() {
+            "point" => {
+                forbid(l.corner.is_some(), "corner")?;
+                forbid(l.edge_u.is_some(), "edge_u")?;
+                forbid(l.edge_v.is_some(), "edge_v")?;
+                forbid(l.radiance.is_some(), "radiance")?;
+                lights.push(Light::Point {
+                    position: need(&l.position, "position", false)?,
+                    intensity: need(&l.intensity, "intensity", true)?,
+                });
+            }
+            "area" => {
+                forbid(l.position.is_some(), "position")?;
+                forbid(l.intensity.is_some(), "intensity")?;
+                let (eu, ev) = (
+                    need(&l.edge_u, "edge_u", false)?,
+                    need(&l.edge_v, "edge_v", false)?,
+                );
+                if eu.cross(ev).length() <= 1e-12 {
+                    return ctx.err(&span, key("edge_v"), "the area light has zero area");
+                }
+                lights.push(Light::Area {
+                    corner: need(&l.corner, "corner", false)?,
+                    edge_u: eu,
+                    edge_v: ev,
+                    radiance: need(&l.radiance, "radiance", true)?,
+                });
+            }
+            other => {
+                return ctx.err(
+                    &l.kind.span(),
+                    key("kind"),
+                    format!("`{other}`: lights are `point` or `area`"),
+                );
+            }
+        }
+    }
+
+    let ambient = match &f.ambient {
+        None => None,
+        Some(a) => {
+            let radius = *a.radius.get_ref();
+            if radius.is_nan() || radius <= 0.0 {
+                return ctx.err(
+                    &a.radius.span(),
+                    "ambient.radius",
+                    format!("{radius} must be positive (inf: no limit)"),
+                );
+            }
+            Some(Ambient {
+                radiance: ctx.non_negative3(&a.radiance, "ambient.radiance")?,
+                radius,
+            })
+        }
+    };
+    let background = match &f.background.environment {
+        Some(env) => {
+            let path = folder.join(env.get_ref());
+            let img = image::read_image(&path).map_err(|e| SceneError {
+                file: ctx.file.to_path_buf(),
+                line: ctx.line_of(&env.span()),
+                key: Some("background.environment".into()),
+                message: e.to_string(),
+            })?;
+            Background::Environment(Arc::new(img))
+        }
+        None => Background::Color(ctx.non_negative3(&f.background.color, "background.color")?),
+    };
+    Ok(Scene {
+        render,
+        camera,
+        material_names,
+        materials,
+        meshes,
+        lights,
+        ambient,
+        background,
+    })
+}
+
+fn build_material(
+    ctx: &Ctx,
+    name: &str,
+    m: &Spanned<file::MaterialFile>,
+    folder: &Path,
+) -> Result<Material, SceneError> {
+    let span = m.span();
+    let m = m.get_ref();
+    let key = |k: &str| format!("materials.{name}.{k}");
+    let forbid = |present: bool, k: &str| -> Result<(), SceneError> {
+        if present {
+            ctx.err(
+                &span,
+                key(k),
+                format!("does not belong to a `{}` material", m.kind.get_ref()),
+            )
+        } else {
+            Ok(())
+        }
+    };
+    match m.kind.get_ref().as_str() {
+        "brdf" => {
+            forbid(m.pack.is_some(), "pack")?;
+            forbid(m.uv_scale.is_some(), "uv_scale")?;
+            forbid(m.residual.is_some(), "residual")?;
+            forbid(m.npca.is_some(), "npca")?;
+            forbid(m.reflectance.is_some(), "reflectance")?;
+            let Some(model) = &m.model else {
+                return ctx.err(&span, key("model"), "a `brdf` material needs `model`");
+            };
+            let model_id = BrdfModel::from_name(model.get_ref())
+                .or_else(|e| ctx.err(&model.span(), key("model"), e.to_string()))?;
+            let empty = BTreeMap::new();
+            let (params, pspan) = match &m.params {
+                Some(p) => (p.get_ref(), p.span()),
+                None => (&empty, span.clone()),
+            };
+            let named: Vec<(&str, f64)> = params.iter().map(|(k, v)| (k.as_str(), *v)).collect();
+            let brdf = AnalyticBrdf::new(model_id, &named)
+                .or_else(|e| ctx.err(&pspan, key("params"), e.to_string()))?;
+            let albedo = match &m.albedo {
+                Some(a) => ctx.non_negative3(a, &key("albedo"))?,
+                None => DVec3::ONE,
+            };
+            Ok(Material::Brdf { brdf, albedo })
+        }
+        "spmm" => {
+            forbid(m.model.is_some(), "model")?;
+            forbid(m.params.is_some(), "params")?;
+            forbid(m.albedo.is_some(), "albedo")?;
+            forbid(m.reflectance.is_some(), "reflectance")?;
+            let Some(pack_path) = &m.pack else {
+                return ctx.err(&span, key("pack"), "an `spmm` material needs `pack`");
+            };
+            let material = pack::read_pack(&folder.join(pack_path.get_ref()))
+                .or_else(|e| ctx.err(&pack_path.span(), key("pack"), e.to_string()))?;
+            let uv_scale = match &m.uv_scale {
+                Some(s) => {
+                    let v = DVec2::from_array(*s.get_ref());
+                    if !(v.is_finite() && v.min_element() > 0.0) {
+                        return ctx.err(
+                            &s.span(),
+                            key("uv_scale"),
+                            format!("{v} must be positive and finite"),
+                        );
+                    }
+                    v
+                }
+                None => DVec2::ONE,
+            };
+            let npca = match &m.npca {
+                Some(n) if *n.get_ref() as usize > material.npca() => {
+                    return ctx.err(
+                        &n.span(),
+                        key("npca"),
+                        format!(
+                            "{} exceeds the pack's N_PCA {}",
+                            n.get_ref(),
+                            material.npca()
+                        ),
+                    );
+                }
+                Some(n) => *n.get_ref() as usize,
+                None => material.npca(),
+            };
+            Ok(Material::Spmm {
+                material: Arc::new(material),
+                uv_scale,
+                residual: m.residual.unwrap_or(true),
+                npca,
+            })
+        }
+        "mirror" => {
+            forbid(m.model.is_some(), "model")?;
+            forbid(m.params.is_some(), "params")?;
+            forbid(m.albedo.is_some(), "albedo")?;
+            forbid(m.pack.is_some(), "pack")?;
+            forbid(m.uv_scale.is_some(), "uv_scale")?;
+            forbid(m.residual.is_some(), "residual")?;
+            forbid(m.npca.is_some(), "npca")?;
+            let reflectance = match &m.reflectance {
+                Some(r) => ctx.non_negative3(r, &key("reflectance"))?,
+                None => {
+                    return ctx.err(
+                        &span,
+                        key("reflectance"),
+                        "a `mirror` material needs `reflectance`",
+                    );
+                }
+            };
+            Ok(Material::Mirror { reflectance })
+        }
+        other => ctx.err(
+            &m.kind.span(),
+            key("kind"),
+            format!("`{other}`: materials are `brdf`, `spmm` or `mirror`"),
+        ),
+    }
+}

@@ -1,0 +1,315 @@
+//! Scene files: the spec's example parses into the documented values, and every kind
+//! of bad input is an error naming the file, the line and the key.
+
+use std::path::{Path, PathBuf};
+
+use glam::{DVec2, DVec3};
+
+use super::*;
+
+/// A unit right tetrahedron without normals or UVs.
+const TETRA: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
+
+fn setup() -> tempfile::TempDir {
+    let dir = tempfile::tempdir().expect("temp dir");
+    std::fs::create_dir_all(dir.path().join("meshes")).expect("mkdir");
+    std::fs::write(dir.path().join("meshes/tetra.obj"), TETRA).expect("write obj");
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../materials/leather.spmm"),
+        dir.path().join("leather.spmm"),
+    )
+    .expect("copy pack");
+    dir
+}
+
+const EXAMPLE: &str = r#"version = 1
+
+[render]
+width = 64
+height = 48
+frames = 8
+seed = 3
+max_specular_depth = 2
+
+[camera]
+position = [0.0, 0.6, 2.5]
+look_at = [0.0, 0.4, 0.0]
+up = [0.0, 1.0, 0.0]
+fov_y_deg = 35.0
+
+[materials.floor]
+kind = "brdf"
+model = "ward"
+params = { ax = 0.1, ay = 0.3 }
+albedo = [0.7, 0.6, 0.5]
+
+[materials.cloth]
+kind = "spmm"
+pack = "leather.spmm"
+uv_scale = [4.0, 2.0]
+residual = false
+
+[materials.chrome]
+kind = "mirror"
+reflectance = [0.9, 0.9, 0.9]
+
+[[mesh]]
+path = "meshes/tetra.obj"
+material = "cloth"
+scale = 2.0
+rotate_axis = [0.0, 1.0, 0.0]
+rotate_deg = 90.0
+translate = [1.0, 0.0, 0.0]
+
+[[quad]]
+corner = [-2.0, 0.0, 2.0]
+edge_u = [4.0, 0.0, 0.0]
+edge_v = [0.0, 0.0, -4.0]
+material = "floor"
+
+[[light]]
+kind = "point"
+position = [1.0, 2.0, 1.0]
+intensity = [5.0, 5.0, 5.0]
+
+[[light]]
+kind = "area"
+corner = [-0.5, 2.0, -0.5]
+edge_u = [1.0, 0.0, 0.0]
+edge_v = [0.0, 0.0, 1.0]
+radiance = [8.0, 8.0, 8.0]
+
+[ambient]
+radiance = [0.3, 0.3, 0.3]
+radius = inf
+
+[background]
+color = [0.1, 0.2, 0.3]
+"#;
+
+fn write(dir: &Path, text: &str) -> PathBuf {
+    let p = dir.join("scene.toml");
+    std::fs::write(&p, text).expect("write scene");
+    p
+}
+
+#[test]
+fn the_spec_example_loads_with_its_values() {
+    let dir = setup();
+    let s = load_scene(&write(dir.path(), EXAMPLE)).expect("valid scene");
+    assert_eq!(
+        s.render,
+        RenderSettings {
+            width: 64,
+            height: 48,
+            frames: 8,
+            seed: 3,
+            max_specular_depth: 2
+        }
+    );
+    assert_eq!(s.camera.fov_y_deg, 35.0);
+    assert_eq!(s.material_names, vec!["chrome", "cloth", "floor"]);
+    match &s.materials[2] {
+        Material::Brdf { brdf, albedo } => {
+            assert_eq!(brdf.param_values(), vec![0.1, 0.3]);
+            assert_eq!(*albedo, DVec3::new(0.7, 0.6, 0.5));
+        }
+        other => panic!("floor is a brdf material, got {other:?}"),
+    }
+    match &s.materials[1] {
+        Material::Spmm {
+            uv_scale,
+            residual,
+            npca,
+            material,
+        } => {
+            assert_eq!(
+                (*uv_scale, *residual, *npca),
+                (DVec2::new(4.0, 2.0), false, 0)
+            );
+            assert_eq!(material.width(), 64);
+        }
+        other => panic!("cloth is an spmm material, got {other:?}"),
+    }
+    // Mesh: scale 2, then 90 degrees about +y (x -> -z), then +1 in x: vertex (1,0,0)
+    // goes to (2,0,0), then (0,0,-2), then (1,0,-2).
+    let tetra = &s.meshes[0];
+    assert_eq!(tetra.material, 1);
+    assert_eq!(tetra.positions.len(), 4);
+    let moved = DVec3::new(1.0, 0.0, -2.0);
+    assert!(
+        tetra
+            .positions
+            .iter()
+            .any(|p| (*p - moved).length() < 1e-12),
+        "{:?}",
+        tetra.positions
+    );
+    // Computed normals are unit; spherical UVs lie in [0, 1].
+    assert!(
+        tetra
+            .normals
+            .iter()
+            .all(|n| (n.length() - 1.0).abs() < 1e-12)
+    );
+    assert!(
+        tetra
+            .uvs
+            .iter()
+            .all(|uv| (0.0..=1.0).contains(&uv.x) && (0.0..=1.0).contains(&uv.y))
+    );
+    // Quad: geometric normal normalize(edge_u x edge_v) = +y; uv (s, t) over the edges.
+    let floor = &s.meshes[1];
+    assert_eq!(floor.normals[0], DVec3::Y);
+    assert_eq!(floor.positions[2], DVec3::new(2.0, 0.0, -2.0));
+    assert_eq!(floor.uvs[2], DVec2::new(1.0, 1.0));
+    assert_eq!(s.lights.len(), 2);
+    assert!(matches!(s.lights[1], Light::Area { radiance, .. } if radiance == DVec3::splat(8.0)));
+    assert_eq!(
+        s.ambient,
+        Some(Ambient {
+            radiance: DVec3::splat(0.3),
+            radius: f64::INFINITY
+        })
+    );
+    assert!(matches!(s.background, Background::Color(c) if c == DVec3::new(0.1, 0.2, 0.3)));
+}
+
+#[test]
+fn computed_normals_are_area_weighted() {
+    // Two triangles sharing vertex 0: one of area 2 facing +z, one of area 0.5 facing +x.
+    let positions = [
+        DVec3::ZERO,
+        DVec3::new(2.0, 0.0, 0.0),
+        DVec3::new(0.0, 2.0, 0.0),
+        DVec3::new(0.0, 1.0, 0.0),
+        DVec3::new(0.0, 0.0, 1.0),
+    ];
+    let n = mesh::vertex_normals(&positions, &[[0, 1, 2], [0, 3, 4]]);
+    let expected = DVec3::new(0.5, 0.0, 2.0).normalize();
+    assert!((n[0] - expected).length() < 1e-12, "{}", n[0]);
+}
+
+/// (edit to the example, expected line, texts the message must contain)
+fn bad_cases() -> Vec<(String, Option<usize>, Vec<&'static str>)> {
+    let line_of = |needle: &str| {
+        EXAMPLE
+            .lines()
+            .position(|l| l.contains(needle))
+            .map(|i| i + 1)
+    };
+    vec![
+        (
+            EXAMPLE.replace("seed = 3", "sed = 3"),
+            line_of("seed = 3"),
+            vec!["sed"],
+        ),
+        (
+            EXAMPLE.replace("version = 1", "version = 2"),
+            Some(1),
+            vec!["version"],
+        ),
+        (
+            EXAMPLE.replace("fov_y_deg = 35.0\n", ""),
+            None,
+            vec!["fov_y_deg"],
+        ),
+        (
+            EXAMPLE.replace("width = 64", "width = \"wide\""),
+            line_of("width = 64"),
+            vec!["width"],
+        ),
+        (
+            EXAMPLE.replace("material = \"floor\"", "material = \"flor\""),
+            line_of("material = \"floor\""),
+            vec!["quad[0].material", "flor", "floor"],
+        ),
+        (
+            EXAMPLE.replace("ax = 0.1", "ax = 7.0"),
+            line_of("ax = 0.1"),
+            vec!["materials.floor.params", "ax", "7"],
+        ),
+        (
+            EXAMPLE.replace("edge_v = [0.0, 0.0, -4.0]", "edge_v = [8.0, 0.0, 0.0]"),
+            line_of("edge_v = [0.0, 0.0, -4.0]"),
+            vec!["quad[0].edge_v", "zero area"],
+        ),
+        (
+            EXAMPLE.replace("edge_v = [0.0, 0.0, 1.0]", "edge_v = [0.0, 0.0, 0.0]"),
+            None,
+            vec!["light[1].edge_v", "zero area"],
+        ),
+        (
+            EXAMPLE.replace("position = [1.0, 2.0, 1.0]", "position = [nan, 2.0, 1.0]"),
+            line_of("position = [1.0, 2.0, 1.0]"),
+            vec!["light[0].position", "not finite"],
+        ),
+        (
+            EXAMPLE.replace(
+                "intensity = [5.0, 5.0, 5.0]",
+                "intensity = [5.0, -5.0, 5.0]",
+            ),
+            line_of("intensity = [5.0"),
+            vec!["light[0].intensity", "negative"],
+        ),
+        (
+            EXAMPLE.replace("meshes/tetra.obj", "meshes/missing.obj"),
+            line_of("meshes/tetra.obj"),
+            vec!["mesh[0].path", "missing.obj"],
+        ),
+        (
+            EXAMPLE.replace("pack = \"leather.spmm\"", "pack = \"nope.spmm\""),
+            line_of("leather.spmm"),
+            vec!["materials.cloth.pack", "nope.spmm"],
+        ),
+        (
+            EXAMPLE.replace(
+                "residual = false",
+                "residual = false\nalbedo = [1.0, 1.0, 1.0]",
+            ),
+            None,
+            vec!["materials.cloth.albedo", "does not belong"],
+        ),
+        (
+            EXAMPLE.replace("kind = \"mirror\"", "kind = \"glass\""),
+            line_of("kind = \"mirror\""),
+            vec!["materials.chrome.kind", "glass"],
+        ),
+        (
+            EXAMPLE.replace("radius = inf", "radius = -1.0"),
+            line_of("radius = inf"),
+            vec!["ambient.radius"],
+        ),
+        (
+            EXAMPLE.replace("scale = 2.0", "scale = 0.0"),
+            line_of("scale = 2.0"),
+            vec!["mesh[0].scale"],
+        ),
+        (
+            EXAMPLE.replace("look_at = [0.0, 0.4, 0.0]", "look_at = [0.0, 0.6, 2.5]"),
+            line_of("look_at"),
+            vec!["camera.look_at"],
+        ),
+    ]
+}
+
+#[test]
+fn bad_input_names_file_line_and_key() {
+    let dir = setup();
+    for (i, (text, line, needles)) in bad_cases().into_iter().enumerate() {
+        let err = load_scene(&write(dir.path(), &text))
+            .expect_err("bad scene")
+            .to_string();
+        assert!(err.contains("scene.toml"), "case {i}: {err}");
+        if let Some(line) = line {
+            assert!(
+                err.contains(&format!("line {line}")),
+                "case {i}: expected line {line}: {err}"
+            );
+        }
+        for n in needles {
+            assert!(err.contains(n), "case {i}: `{n}` missing from: {err}");
+        }
+        assert!(!err.contains('\n'), "case {i}: one line: {err}");
+    }
+}

@@ -7,4 +7,6 @@ mod brdf_reference;
 #[cfg(test)]
 mod metrics_reference;
 #[cfg(test)]
+mod scenes;
+#[cfg(test)]
 mod shipped_packs;

@@ -12,3 +12,4 @@ pub mod metrics;
 pub mod rng;
 pub mod scene;
 pub mod spmm;
+pub mod trace;

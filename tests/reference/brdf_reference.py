@@ -4,9 +4,10 @@
 Evaluates each model of shared spec/brdf.md straight from its written formula (angles,
 1 - cos^2, acos/atan2: the textbook forms the Rust code deliberately avoids) in 40-digit
 mpmath arithmetic, at directions written as 17-significant-digit decimals, taken on both sides
-as the same binary64 values. Writes brdf_values.csv and basis_values.csv beside this file.
+as the same binary64 values. Writes brdf_values.csv and brdf_basis_values.csv beside
+this file; tests/src/brdf_reference.rs compares Meso against them.
 
-Run: python3 tests/reference/brdf_reference.py   (needs mpmath)
+Run: /work/venv/bin/python tests/reference/brdf_reference.py   (needs mpmath)
 """
 import csv
 import os
@@ -65,12 +66,22 @@ def half(wi, wo):
     return normalize([a + b for a, b in zip(wi, wo)])
 
 
-def schlick(f0, wi, h):
-    """Schlick with 1 - wi.h written as |wi - h|^2 / 2, equal for unit vectors; for the
-    binary64-rounded inputs (|wi| = 1 +- 1e-17) it is the form that stays >= 0 and does
-    not turn the exact zero at retro-reflection with f0 = 0 into rounding noise."""
-    d = [a - b for a, b in zip(wi, h)]
-    return f0 + (1 - f0) * (dot(d, d) / 2) ** 5
+def cos_d(wi, wo, h):
+    """The spec's wi.h, which equals wo.h for unit vectors. The binary64 inputs are unit
+    only to ~1e-16, and where wi ~ -wo (grazing, nearly opposite) the literal wi.h and
+    wo.h then differ by ~1e-16 / (1 + wi.wo), up to 1e-4 relative at these cases: a
+    property of the rounded inputs, not of the spec. So the reference reads it as their
+    mean, ((wi + wo)/2).h, which is symmetric and changes only by ~1e-16 / |wi + wo|."""
+    return (dot(wi, h) + dot(wo, h)) / 2
+
+
+def schlick(f0, wi, wo, h):
+    """Schlick with 1 - wi.h written as the mean of |wi - h|^2 / 2 and |wo - h|^2 / 2,
+    equal to it for unit vectors; the rounding of |wi| enters squared, so it stays
+    accurate where wi ~ h and keeps the exact zero at retro-reflection with f0 = 0."""
+    a = [x - y for x, y in zip(wi, h)]
+    b = [x - y for x, y in zip(wo, h)]
+    return f0 + (1 - f0) * ((dot(a, a) + dot(b, b)) / 4) ** 5
 
 
 def f_model(model, p, wi, wo):
@@ -102,8 +113,8 @@ def f_model(model, p, wi, wo):
     if model == "cook_torrance":
         m, f0 = mp.mpf(p["m"]), mp.mpf(p["f0"])
         D = mp.exp(-(1 - ch ** 2) / (ch ** 2 * m ** 2)) / (mp.pi * m ** 2 * ch ** 4)
-        F = schlick(f0, wi, h)
-        woh = dot(wo, h)
+        F = schlick(f0, wi, wo, h)
+        woh = cos_d(wi, wo, h)
         G = min(1, 2 * ch * co / woh, 2 * ch * ci / woh)
         return D * F * G / (4 * ci * co)
     if model == "lafortune":
@@ -113,8 +124,8 @@ def f_model(model, p, wi, wo):
         nu, nv, rs = mp.mpf(p["nu"]), mp.mpf(p["nv"]), mp.mpf(p["rs"])
         den = 1 - ch ** 2
         pw = mp.mpf(1) if den == 0 else ch ** ((nu * h[0] ** 2 + nv * h[1] ** 2) / den)
-        wih = dot(wi, h)
-        return mp.sqrt((nu + 1) * (nv + 1)) / (8 * mp.pi) * pw / (wih * max(ci, co)) * schlick(rs, wi, h)
+        wih = cos_d(wi, wo, h)
+        return mp.sqrt((nu + 1) * (nv + 1)) / (8 * mp.pi) * pw / (wih * max(ci, co)) * schlick(rs, wi, wo, h)
     raise ValueError(model)
 
 
@@ -210,7 +221,7 @@ def main():
         ["0.99999999999999", "0", "1e-7"],  # |x - (x.n)n| < 1e-6: the spec's fallback frame
         direction("0.6", 0.0),
     ]
-    with open(os.path.join(HERE, "basis_values.csv"), "w", newline="") as fh:
+    with open(os.path.join(HERE, "brdf_basis_values.csv"), "w", newline="") as fh:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(["model", "params", "nx", "ny", "nz", "wix", "wiy", "wiz", "wox", "woy", "woz", "rho"])
         cases = [("ward", {"ax": "0.2", "ay": "0.05"}), ("ashikhmin_shirley", {"nu": "300", "nv": "10", "rs": "0.3"}),

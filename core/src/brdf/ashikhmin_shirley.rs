@@ -57,13 +57,10 @@ impl AshikhminShirley {
 
     #[inline]
     pub(super) fn eval(&self, wi: DVec3, wo: DVec3) -> f64 {
-        let h = warp::half_vector(wi, wo);
-        let wi_h = wi.dot(h);
-        if wi_h <= 0.0 {
-            return 0.0;
-        }
-        self.norm() / (8.0 * PI) * self.cos_h_pow_e(h) / (wi_h * wi.z.max(wo.z))
-            * warp::schlick(self.rs, wi, h)
+        // wi.h = |wi + wo|/2 > 0 above the horizon: symmetric, no cancellation (warp.rs).
+        let half = warp::HalfVector::new(wi, wo);
+        self.norm() / (8.0 * PI) * self.cos_h_pow_e(half.h) / (half.cos_d * wi.z.max(wo.z))
+            * warp::schlick(self.rs, half.one_minus_cos_d)
     }
 
     /// phi = atan2(sqrt(nu+1) sin 2 pi u, sqrt(nv+1) cos 2 pi u),

@@ -27,7 +27,7 @@ impl BlinnPhong {
 
     #[inline]
     pub(super) fn eval(&self, wi: DVec3, wo: DVec3) -> f64 {
-        let h = warp::half_vector(wi, wo);
+        let h = warp::HalfVector::new(wi, wo).h;
         (self.n + 8.0) / (8.0 * PI) * self.cos_h_pow(h)
     }
 

@@ -1,9 +1,6 @@
 //! Cook-Torrance microfacet BRDF with the Beckmann distribution, Schlick's Fresnel and
 //! the V-cavity masking term (Cook & Torrance 1982; spec/brdf.md). Sampled by drawing
 //! h from D(h) cos_h (Walter et al. 2007, eq. 28-29 for Beckmann).
-//!
-//! tan^2 theta_h is computed as (s.x^2 + s.y^2)/s.z^2 from s = wi + wo rather than
-//! (1 - cos_h^2)/cos_h^2, which cancels catastrophically for sharp lobes (m = 1e-4).
 
 use std::f64::consts::PI;
 
@@ -34,6 +31,8 @@ impl CookTorrance {
         self.f0
     }
 
+    // tan^2 theta_h is computed as (s.x^2 + s.y^2)/s.z^2 from s = wi + wo rather than
+    // (1 - cos_h^2)/cos_h^2, which cancels catastrophically for sharp lobes (m = 1e-4).
     /// Beckmann D(h) = exp(-tan^2 / m^2) / (pi m^2 cos_h^4), for any positive multiple s of h.
     #[inline]
     fn beckmann(&self, s: DVec3) -> f64 {
@@ -54,12 +53,12 @@ impl CookTorrance {
         if d == 0.0 {
             return 0.0;
         }
-        let h = s.normalize();
-        let wo_h = wo.dot(h);
+        // wo.h = wi.h = |wi + wo|/2: symmetric and free of cancellation (warp.rs).
+        let half = warp::HalfVector::new(wi, wo);
         let g = 1.0f64
-            .min(2.0 * h.z * wo.z / wo_h)
-            .min(2.0 * h.z * wi.z / wo_h);
-        d * warp::schlick(self.f0, wi, h) * g / (4.0 * wi.z * wo.z)
+            .min(2.0 * half.h.z * wo.z / half.cos_d)
+            .min(2.0 * half.h.z * wi.z / half.cos_d);
+        d * warp::schlick(self.f0, half.one_minus_cos_d) * g / (4.0 * wi.z * wo.z)
     }
 
     /// tan^2 theta_h = -m^2 ln(1 - u), phi_h uniform.

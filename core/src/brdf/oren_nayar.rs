@@ -1,10 +1,5 @@
 //! Oren-Nayar rough diffuse BRDF, the qualitative model of Oren & Nayar 1994 (eq. 30)
 //! as spec/brdf.md writes it. Sampled with the cosine-weighted hemisphere.
-//!
-//! With cos(phi_i - phi_o) sin(theta_i) sin(theta_o) = wi.x wo.x + wi.y wo.y and
-//! sin(alpha) tan(beta) = sin(theta_i) sin(theta_o) / max(cos_i, cos_o), the B term is
-//! B max(0, wi.x wo.x + wi.y wo.y) / max(cos_i, cos_o): no angles, no trigonometry,
-//! and no singularity when either direction is the normal (the term is then 0).
 
 use std::f64::consts::FRAC_1_PI;
 
@@ -35,6 +30,10 @@ impl OrenNayar {
         self.sigma
     }
 
+    // cos(phi_i - phi_o) sin(theta_i) sin(theta_o) = wi.x wo.x + wi.y wo.y and
+    // sin(alpha) tan(beta) = sin(theta_i) sin(theta_o) / max(cos_i, cos_o), so the B term
+    // is B max(0, wi.x wo.x + wi.y wo.y) / max(cos_i, cos_o): no angles, no trigonometry,
+    // and no singularity when either direction is the normal (the term is then 0).
     #[inline]
     pub(super) fn eval(&self, wi: DVec3, wo: DVec3) -> f64 {
         let azimuthal = (wi.x * wo.x + wi.y * wo.y).max(0.0);

@@ -508,3 +508,117 @@ fn lobe_slice_peaks_at_the_mirror_direction() {
     let u = DVec2::new(0.3, 0.6);
     assert!(brdf.sample(DVec3::new(0.0, 0.0, -1.0), u).is_none());
 }
+
+/// A parameter value of `s` chosen by `pick`: the range ends, the default, or a value
+/// inside (log-uniform for log-scaled parameters, so 1e-4 .. 1e5 is covered evenly).
+fn pick_param(s: &ParamSpec, choice: u8, t: f64) -> f64 {
+    match choice % 5 {
+        0 => s.min,
+        1 => s.max,
+        2 => s.default,
+        _ if s.log_scale => {
+            let lo = s.min.max(1e-4);
+            (lo.ln() + t * (s.max.ln() - lo.ln()))
+                .exp()
+                .clamp(s.min, s.max)
+        }
+        _ => s.min + t * (s.max - s.min),
+    }
+}
+
+fn build(model_index: usize, picks: &[(u8, f64)]) -> AnalyticBrdf {
+    let model = BrdfModel::ALL[model_index % 7];
+    let named: Vec<(&str, f64)> = model
+        .param_specs()
+        .iter()
+        .zip(picks)
+        .map(|(s, &(c, t))| (s.name, pick_param(s, c, t)))
+        .collect();
+    AnalyticBrdf::new(model, &named).expect("picked values lie in range")
+}
+
+/// A unit direction whose cosine is log-uniform down to 10^-`decades` (or exactly 1),
+/// at any azimuth; `sign` flips it below the horizon.
+fn direction(log_cos: f64, phi: f64, below: bool) -> DVec3 {
+    let d = warp::spherical(10f64.powf(log_cos).min(1.0), phi);
+    if below { d.with_z(-d.z) } else { d }
+}
+
+use proptest::prelude::*;
+
+fn param_picks() -> impl Strategy<Value = Vec<(u8, f64)>> {
+    proptest::collection::vec((any::<u8>(), 0.0..=1.0f64), 4)
+}
+
+proptest! {
+    // No regression files: a failure prints its minimal input, which becomes a named
+    // test here (see `reciprocity_where_wi_is_nearly_opposite_wo_at_grazing`).
+    #![proptest_config(ProptestConfig {
+        cases: 4000,
+        failure_persistence: None,
+        ..ProptestConfig::default()
+    })]
+
+    /// Every model on random parameters (range ends included) and directions with
+    /// cosines from 1e-7 to 1: f, pdf and rho_j finite and >= 0, f reciprocal to 1e-12,
+    /// and a sampled direction above the horizon with a finite positive pdf.
+    #[test]
+    fn finite_non_negative_reciprocal_on_random_inputs(
+        model in 0usize..7,
+        picks in param_picks(),
+        (ci, phi_i) in (-7.0..=0.0f64, 0.0..std::f64::consts::TAU),
+        (co, phi_o) in (-7.0..=0.0f64, 0.0..std::f64::consts::TAU),
+        u in (0.0..1.0f64, 0.0..1.0f64),
+        (cn, phi_n) in (-7.0..=0.0f64, 0.0..std::f64::consts::TAU),
+    ) {
+        let brdf = build(model, &picks);
+        let (wi, wo) = (direction(ci, phi_i, false), direction(co, phi_o, false));
+        let (f, g) = (brdf.eval(wi, wo), brdf.eval(wo, wi));
+        prop_assert!(f.is_finite() && f >= 0.0, "{brdf:?} f({wi}, {wo}) = {f}");
+        prop_assert!((f - g).abs() <= 1e-12 * f.max(g), "{brdf:?} {wi} {wo}: {f} vs {g}");
+        let p = brdf.pdf(wo, wi);
+        prop_assert!(p.is_finite() && p >= 0.0, "{brdf:?} pdf {p}");
+        if let Some(s) = brdf.sample(wo, DVec2::new(u.0, u.1)) {
+            prop_assert!(s.wi.z > 0.0 && s.pdf.is_finite() && s.pdf > 0.0, "{brdf:?} {s:?}");
+            prop_assert!((s.wi.length() - 1.0).abs() < 1e-12, "{brdf:?} {s:?}");
+            let f = brdf.eval(s.wi, wo);
+            prop_assert!(f.is_finite() && f >= 0.0, "{brdf:?} {s:?} f = {f}");
+        }
+        // Below the horizon: exactly 0.
+        prop_assert_eq!(brdf.eval(direction(ci, phi_i, true), wo), 0.0);
+        prop_assert_eq!(brdf.eval(wi, direction(co, phi_o, true)), 0.0);
+        prop_assert_eq!(brdf.pdf(wo, direction(ci, phi_i, true)), 0.0);
+        // The basis function on any upper-hemisphere normal, including ones next to
+        // the tangent x where the frame rule takes its fallback.
+        let basis = BasisFunction::new(brdf, direction(cn, phi_n, false))
+            .expect("a unit upper normal");
+        let r = basis.eval(wi, wo);
+        prop_assert!(r.is_finite() && r >= 0.0, "{basis:?} rho = {r}");
+    }
+}
+
+#[test]
+fn reciprocity_where_wi_is_nearly_opposite_wo_at_grazing() {
+    // Found by the property test above: with wi.h taken as the dot product, 1 + wi.wo
+    // cancels here and f(wi, wo) and f(wo, wi) differed by 2e-12 (up to 1e-4 at
+    // cos 1e-7). wi.h = |wi + wo|/2 is exactly symmetric (warp::HalfVector).
+    let wi = DVec3::new(0.7033668300585936, 0.7108235749458557, 0.002224336871739336);
+    let wo = DVec3::new(
+        -0.7117785314250767,
+        -0.7024039594111281,
+        2.435456258846054e-6,
+    );
+    let grazing_i = warp::spherical(1e-7, 0.0);
+    let grazing_o = warp::spherical(2e-7, PI + 1e-6);
+    for model in [BrdfModel::CookTorrance, BrdfModel::AshikhminShirley] {
+        for brdf in parameter_grid(model) {
+            for (a, b) in [(wi, wo), (grazing_i, grazing_o)] {
+                let (f, g) = (brdf.eval(a, b), brdf.eval(b, a));
+                assert!(
+                    (f - g).abs() <= 4e-16 * f.max(g),
+                    "{brdf:?} {a} {b}: {f} vs {g}"
+                );
+            }
+        }
+    }
+}

@@ -1,9 +1,6 @@
 //! Anisotropic Ward BRDF in its original normalisation (Ward 1992, eq. 5 as spec/brdf.md
 //! writes it; its albedo exceeds 1 at grazing angles, see docs/brdf.md). Sampled with
 //! the half-vector warp of Walter 2005 ("Notes on the Ward BRDF", eq. 6-9).
-//!
-//! The exponent uses the unnormalised sum s = wi + wo: (h.x/ax)^2 + (h.y/ay)^2 over
-//! cos_h^2 equals ((s.x/ax)^2 + (s.y/ay)^2) / s.z^2, with no normalisation to round.
 
 use std::f64::consts::PI;
 
@@ -34,6 +31,8 @@ impl Ward {
         self.ay
     }
 
+    // The exponent uses the unnormalised sum s = wi + wo: (h.x/ax)^2 + (h.y/ay)^2 over
+    // cos_h^2 equals ((s.x/ax)^2 + (s.y/ay)^2) / s.z^2, with no normalisation to round.
     /// ((h.x/ax)^2 + (h.y/ay)^2) / h.z^2 for any positive multiple of h.
     #[inline]
     fn exponent(&self, s: DVec3) -> f64 {

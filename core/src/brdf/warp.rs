@@ -34,23 +34,45 @@ pub fn reflect(wo: DVec3, h: DVec3) -> Option<DVec3> {
     (d > 0.0).then(|| 2.0 * d * h - wo)
 }
 
-/// The normalised half vector of two directions whose sum is not zero. Summing first
-/// keeps it exact where wi ~ -wo at grazing angles (the sum is then tiny but exact).
-#[inline]
-pub fn half_vector(wi: DVec3, wo: DVec3) -> DVec3 {
-    (wi + wo).normalize()
+/// The half vector of two unit directions above the horizon, with the two cosines
+/// the models need. For unit vectors wi.h = wo.h = |wi + wo| / 2 and 1 - wi.h =
+/// |wi - wo|^2 / (2 (2 + |wi + wo|)) (from |wi + wo|^2 + |wi - wo|^2 = 4). These forms
+/// are exactly symmetric in (wi, wo), so reciprocity holds bit for bit, and neither
+/// cancels: the dot product wi.(wi + wo) loses its digits when wi ~ -wo at grazing
+/// (1 + wi.wo is tiny), and 1 - wi.h loses them when wi ~ wo.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HalfVector {
+    /// normalize(wi + wo); summing first keeps it exact where wi + wo is tiny.
+    pub h: DVec3,
+    /// wi.h = wo.h.
+    pub cos_d: f64,
+    /// 1 - wi.h, for Schlick's Fresnel.
+    pub one_minus_cos_d: f64,
+}
+
+impl HalfVector {
+    /// `wi`, `wo` unit with wi + wo != 0 (true whenever both lie above the horizon).
+    #[inline]
+    pub fn new(wi: DVec3, wo: DVec3) -> Self {
+        let s = wi + wo;
+        let len = s.length();
+        Self {
+            h: s / len,
+            cos_d: 0.5 * len,
+            one_minus_cos_d: (wi - wo).length_squared() / (2.0 * (2.0 + len)),
+        }
+    }
 }
 
 /// Density of `wi` when `h` is drawn with density `pdf_half(h)` and `wi` is `wo`
-/// reflected about it: p(wi) = p(h) / (4 wo.h).
+/// reflected about it: p(wi) = p(h) / (4 wo.h) (Walter et al. 2007, eq. 14).
 #[inline]
 pub fn half_to_wi_pdf(wo: DVec3, wi: DVec3, pdf_half: impl FnOnce(DVec3) -> f64) -> f64 {
-    let h = half_vector(wi, wo);
-    let d = wo.dot(h);
-    if h.z <= 0.0 || d <= 0.0 {
+    let half = HalfVector::new(wi, wo);
+    if half.h.z <= 0.0 {
         return 0.0;
     }
-    pdf_half(h) / (4.0 * d)
+    pdf_half(half.h) / (4.0 * half.cos_d)
 }
 
 /// ln(cos_h) of a unit half vector, accurate everywhere: near the normal it comes
@@ -100,11 +122,11 @@ pub fn phong_lobe_pdf(axis: DVec3, n: f64, w: DVec3) -> f64 {
     }
 }
 
-/// Schlick's Fresnel approximation F = f0 + (1 - f0)(1 - c)^5 for c = wi.h, taking
-/// 1 - c = |wi - h|^2 / 2 (unit vectors): exact where wi ~ h, where 1 - wi.h cancels.
+/// Schlick's Fresnel approximation F = f0 + (1 - f0)(1 - wi.h)^5, given 1 - wi.h
+/// (`HalfVector::one_minus_cos_d`, exact where wi ~ h).
 #[inline]
-pub fn schlick(f0: f64, wi: DVec3, h: DVec3) -> f64 {
-    let m = (0.5 * (wi - h).length_squared()).clamp(0.0, 1.0);
+pub fn schlick(f0: f64, one_minus_cos_d: f64) -> f64 {
+    let m = one_minus_cos_d.clamp(0.0, 1.0);
     let m2 = m * m;
     f0 + (1.0 - f0) * m2 * m2 * m
 }

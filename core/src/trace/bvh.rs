@@ -1,0 +1,245 @@
+//! Ray queries against a scene's triangles: a compressed wide BVH (CWBVH, Ylitie et
+//! al. 2017) built by obvhs on scene load, closest-hit and occlusion (any-hit) queries.
+//! Traversal runs in f32 (obvhs); the hit point's barycentrics are recomputed in f64
+//! for shading. Degenerate (zero-area) triangles are left out of the BVH.
+
+use std::time::{Duration, Instant};
+
+use glam::{DVec3, Vec3A};
+use obvhs::BvhBuildParams;
+use obvhs::cwbvh::CwBvh;
+use obvhs::cwbvh::builder::build_cwbvh_from_tris;
+use obvhs::ray::{Ray as BvhRay, RayHit};
+use obvhs::triangle::Triangle;
+
+use crate::scene::TriangleMesh;
+
+/// The closest intersection of a ray.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    pub t: f64,
+    pub mesh: usize,
+    pub triangle: usize,
+    /// Barycentric weights of the triangle's vertices 1 and 2 (vertex 0 gets 1 - b1 - b2).
+    pub b1: f64,
+    pub b2: f64,
+}
+
+pub struct SceneBvh {
+    bvh: CwBvh,
+    triangles: Vec<Triangle>,
+    /// (mesh, triangle within the mesh) of each BVH primitive.
+    refs: Vec<(u32, u32)>,
+    build_time: Duration,
+    degenerate: usize,
+}
+
+fn v3a(p: DVec3) -> Vec3A {
+    Vec3A::new(p.x as f32, p.y as f32, p.z as f32)
+}
+
+impl SceneBvh {
+    pub fn build(meshes: &[TriangleMesh]) -> Self {
+        let mut triangles = Vec::new();
+        let mut refs = Vec::new();
+        let mut degenerate = 0;
+        for (m, mesh) in meshes.iter().enumerate() {
+            for (t, idx) in mesh.indices.iter().enumerate() {
+                let [a, b, c] = idx.map(|i| mesh.positions[i as usize]);
+                if (b - a).cross(c - a).length_squared() <= 0.0 {
+                    degenerate += 1;
+                    continue;
+                }
+                triangles.push(Triangle {
+                    v0: v3a(a),
+                    v1: v3a(b),
+                    v2: v3a(c),
+                });
+                refs.push((m as u32, t as u32));
+            }
+        }
+        let start = Instant::now();
+        let mut core_time = Duration::default();
+        let bvh = build_cwbvh_from_tris(&triangles, BvhBuildParams::medium_build(), &mut core_time);
+        Self {
+            bvh,
+            triangles,
+            refs,
+            build_time: start.elapsed(),
+            degenerate,
+        }
+    }
+
+    /// Wall time of the BVH build.
+    pub fn build_time(&self) -> Duration {
+        self.build_time
+    }
+
+    /// Triangles in the BVH and zero-area triangles left out.
+    pub fn triangle_counts(&self) -> (usize, usize) {
+        (self.triangles.len(), self.degenerate)
+    }
+
+    /// The closest hit with `t` in (tmin, tmax).
+    pub fn closest_hit(
+        &self,
+        meshes: &[TriangleMesh],
+        origin: DVec3,
+        dir: DVec3,
+        tmin: f64,
+        tmax: f64,
+    ) -> Option<Hit> {
+        if self.triangles.is_empty() {
+            return None;
+        }
+        let ray = BvhRay::new(v3a(origin), v3a(dir), tmin as f32, tmax as f32);
+        let mut hit = RayHit::none();
+        let found = self.bvh.ray_traverse(ray, &mut hit, |r, id| {
+            self.triangles[self.bvh.primitive_indices[id] as usize].intersect(r)
+        });
+        if !found {
+            return None;
+        }
+        let prim = self.bvh.primitive_indices[hit.primitive_id as usize] as usize;
+        let (m, t) = self.refs[prim];
+        let idx = meshes[m as usize].indices[t as usize];
+        let [a, b, c] = idx.map(|i| meshes[m as usize].positions[i as usize]);
+        // Barycentrics of the f32 hit distance's point, in f64, clamped into the triangle.
+        let p = origin + dir * hit.t as f64;
+        let (e1, e2, ep) = (b - a, c - a, p - a);
+        let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+        let (dp1, dp2) = (ep.dot(e1), ep.dot(e2));
+        let denom = d11 * d22 - d12 * d12;
+        let (mut b1, mut b2) = if denom > 0.0 {
+            (
+                (d22 * dp1 - d12 * dp2) / denom,
+                (d11 * dp2 - d12 * dp1) / denom,
+            )
+        } else {
+            (0.0, 0.0)
+        };
+        b1 = b1.clamp(0.0, 1.0);
+        b2 = b2.clamp(0.0, 1.0 - b1);
+        Some(Hit {
+            t: hit.t as f64,
+            mesh: m as usize,
+            triangle: t as usize,
+            b1,
+            b2,
+        })
+    }
+
+    /// True if anything blocks the segment from `origin` along `dir` within (tmin, tmax).
+    pub fn occluded(&self, origin: DVec3, dir: DVec3, tmin: f64, tmax: f64) -> bool {
+        if self.triangles.is_empty() {
+            return false;
+        }
+        let ray = BvhRay::new(v3a(origin), v3a(dir), tmin as f32, tmax as f32);
+        !self.bvh.ray_traverse_miss(ray, |r, id| {
+            self.triangles[self.bvh.primitive_indices[id] as usize].intersect(r)
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::mesh::quad;
+
+    fn floor_and_wall() -> Vec<TriangleMesh> {
+        vec![
+            quad(
+                DVec3::new(-1.0, 0.0, 1.0),
+                DVec3::new(2.0, 0.0, 0.0),
+                DVec3::new(0.0, 0.0, -2.0),
+                0,
+            ),
+            quad(
+                DVec3::new(-1.0, 0.0, -1.0),
+                DVec3::new(2.0, 0.0, 0.0),
+                DVec3::new(0.0, 2.0, 0.0),
+                1,
+            ),
+        ]
+    }
+
+    #[test]
+    fn closest_hit_and_barycentrics() {
+        let meshes = floor_and_wall();
+        let bvh = SceneBvh::build(&meshes);
+        assert_eq!(bvh.triangle_counts(), (4, 0));
+        // Straight down onto the floor at (0.5, 0, 0.25).
+        let h = bvh
+            .closest_hit(
+                &meshes,
+                DVec3::new(0.5, 1.0, 0.25),
+                DVec3::NEG_Y,
+                1e-4,
+                f64::INFINITY,
+            )
+            .expect("hits the floor");
+        assert_eq!(h.mesh, 0);
+        assert!((h.t - 1.0).abs() < 1e-6);
+        let idx = meshes[0].indices[h.triangle];
+        let [a, b, c] = idx.map(|i| meshes[0].positions[i as usize]);
+        let p = a * (1.0 - h.b1 - h.b2) + b * h.b1 + c * h.b2;
+        assert!((p - DVec3::new(0.5, 0.0, 0.25)).length() < 1e-6, "{p}");
+        // Towards the wall, the floor behind is farther: the wall wins.
+        let h = bvh
+            .closest_hit(
+                &meshes,
+                DVec3::new(0.0, 0.5, 0.5),
+                DVec3::NEG_Z,
+                1e-4,
+                f64::INFINITY,
+            )
+            .expect("hits the wall");
+        assert_eq!(h.mesh, 1);
+        assert!((h.t - 1.5).abs() < 1e-6);
+        // Away from everything: no hit; tmax shorter than the distance: no hit.
+        assert!(
+            bvh.closest_hit(
+                &meshes,
+                DVec3::new(0.0, 0.5, 0.5),
+                DVec3::Y,
+                1e-4,
+                f64::INFINITY
+            )
+            .is_none()
+        );
+        assert!(
+            bvh.closest_hit(&meshes, DVec3::new(0.5, 1.0, 0.25), DVec3::NEG_Y, 1e-4, 0.5)
+                .is_none()
+        );
+    }
+
+    #[test]
+    fn occlusion_respects_the_segment() {
+        let meshes = floor_and_wall();
+        let bvh = SceneBvh::build(&meshes);
+        let from = DVec3::new(0.0, 0.5, 0.5);
+        assert!(bvh.occluded(from, DVec3::NEG_Z, 1e-4, 10.0));
+        assert!(
+            !bvh.occluded(from, DVec3::NEG_Z, 1e-4, 1.0),
+            "the wall is 1.5 away"
+        );
+        assert!(!bvh.occluded(from, DVec3::Y, 1e-4, f64::INFINITY));
+    }
+
+    #[test]
+    fn degenerate_triangles_are_left_out_and_empty_scenes_answer() {
+        let mut meshes = floor_and_wall();
+        meshes[0].positions.push(DVec3::ONE);
+        let n = meshes[0].positions.len() as u32 - 1;
+        meshes[0].indices.push([n, n, n]);
+        let bvh = SceneBvh::build(&meshes);
+        assert_eq!(bvh.triangle_counts(), (4, 1));
+        let empty = SceneBvh::build(&[]);
+        assert!(
+            empty
+                .closest_hit(&[], DVec3::ZERO, DVec3::Y, 0.0, 1.0)
+                .is_none()
+        );
+        assert!(!empty.occluded(DVec3::ZERO, DVec3::Y, 0.0, 1.0));
+    }
+}

@@ -6,7 +6,9 @@
 pub mod bvh;
 pub mod camera;
 pub mod film;
+pub mod integrator;
 
 pub use bvh::{Hit, SceneBvh};
 pub use camera::{PinholeCamera, Ray};
 pub use film::Film;
+pub use integrator::{RayCounts, Renderer};

@@ -622,3 +622,149 @@ fn reciprocity_where_wi_is_nearly_opposite_wo_at_grazing() {
         }
     }
 }
+
+#[test]
+fn every_bad_value_of_every_parameter_is_rejected_by_name() {
+    for model in BrdfModel::ALL {
+        let specs = model.param_specs();
+        let good: Vec<(&str, f64)> = specs.iter().map(|s| (s.name, s.default)).collect();
+        for (i, s) in specs.iter().enumerate() {
+            let below = s.min - 1e-9 * s.min.abs().max(1.0);
+            let above = s.max + 1e-9 * s.max.abs().max(1.0);
+            for bad in [below, above, f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+                let mut params = good.clone();
+                params[i].1 = bad;
+                let same_value = |v: f64| v == bad || (v.is_nan() && bad.is_nan());
+                for err in [
+                    AnalyticBrdf::new(model, &params).expect_err("out of range"),
+                    AnalyticBrdf::with_defaults(model)
+                        .with_param(s.name, bad)
+                        .expect_err("out of range"),
+                ] {
+                    match &err {
+                        BrdfError::OutOfRange {
+                            model: m,
+                            param,
+                            value,
+                            min,
+                            max,
+                        } => assert!(
+                            *m == model
+                                && *param == s.name
+                                && same_value(*value)
+                                && *min == s.min
+                                && *max == s.max,
+                            "{err:?}"
+                        ),
+                        other => panic!("{model:?} {} = {bad}: {other:?}", s.name),
+                    }
+                    let msg = err.to_string();
+                    assert!(msg.contains(model.name()) && msg.contains(s.name), "{msg}");
+                }
+            }
+            // The range ends themselves are valid.
+            for ok in [s.min, s.max] {
+                let mut params = good.clone();
+                params[i].1 = ok;
+                assert!(AnalyticBrdf::new(model, &params).is_ok(), "{model:?} {ok}");
+            }
+            // Missing.
+            let mut missing = good.clone();
+            missing.remove(i);
+            assert_eq!(
+                AnalyticBrdf::new(model, &missing),
+                Err(BrdfError::MissingParam {
+                    model,
+                    param: s.name,
+                    min: s.min,
+                    max: s.max
+                })
+            );
+            // Duplicate, even with a valid value.
+            let mut twice = good.clone();
+            twice.push((s.name, s.default));
+            assert_eq!(
+                AnalyticBrdf::new(model, &twice),
+                Err(BrdfError::DuplicateParam {
+                    model,
+                    param: s.name.to_string()
+                })
+            );
+        }
+        // Unknown, including another model's parameter name.
+        let mut unknown = good.clone();
+        unknown.push(("sigmaa", 0.1));
+        assert_eq!(
+            AnalyticBrdf::new(model, &unknown),
+            Err(BrdfError::UnknownParam {
+                model,
+                param: "sigmaa".to_string()
+            })
+        );
+        let msg = AnalyticBrdf::with_defaults(model)
+            .with_param("sigmaa", 0.1)
+            .expect_err("unknown")
+            .to_string();
+        assert!(
+            msg.contains("sigmaa") && msg.contains(model.name()),
+            "{msg}"
+        );
+    }
+    // An unknown model lists the known ones.
+    let msg = BrdfModel::from_name("phong")
+        .expect_err("unknown")
+        .to_string();
+    for m in BrdfModel::ALL {
+        assert!(msg.contains(m.name()), "{msg}");
+    }
+}
+
+#[test]
+fn parameter_specs_are_the_spec_ranges() {
+    // spec/brdf.md, "The models and their parameter names", transcribed.
+    let expected: [(BrdfModel, &[(&str, f64, f64)]); 7] = [
+        (BrdfModel::Lambertian, &[]),
+        (BrdfModel::OrenNayar, &[("sigma", 0.0, FRAC_PI_2)]),
+        (BrdfModel::BlinnPhong, &[("n", 0.0, 1e5)]),
+        (BrdfModel::Ward, &[("ax", 1e-4, 1.0), ("ay", 1e-4, 1.0)]),
+        (
+            BrdfModel::CookTorrance,
+            &[("m", 1e-4, 1.0), ("f0", 0.0, 1.0)],
+        ),
+        (
+            BrdfModel::Lafortune,
+            &[
+                ("cx", -1e3, 1e3),
+                ("cy", -1e3, 1e3),
+                ("cz", -1e3, 1e3),
+                ("n", 0.0, 1e4),
+            ],
+        ),
+        (
+            BrdfModel::AshikhminShirley,
+            &[("nu", 1.0, 1e5), ("nv", 1.0, 1e5), ("rs", 0.0, 1.0)],
+        ),
+    ];
+    for (model, params) in expected {
+        let specs = model.param_specs();
+        let got: Vec<(&str, f64, f64)> = specs.iter().map(|s| (s.name, s.min, s.max)).collect();
+        assert_eq!(got, params.to_vec(), "{model:?}");
+        for s in specs {
+            assert!(s.min <= s.default && s.default <= s.max, "{s:?}");
+            assert!(!s.doc.is_empty(), "{s:?}");
+        }
+    }
+    let names: Vec<&str> = BrdfModel::ALL.iter().map(|m| m.name()).collect();
+    assert_eq!(
+        names,
+        [
+            "lambertian",
+            "oren_nayar",
+            "blinn_phong",
+            "ward",
+            "cook_torrance",
+            "lafortune",
+            "ashikhmin_shirley"
+        ]
+    );
+}

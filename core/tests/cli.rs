@@ -529,3 +529,56 @@ fn pack_eval_prints_rgb_per_row() {
         &["line 1"],
     );
 }
+
+#[test]
+fn render_writes_an_image_and_reports_json() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let out = dir.path().join("r.exr");
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/default.toml");
+    let o = meso(
+        &[
+            "render",
+            scene,
+            "-o",
+            out.to_str().expect("utf-8"),
+            "--frames",
+            "2",
+            "--width",
+            "24",
+            "--height",
+            "16",
+            "--json",
+        ],
+        "",
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    assert_eq!(v["frames"], 2);
+    assert_eq!(v["rays"]["primary"], 2 * 24 * 16);
+    assert!(v["rays"]["shadow"].as_u64().expect("count") > 0);
+    assert!(v["rays_per_second"].as_f64().expect("rate") > 0.0);
+    assert_eq!(v["nonfinite_dropped"], 0);
+    let img = meso_core::image::read_image(&out).expect("an EXR");
+    assert_eq!((img.width(), img.height()), (24, 16));
+    assert!(img.pixels().iter().any(|p| p[0] > 0.0), "something is lit");
+
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "version = 1\n[camera]\nposition = [0.0, 0.0, 1.0]\n").expect("write");
+    assert_bad_input(
+        &meso(
+            &[
+                "render",
+                bad.to_str().expect("utf-8"),
+                "-o",
+                out.to_str().expect("utf-8"),
+            ],
+            "",
+        ),
+        &["bad.toml", "look_at"],
+    );
+}

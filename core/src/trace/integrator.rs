@@ -29,7 +29,7 @@ pub struct RayCounts {
 }
 
 impl RayCounts {
-    fn add(self, o: Self) -> Self {
+    pub fn add(self, o: Self) -> Self {
         Self {
             primary: self.primary + o.primary,
             shadow: self.shadow + o.shadow,

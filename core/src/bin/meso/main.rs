@@ -7,6 +7,7 @@ mod compare_cmd;
 mod failure;
 mod pack_cmd;
 mod plot;
+mod render_cmd;
 
 use std::process::ExitCode;
 
@@ -34,6 +35,8 @@ enum Command {
     },
     /// Image error of B against the reference A: RMSE, PSNR, MSSIM, largest pixel error.
     Compare(compare_cmd::CompareArgs),
+    /// Progressive render of a scene file (spmm mode) to EXR or PNG.
+    Render(render_cmd::RenderArgs),
     /// SPMM material packs (.spmm): summarise and validate.
     Pack {
         #[command(subcommand)]
@@ -50,6 +53,7 @@ fn main() -> ExitCode {
         Command::Brdf { command } => brdf_cmd::run(command),
         Command::Compare(args) => compare_cmd::run(&args),
         Command::Pack { command } => pack_cmd::run(command),
+        Command::Render(args) => render_cmd::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

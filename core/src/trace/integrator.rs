@@ -28,8 +28,9 @@ pub struct RayCounts {
     pub specular: u64,
 }
 
-impl RayCounts {
-    pub fn add(self, o: Self) -> Self {
+impl std::ops::Add for RayCounts {
+    type Output = Self;
+    fn add(self, o: Self) -> Self {
         Self {
             primary: self.primary + o.primary,
             shadow: self.shadow + o.shadow,
@@ -37,6 +38,9 @@ impl RayCounts {
             specular: self.specular + o.specular,
         }
     }
+}
+
+impl RayCounts {
     pub fn total(&self) -> u64 {
         self.primary + self.shadow + self.ambient + self.specular
     }
@@ -124,9 +128,7 @@ impl<'s> Renderer<'s> {
                 (row, counts)
             })
             .collect();
-        let counts = rows
-            .iter()
-            .fold(RayCounts::default(), |a, (_, c)| a.add(*c));
+        let counts = rows.iter().fold(RayCounts::default(), |a, (_, c)| a + *c);
         (rows.into_iter().flat_map(|(r, _)| r).collect(), counts)
     }
 

@@ -61,7 +61,7 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
     for f in 0..frames {
         let (samples, counts) = renderer.render_frame(f);
         film.add_frame(&samples);
-        rays = rays.add(counts);
+        rays = rays + counts;
         if progress {
             eprint!("\rrendering: frame {}/{frames}", f + 1);
         }

@@ -42,7 +42,9 @@ impl Lafortune {
 
     #[inline]
     pub(super) fn eval(&self, wi: DVec3, wo: DVec3) -> f64 {
-        let s = wi.dot(self.c * wo);
+        // c . (wi * wo) multiplies wi_k wo_k first: exactly symmetric in (wi, wo), so
+        // reciprocity holds bit for bit even where the three terms cancel.
+        let s = self.c.dot(wi * wo);
         if s <= 0.0 {
             return 0.0;
         }

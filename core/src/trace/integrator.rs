@@ -484,3 +484,147 @@ mod tests {
         assert_ne!(r.render_frame(4).0, a, "another frame draws other samples");
     }
 }
+
+#[cfg(test)]
+mod hard_cases {
+    use super::*;
+    use crate::brdf::{AnalyticBrdf, BrdfModel};
+    use crate::scene::mesh::quad;
+    use crate::scene::{Ambient, Camera, RenderSettings, TriangleMesh};
+    use crate::trace::Film;
+
+    /// Degenerate triangles, normals facing away from the geometry, UVs far outside
+    /// [0, 1], a grazing light, a mirror pair, and a camera inside a closed box: the
+    /// film must receive only finite samples and nothing may panic.
+    #[test]
+    fn no_nan_and_no_panic_on_hard_geometry() {
+        let pack = crate::spmm::pack::read_pack(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../materials/woven_wool.spmm"
+        )))
+        .expect("shipped pack");
+        let mut odd = quad(
+            DVec3::new(-1.0, 0.0, 1.0),
+            DVec3::new(2.0, 0.0, 0.0),
+            DVec3::new(0.0, 0.0, -2.0),
+            1,
+        );
+        odd.normals = vec![DVec3::NEG_Y; 4]; // facing away from the geometric normal
+        odd.uvs = odd
+            .uvs
+            .iter()
+            .map(|uv| *uv * 1e6 - DVec2::splat(3e5))
+            .collect();
+        odd.positions.push(DVec3::new(0.3, 0.2, 0.1));
+        odd.indices.push([4, 4, 4]); // zero-area triangle
+        odd.indices.push([0, 1, 4]);
+        odd.normals.push(DVec3::ZERO); // a zero normal at that vertex
+        odd.uvs.push(DVec2::new(f64::MAX / 4.0, 0.5));
+        // A closed box around the camera: every primary ray hits the inside of a wall.
+        let s = 3.0;
+        let walls: Vec<TriangleMesh> = [
+            (
+                DVec3::new(-s, -s, -s),
+                DVec3::new(2.0 * s, 0.0, 0.0),
+                DVec3::new(0.0, 2.0 * s, 0.0),
+            ),
+            (
+                DVec3::new(-s, -s, s),
+                DVec3::new(0.0, 2.0 * s, 0.0),
+                DVec3::new(2.0 * s, 0.0, 0.0),
+            ),
+            (
+                DVec3::new(-s, -s, -s),
+                DVec3::new(0.0, 2.0 * s, 0.0),
+                DVec3::new(0.0, 0.0, 2.0 * s),
+            ),
+            (
+                DVec3::new(s, -s, -s),
+                DVec3::new(0.0, 0.0, 2.0 * s),
+                DVec3::new(0.0, 2.0 * s, 0.0),
+            ),
+            (
+                DVec3::new(-s, s, -s),
+                DVec3::new(2.0 * s, 0.0, 0.0),
+                DVec3::new(0.0, 0.0, 2.0 * s),
+            ),
+        ]
+        .into_iter()
+        .map(|(c, u, v)| quad(c, u, v, 2))
+        .collect();
+        let mut meshes = vec![odd];
+        meshes.extend(walls);
+        meshes.push(quad(
+            DVec3::new(-0.5, 0.5, -0.5),
+            DVec3::new(0.0, 0.0, 1.0),
+            DVec3::new(0.0, 1.0, 0.0),
+            0,
+        ));
+        let scene = Scene {
+            render: RenderSettings {
+                width: 24,
+                height: 24,
+                frames: 1,
+                seed: 5,
+                max_specular_depth: 3,
+            },
+            camera: Camera {
+                position: DVec3::new(0.0, 0.5, 2.0),
+                look_at: DVec3::ZERO,
+                up: DVec3::Y,
+                fov_y_deg: 150.0,
+            },
+            material_names: vec!["mirror".into(), "cloth".into(), "wall".into()],
+            materials: vec![
+                Material::Mirror {
+                    reflectance: DVec3::splat(0.9),
+                },
+                Material::Spmm {
+                    material: std::sync::Arc::new(pack),
+                    uv_scale: DVec2::splat(3.0),
+                    residual: true,
+                    npca: 0,
+                },
+                Material::Brdf {
+                    brdf: AnalyticBrdf::new(BrdfModel::Ward, &[("ax", 1e-4), ("ay", 1e-4)])
+                        .expect("valid"),
+                    albedo: DVec3::ONE,
+                },
+            ],
+            meshes,
+            lights: vec![
+                // Grazing: just above the floor's plane.
+                Light::Point {
+                    position: DVec3::new(2.5, 1e-7, 0.0),
+                    intensity: DVec3::splat(10.0),
+                },
+                Light::Area {
+                    corner: DVec3::new(-0.5, 2.9, -0.5),
+                    edge_u: DVec3::X,
+                    edge_v: DVec3::Z,
+                    radiance: DVec3::splat(3.0),
+                },
+            ],
+            ambient: Some(Ambient {
+                radiance: DVec3::splat(0.2),
+                radius: 0.3,
+            }),
+            background: Background::Color(DVec3::ZERO),
+        };
+        let r = Renderer::new(&scene, 24, 24);
+        let mut film = Film::new(24, 24);
+        for f in 0..8 {
+            let (samples, _) = r.render_frame(f);
+            assert!(
+                samples.iter().flatten().all(|c| c.is_finite() && *c >= 0.0),
+                "frame {f}"
+            );
+            film.add_frame(&samples);
+        }
+        assert_eq!(film.dropped(), 0);
+        assert!(
+            film.mean().pixels().iter().any(|p| p[0] > 0.0),
+            "some light arrives"
+        );
+    }
+}

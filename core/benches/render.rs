@@ -17,18 +17,31 @@ fn bench_render(c: &mut Criterion) {
     let mut group = c.benchmark_group("render_frame_256");
     group.sample_size(10);
     group.throughput(Throughput::Elements(256 * 256));
-    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("pool");
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool");
     for (label, s) in [("AO on", &scene), ("AO off", &no_ao)] {
         let r = Renderer::new(s, 256, 256);
-        group.bench_function(format!("{label}, 1 thread"), |b| b.iter(|| one.install(|| r.render_frame(0))));
-        group.bench_function(format!("{label}, all threads"), |b| b.iter(|| r.render_frame(0)));
+        group.bench_function(format!("{label}, 1 thread"), |b| {
+            b.iter(|| one.install(|| r.render_frame(0)))
+        });
+        group.bench_function(format!("{label}, all threads"), |b| {
+            b.iter(|| r.render_frame(0))
+        });
     }
     group.finish();
 
     let bunny = root.join("tests/scenes/meshes/bunny_lowres.obj");
-    let placement = Placement { scale: 1.0, rotation: glam::DMat3::IDENTITY, translate: glam::DVec3::ZERO };
+    let placement = Placement {
+        scale: 1.0,
+        rotation: glam::DMat3::IDENTITY,
+        translate: glam::DVec3::ZERO,
+    };
     let mesh = load_obj(&bunny, &placement, 0).expect("bunny");
-    c.bench_function("bvh build, bunny 3.7k triangles", |b| b.iter(|| SceneBvh::build(std::slice::from_ref(&mesh))));
+    c.bench_function("bvh build, bunny 3.7k triangles", |b| {
+        b.iter(|| SceneBvh::build(std::slice::from_ref(&mesh)))
+    });
 }
 
 criterion_group!(benches, bench_render);

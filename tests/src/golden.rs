@@ -23,9 +23,10 @@ struct Tolerance {
 
 #[test]
 fn default_scene_matches_its_golden_image() {
-    let tolerances: std::collections::BTreeMap<String, Tolerance> =
-        toml::from_str(&std::fs::read_to_string(root().join("golden/tolerances.toml")).expect("tolerances file"))
-            .expect("valid tolerances");
+    let tolerances: std::collections::BTreeMap<String, Tolerance> = toml::from_str(
+        &std::fs::read_to_string(root().join("golden/tolerances.toml")).expect("tolerances file"),
+    )
+    .expect("valid tolerances");
     let tol = &tolerances["default_scene_32"];
     let scene = load_scene(&root().join("scenes/default.toml")).expect("default scene");
     let (w, h, frames) = (32, 32, 16);
@@ -41,5 +42,9 @@ fn default_scene_matches_its_golden_image() {
     }
     let reference = read_exr(&golden).expect("golden image (MESO_UPDATE_GOLDEN=1 makes it)");
     let c = compare(&reference, &image, 0.0).expect("same size");
-    assert!(c.rmse <= tol.max_rmse && c.mssim >= tol.min_mssim, "{}: {c:?}", tol.image);
+    assert!(
+        c.rmse <= tol.max_rmse && c.mssim >= tol.min_mssim,
+        "{}: {c:?}",
+        tol.image
+    );
 }

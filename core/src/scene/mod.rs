@@ -445,24 +445,37 @@ fn build_material(
     let span = m.span();
     let m = m.get_ref();
     let key = |k: &str| format!("materials.{name}.{k}");
-    let forbid = |present: bool, k: &str| -> Result<(), SceneError> {
-        if present {
-            ctx.err(
-                &span,
-                key(k),
-                format!("does not belong to a `{}` material", m.kind.get_ref()),
-            )
-        } else {
-            Ok(())
-        }
+    // Keys given, and the keys each kind accepts: one list, so a new key cannot be
+    // forgotten in one kind's check.
+    let given = [
+        ("model", m.model.is_some()),
+        ("params", m.params.is_some()),
+        ("albedo", m.albedo.is_some()),
+        ("pack", m.pack.is_some()),
+        ("uv_scale", m.uv_scale.is_some()),
+        ("residual", m.residual.is_some()),
+        ("npca", m.npca.is_some()),
+        ("reflectance", m.reflectance.is_some()),
+    ];
+    let accepted: &[&str] = match m.kind.get_ref().as_str() {
+        "brdf" => &["model", "params", "albedo"],
+        "spmm" => &["pack", "uv_scale", "residual", "npca"],
+        "mirror" => &["reflectance"],
+        _ => &[],
     };
+    if !accepted.is_empty()
+        && let Some((k, _)) = given
+            .iter()
+            .find(|(k, present)| *present && !accepted.contains(k))
+    {
+        return ctx.err(
+            &span,
+            key(k),
+            format!("does not belong to a `{}` material", m.kind.get_ref()),
+        );
+    }
     match m.kind.get_ref().as_str() {
         "brdf" => {
-            forbid(m.pack.is_some(), "pack")?;
-            forbid(m.uv_scale.is_some(), "uv_scale")?;
-            forbid(m.residual.is_some(), "residual")?;
-            forbid(m.npca.is_some(), "npca")?;
-            forbid(m.reflectance.is_some(), "reflectance")?;
             let Some(model) = &m.model else {
                 return ctx.err(&span, key("model"), "a `brdf` material needs `model`");
             };
@@ -483,10 +496,6 @@ fn build_material(
             Ok(Material::Brdf { brdf, albedo })
         }
         "spmm" => {
-            forbid(m.model.is_some(), "model")?;
-            forbid(m.params.is_some(), "params")?;
-            forbid(m.albedo.is_some(), "albedo")?;
-            forbid(m.reflectance.is_some(), "reflectance")?;
             let Some(pack_path) = &m.pack else {
                 return ctx.err(&span, key("pack"), "an `spmm` material needs `pack`");
             };
@@ -529,13 +538,6 @@ fn build_material(
             })
         }
         "mirror" => {
-            forbid(m.model.is_some(), "model")?;
-            forbid(m.params.is_some(), "params")?;
-            forbid(m.albedo.is_some(), "albedo")?;
-            forbid(m.pack.is_some(), "pack")?;
-            forbid(m.uv_scale.is_some(), "uv_scale")?;
-            forbid(m.residual.is_some(), "residual")?;
-            forbid(m.npca.is_some(), "npca")?;
             let reflectance = match &m.reflectance {
                 Some(r) => ctx.non_negative3(r, &key("reflectance"))?,
                 None => {

@@ -36,14 +36,17 @@ impl Ward {
     /// ((h.x/ax)^2 + (h.y/ay)^2) / h.z^2 for any positive multiple of h.
     #[inline]
     fn exponent(&self, s: DVec3) -> f64 {
-        let (x, y) = (s.x / self.ax, s.y / self.ay);
-        (x * x + y * y) / (s.z * s.z)
+        // Divided through by s.z first: s.z^2 underflows for cosines below 1e-154.
+        let r = 1.0 / s.z;
+        let (x, y) = (s.x * r / self.ax, s.y * r / self.ay);
+        x * x + y * y
     }
 
     #[inline]
     pub(super) fn eval(&self, wi: DVec3, wo: DVec3) -> f64 {
         let s = wi + wo;
-        (-self.exponent(s)).exp() / (4.0 * PI * self.ax * self.ay * (wi.z * wo.z).sqrt())
+        // sqrt(cos_i) sqrt(cos_o): the product cos_i cos_o underflows below 1e-154.
+        (-self.exponent(s)).exp() / (4.0 * PI * self.ax * self.ay * wi.z.sqrt() * wo.z.sqrt())
     }
 
     /// phi_h = atan2(ay sin 2 pi u, ax cos 2 pi u), tan^2 theta_h = -ln(1 - u') / A(phi)

@@ -70,6 +70,12 @@ impl SceneBvh {
         }
     }
 
+    /// Distance to BVH primitive `id` along `r` (infinity on a miss).
+    #[inline]
+    fn intersect(&self, r: &BvhRay, id: usize) -> f32 {
+        self.triangles[self.bvh.primitive_indices[id] as usize].intersect(r)
+    }
+
     /// Wall time of the BVH build.
     pub fn build_time(&self) -> Duration {
         self.build_time
@@ -94,9 +100,9 @@ impl SceneBvh {
         }
         let ray = BvhRay::new(v3a(origin), v3a(dir), tmin as f32, tmax as f32);
         let mut hit = RayHit::none();
-        let found = self.bvh.ray_traverse(ray, &mut hit, |r, id| {
-            self.triangles[self.bvh.primitive_indices[id] as usize].intersect(r)
-        });
+        let found = self
+            .bvh
+            .ray_traverse(ray, &mut hit, |r, id| self.intersect(r, id));
         if !found {
             return None;
         }
@@ -135,9 +141,9 @@ impl SceneBvh {
             return false;
         }
         let ray = BvhRay::new(v3a(origin), v3a(dir), tmin as f32, tmax as f32);
-        !self.bvh.ray_traverse_miss(ray, |r, id| {
-            self.triangles[self.bvh.primitive_indices[id] as usize].intersect(r)
-        })
+        !self
+            .bvh
+            .ray_traverse_miss(ray, |r, id| self.intersect(r, id))
     }
 }
 

@@ -5,9 +5,10 @@
 use std::path::Path;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use meso_core::render::{ModeKind, RenderMode};
 use meso_core::scene::load_scene;
 use meso_core::scene::mesh::{Placement, load_obj};
-use meso_core::trace::{Renderer, SceneBvh};
+use meso_core::trace::SceneBvh;
 
 fn bench_render(c: &mut Criterion) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
@@ -22,12 +23,12 @@ fn bench_render(c: &mut Criterion) {
         .build()
         .expect("pool");
     for (label, s) in [("AO on", &scene), ("AO off", &no_ao)] {
-        let r = Renderer::new(s, 256, 256);
+        let mut r = ModeKind::Spmm.create(s.clone(), 256, 256).expect("size");
         group.bench_function(format!("{label}, 1 thread"), |b| {
-            b.iter(|| one.install(|| r.render_frame(0)))
+            b.iter(|| one.install(|| r.render_frame()))
         });
         group.bench_function(format!("{label}, all threads"), |b| {
-            b.iter(|| r.render_frame(0))
+            b.iter(|| r.render_frame())
         });
     }
     group.finish();

@@ -9,6 +9,7 @@ pub mod atomic;
 pub mod brdf;
 pub mod image;
 pub mod metrics;
+pub mod render;
 pub mod rng;
 pub mod scene;
 pub mod spmm;

@@ -98,6 +98,93 @@ pub struct Scene {
     pub background: Background,
 }
 
+impl Camera {
+    /// Why this camera cannot render (for edits made outside a scene file; the loader
+    /// reports the same rules with the file's line).
+    pub fn problem(&self) -> Option<String> {
+        let forward = self.look_at - self.position;
+        if !(self.position.is_finite() && self.look_at.is_finite() && self.up.is_finite()) {
+            Some("camera position, look_at and up must be finite".into())
+        } else if !(self.fov_y_deg > 0.0 && self.fov_y_deg < 180.0) {
+            Some(format!("fov_y_deg {} is outside (0, 180)", self.fov_y_deg))
+        } else if forward.length() < 1e-9 {
+            Some("look_at equals the camera position".into())
+        } else if forward.cross(self.up).length()
+            < 1e-9 * forward.length() * self.up.length().max(1e-300)
+        {
+            Some("up is zero or parallel to the viewing direction".into())
+        } else {
+            None
+        }
+    }
+}
+
+impl Light {
+    /// The emitted quantity the light's contribution is linear in: intensity (point)
+    /// or radiance (area).
+    pub fn emission(&self) -> DVec3 {
+        match *self {
+            Light::Point { intensity, .. } => intensity,
+            Light::Area { radiance, .. } => radiance,
+        }
+    }
+
+    /// The same light with another emission.
+    pub fn with_emission(mut self, e: DVec3) -> Self {
+        match &mut self {
+            Light::Point { intensity, .. } => *intensity = e,
+            Light::Area { radiance, .. } => *radiance = e,
+        }
+        self
+    }
+
+    /// Why this light is invalid (same rules as the scene file).
+    pub fn problem(&self) -> Option<String> {
+        let e = self.emission();
+        if !(e.is_finite() && e.min_element() >= 0.0) {
+            return Some(format!("emission {e} must be finite and non-negative"));
+        }
+        match *self {
+            Light::Point { position, .. } => {
+                (!position.is_finite()).then(|| format!("position {position} is not finite"))
+            }
+            Light::Area {
+                corner,
+                edge_u,
+                edge_v,
+                ..
+            } => {
+                if !(corner.is_finite() && edge_u.is_finite() && edge_v.is_finite()) {
+                    Some("corner and edges must be finite".into())
+                } else if edge_u.cross(edge_v).length() <= 1e-12 {
+                    Some("the area light has zero area".into())
+                } else {
+                    None
+                }
+            }
+        }
+    }
+}
+
+impl Ambient {
+    /// Why this ambient term is invalid (same rules as the scene file).
+    pub fn problem(&self) -> Option<String> {
+        if !(self.radiance.is_finite() && self.radiance.min_element() >= 0.0) {
+            Some(format!(
+                "ambient radiance {} must be finite and non-negative",
+                self.radiance
+            ))
+        } else if self.radius.is_nan() || self.radius <= 0.0 {
+            Some(format!(
+                "ambient radius {} must be positive (inf: no limit)",
+                self.radius
+            ))
+        } else {
+            None
+        }
+    }
+}
+
 /// A scene that cannot be loaded: the file, the line (when known), the key, and why.
 #[derive(Debug, thiserror::Error)]
 #[error("`{}`{}{}: {message}", file.display(), line.map(|l| format!(" line {l}")).unwrap_or_default(), key.as_ref().map(|k| format!(", `{k}`")).unwrap_or_default())]

@@ -11,7 +11,7 @@ mod prepared;
 pub mod recipe;
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 pub use eval::{EvalSettings, TexelFilter};
 pub use material::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial};

@@ -138,6 +138,12 @@ impl PreparedSpmm {
     /// BTF(t, wi, wo), RGB, as `SpmmMaterial::eval_texel` with the prepared settings.
     /// Texels of clusters not marked used get no residual.
     pub fn eval_texel(&self, t: usize, wi: DVec3, wo: DVec3) -> DVec3 {
+        self.eval_texel_parts(t, wi, wo, true)
+    }
+
+    /// As `eval_texel`, with the residual skipped when `residual` is false (the
+    /// viewport's moving camera).
+    fn eval_texel_parts(&self, t: usize, wi: DVec3, wo: DVec3, residual: bool) -> DVec3 {
         if wi.z <= 0.0 || wo.z <= 0.0 {
             return DVec3::ZERO;
         }
@@ -149,7 +155,8 @@ impl PreparedSpmm {
             rgb += DVec3::new(w[0] as f64, w[1] as f64, w[2] as f64)
                 * bases[usize::from(self.basis[i])].eval(wi, wo);
         }
-        if let Some(r) = &self.residual
+        if residual
+            && let Some(r) = &self.residual
             && let Some(base) = r.cluster_offset[c]
         {
             let stride = (1 + r.k) * 3;
@@ -174,10 +181,16 @@ impl PreparedSpmm {
         rgb
     }
 
-    /// BTF at a surface UV position with the settings' filter and tiling (the residual
-    /// and N_PCA were fixed by `prepare`).
+    /// BTF at a surface UV position with the settings' filter and tiling. N_PCA was
+    /// fixed by `prepare`; `s.residual = false` skips a prepared residual.
     pub fn eval_uv(&self, uv: DVec2, wi: DVec3, wo: DVec3, s: &EvalSettings) -> DVec3 {
-        self.grid.filter(uv, s, |t| self.eval_texel(t, wi, wo))
+        self.grid
+            .filter(uv, s, |t| self.eval_texel_parts(t, wi, wo, s.residual))
+    }
+
+    /// Whether residual tables were prepared.
+    pub fn has_residual(&self) -> bool {
+        self.residual.is_some()
     }
 
     /// Clusters whose residual tables were kept.

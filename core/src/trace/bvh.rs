@@ -1,14 +1,19 @@
 //! Ray queries against a scene's triangles: a compressed wide BVH (CWBVH, Ylitie et
 //! al. 2017) built by obvhs on scene load, closest-hit and occlusion (any-hit) queries.
 //! Traversal runs in f32 (obvhs); the hit point's barycentrics are recomputed in f64
-//! for shading. Degenerate (zero-area) triangles are left out of the BVH.
+//! for shading. Degenerate (zero-area) triangles are left out of the BVH. Moved
+//! geometry with the same triangles is refitted (the binary BVH's boxes updated
+//! bottom-up, then re-compressed) instead of rebuilt; docs/performance.md has both costs.
 
 use std::time::{Duration, Instant};
 
 use glam::{DVec3, Vec3A};
 use obvhs::BvhBuildParams;
+use obvhs::bvh2::Bvh2;
+use obvhs::bvh2::reinsertion::ReinsertionOptimizer;
 use obvhs::cwbvh::CwBvh;
-use obvhs::cwbvh::builder::build_cwbvh_from_tris;
+use obvhs::cwbvh::bvh2_to_cwbvh::bvh2_to_cwbvh;
+use obvhs::ploc::PlocBuilder;
 use obvhs::ray::{Ray as BvhRay, RayHit};
 use obvhs::triangle::Triangle;
 
@@ -27,12 +32,19 @@ pub struct Hit {
 
 pub struct SceneBvh {
     bvh: CwBvh,
+    /// The binary BVH the wide one was made from, kept for refitting.
+    bvh2: Bvh2,
     triangles: Vec<Triangle>,
     /// (mesh, triangle within the mesh) of each BVH primitive.
     refs: Vec<(u32, u32)>,
     build_time: Duration,
+    refitted: bool,
     degenerate: usize,
 }
+
+/// Build settings: obvhs' medium preset (PLOC, no pre-splitting, so every leaf of the
+/// binary BVH is one triangle and can be refitted).
+const PARAMS: BvhBuildParams = BvhBuildParams::medium_build();
 
 fn v3a(p: DVec3) -> Vec3A {
     Vec3A::new(p.x as f32, p.y as f32, p.z as f32)
@@ -40,34 +52,49 @@ fn v3a(p: DVec3) -> Vec3A {
 
 impl SceneBvh {
     pub fn build(meshes: &[TriangleMesh]) -> Self {
-        let mut triangles = Vec::new();
-        let mut refs = Vec::new();
-        let mut degenerate = 0;
-        for (m, mesh) in meshes.iter().enumerate() {
-            for (t, idx) in mesh.indices.iter().enumerate() {
-                let [a, b, c] = idx.map(|i| mesh.positions[i as usize]);
-                if (b - a).cross(c - a).length_squared() <= 0.0 {
-                    degenerate += 1;
-                    continue;
-                }
-                triangles.push(Triangle {
-                    v0: v3a(a),
-                    v1: v3a(b),
-                    v2: v3a(c),
-                });
-                refs.push((m as u32, t as u32));
-            }
-        }
+        let (triangles, refs, degenerate) = collect_triangles(meshes);
         let start = Instant::now();
-        let mut core_time = Duration::default();
-        let bvh = build_cwbvh_from_tris(&triangles, BvhBuildParams::medium_build(), &mut core_time);
+        let mut bvh2 = PlocBuilder::with_capacity(triangles.len()).build(
+            PARAMS.ploc_search_distance,
+            &triangles,
+            (0..triangles.len() as u32).collect(),
+            PARAMS.sort_precision,
+            PARAMS.search_depth_threshold,
+        );
+        ReinsertionOptimizer::default().run(&mut bvh2, PARAMS.reinsertion_batch_ratio, None);
+        let bvh = compress(&bvh2);
         Self {
             bvh,
+            bvh2,
             triangles,
             refs,
             build_time: start.elapsed(),
+            refitted: false,
             degenerate,
         }
+    }
+
+    /// Follows moved geometry: refits when `meshes` has the same triangles (and the same
+    /// zero-area ones) as the last build, rebuilds otherwise. Returns true if it refitted.
+    pub fn update(&mut self, meshes: &[TriangleMesh]) -> bool {
+        let (triangles, refs, degenerate) = collect_triangles(meshes);
+        if refs != self.refs || triangles.is_empty() {
+            *self = Self::build(meshes);
+            return false;
+        }
+        let start = Instant::now();
+        self.bvh2.init_primitives_to_nodes_if_uninit();
+        for (prim, tri) in triangles.iter().enumerate() {
+            let node = self.bvh2.primitives_to_nodes[prim] as usize;
+            self.bvh2.nodes[node].set_aabb(tri.aabb());
+        }
+        self.bvh2.refit_all();
+        self.bvh = compress(&self.bvh2);
+        self.triangles = triangles;
+        self.degenerate = degenerate;
+        self.build_time = start.elapsed();
+        self.refitted = true;
+        true
     }
 
     /// Distance to BVH primitive `id` along `r` (infinity on a miss).
@@ -76,9 +103,14 @@ impl SceneBvh {
         self.triangles[self.bvh.primitive_indices[id] as usize].intersect(r)
     }
 
-    /// Wall time of the BVH build.
+    /// Wall time of the last build or refit.
     pub fn build_time(&self) -> Duration {
         self.build_time
+    }
+
+    /// Whether the last update was a refit (else a full build).
+    pub fn refitted(&self) -> bool {
+        self.refitted
     }
 
     /// Triangles in the BVH and zero-area triangles left out.
@@ -145,6 +177,35 @@ impl SceneBvh {
             .bvh
             .ray_traverse_miss(ray, |r, id| self.intersect(r, id))
     }
+}
+
+/// The scene's non-degenerate triangles in f32, their (mesh, triangle) and how many
+/// zero-area triangles were left out.
+fn collect_triangles(meshes: &[TriangleMesh]) -> (Vec<Triangle>, Vec<(u32, u32)>, usize) {
+    let mut triangles = Vec::new();
+    let mut refs = Vec::new();
+    let mut degenerate = 0;
+    for (m, mesh) in meshes.iter().enumerate() {
+        for (t, idx) in mesh.indices.iter().enumerate() {
+            let [a, b, c] = idx.map(|i| mesh.positions[i as usize]);
+            if (b - a).cross(c - a).length_squared() <= 0.0 {
+                degenerate += 1;
+                continue;
+            }
+            triangles.push(Triangle {
+                v0: v3a(a),
+                v1: v3a(b),
+                v2: v3a(c),
+            });
+            refs.push((m as u32, t as u32));
+        }
+    }
+    (triangles, refs, degenerate)
+}
+
+/// The wide BVH traversed at render time (up to 3 triangles per leaf).
+fn compress(bvh2: &Bvh2) -> CwBvh {
+    bvh2_to_cwbvh(bvh2, PARAMS.max_prims_per_leaf.clamp(1, 3), true, false)
 }
 
 #[cfg(test)]
@@ -230,6 +291,35 @@ mod tests {
             "the wall is 1.5 away"
         );
         assert!(!bvh.occluded(from, DVec3::Y, 1e-4, f64::INFINITY));
+    }
+
+    #[test]
+    fn moved_geometry_is_refitted_and_new_geometry_rebuilt() {
+        let mut meshes = floor_and_wall();
+        let mut bvh = SceneBvh::build(&meshes);
+        // Lift the floor by 0.25: same triangles, so a refit; rays see the new place.
+        for p in &mut meshes[0].positions {
+            p.y += 0.25;
+        }
+        assert!(bvh.update(&meshes), "same topology refits");
+        let down = |bvh: &SceneBvh, meshes: &[TriangleMesh]| {
+            bvh.closest_hit(meshes, DVec3::new(0.5, 1.0, 0.25), DVec3::NEG_Y, 1e-4, 9.0)
+                .map(|h| h.t)
+        };
+        assert!((down(&bvh, &meshes).expect("floor") - 0.75).abs() < 1e-6);
+        // Moving it far beyond the old box: a refit must grow the boxes.
+        for p in &mut meshes[0].positions {
+            p.y -= 5.0;
+        }
+        assert!(bvh.update(&meshes));
+        assert!((down(&bvh, &meshes).expect("floor") - 5.75).abs() < 1e-5);
+        assert!(bvh.occluded(DVec3::new(0.0, 0.5, 0.5), DVec3::NEG_Z, 1e-4, 10.0));
+        // A mesh fewer: rebuilt.
+        meshes.pop();
+        assert!(!bvh.update(&meshes));
+        assert!(!bvh.refitted());
+        assert_eq!(bvh.triangle_counts(), (2, 0));
+        assert!(!bvh.occluded(DVec3::new(0.0, 0.5, 0.5), DVec3::NEG_Z, 1e-4, 10.0));
     }
 
     #[test]

@@ -1,14 +1,14 @@
-//! The progressive ray tracer of the `spmm` mode (Silva & Santos 2013, section 4) —
-//! being built: so far the film that accumulates frames, the pinhole camera that
-//! generates primary rays, and the BVH (obvhs) for closest-hit and occlusion queries.
-//! The integrator and `meso render` follow.
+//! The `spmm` render mode's progressive ray tracer (Silva & Santos 2013, section 4):
+//! the BVH (obvhs) for closest-hit and occlusion queries with refitting, the pinhole
+//! camera for primary rays, and the integrator (`SpmmMode`, a `render::RenderMode`).
 
 pub mod bvh;
 pub mod camera;
-pub mod film;
 pub mod integrator;
 
 pub use bvh::{Hit, SceneBvh};
 pub use camera::{PinholeCamera, Ray};
-pub use film::Film;
-pub use integrator::{RayCounts, Renderer};
+pub use integrator::{RayCounts, SpmmMode};
+
+#[cfg(test)]
+mod edit_tests;

@@ -1,6 +1,6 @@
-//! `meso render SCENE -o OUT.exr|OUT.png`: a progressive render of a scene file in
-//! the `spmm` mode (spec/cli.md); `--json` reports time, frames, rays by kind, rays per
-//! second and dropped non-finite samples.
+//! `meso render SCENE -o OUT.exr|OUT.png`: a progressive render of a scene file through
+//! a render mode (spec/cli.md; only `spmm` exists today); `--json` reports time,
+//! frames, rays by kind, rays per second and dropped non-finite samples.
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -8,8 +8,8 @@ use std::time::Instant;
 
 use anyhow::anyhow;
 use clap::Args;
+use meso_core::render::{ModeKind, run_frames};
 use meso_core::scene::load_scene;
-use meso_core::trace::{Film, RayCounts, Renderer};
 use serde_json::json;
 
 use crate::failure::{CliError, ResultExt};
@@ -28,6 +28,9 @@ pub struct RenderArgs {
     width: Option<u32>,
     #[arg(long)]
     height: Option<u32>,
+    /// Samples per pixel in each frame.
+    #[arg(long, default_value_t = 1)]
+    spp_per_frame: u32,
     /// Exposure in stops for PNG output.
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     exposure: f64,
@@ -45,6 +48,12 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
             "--frames must be at least 1 and --width/--height in [1, 16384] (got {frames}, {width}x{height})"
         )));
     }
+    if !(1..=65536).contains(&args.spp_per_frame) {
+        return Err(CliError::bad_input(anyhow!(
+            "--spp-per-frame {} is outside [1, 65536]",
+            args.spp_per_frame
+        )));
+    }
     if !args.exposure.is_finite() {
         return Err(CliError::bad_input(anyhow!(
             "--exposure {} is not finite",
@@ -52,25 +61,25 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
         )));
     }
     let start = Instant::now();
-    let renderer = Renderer::new(&scene, width, height);
-    let bvh_ms = renderer.bvh().build_time().as_secs_f64() * 1e3;
-    let mut film = Film::new(width, height);
-    let mut rays = RayCounts::default();
+    let mut mode = ModeKind::Spmm
+        .create(scene, width, height)
+        .map_err(|e| CliError::bad_input(anyhow!(e)))?;
+    mode.set_samples_per_frame(args.spp_per_frame);
+    let bvh_ms = mode.geometry_update().time.as_secs_f64() * 1e3;
     let progress = std::io::stderr().is_terminal() && !args.json;
-    let trace_start = Instant::now();
-    for f in 0..frames {
-        let (samples, counts) = renderer.render_frame(f);
-        film.add_frame(&samples);
-        rays = rays + counts;
+    let run = run_frames(mode.as_mut(), frames, |done, _| {
         if progress {
-            eprint!("\rrendering: frame {}/{frames}", f + 1);
+            eprint!("\rrendering: frame {done}/{frames}");
         }
-    }
+    });
     if progress {
         eprintln!();
     }
-    let trace_s = trace_start.elapsed().as_secs_f64();
-    meso_core::image::write_image(&args.output, &film.mean(), args.exposure)
+    let rays = run.rays;
+    let trace_s = run.seconds;
+    let image = mode.image();
+    let dropped = mode.progress().dropped;
+    meso_core::image::write_image(&args.output, &image, args.exposure)
         .failure_ctx(|| format!("writing `{}`", args.output.display()))?;
     let total_s = start.elapsed().as_secs_f64();
     let rays_per_s = rays.total() as f64 / trace_s.max(1e-9);
@@ -81,13 +90,16 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
             "width": width,
             "height": height,
             "frames": frames,
+            "mode": mode.kind().name(),
+            "spp_per_frame": args.spp_per_frame,
+            "samples_per_pixel": mode.progress().min_samples,
             "seconds": total_s,
             "trace_seconds": trace_s,
             "bvh_build_ms": bvh_ms,
             "rays": rays,
             "rays_total": rays.total(),
             "rays_per_second": rays_per_s,
-            "nonfinite_dropped": film.dropped(),
+            "nonfinite_dropped": dropped,
         }));
     }
     println!(
@@ -95,7 +107,7 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
         args.output.display(),
         rays.total(),
         rays_per_s / 1e6,
-        film.dropped()
+        dropped
     );
     Ok(())
 }

@@ -1,0 +1,377 @@
+//! Edits restart only what they invalidate, and what they keep is exactly right: the
+//! image after an edit equals (to float rounding) a render that had the edit from the
+//! start, wherever the edit claims to keep samples.
+
+use std::sync::Arc;
+
+use glam::{DVec2, DVec3};
+
+use super::SpmmMode;
+use crate::brdf::{AnalyticBrdf, BrdfModel};
+use crate::image::Image;
+use crate::render::{Invalidation, RenderMode, SceneEdit};
+use crate::scene::mesh::quad;
+use crate::scene::{Ambient, Background, Camera, Light, Material, RenderSettings, Scene};
+
+const SIZE: u32 = 24;
+
+/// A Lambertian floor (material 0) and an SPMM panel with a residual (material 1)
+/// under an area light and a point light, with AO.
+fn scene() -> Scene {
+    let panel = crate::spmm::tests::sample_material(4, 4, 2, Some(3));
+    Scene {
+        render: RenderSettings {
+            width: SIZE,
+            height: SIZE,
+            frames: 1,
+            seed: 9,
+            max_specular_depth: 2,
+        },
+        camera: Camera {
+            position: DVec3::new(0.0, 1.2, 2.0),
+            look_at: DVec3::new(0.0, 0.2, 0.0),
+            up: DVec3::Y,
+            fov_y_deg: 50.0,
+        },
+        material_names: vec!["floor".into(), "panel".into()],
+        materials: vec![
+            Material::Brdf {
+                brdf: AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
+                albedo: DVec3::splat(0.6),
+            },
+            Material::Spmm {
+                material: Arc::new(panel),
+                uv_scale: DVec2::splat(2.0),
+                residual: true,
+                npca: 3,
+            },
+        ],
+        meshes: vec![
+            quad(
+                DVec3::new(-2.0, 0.0, 2.0),
+                DVec3::new(4.0, 0.0, 0.0),
+                DVec3::new(0.0, 0.0, -4.0),
+                0,
+            ),
+            quad(
+                DVec3::new(-0.4, 0.0, 0.0),
+                DVec3::new(0.8, 0.0, 0.0),
+                DVec3::new(0.0, 0.8, 0.0),
+                1,
+            ),
+        ],
+        lights: vec![
+            Light::Area {
+                corner: DVec3::new(-0.3, 1.5, 0.2),
+                edge_u: DVec3::new(0.6, 0.0, 0.0),
+                edge_v: DVec3::new(0.0, 0.0, 0.6),
+                radiance: DVec3::splat(6.0),
+            },
+            Light::Point {
+                position: DVec3::new(1.0, 1.0, 1.0),
+                intensity: DVec3::new(1.0, 0.5, 0.2),
+            },
+        ],
+        ambient: Some(Ambient {
+            radiance: DVec3::splat(0.3),
+            radius: 0.5,
+        }),
+        background: Background::Color(DVec3::new(0.1, 0.1, 0.2)),
+    }
+}
+
+fn rendered(scene: Scene, frames: u32) -> SpmmMode {
+    let mut m = SpmmMode::new(scene, SIZE, SIZE).expect("size");
+    for _ in 0..frames {
+        m.render_frame();
+    }
+    m
+}
+
+fn assert_close(a: &Image, b: &Image) {
+    for (p, q) in a.pixels().iter().zip(b.pixels()) {
+        for c in 0..3 {
+            assert!(
+                (p[c] - q[c]).abs() <= 1e-5 * p[c].abs().max(q[c].abs()).max(1e-3),
+                "{p:?} vs {q:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn emission_edits_keep_every_sample_and_equal_a_fresh_render() {
+    let mut m = rendered(scene(), 3);
+    let before = m.progress();
+    let mut brighter = scene().lights;
+    brighter[0] = brighter[0].with_emission(DVec3::new(9.0, 3.0, 1.0));
+    brighter[1] = brighter[1].with_emission(DVec3::ZERO);
+    for (i, l) in brighter.iter().enumerate() {
+        let edit = SceneEdit::Light {
+            index: i,
+            light: *l,
+        };
+        assert_eq!(m.apply(edit), Ok(Invalidation::Nothing));
+    }
+    let ambient = Some(Ambient {
+        radiance: DVec3::new(0.1, 0.2, 0.3),
+        radius: 0.5,
+    });
+    assert_eq!(
+        m.apply(SceneEdit::Ambient(ambient)),
+        Ok(Invalidation::Nothing)
+    );
+    let bg = Background::Color(DVec3::new(1.0, 0.0, 0.0));
+    assert_eq!(
+        m.apply(SceneEdit::Background(bg.clone())),
+        Ok(Invalidation::Nothing)
+    );
+    assert_eq!(m.progress(), before, "no sample was lost");
+    let mut edited = scene();
+    edited.lights = brighter;
+    edited.ambient = ambient;
+    edited.background = bg;
+    assert_close(&m.image(), &rendered(edited, 3).image());
+}
+
+#[test]
+fn a_moved_light_restarts_only_its_layer() {
+    let mut m = rendered(scene(), 4);
+    let mut moved = scene().lights[0];
+    if let Light::Area { corner, .. } = &mut moved {
+        corner.x += 0.5;
+    }
+    assert_eq!(
+        m.apply(SceneEdit::Light {
+            index: 0,
+            light: moved
+        }),
+        Ok(Invalidation::Layer(2))
+    );
+    assert_eq!(
+        m.progress().min_samples,
+        0,
+        "the moved light's layer restarted"
+    );
+    for _ in 0..4 {
+        m.render_frame();
+    }
+    // Its layer now holds frames 4..8, the others frames 0..8. Seen through the moved
+    // light alone, that is a 4-frame render starting at frame 4; through the others
+    // alone, an 8-frame render.
+    let mut only_moved = scene();
+    only_moved.lights = vec![moved, scene().lights[1].with_emission(DVec3::ZERO)];
+    only_moved.ambient = None;
+    only_moved.background = Background::Color(DVec3::ZERO);
+    let mut fresh = SpmmMode::new(only_moved, SIZE, SIZE).expect("size");
+    for _ in 0..8 {
+        fresh.render_frame();
+    }
+    let isolate = |m: &mut SpmmMode, keep_moved: bool| {
+        let lights = m.scene().lights.clone();
+        for (i, l) in lights.iter().enumerate() {
+            let e = if (i == 0) == keep_moved {
+                l.emission()
+            } else {
+                DVec3::ZERO
+            };
+            m.apply(SceneEdit::Light {
+                index: i,
+                light: l.with_emission(e),
+            })
+            .expect("valid");
+        }
+        m.apply(SceneEdit::Ambient(None)).expect("valid");
+        m.apply(SceneEdit::Background(Background::Color(DVec3::ZERO)))
+            .expect("valid");
+        m.image()
+    };
+    // The fresh render's first 4 frames are not in `m`'s layer: compare against the
+    // mean of frames 4..8 of a fresh render, which is 2 * mean(0..8) - mean(0..4).
+    let mut fresh4 = SpmmMode::new(fresh.scene().clone(), SIZE, SIZE).expect("size");
+    for _ in 0..4 {
+        fresh4.render_frame();
+    }
+    let (f8, f4) = (fresh.image(), fresh4.image());
+    let mut expected = f8.clone();
+    for (e, (p8, p4)) in expected
+        .pixels_mut()
+        .iter_mut()
+        .zip(f8.pixels().iter().zip(f4.pixels()))
+    {
+        for c in 0..3 {
+            e[c] = 2.0 * p8[c] - p4[c];
+        }
+    }
+    assert_close(&isolate(&mut m, true), &expected);
+    let mut unmoved = rendered(scene(), 8);
+    let mut m2 = rendered(scene(), 4);
+    m2.apply(SceneEdit::Light {
+        index: 0,
+        light: moved,
+    })
+    .expect("valid");
+    for _ in 0..4 {
+        m2.render_frame();
+    }
+    assert_close(&isolate(&mut m2, false), &isolate(&mut unmoved, false));
+}
+
+#[test]
+fn a_material_edit_restarts_only_the_pixels_that_shaded_it() {
+    let mut m = rendered(scene(), 2);
+    let red = Material::Brdf {
+        brdf: AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
+        albedo: DVec3::new(0.8, 0.1, 0.1),
+    };
+    let Ok(Invalidation::Pixels(n)) = m.apply(SceneEdit::Material {
+        index: 1,
+        material: red.clone(),
+    }) else {
+        panic!("a material edit restarts pixels");
+    };
+    let total = (SIZE * SIZE) as usize;
+    assert!(
+        n > 20 && n < total / 2,
+        "{n} of {total} pixels see the panel"
+    );
+    // Pixels that never saw the panel keep their two frames and equal a fresh render's.
+    let mut edited = scene();
+    edited.materials[1] = red;
+    let fresh = rendered(edited, 2).image();
+    let kept = m.image();
+    let equal = kept
+        .pixels()
+        .iter()
+        .zip(fresh.pixels())
+        .filter(|(a, b)| a == b)
+        .count();
+    assert!(equal >= total - n, "{equal} equal pixels, {n} restarted");
+    for _ in 0..2 {
+        m.render_frame();
+    }
+    assert_eq!(
+        m.progress().min_samples,
+        2,
+        "restarted pixels have 2 samples"
+    );
+}
+
+#[test]
+fn moving_skips_the_residual_and_stopping_restores_it() {
+    let mut m = rendered(scene(), 1);
+    let still = m.image();
+    let Ok(Invalidation::Pixels(n)) = m.apply(SceneEdit::Moving(true)) else {
+        panic!("moving restarts the residual material's pixels");
+    };
+    assert!(n > 0);
+    m.render_frame();
+    let moving = m.image();
+    assert_ne!(still, moving, "the residual is skipped");
+    // Every sample equals a still render's of the material without its residual.
+    let mut no_residual = scene();
+    if let Material::Spmm { residual, .. } = &mut no_residual.materials[1] {
+        *residual = false;
+    }
+    let reference = SpmmMode::new(no_residual, SIZE, SIZE).expect("size");
+    let with_residual = SpmmMode::new(scene(), SIZE, SIZE).expect("size");
+    let mut differ = 0;
+    for (x, y) in (0..SIZE).flat_map(|y| (0..SIZE).map(move |x| (x, y))) {
+        assert_eq!(
+            m.sample(x, y, 5).0,
+            reference.sample(x, y, 5).0,
+            "pixel {x},{y}"
+        );
+        differ += usize::from(m.sample(x, y, 5).0 != with_residual.sample(x, y, 5).0);
+    }
+    assert!(differ > 0, "the residual matters somewhere");
+    assert_eq!(m.apply(SceneEdit::Moving(true)), Ok(Invalidation::Nothing));
+    assert!(matches!(m.apply(SceneEdit::Moving(false)), Ok(Invalidation::Pixels(k)) if k > 0));
+    // Pixels that saw the panel restarted; the rest kept both frames.
+    m.render_frame();
+    assert_eq!(m.progress().min_samples, 1);
+}
+
+#[test]
+fn camera_size_and_geometry_edits_restart_everything_and_refit() {
+    let mut m = rendered(scene(), 2);
+    let mut cam = scene().camera;
+    cam.position.x += 0.1;
+    assert_eq!(m.apply(SceneEdit::Camera(cam)), Ok(Invalidation::All));
+    assert_eq!(m.progress().min_samples, 0);
+    let mut bad = cam;
+    bad.look_at = bad.position;
+    assert!(
+        m.apply(SceneEdit::Camera(bad)).is_err(),
+        "degenerate camera refused"
+    );
+    assert_eq!(m.scene().camera, cam, "a refused edit changes nothing");
+    assert_eq!(
+        m.apply(SceneEdit::Resize {
+            width: 8,
+            height: 6
+        }),
+        Ok(Invalidation::All)
+    );
+    m.render_frame();
+    assert_eq!((m.image().width(), m.image().height()), (8, 6));
+    assert!(
+        m.apply(SceneEdit::Resize {
+            width: 0,
+            height: 6
+        })
+        .is_err()
+    );
+    let mut meshes = scene().meshes;
+    for p in &mut meshes[1].positions {
+        p.x += 0.3;
+    }
+    assert_eq!(
+        m.apply(SceneEdit::Meshes(meshes.clone())),
+        Ok(Invalidation::All)
+    );
+    assert!(m.geometry_update().refit, "same triangles are refitted");
+    meshes[1].material = 7;
+    assert!(
+        m.apply(SceneEdit::Meshes(meshes)).is_err(),
+        "unknown material refused"
+    );
+}
+
+#[test]
+fn lights_are_added_and_removed_and_the_ambient_radius_restarts_its_layer() {
+    let mut m = rendered(scene(), 2);
+    let extra = Light::Point {
+        position: DVec3::new(-1.0, 1.0, 0.5),
+        intensity: DVec3::splat(2.0),
+    };
+    assert_eq!(
+        m.apply(SceneEdit::AddLight(extra)),
+        Ok(Invalidation::Layer(4))
+    );
+    m.render_frame();
+    assert_eq!(
+        m.apply(SceneEdit::RemoveLight(0)),
+        Ok(Invalidation::Nothing)
+    );
+    assert!(m.apply(SceneEdit::RemoveLight(5)).is_err());
+    // Lights now: the point light (3 frames) and the extra one (1 frame).
+    assert_eq!(m.progress().min_samples, 1);
+    let wider = Some(Ambient {
+        radiance: DVec3::splat(0.3),
+        radius: 2.0,
+    });
+    assert_eq!(
+        m.apply(SceneEdit::Ambient(wider)),
+        Ok(Invalidation::Layer(1))
+    );
+    assert_eq!(m.progress().min_samples, 0);
+    // AO off and on again with the same radius keeps the layer's samples.
+    m.render_frame();
+    assert_eq!(m.apply(SceneEdit::Ambient(None)), Ok(Invalidation::Nothing));
+    assert_eq!(
+        m.apply(SceneEdit::Ambient(wider)),
+        Ok(Invalidation::Nothing)
+    );
+    assert_eq!(m.progress().min_samples, 1);
+}

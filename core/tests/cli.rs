@@ -559,6 +559,7 @@ fn render_writes_an_image_and_reports_json() {
     );
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
     assert_eq!(v["frames"], 2);
+    assert_eq!(v["mode"], "spmm");
     assert_eq!(v["rays"]["primary"], 2 * 24 * 16);
     assert!(v["rays"]["shadow"].as_u64().expect("count") > 0);
     assert!(v["rays_per_second"].as_f64().expect("rate") > 0.0);
@@ -566,6 +567,43 @@ fn render_writes_an_image_and_reports_json() {
     let img = meso_core::image::read_image(&out).expect("an EXR");
     assert_eq!((img.width(), img.height()), (24, 16));
     assert!(img.pixels().iter().any(|p| p[0] > 0.0), "something is lit");
+
+    // Three samples per pixel per frame: three times the primary rays.
+    let o = meso(
+        &[
+            "render",
+            scene,
+            "-o",
+            out.to_str().expect("utf-8"),
+            "--frames",
+            "2",
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "--spp-per-frame",
+            "3",
+            "--json",
+        ],
+        "",
+    );
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    assert_eq!(v["rays"]["primary"], 2 * 3 * 64);
+    assert_eq!(v["samples_per_pixel"], 6);
+    assert_bad_input(
+        &meso(
+            &[
+                "render",
+                scene,
+                "-o",
+                out.to_str().expect("utf-8"),
+                "--spp-per-frame",
+                "0",
+            ],
+            "",
+        ),
+        &["--spp-per-frame"],
+    );
 
     let bad = dir.path().join("bad.toml");
     std::fs::write(&bad, "version = 1\n[camera]\nposition = [0.0, 0.0, 1.0]\n").expect("write");
@@ -581,4 +619,65 @@ fn render_writes_an_image_and_reports_json() {
         ),
         &["bad.toml", "look_at"],
     );
+}
+
+#[test]
+fn report_convergence_writes_csv_json_charts_and_the_reference() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let out = dir.path().join("conv");
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/default.toml");
+    let args = [
+        "report",
+        "convergence",
+        scene,
+        "-o",
+        out.to_str().expect("utf-8"),
+        "--width",
+        "16",
+        "--height",
+        "16",
+        "--reference-frames",
+        "64",
+        "--max-frames",
+        "8",
+        "--json",
+    ];
+    let o = meso(&args, "");
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    let variants: Vec<&str> = v["summaries"]
+        .as_array()
+        .expect("summaries")
+        .iter()
+        .map(|s| s["variant"].as_str().expect("name"))
+        .collect();
+    assert_eq!(
+        variants,
+        ["full", "no_ao"],
+        "the default scene has AO and no residual"
+    );
+    let csv = std::fs::read_to_string(out.join("convergence.csv")).expect("csv");
+    let rows: Vec<&str> = csv.lines().collect();
+    assert_eq!(
+        rows[0],
+        "variant,reference,frames,seconds,rmse,psnr_db,mssim"
+    );
+    assert_eq!(rows.len(), 1 + 2 * 4, "frames 1, 2, 4, 8 for two variants");
+    for name in [
+        "convergence_rmse.svg",
+        "convergence_mssim.svg",
+        "reference.png",
+    ] {
+        assert!(out.join(name).metadata().expect(name).len() > 100, "{name}");
+    }
+    let reference = meso_core::image::read_image(&out.join("reference.exr")).expect("EXR");
+    assert_eq!((reference.width(), reference.height()), (16, 16));
+    let mut bad = args.to_vec();
+    bad[10] = "4";
+    assert_bad_input(&meso(&bad, ""), &["--max-frames", "--reference-frames"]);
 }

@@ -4,6 +4,7 @@
 //! drive modes through this trait, so nothing is rendered two different ways.
 //! Only the `spmm` mode (`trace`) exists today; `biscale` and `adaptive` will join.
 
+pub mod convergence;
 pub mod edit;
 pub mod film;
 

@@ -17,7 +17,7 @@ const SIZE: u32 = 24;
 
 /// A Lambertian floor (material 0) and an SPMM panel with a residual (material 1)
 /// under an area light and a point light, with AO.
-fn scene() -> Scene {
+pub(crate) fn scene() -> Scene {
     let panel = crate::spmm::tests::sample_material(4, 4, 2, Some(3));
     Scene {
         render: RenderSettings {

@@ -66,7 +66,7 @@ enum Shader {
     Scene,
     /// An SPMM pack prepared for this render, with its settings when still and moving.
     Spmm {
-        prepared: PreparedSpmm,
+        prepared: Box<PreparedSpmm>,
         still: EvalSettings,
         moving: EvalSettings,
     },
@@ -88,11 +88,11 @@ impl Shader {
                     uv_scale: *uv_scale,
                 };
                 Shader::Spmm {
-                    prepared: material.prepare(&PrepareRequest {
+                    prepared: Box::new(material.prepare(&PrepareRequest {
                         used_clusters: None,
                         residual: *residual,
                         max_npca: *npca,
-                    }),
+                    })),
                     still,
                     moving: EvalSettings {
                         residual: false,
@@ -361,7 +361,8 @@ impl SpmmMode {
                     cos_l * area / d2
                 }
             };
-            if !(wi.dot(s.n) > 0.0) {
+            let cos_i = wi.dot(s.n);
+            if cos_i.is_nan() || cos_i <= 0.0 {
                 continue;
             }
             path.counts.shadow += 1;
@@ -374,15 +375,42 @@ impl SpmmMode {
         }
         let u = path.rng.next_2d();
         if let Some(ambient) = &self.scene.ambient {
-            let local = warp::cosine_hemisphere(u);
+            let (local, weight) = self.ambient_direction(&s, u);
             let wi = s.t * local.x + s.b * local.y + s.n * local.z;
             if local.z > 0.0 {
                 path.counts.ambient += 1;
                 if !self.bvh.occluded(lift, wi, 0.0, ambient.radius) {
-                    // Cosine sampling: pdf = cos_i / pi, and the response carries cos_i.
-                    path.out[AMBIENT] +=
-                        throughput * self.response(&s, wi, wo) * (std::f64::consts::PI / local.z);
+                    path.out[AMBIENT] += throughput * self.response(&s, wi, wo) * weight;
                 }
+            }
+        }
+    }
+
+    /// The ambient ray's direction in the shading frame and 1 / its pdf (eq. 7).
+    /// Analytic BRDFs use cosine-distributed directions: their response carries
+    /// cos_i, so a sample is pi L_a V f. An SPMM's BTF does not vanish with the shading
+    /// cosine (each basis has its own normal), and dividing it by a cosine pdf has
+    /// infinite variance; it gets a defensive half-cosine, half-uniform mixture whose
+    /// pdf is at least 1 / 4 pi (docs/rendering.md has the measured difference).
+    fn ambient_direction(&self, s: &Shading, u: DVec2) -> (DVec3, f64) {
+        use std::f64::consts::PI;
+        match self.shaders[s.material] {
+            Shader::Spmm { .. } => {
+                let local = if u.x < 0.5 {
+                    warp::cosine_hemisphere(DVec2::new(2.0 * u.x, u.y))
+                } else {
+                    // Uniform: cos theta = uniform in [0, 1).
+                    let z = 1.0 - u.y;
+                    let r = (1.0 - z * z).max(0.0).sqrt();
+                    let phi = std::f64::consts::TAU * (2.0 * u.x - 1.0);
+                    DVec3::new(r * phi.cos(), r * phi.sin(), z)
+                };
+                let pdf = 0.5 * local.z / PI + 0.25 / PI;
+                (local, 1.0 / pdf)
+            }
+            Shader::Scene => {
+                let local = warp::cosine_hemisphere(u);
+                (local, PI / local.z)
             }
         }
     }
@@ -789,6 +817,76 @@ mod tests {
         // 0.26%: 1.2% is 4.5 standard errors.
         assert!(
             (mean - expected).abs() < 0.012 * expected,
+            "{mean} vs {expected}"
+        );
+    }
+
+    #[test]
+    fn ambient_light_on_an_spmm_plane_converges_to_the_integral_of_its_btf() {
+        use crate::brdf::BasisFunction;
+        use crate::spmm::{Cluster, SparseWeights, SpmmMaterial};
+        // One texel, one Ward basis whose normal is tilted 35 degrees: its BTF does not
+        // vanish with the shading cosine, the case the defensive mixture exists for.
+        let normal = DVec3::new(35f64.to_radians().sin(), 0.0, 35f64.to_radians().cos());
+        let basis = BasisFunction::new(
+            AnalyticBrdf::new(BrdfModel::Ward, &[("ax", 0.3), ("ay", 0.15)]).expect("valid"),
+            normal,
+        )
+        .expect("unit normal");
+        let pack = SpmmMaterial::new(
+            "tilted".into(),
+            "test".into(),
+            1,
+            1,
+            vec![Cluster { bases: vec![basis] }],
+            vec![0],
+            SparseWeights {
+                offsets: vec![0, 1],
+                basis: vec![0],
+                rgb: vec![[0.5, 0.5, 0.5]],
+            },
+            None,
+        )
+        .expect("valid material");
+        let mut scene = floor_scene(
+            vec![],
+            Some(Ambient {
+                radiance: DVec3::splat(0.8),
+                radius: f64::INFINITY,
+            }),
+            false,
+        );
+        scene.materials[0] = Material::Spmm {
+            material: std::sync::Arc::new(pack),
+            uv_scale: DVec2::ONE,
+            residual: true,
+            npca: 0,
+        };
+        (scene.render.width, scene.render.height) = (32, 32);
+        let mut r = mode(&scene);
+        for _ in 0..200 {
+            r.render_frame();
+        }
+        let img = r.image();
+        let mean = img.pixels().iter().map(|p| p[0] as f64).sum::<f64>() / 1024.0;
+        // The camera looks straight down: wo is the shading normal, in the frame the
+        // renderer builds for the floor (tangent along +u = +x, normal +y).
+        let wo = DVec3::Z;
+        let n = 600;
+        let mut integral = 0.0;
+        for i in 0..n {
+            let z = (i as f64 + 0.5) / n as f64;
+            for j in 0..n {
+                let phi = std::f64::consts::TAU * (j as f64 + 0.5) / n as f64;
+                let r = (1.0 - z * z).sqrt();
+                let wi = DVec3::new(r * phi.cos(), r * phi.sin(), z);
+                integral += basis.eval(wi, wo);
+            }
+        }
+        integral *= std::f64::consts::TAU / (n * n) as f64;
+        let expected = 0.8 * 0.5 * integral;
+        assert!(
+            (mean - expected).abs() < 0.01 * expected,
             "{mean} vs {expected}"
         );
     }

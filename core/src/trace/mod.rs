@@ -12,3 +12,7 @@ pub use integrator::{RayCounts, SpmmMode};
 
 #[cfg(test)]
 mod edit_tests;
+/// A small scene with a Lambertian floor, an SPMM panel with a residual, an area and
+/// a point light and AO, for tests of modes and reports.
+#[cfg(test)]
+pub(crate) use edit_tests::scene as edit_test_scene;

@@ -8,6 +8,8 @@ mod failure;
 mod pack_cmd;
 mod plot;
 mod render_cmd;
+mod report_cmd;
+mod svg_chart;
 
 use std::process::ExitCode;
 
@@ -37,6 +39,11 @@ enum Command {
     Compare(compare_cmd::CompareArgs),
     /// Progressive render of a scene file (spmm mode) to EXR or PNG.
     Render(render_cmd::RenderArgs),
+    /// Reports: speed against error of the render modes.
+    Report {
+        #[command(subcommand)]
+        command: report_cmd::ReportCommand,
+    },
     /// SPMM material packs (.spmm): summarise and validate.
     Pack {
         #[command(subcommand)]
@@ -54,6 +61,7 @@ fn main() -> ExitCode {
         Command::Compare(args) => compare_cmd::run(&args),
         Command::Pack { command } => pack_cmd::run(command),
         Command::Render(args) => render_cmd::run(&args),
+        Command::Report { command } => report_cmd::run(command),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

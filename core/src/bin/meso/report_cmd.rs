@@ -1,0 +1,184 @@
+//! `meso report convergence SCENE -o DIR`: the speed-against-error report of the
+//! scene's render mode (`render::convergence`): convergence.csv (one row per variant
+//! and checkpoint), convergence.json (with per-variant summaries), two SVG charts
+//! (RMSE and MSSIM against render time) and the converged reference as EXR and PNG.
+
+use std::fmt::Write as _;
+use std::io::IsTerminal;
+use std::path::PathBuf;
+
+use anyhow::anyhow;
+use clap::{Args, Subcommand};
+use meso_core::atomic::write_bytes_atomic;
+use meso_core::render::ModeKind;
+use meso_core::render::convergence::{ConvergenceReport, ConvergenceRequest, convergence_report};
+use meso_core::scene::load_scene;
+
+use crate::failure::{CliError, ResultExt};
+use crate::svg_chart::{Chart, Series, render};
+
+#[derive(Subcommand, Debug)]
+pub enum ReportCommand {
+    /// Error against a converged reference after 1, 2, 4, ... frames, with time.
+    Convergence(ConvergenceArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct ConvergenceArgs {
+    /// The scene file.
+    scene: PathBuf,
+    /// Output folder (created if missing).
+    #[arg(short = 'o', long)]
+    output: PathBuf,
+    #[arg(long, default_value_t = 256)]
+    width: u32,
+    #[arg(long, default_value_t = 256)]
+    height: u32,
+    /// Frames of the converged references.
+    #[arg(long, default_value_t = 2048)]
+    reference_frames: u32,
+    /// Last checkpoint (a power of two).
+    #[arg(long, default_value_t = 256)]
+    max_frames: u32,
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(command: ReportCommand) -> Result<(), CliError> {
+    match command {
+        ReportCommand::Convergence(args) => convergence(&args),
+    }
+}
+
+fn convergence(args: &ConvergenceArgs) -> Result<(), CliError> {
+    let scene = load_scene(&args.scene).map_err(CliError::bad_input)?;
+    if !(1..=16384).contains(&args.width) || !(1..=16384).contains(&args.height) {
+        return Err(CliError::bad_input(anyhow!(
+            "--width/--height must lie in [1, 16384] (got {}x{})",
+            args.width,
+            args.height
+        )));
+    }
+    if args.max_frames == 0 || args.max_frames > args.reference_frames {
+        return Err(CliError::bad_input(anyhow!(
+            "--max-frames {} must be at least 1 and at most --reference-frames {}",
+            args.max_frames,
+            args.reference_frames
+        )));
+    }
+    std::fs::create_dir_all(&args.output)
+        .failure_ctx(|| format!("creating `{}`", args.output.display()))?;
+    let request = ConvergenceRequest {
+        width: args.width,
+        height: args.height,
+        reference_frames: args.reference_frames,
+        max_frames: args.max_frames,
+        mode: ModeKind::Spmm,
+    };
+    let verbose = std::io::stderr().is_terminal() && !args.json;
+    let report = convergence_report(&scene, &request, |m| {
+        if verbose {
+            eprintln!("{m}");
+        }
+    })
+    .map_err(CliError::failure)?;
+    write_outputs(args, &report)?;
+    if args.json {
+        let value = serde_json::to_value(&report)
+            .map_err(|e| CliError::failure(anyhow!("cannot encode the report: {e}")))?;
+        return crate::print_json(&value);
+    }
+    println!(
+        "{:<14} {:>10} {:>9} {:>14} {:>12} {:>10}",
+        "variant", "reference", "ms/frame", "frames->0.98", "s->0.98", "final RMSE"
+    );
+    for s in &report.summaries {
+        println!(
+            "{:<14} {:>10} {:>9.2} {:>14} {:>12} {:>10.3e}",
+            s.variant,
+            s.reference,
+            s.ms_per_frame,
+            s.frames_to_mssim_098
+                .map_or("never".into(), |f| f.to_string()),
+            s.seconds_to_mssim_098
+                .map_or("-".into(), |t| format!("{t:.3}")),
+            s.final_rmse
+        );
+    }
+    for n in &report.notes {
+        println!("note: {n}");
+    }
+    println!("wrote {}", args.output.display());
+    Ok(())
+}
+
+fn write_outputs(args: &ConvergenceArgs, report: &ConvergenceReport) -> Result<(), CliError> {
+    let out = |name: &str| args.output.join(name);
+    let write = |name: &str, bytes: &[u8]| {
+        write_bytes_atomic(&out(name), bytes)
+            .failure_ctx(|| format!("writing `{}`", out(name).display()))
+    };
+    let mut csv = String::from("variant,reference,frames,seconds,rmse,psnr_db,mssim\n");
+    for c in &report.checkpoints {
+        let _ = writeln!(
+            csv,
+            "{},{},{},{:.6},{:.6e},{:.3},{:.6}",
+            c.variant, c.reference, c.frames, c.seconds, c.rmse, c.psnr_db, c.mssim
+        );
+    }
+    write("convergence.csv", csv.as_bytes())?;
+    let json = serde_json::to_string_pretty(report)
+        .map_err(|e| CliError::failure(anyhow!("cannot encode the report: {e}")))?;
+    write("convergence.json", json.as_bytes())?;
+    let series = |metric: fn(&meso_core::render::convergence::Checkpoint) -> f64| -> Vec<Series> {
+        report
+            .summaries
+            .iter()
+            .map(|s| Series {
+                name: format!("{} (vs {})", s.variant, s.reference),
+                points: report
+                    .checkpoints
+                    .iter()
+                    .filter(|c| c.variant == s.variant)
+                    .map(|c| (c.seconds, metric(c)))
+                    .collect(),
+            })
+            .collect()
+    };
+    let title = format!(
+        "{} at {}x{}: error against {} reference frames",
+        args.scene
+            .file_name()
+            .map_or("scene".into(), |n| n.to_string_lossy()),
+        report.width,
+        report.height,
+        report.reference_frames
+    );
+    let rmse = render(
+        &Chart {
+            title: &title,
+            x_label: "render time (s)",
+            y_label: "RMSE (linear radiance)",
+            log_x: true,
+            log_y: true,
+        },
+        &series(|c| c.rmse),
+    );
+    write("convergence_rmse.svg", rmse.as_bytes())?;
+    let mssim = render(
+        &Chart {
+            title: &title,
+            x_label: "render time (s)",
+            y_label: "1 - MSSIM",
+            log_x: true,
+            log_y: true,
+        },
+        &series(|c| (1.0 - c.mssim).max(1e-6)),
+    );
+    write("convergence_mssim.svg", mssim.as_bytes())?;
+    meso_core::image::write_image(&out("reference.exr"), &report.reference, 0.0)
+        .failure_ctx(|| format!("writing `{}`", out("reference.exr").display()))?;
+    meso_core::image::write_image(&out("reference.png"), &report.reference, 0.0)
+        .failure_ctx(|| format!("writing `{}`", out("reference.png").display()))?;
+    Ok(())
+}

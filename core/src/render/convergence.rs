@@ -1,0 +1,295 @@
+//! The speed-against-error report of a render mode (DESIGN.md: "every fast path
+//! reports its speed against its error"): a converged reference, then the error of the
+//! progressive image after 1, 2, 4, ... frames with the render time spent, for the
+//! scene as written and for its cheaper variants (AO off; the SPMM residual skipped as
+//! while the camera moves; N_PCA limited). A variant that changes what is computed
+//! (AO off) is measured against its own reference; approximations of the same image
+//! (residual off, fewer PCA terms) against the full one, so their bias shows.
+
+use std::time::Instant;
+
+use serde::Serialize;
+
+use super::{EditError, ModeKind, run_frames};
+use crate::image::Image;
+use crate::metrics::{Comparison, MetricsError, compare};
+use crate::scene::{Material, Scene};
+
+/// What the report renders.
+#[derive(Clone, Debug)]
+pub struct ConvergenceRequest {
+    pub width: u32,
+    pub height: u32,
+    /// Frames of each converged reference.
+    pub reference_frames: u32,
+    /// The last checkpoint (rounded up to a power of two).
+    pub max_frames: u32,
+    pub mode: ModeKind,
+}
+
+/// One scene variant.
+#[derive(Clone, Debug, Serialize)]
+pub struct Variant {
+    pub name: String,
+    /// The reference it is measured against: "full" or "no_ao".
+    pub reference: String,
+}
+
+/// The error after `frames` frames.
+#[derive(Clone, Debug, Serialize)]
+pub struct Checkpoint {
+    pub variant: String,
+    pub reference: String,
+    pub frames: u32,
+    /// Render time of those frames (frames only, no setup).
+    pub seconds: f64,
+    pub rmse: f64,
+    pub psnr_db: f64,
+    pub mssim: f64,
+}
+
+/// Per variant: time per frame, and when MSSIM first reached 0.98.
+#[derive(Clone, Debug, Serialize)]
+pub struct VariantSummary {
+    pub variant: String,
+    pub reference: String,
+    pub ms_per_frame: f64,
+    pub frames_to_mssim_098: Option<u32>,
+    pub seconds_to_mssim_098: Option<f64>,
+    pub final_rmse: f64,
+    pub final_mssim: f64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct ConvergenceReport {
+    pub width: u32,
+    pub height: u32,
+    pub reference_frames: u32,
+    pub reference_seconds: f64,
+    pub checkpoints: Vec<Checkpoint>,
+    pub summaries: Vec<VariantSummary>,
+    /// Why residual / N_PCA variants are absent, when they are.
+    pub notes: Vec<String>,
+    /// The converged image of the scene as written.
+    #[serde(skip)]
+    pub reference: Image,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConvergenceError {
+    #[error(transparent)]
+    Mode(#[from] EditError),
+    #[error(transparent)]
+    Metrics(#[from] MetricsError),
+    #[error("--max-frames and --reference-frames must be at least 1 and max <= reference")]
+    Frames,
+}
+
+/// The largest N_PCA in use by the scene's SPMM materials with a residual.
+fn residual_terms(scene: &Scene) -> Option<usize> {
+    scene
+        .materials
+        .iter()
+        .filter_map(|m| match m {
+            Material::Spmm {
+                material,
+                residual: true,
+                npca,
+                ..
+            } => material.residual().map(|r| r.npca.min(*npca)),
+            _ => None,
+        })
+        .max()
+}
+
+fn with_spmm(scene: &Scene, f: impl Fn(&mut bool, &mut usize)) -> Scene {
+    let mut s = scene.clone();
+    for m in &mut s.materials {
+        if let Material::Spmm { residual, npca, .. } = m {
+            f(residual, npca);
+        }
+    }
+    s
+}
+
+/// The scene's variants: (variant, its scene).
+fn variants(scene: &Scene, notes: &mut Vec<String>) -> Vec<(Variant, Scene)> {
+    let v = |name: &str, reference: &str| Variant {
+        name: name.into(),
+        reference: reference.into(),
+    };
+    let mut out = vec![(v("full", "full"), scene.clone())];
+    if scene.ambient.is_some() {
+        let mut s = scene.clone();
+        s.ambient = None;
+        out.push((v("no_ao", "no_ao"), s));
+    } else {
+        notes.push("the scene has no ambient term: no AO-off variant".into());
+    }
+    match residual_terms(scene) {
+        Some(k) => {
+            out.push((
+                v("residual_off", "full"),
+                with_spmm(scene, |r, _| *r = false),
+            ));
+            for n in [0, 1, 2, 4, 8].into_iter().filter(|&n| n < k) {
+                out.push((
+                    v(&format!("npca_{n}"), "full"),
+                    with_spmm(scene, |_, npca| *npca = (*npca).min(n)),
+                ));
+            }
+        }
+        None => notes
+            .push("no SPMM material with a residual in use: no residual or N_PCA variants".into()),
+    }
+    out
+}
+
+fn converged(scene: &Scene, r: &ConvergenceRequest) -> Result<(Image, f64), ConvergenceError> {
+    let mut mode = r.mode.create(scene.clone(), r.width, r.height)?;
+    let run = run_frames(mode.as_mut(), r.reference_frames, |_, _| {});
+    Ok((mode.image(), run.seconds))
+}
+
+/// Runs the report; `progress(message)` is called as each part starts.
+pub fn convergence_report(
+    scene: &Scene,
+    request: &ConvergenceRequest,
+    mut progress: impl FnMut(&str),
+) -> Result<ConvergenceReport, ConvergenceError> {
+    if request.max_frames == 0 || request.max_frames > request.reference_frames {
+        return Err(ConvergenceError::Frames);
+    }
+    let mut notes = Vec::new();
+    let variants = variants(scene, &mut notes);
+    let mut references: Vec<(String, Image)> = Vec::new();
+    let mut reference_seconds = 0.0;
+    for (v, s) in &variants {
+        if v.name == v.reference {
+            progress(&format!(
+                "reference `{}`: {} frames",
+                v.name, request.reference_frames
+            ));
+            let (img, secs) = converged(s, request)?;
+            reference_seconds += secs;
+            references.push((v.name.clone(), img));
+        }
+    }
+    let mut checkpoints = Vec::new();
+    let mut summaries = Vec::new();
+    for (v, s) in &variants {
+        progress(&format!("variant `{}`", v.name));
+        let reference = &references
+            .iter()
+            .find(|(n, _)| *n == v.reference)
+            .expect("every variant's reference was rendered above")
+            .1;
+        let mut mode = request
+            .mode
+            .create(s.clone(), request.width, request.height)?;
+        let (mut frames, mut seconds, mut next) = (0u32, 0.0, 1u32);
+        let mut reached = None;
+        let mut last: Option<Comparison> = None;
+        while frames < request.max_frames {
+            let start = Instant::now();
+            run_frames(mode.as_mut(), next - frames, |_, _| {});
+            seconds += start.elapsed().as_secs_f64();
+            frames = next;
+            let c = compare(reference, &mode.image(), 0.0)?;
+            if reached.is_none() && c.mssim >= 0.98 {
+                reached = Some((frames, seconds));
+            }
+            checkpoints.push(Checkpoint {
+                variant: v.name.clone(),
+                reference: v.reference.clone(),
+                frames,
+                seconds,
+                rmse: c.rmse,
+                psnr_db: c.psnr_db,
+                mssim: c.mssim,
+            });
+            last = Some(c);
+            next = (next * 2).min(request.max_frames.next_power_of_two());
+        }
+        let last = last.expect("at least one checkpoint");
+        summaries.push(VariantSummary {
+            variant: v.name.clone(),
+            reference: v.reference.clone(),
+            ms_per_frame: seconds * 1e3 / frames as f64,
+            frames_to_mssim_098: reached.map(|r| r.0),
+            seconds_to_mssim_098: reached.map(|r| r.1),
+            final_rmse: last.rmse,
+            final_mssim: last.mssim,
+        });
+    }
+    let reference = references.swap_remove(0).1;
+    Ok(ConvergenceReport {
+        reference,
+        width: request.width,
+        height: request.height,
+        reference_frames: request.reference_frames,
+        reference_seconds,
+        checkpoints,
+        summaries,
+        notes,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::trace::edit_test_scene;
+
+    #[test]
+    fn error_falls_with_frames_and_the_residual_variants_show_their_bias() {
+        let scene = edit_test_scene();
+        let request = ConvergenceRequest {
+            width: 24,
+            height: 24,
+            reference_frames: 256,
+            max_frames: 64,
+            mode: ModeKind::Spmm,
+        };
+        let report = convergence_report(&scene, &request, |_| {}).expect("report");
+        let names: Vec<&str> = report
+            .summaries
+            .iter()
+            .map(|s| s.variant.as_str())
+            .collect();
+        assert_eq!(
+            names,
+            [
+                "full",
+                "no_ao",
+                "residual_off",
+                "npca_0",
+                "npca_1",
+                "npca_2"
+            ]
+        );
+        let full: Vec<&Checkpoint> = report
+            .checkpoints
+            .iter()
+            .filter(|c| c.variant == "full")
+            .collect();
+        assert_eq!(
+            full.iter().map(|c| c.frames).collect::<Vec<_>>(),
+            [1, 2, 4, 8, 16, 32, 64]
+        );
+        // Monte Carlo error falls roughly as 1 / sqrt(frames): 64x the frames should
+        // cut it well below half (it is 1/8 for independent references).
+        assert!(full[6].rmse < 0.5 * full[0].rmse, "{full:?}");
+        assert!(full.windows(2).all(|w| w[1].seconds > w[0].seconds));
+        // Skipping the residual is biased: it stops improving above the full image's
+        // error at the same frame count.
+        let at64 = |v: &str| {
+            report
+                .checkpoints
+                .iter()
+                .find(|c| c.variant == v && c.frames == 64)
+                .expect("checkpoint")
+                .rmse
+        };
+        assert!(at64("residual_off") > at64("full"), "{report:#?}");
+    }
+}

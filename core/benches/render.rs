@@ -189,7 +189,7 @@ fn bench_rays(c: &mut Criterion) {
         group.bench_function("refit after a move", |b| {
             b.iter(|| {
                 k += 1;
-                let dy = if k % 2 == 0 { 0.01 } else { -0.01 };
+                let dy = if k.is_multiple_of(2) { 0.01 } else { -0.01 };
                 for p in &mut moved.positions {
                     p.y += dy;
                 }

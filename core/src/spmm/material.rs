@@ -58,6 +58,9 @@ pub struct SpmmMaterial {
 /// the rule broken.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
 pub enum SpmmError {
+    /// An editor operation that does not fit the material.
+    #[error("{0}")]
+    Edit(String),
     #[error("texel grid {width}x{height}: both sides must be in 1..=16384")]
     GridSize { width: u32, height: u32 },
     #[error("{part}: {len} elements, expected {expected}")]

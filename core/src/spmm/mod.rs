@@ -4,6 +4,7 @@
 //! holds the model with its invariants; `pack.rs` the `.spmm` file (docs/formats/spmm.md).
 
 pub mod directions;
+mod edit;
 mod eval;
 mod material;
 pub mod pack;

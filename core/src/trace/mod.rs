@@ -5,10 +5,12 @@
 pub mod bvh;
 pub mod camera;
 pub mod integrator;
+pub mod pick;
 
 pub use bvh::{Hit, SceneBvh};
 pub use camera::{PinholeCamera, Ray};
 pub use integrator::{RayCounts, SpmmMode};
+pub use pick::{Pick, pick};
 
 #[cfg(test)]
 mod edit_tests;

@@ -51,13 +51,13 @@ impl Default for Settings {
 /// Logarithmic where the spec says so, and also for ranges many times wider than the
 /// default's magnitude (Lafortune's cx, cy, cz in [-1000, 1000] around -1 or 1), so
 /// that the useful values are not crowded into a few pixels of the rail.
-fn slider_is_logarithmic(spec: &ParamSpec) -> bool {
+pub(crate) fn slider_is_logarithmic(spec: &ParamSpec) -> bool {
     spec.log_scale || (spec.default != 0.0 && spec.max - spec.min > 100.0 * spec.default.abs())
 }
 
 /// For a logarithmic slider whose range reaches zero: six decades below the largest
 /// magnitude (exponent n of Blinn-Phong: 0.1 .. 1e5).
-fn smallest_positive(spec: &ParamSpec) -> f64 {
+pub(crate) fn smallest_positive(spec: &ParamSpec) -> f64 {
     if spec.min > 0.0 {
         spec.min
     } else {
@@ -131,6 +131,7 @@ impl Explorer {
         explorer
     }
 
+    #[cfg(test)]
     pub fn settings(&self) -> Settings {
         self.settings.clone()
     }
@@ -342,7 +343,7 @@ impl Explorer {
             plot.heading("Lobe in the plane of incidence");
             let max_height = plot.available_height() - 60.0;
             let theta_i = self.settings.theta_i_deg.to_radians();
-            lobe_plot::show(plot, &self.lobe, theta_i, self.settings.scale, max_height);
+            lobe_plot::show(plot, &self.lobe, &[], theta_i, self.settings.scale, max_height);
             if let Some(r) = lobe_plot::readout(&self.lobe, theta_i) {
                 plot.label(format!(
                     "peak f = {} 1/sr at θo = {:.1}°;  at the mirror direction ({:.1}°) f = {} 1/sr",

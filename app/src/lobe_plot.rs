@@ -37,11 +37,15 @@ pub fn radii(lobe: &[LobePoint], scale: Scale) -> (Vec<f64>, f64) {
         .iter()
         .map(|p| plotted(p, scale))
         .fold(0.0f64, f64::max);
+    (radii_at(lobe, scale, peak), peak)
+}
+
+/// Radii of the points for an outer-ring value `peak` (shared by several curves).
+fn radii_at(lobe: &[LobePoint], scale: Scale, peak: f64) -> Vec<f64> {
     if peak <= 0.0 || !peak.is_finite() {
-        return (vec![0.0; lobe.len()], 0.0);
+        return vec![0.0; lobe.len()];
     }
-    let r = lobe
-        .iter()
+    lobe.iter()
         .map(|p| {
             let v = plotted(p, scale) / peak;
             match scale {
@@ -50,8 +54,7 @@ pub fn radii(lobe: &[LobePoint], scale: Scale) -> (Vec<f64>, f64) {
                 Scale::Linear | Scale::Foreshortened => v,
             }
         })
-        .collect();
-    (r, peak)
+        .collect()
 }
 
 /// Numbers that stay short at any magnitude: four significant digits, scientific
@@ -96,11 +99,18 @@ fn dir(theta_rad: f64) -> Vec2 {
     Vec2::new(theta_rad.sin() as f32, -(theta_rad.cos() as f32))
 }
 
+/// A further curve drawn on the same scale as the lobe (e.g. one basis of a sum).
+pub struct Extra<'a> {
+    pub points: &'a [LobePoint],
+    pub color: Color32,
+}
+
 /// Paints the plot into the available width (and at most `max_height`) and returns
-/// the outer ring's value.
+/// the outer ring's value. `extra` curves share the lobe's scale.
 pub fn show(
     ui: &mut Ui,
     lobe: &[LobePoint],
+    extra: &[Extra<'_>],
     theta_i_rad: f64,
     scale: Scale,
     max_height: f32,
@@ -177,6 +187,15 @@ pub fn show(
     ));
 
     let (r, peak) = radii(lobe, scale);
+    for e in extra {
+        let curve: Vec<Pos2> = e
+            .points
+            .iter()
+            .zip(radii_at(e.points, scale, peak))
+            .map(|(p, r)| at(p.theta_o_rad, radius * r as f32))
+            .collect();
+        painter.add(Shape::line(curve, Stroke::new(1.5, e.color)));
+    }
     let curve: Vec<Pos2> = lobe
         .iter()
         .zip(&r)

@@ -92,6 +92,9 @@ pub struct Scene {
     pub camera: Camera,
     pub material_names: Vec<String>,
     pub materials: Vec<Material>,
+    /// The file each material was read from (SPMM packs), for the editor's Save;
+    /// shorter than `materials` or `None` where there is none.
+    pub material_files: Vec<Option<PathBuf>>,
     pub meshes: Vec<TriangleMesh>,
     pub lights: Vec<Light>,
     pub ambient: Option<Ambient>,
@@ -511,11 +514,17 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
         }
         None => Background::Color(ctx.non_negative3(&f.background.color, "background.color")?),
     };
+    let material_files = f
+        .materials
+        .values()
+        .map(|m| m.get_ref().pack.as_ref().map(|p| folder.join(p.get_ref())))
+        .collect();
     Ok(Scene {
         render,
         camera,
         material_names,
         materials,
+        material_files,
         meshes,
         lights,
         ambient,

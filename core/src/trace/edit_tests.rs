@@ -34,6 +34,7 @@ pub(crate) fn scene() -> Scene {
             fov_y_deg: 50.0,
         },
         material_names: vec!["floor".into(), "panel".into()],
+        material_files: Vec::new(),
         materials: vec![
             Material::Brdf {
                 brdf: AnalyticBrdf::with_defaults(BrdfModel::Lambertian),

@@ -511,129 +511,73 @@ impl RenderMode for SpmmMode {
     }
 
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
-        let lights = self.scene.lights.len();
-        let no_light = |index| EditError::NoSuchLight {
-            index,
-            count: lights,
+        // What the invalidation depends on, read before the scene changes.
+        let old_light = match &edit {
+            SceneEdit::Light { index, .. } => self.scene.lights.get(*index).copied(),
+            _ => None,
         };
-        match edit {
+        let background_was_colour = matches!(self.scene.background, Background::Color(_));
+        edit.apply_to(&mut self.scene)?;
+        Ok(match edit {
             SceneEdit::Camera(camera) => {
-                if let Some(p) = camera.problem() {
-                    return Err(EditError::Invalid(p));
-                }
-                self.scene.camera = camera;
                 self.camera = PinholeCamera::new(&camera, self.film.width(), self.film.height());
-                Ok(self.restart_all())
+                self.restart_all()
             }
             SceneEdit::Resize { width, height } => {
-                check_size(width, height)?;
                 self.camera = PinholeCamera::new(&self.scene.camera, width, height);
                 self.film.resize(width, height);
-                Ok(self.restart_all())
+                self.restart_all()
             }
-            SceneEdit::Meshes(meshes) => {
-                let count = self.scene.materials.len();
-                if let Some(m) = meshes.iter().find(|m| m.material >= count) {
-                    return Err(EditError::MeshMaterial {
-                        material: m.material,
-                        count,
-                    });
-                }
-                self.bvh.update(&meshes);
-                self.scene.meshes = meshes;
-                Ok(self.restart_all())
+            SceneEdit::Meshes(_) => {
+                self.bvh.update(&self.scene.meshes);
+                self.restart_all()
             }
-            SceneEdit::Material { index, material } => {
-                let count = self.scene.materials.len();
-                if index >= count {
-                    return Err(EditError::NoSuchMaterial { index, count });
-                }
-                self.shaders[index] = Shader::new(&material);
-                self.scene.materials[index] = material;
-                Ok(Invalidation::Pixels(
-                    self.film.reset_touching(material_bit(index)),
-                ))
+            SceneEdit::Material { index, .. } => {
+                self.shaders[index] = Shader::new(&self.scene.materials[index]);
+                Invalidation::Pixels(self.film.reset_touching(material_bit(index)))
             }
             SceneEdit::Light { index, light } => {
-                let old = *self
-                    .scene
-                    .lights
-                    .get(index)
-                    .ok_or_else(|| no_light(index))?;
-                if let Some(p) = light.problem() {
-                    return Err(EditError::Invalid(p));
-                }
-                self.scene.lights[index] = light;
+                let old = old_light.expect("apply_to checked the index");
                 if old.with_emission(light.emission()) == light {
-                    Ok(Invalidation::Nothing)
+                    Invalidation::Nothing
                 } else {
                     self.film.reset_layer(FIRST_LIGHT + index);
-                    Ok(Invalidation::Layer(FIRST_LIGHT + index))
+                    Invalidation::Layer(FIRST_LIGHT + index)
                 }
             }
-            SceneEdit::AddLight(light) => {
-                if let Some(p) = light.problem() {
-                    return Err(EditError::Invalid(p));
-                }
-                self.scene.lights.push(light);
+            SceneEdit::AddLight(_) => {
                 self.film.push_layer();
-                Ok(Invalidation::Layer(self.film.layers() - 1))
+                Invalidation::Layer(self.film.layers() - 1)
             }
             SceneEdit::RemoveLight(index) => {
-                if index >= lights {
-                    return Err(no_light(index));
-                }
-                self.scene.lights.remove(index);
                 self.film.remove_layer(FIRST_LIGHT + index);
-                Ok(Invalidation::Nothing)
+                Invalidation::Nothing
             }
-            SceneEdit::Ambient(ambient) => {
-                if let Some(p) = ambient.as_ref().and_then(|a| a.problem()) {
-                    return Err(EditError::Invalid(p));
-                }
-                self.scene.ambient = ambient;
-                match ambient {
-                    // Off: the layer is weighted zero and keeps its samples.
-                    None => Ok(Invalidation::Nothing),
-                    Some(a) if Some(a.radius) == self.ambient_radius => Ok(Invalidation::Nothing),
-                    Some(a) => {
-                        self.ambient_radius = Some(a.radius);
-                        self.film.reset_layer(AMBIENT);
-                        Ok(Invalidation::Layer(AMBIENT))
-                    }
-                }
+            // Off: the layer is weighted zero and keeps its samples; on again with the
+            // radius its samples were traced with: nothing to redo.
+            SceneEdit::Ambient(None) => Invalidation::Nothing,
+            SceneEdit::Ambient(Some(a)) if Some(a.radius) == self.ambient_radius => {
+                Invalidation::Nothing
             }
-            SceneEdit::Background(background) => {
-                if let Background::Color(c) = &background
-                    && !(c.is_finite() && c.min_element() >= 0.0)
-                {
-                    return Err(EditError::Invalid(format!(
-                        "background colour {c} must be finite and non-negative"
-                    )));
-                }
-                let both_colours = matches!(
-                    (&self.scene.background, &background),
-                    (Background::Color(_), Background::Color(_))
-                );
-                self.scene.background = background;
-                if both_colours {
-                    Ok(Invalidation::Nothing)
-                } else {
-                    self.film.reset_layer(BACKGROUND);
-                    Ok(Invalidation::Layer(BACKGROUND))
-                }
+            SceneEdit::Ambient(Some(a)) => {
+                self.ambient_radius = Some(a.radius);
+                self.film.reset_layer(AMBIENT);
+                Invalidation::Layer(AMBIENT)
             }
+            SceneEdit::Background(Background::Color(_)) if background_was_colour => {
+                Invalidation::Nothing
+            }
+            SceneEdit::Background(_) => {
+                self.film.reset_layer(BACKGROUND);
+                Invalidation::Layer(BACKGROUND)
+            }
+            SceneEdit::Moving(moving) if moving == self.moving => Invalidation::Nothing,
             SceneEdit::Moving(moving) => {
-                if moving == self.moving {
-                    return Ok(Invalidation::Nothing);
-                }
                 self.moving = moving;
                 // Samples taken with and without the residual must not mix.
-                Ok(Invalidation::Pixels(
-                    self.film.reset_touching(self.residual_mask()),
-                ))
+                Invalidation::Pixels(self.film.reset_touching(self.residual_mask()))
             }
-        }
+        })
     }
 }
 
@@ -684,6 +628,7 @@ mod tests {
                 fov_y_deg: 0.01,
             },
             material_names: vec!["floor".into()],
+            material_files: Vec::new(),
             materials: vec![Material::Brdf {
                 brdf: AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
                 albedo: DVec3::splat(ALBEDO),
@@ -1060,6 +1005,7 @@ mod hard_cases {
                 fov_y_deg: 150.0,
             },
             material_names: vec!["mirror".into(), "cloth".into(), "wall".into()],
+            material_files: Vec::new(),
             materials: vec![
                 Material::Mirror {
                     reflectance: DVec3::splat(0.9),

@@ -1,0 +1,727 @@
+//! Meso Studio's main window: the material editor over the progressive viewport.
+//! Menus (File, Edit, View) with shortcuts, the lights and scene panel (left), the
+//! material panel (right), the viewport (centre) and the status bar. The studio owns
+//! the document and sends every edit to the render thread as a versioned message;
+//! it shows the newest finished frame and never waits for one.
+
+use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use egui::{Key, KeyboardShortcut, Modifiers, Ui};
+use meso_core::render::{ModeKind, SceneEdit};
+use meso_core::scene::mesh::{Placement, load_obj};
+use meso_core::scene::{Material, load_scene};
+use meso_core::trace::{SceneBvh, pick};
+
+use crate::document::Document;
+use crate::explorer::Explorer;
+use crate::material_panel::MaterialPanel;
+use crate::render_worker::{Command, RenderWorker};
+use crate::scene_panel::{self, Request};
+use crate::viewport::Viewport;
+
+pub const UNDO: KeyboardShortcut = KeyboardShortcut::new(Modifiers::COMMAND, Key::Z);
+pub const REDO: KeyboardShortcut =
+    KeyboardShortcut::new(Modifiers::COMMAND.plus(Modifiers::SHIFT), Key::Z);
+pub const SAVE: KeyboardShortcut = KeyboardShortcut::new(Modifiers::COMMAND, Key::S);
+pub const SAVE_AS: KeyboardShortcut =
+    KeyboardShortcut::new(Modifiers::COMMAND.plus(Modifiers::SHIFT), Key::S);
+pub const OPEN_PACK: KeyboardShortcut = KeyboardShortcut::new(Modifiers::COMMAND, Key::O);
+pub const EXPORT: KeyboardShortcut = KeyboardShortcut::new(Modifiers::COMMAND, Key::E);
+
+/// The scene the README's first command opens.
+pub fn default_scene_path() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../tests/scenes/default.toml")
+}
+
+/// What survives a restart.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct Settings {
+    pub recent_packs: Vec<PathBuf>,
+    pub recent_scenes: Vec<PathBuf>,
+    pub exposure: f64,
+    /// Render resolution relative to the viewport's pixels.
+    pub resolution: f32,
+    /// Samples per pixel after which the renderer rests.
+    pub max_samples: u32,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Self {
+            recent_packs: Vec::new(),
+            recent_scenes: Vec::new(),
+            exposure: 0.0,
+            resolution: 0.5,
+            max_samples: 1024,
+        }
+    }
+}
+
+fn remember(list: &mut Vec<PathBuf>, path: &Path) {
+    list.retain(|p| p != path);
+    list.insert(0, path.to_path_buf());
+    list.truncate(8);
+}
+
+/// Statistics of the newest frame, for the status bar.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Latency {
+    /// Edit sent to the first frame rendered after it, in milliseconds.
+    pub last_edit_to_frame_ms: Option<f64>,
+}
+
+pub struct Studio {
+    pub doc: Option<Document>,
+    pub settings: Settings,
+    worker: RenderWorker,
+    viewport: Viewport,
+    pub material_panel: MaterialPanel,
+    mode: ModeKind,
+    /// For clicks: the scene's geometry (rebuilt when meshes change).
+    bvh: Option<SceneBvh>,
+    /// Full-quality render size and the size the renderer has now.
+    full_size: (u32, u32),
+    render_size: (u32, u32),
+    moving: bool,
+    /// Edits sent and not yet seen in a frame: (version, when).
+    in_flight: VecDeque<(u64, Instant)>,
+    pub latency: Latency,
+    /// The last error, shown until dismissed.
+    pub error: Option<String>,
+    /// Unsaved-changes prompt on quit.
+    quit_prompt: bool,
+    allow_close: bool,
+    explorer: Option<Explorer>,
+    ui_frame_ms: f64,
+}
+
+impl Studio {
+    /// Opens `scene` (or the default scene); a scene that fails to load leaves an empty
+    /// studio with the error shown.
+    pub fn new(repaint: Option<egui::Context>, scene: Option<PathBuf>, settings: Settings) -> Self {
+        let mut s = Self {
+            doc: None,
+            settings,
+            worker: RenderWorker::spawn(repaint),
+            viewport: Viewport::default(),
+            material_panel: MaterialPanel::default(),
+            mode: ModeKind::Spmm,
+            bvh: None,
+            full_size: (0, 0),
+            render_size: (0, 0),
+            moving: false,
+            in_flight: VecDeque::new(),
+            latency: Latency::default(),
+            error: None,
+            quit_prompt: false,
+            allow_close: false,
+            explorer: None,
+            ui_frame_ms: 0.0,
+        };
+        s.set_max_samples(s.settings.max_samples);
+        s.open_scene(&scene.unwrap_or_else(default_scene_path));
+        s
+    }
+
+    /// Stops the renderer after this many samples per pixel (tests pin images).
+    pub fn set_max_samples(&self, n: u32) {
+        self.worker.send(Command::MaxSamples(n));
+    }
+
+    /// The newest frame on screen.
+    #[cfg(test)]
+    pub fn frame(&self) -> Option<&crate::render_worker::Frame> {
+        self.viewport.frame()
+    }
+
+    pub fn open_scene(&mut self, path: &Path) {
+        match load_scene(path) {
+            Ok(scene) => {
+                remember(&mut self.settings.recent_scenes, path);
+                self.bvh = Some(SceneBvh::build(&scene.meshes));
+                let doc = Document::new(scene, Some(path.to_path_buf()));
+                self.material_panel = MaterialPanel::default();
+                self.render_size = (0, 0);
+                self.doc = Some(doc);
+            }
+            Err(e) => self.error = Some(e.to_string()),
+        }
+    }
+
+    fn load_into_renderer(&mut self, size: (u32, u32)) {
+        let Some(doc) = &self.doc else { return };
+        self.render_size = size;
+        self.worker.send(Command::Load {
+            version: doc.version,
+            scene: Box::new(doc.scene.clone()),
+            mode: self.mode,
+            width: size.0,
+            height: size.1,
+        });
+        self.in_flight.push_back((doc.version, Instant::now()));
+    }
+
+    /// Applies an edit to the document (one undo group while a drag lasts) and sends
+    /// it to the renderer.
+    pub fn edit(&mut self, edit: SceneEdit) {
+        let Some(doc) = &mut self.doc else { return };
+        match doc.apply(&edit) {
+            Ok(()) => self.send(edit),
+            Err(e) => self.error = Some(e.to_string()),
+        }
+    }
+
+    /// A view change (camera, size, moving): sent, not undoable.
+    fn view(&mut self, edit: SceneEdit) {
+        let Some(doc) = &mut self.doc else { return };
+        if doc.apply_view(&edit).is_ok() {
+            self.send(edit);
+        }
+    }
+
+    fn send(&mut self, edit: SceneEdit) {
+        let Some(doc) = &self.doc else { return };
+        if let SceneEdit::Meshes(m) = &edit {
+            self.bvh = Some(SceneBvh::build(m));
+        }
+        self.worker.send(Command::Edit {
+            version: doc.version,
+            edit: Box::new(edit),
+        });
+        self.in_flight.push_back((doc.version, Instant::now()));
+    }
+
+    pub fn undo(&mut self) {
+        if let Some(doc) = &mut self.doc {
+            for e in doc.undo() {
+                self.send(e);
+            }
+        }
+    }
+
+    pub fn redo(&mut self) {
+        if let Some(doc) = &mut self.doc {
+            for e in doc.redo() {
+                self.send(e);
+            }
+        }
+    }
+
+    /// Saves the pack to `path`; on failure the error is shown and the edits stay.
+    pub fn save_pack_as(&mut self, path: &Path) -> bool {
+        let Some(doc) = &mut self.doc else {
+            return false;
+        };
+        match doc.save_pack(path) {
+            Ok(()) => {
+                remember(&mut self.settings.recent_packs, path);
+                true
+            }
+            Err(e) => {
+                self.error = Some(format!("saving failed, the edits are kept: {e}"));
+                false
+            }
+        }
+    }
+
+    fn save(&mut self) -> bool {
+        let path = self
+            .doc
+            .as_ref()
+            .and_then(|d| d.pack.as_ref())
+            .and_then(|p| p.path.clone());
+        match path {
+            Some(p) => self.save_pack_as(&p),
+            None => self.save_as_dialog(),
+        }
+    }
+
+    fn save_as_dialog(&mut self) -> bool {
+        match rfd::FileDialog::new()
+            .add_filter("SPMM pack", &["spmm"])
+            .save_file()
+        {
+            Some(p) => self.save_pack_as(&p),
+            None => false,
+        }
+    }
+
+    pub fn open_pack(&mut self, path: &Path) {
+        let Some(doc) = &mut self.doc else { return };
+        match doc.open_pack(path) {
+            Ok(edit) => {
+                remember(&mut self.settings.recent_packs, path);
+                self.material_panel = MaterialPanel::default();
+                self.send(edit);
+            }
+            Err(e) => self.error = Some(e),
+        }
+    }
+
+    /// Writes the frame on screen (EXR: linear; PNG: after the viewport's exposure).
+    pub fn export_frame(&mut self, path: &Path) {
+        let Some(frame) = self.viewport.frame() else {
+            self.error = Some("no frame has been rendered yet".into());
+            return;
+        };
+        if let Err(e) = meso_core::image::write_image(path, &frame.image, self.settings.exposure) {
+            self.error = Some(format!("exporting failed: {e}"));
+        }
+    }
+
+    fn replace_mesh(&mut self, path: &Path) {
+        let Some(doc) = &self.doc else { return };
+        let Some(pack) = &doc.pack else { return };
+        let placement = Placement {
+            scale: 1.0,
+            rotation: glam::DMat3::IDENTITY,
+            translate: glam::DVec3::ZERO,
+        };
+        match load_obj(path, &placement, pack.material) {
+            Ok(mesh) => {
+                let mut meshes: Vec<_> = doc
+                    .scene
+                    .meshes
+                    .iter()
+                    .filter(|m| m.material != pack.material)
+                    .cloned()
+                    .collect();
+                meshes.insert(0, mesh);
+                self.edit(SceneEdit::Meshes(meshes));
+            }
+            Err(e) => self.error = Some(e.to_string()),
+        }
+    }
+
+    fn title(&self) -> String {
+        let Some(doc) = &self.doc else {
+            return "Meso Studio".into();
+        };
+        let name = doc
+            .pack
+            .as_ref()
+            .and_then(|p| p.path.as_ref())
+            .and_then(|p| p.file_name())
+            .map_or("untitled".into(), |n| n.to_string_lossy().into_owned());
+        format!(
+            "{}{name} — Meso Studio",
+            if doc.dirty() { "● " } else { "" }
+        )
+    }
+
+    /// Takes the newest frame and measures how long the edits before it took.
+    fn receive(&mut self) {
+        for r in self.worker.take_rejected() {
+            self.error = Some(format!(
+                "the renderer refused edit {}: {}",
+                r.version, r.message
+            ));
+        }
+        if let Some(frame) = self.worker.take_frame() {
+            let mut newest = None;
+            while let Some(&(v, t)) = self.in_flight.front() {
+                if v > frame.version {
+                    break;
+                }
+                newest = Some(t);
+                self.in_flight.pop_front();
+            }
+            if let Some(t) = newest {
+                self.latency.last_edit_to_frame_ms =
+                    Some(frame.finished.saturating_duration_since(t).as_secs_f64() * 1e3);
+            }
+            self.viewport.set_frame(frame);
+        }
+    }
+
+    fn shortcuts(&mut self, ui: &Ui) {
+        // The longer shortcuts first: Ctrl+Shift+Z would also match Ctrl+Z.
+        if ui.input_mut(|i| i.consume_shortcut(&REDO)) {
+            self.redo();
+        }
+        if ui.input_mut(|i| i.consume_shortcut(&UNDO)) {
+            self.undo();
+        }
+        if ui.input_mut(|i| i.consume_shortcut(&SAVE_AS)) {
+            self.save_as_dialog();
+        }
+        if ui.input_mut(|i| i.consume_shortcut(&SAVE)) {
+            self.save();
+        }
+        if ui.input_mut(|i| i.consume_shortcut(&OPEN_PACK)) {
+            self.open_pack_dialog();
+        }
+        if ui.input_mut(|i| i.consume_shortcut(&EXPORT)) {
+            self.export_dialog();
+        }
+    }
+
+    fn open_scene_dialog(&mut self) {
+        if let Some(p) = rfd::FileDialog::new()
+            .add_filter("Meso scene", &["toml"])
+            .pick_file()
+        {
+            self.open_scene(&p);
+        }
+    }
+
+    fn open_pack_dialog(&mut self) {
+        if let Some(p) = rfd::FileDialog::new()
+            .add_filter("SPMM pack", &["spmm"])
+            .pick_file()
+        {
+            self.open_pack(&p);
+        }
+    }
+
+    fn export_dialog(&mut self) {
+        if let Some(p) = rfd::FileDialog::new()
+            .add_filter("OpenEXR (linear)", &["exr"])
+            .add_filter("PNG (sRGB)", &["png"])
+            .save_file()
+        {
+            self.export_frame(&p);
+        }
+    }
+
+    fn menus(&mut self, ui: &mut Ui) {
+        let ctx = ui.ctx().clone();
+        let sc = |s: &KeyboardShortcut| ctx.format_shortcut(s);
+        egui::MenuBar::new().ui(ui, |ui| {
+            ui.menu_button("File", |ui| {
+                if ui.button("Open scene…").clicked() {
+                    self.open_scene_dialog();
+                }
+                if ui
+                    .add(egui::Button::new("Open pack…").shortcut_text(sc(&OPEN_PACK)))
+                    .clicked()
+                {
+                    self.open_pack_dialog();
+                }
+                ui.menu_button("Recent", |ui| {
+                    for p in self.settings.recent_packs.clone() {
+                        if ui.button(p.display().to_string()).clicked() {
+                            self.open_pack(&p);
+                        }
+                    }
+                    ui.separator();
+                    for p in self.settings.recent_scenes.clone() {
+                        if ui.button(p.display().to_string()).clicked() {
+                            self.open_scene(&p);
+                        }
+                    }
+                });
+                ui.separator();
+                if ui
+                    .add(egui::Button::new("Save pack").shortcut_text(sc(&SAVE)))
+                    .clicked()
+                {
+                    self.save();
+                }
+                if ui
+                    .add(egui::Button::new("Save pack as…").shortcut_text(sc(&SAVE_AS)))
+                    .clicked()
+                {
+                    self.save_as_dialog();
+                }
+                if ui
+                    .add(egui::Button::new("Export frame…").shortcut_text(sc(&EXPORT)))
+                    .clicked()
+                {
+                    self.export_dialog();
+                }
+                ui.separator();
+                if ui.button("Quit").clicked() {
+                    ui.ctx().send_viewport_cmd(egui::ViewportCommand::Close);
+                }
+            });
+            ui.menu_button("Edit", |ui| {
+                let (can_undo, can_redo) = self
+                    .doc
+                    .as_ref()
+                    .map_or((false, false), |d| (d.can_undo(), d.can_redo()));
+                if ui
+                    .add_enabled(can_undo, egui::Button::new("Undo").shortcut_text(sc(&UNDO)))
+                    .clicked()
+                {
+                    self.undo();
+                }
+                if ui
+                    .add_enabled(can_redo, egui::Button::new("Redo").shortcut_text(sc(&REDO)))
+                    .clicked()
+                {
+                    self.redo();
+                }
+            });
+            ui.menu_button("View", |ui| {
+                if ui.button("BRDF explorer").clicked() {
+                    self.explorer = Some(Explorer::default());
+                }
+                ui.add(
+                    egui::Slider::new(&mut self.settings.exposure, -8.0..=8.0)
+                        .text("exposure (stops)"),
+                );
+                if ui
+                    .add(
+                        egui::Slider::new(&mut self.settings.max_samples, 1..=65536)
+                            .logarithmic(true)
+                            .text("stop at spp"),
+                    )
+                    .changed()
+                {
+                    self.set_max_samples(self.settings.max_samples);
+                }
+                ui.horizontal(|ui| {
+                    ui.label("resolution");
+                    for (r, name) in [(0.25, "25%"), (0.5, "50%"), (1.0, "100%")] {
+                        ui.selectable_value(&mut self.settings.resolution, r, name);
+                    }
+                });
+            });
+        });
+    }
+
+    fn status(&self, ui: &mut Ui) {
+        ui.horizontal_wrapped(|ui| {
+            let Some(doc) = &self.doc else {
+                ui.label("no scene");
+                return;
+            };
+            match self.viewport.frame() {
+                Some(f) => {
+                    ui.label(format!(
+                        "{} spp · {}x{} · {:.1} ms/frame · {:.2} M rays/s · {} non-finite dropped",
+                        f.progress.min_samples,
+                        f.progress.width,
+                        f.progress.height,
+                        f.frame_ms,
+                        f.rays_per_second / 1e6,
+                        f.progress.dropped
+                    ));
+                }
+                None => {
+                    ui.label("waiting for the first frame");
+                }
+            }
+            ui.separator();
+            if let Some(p) = &doc.pack
+                && let Material::Spmm {
+                    material,
+                    residual,
+                    npca,
+                    ..
+                } = &doc.scene.materials[p.material]
+            {
+                let parts = match (material.residual().is_some(), *residual, self.moving) {
+                    (false, _, _) => "bases only (no residual in the pack)".to_string(),
+                    (true, false, _) => "bases, residual off".into(),
+                    (true, true, true) => "bases, residual skipped while moving".into(),
+                    (true, true, false) => {
+                        format!(
+                            "bases + residual, N_PCA {}/{}",
+                            npca.min(&material.npca()),
+                            material.npca()
+                        )
+                    }
+                };
+                ui.label(format!("{} clusters · {parts}", material.clusters().len()));
+            }
+            ui.separator();
+            if let Some(ms) = self.latency.last_edit_to_frame_ms {
+                ui.label(format!("edit to frame {ms:.0} ms"));
+            }
+            ui.label(format!("UI {:.1} ms", self.ui_frame_ms));
+            if !self.worker.is_running() {
+                ui.colored_label(ui.visuals().error_fg_color, "the render thread stopped");
+            }
+        });
+    }
+
+    /// One UI frame of the whole window.
+    pub fn show(&mut self, ui: &mut Ui) {
+        let start = Instant::now();
+        self.receive();
+        self.shortcuts(ui);
+        egui::Panel::top("menu").show(ui, |ui| self.menus(ui));
+        egui::Panel::bottom("status").show(ui, |ui| self.status(ui));
+        let mut requests = Vec::new();
+        if let Some(doc) = &self.doc {
+            let mut mode = self.mode;
+            egui::Panel::left("scene")
+                .resizable(true)
+                .default_size(270.0)
+                .show(ui, |ui| {
+                    egui::ScrollArea::vertical().show(ui, |ui| {
+                        requests = scene_panel::show(ui, doc, &mut mode);
+                    });
+                });
+            self.mode = mode;
+            let mut edits = Vec::new();
+            egui::Panel::right("material")
+                .resizable(true)
+                .default_size(330.0)
+                .show(ui, |ui| {
+                    egui::ScrollArea::vertical().show(ui, |ui| {
+                        edits = self.material_panel.show(ui, doc);
+                    });
+                });
+            requests.extend(edits.into_iter().map(Request::Edit));
+        }
+        for r in requests {
+            match r {
+                Request::Edit(e) => self.edit(e),
+                Request::OpenSceneDialog => self.open_scene_dialog(),
+                Request::Mesh(p) => self.replace_mesh(&p),
+            }
+        }
+        egui::CentralPanel::default().show(ui, |ui| self.viewport_ui(ui));
+        // One drag of a slider is one undo step: the group ends when the button is up.
+        if !ui.input(|i| i.pointer.any_down())
+            && let Some(doc) = &mut self.doc
+        {
+            doc.close_group();
+        }
+        self.dialogs(ui);
+        ui.ctx()
+            .send_viewport_cmd(egui::ViewportCommand::Title(self.title()));
+        self.ui_frame_ms = start.elapsed().as_secs_f64() * 1e3;
+    }
+
+    fn viewport_ui(&mut self, ui: &mut Ui) {
+        let Some(camera) = self.doc.as_ref().map(|d| d.scene.camera) else {
+            ui.centered_and_justified(|ui| ui.label("Open a scene (File ▸ Open scene…)"));
+            return;
+        };
+        let input = self.viewport.show(ui, &camera, self.settings.exposure);
+        let scale = f64::from(self.settings.resolution);
+        let full = (
+            ((f64::from(input.panel_pixels.0) * scale) as u32).clamp(16, 4096),
+            ((f64::from(input.panel_pixels.1) * scale) as u32).clamp(16, 4096),
+        );
+        if self.render_size == (0, 0) {
+            self.full_size = full;
+            self.load_into_renderer(full);
+        } else if full != self.full_size && !self.moving {
+            self.full_size = full;
+            self.render_size = full;
+            self.view(SceneEdit::Resize {
+                width: full.0,
+                height: full.1,
+            });
+        }
+        if input.drag_started {
+            self.moving = true;
+            let preview = ((full.0 / 4).max(16), (full.1 / 4).max(16));
+            self.render_size = preview;
+            self.view(SceneEdit::Moving(true));
+            self.view(SceneEdit::Resize {
+                width: preview.0,
+                height: preview.1,
+            });
+        }
+        if let Some(c) = input.camera {
+            self.view(SceneEdit::Camera(c));
+        }
+        if input.drag_stopped {
+            self.moving = false;
+            self.render_size = self.full_size;
+            self.view(SceneEdit::Resize {
+                width: self.full_size.0,
+                height: self.full_size.1,
+            });
+            self.view(SceneEdit::Moving(false));
+        }
+        if let Some((x, y)) = input.click {
+            self.pick_at(x, y);
+        }
+    }
+
+    /// Chooses the cluster and texel under a click at (x, y) in [0, 1]^2 of the image.
+    pub fn pick_at(&mut self, x: f64, y: f64) {
+        let (Some(doc), Some(bvh)) = (&self.doc, &self.bvh) else {
+            return;
+        };
+        let (w, h) = self.full_size;
+        if let Some(p) = pick(
+            &doc.scene,
+            bvh,
+            w.max(1),
+            h.max(1),
+            x * f64::from(w),
+            y * f64::from(h),
+        ) && doc
+            .pack
+            .as_ref()
+            .is_some_and(|pk| pk.material == p.material)
+            && let Some((texel, cluster)) = p.texel
+        {
+            self.material_panel.cluster = cluster;
+            self.material_panel.texel = Some(texel);
+        }
+    }
+
+    fn dialogs(&mut self, ui: &mut Ui) {
+        let ctx = ui.ctx().clone();
+        if let Some(e) = self.error.clone() {
+            egui::Window::new("Error")
+                .collapsible(false)
+                .resizable(false)
+                .anchor(egui::Align2::CENTER_TOP, egui::vec2(0.0, 40.0))
+                .show(&ctx, |ui| {
+                    ui.label(e);
+                    if ui.button("OK").clicked() {
+                        self.error = None;
+                    }
+                });
+        }
+        // Quitting with unsaved edits asks first.
+        if ctx.input(|i| i.viewport().close_requested())
+            && !self.allow_close
+            && self.doc.as_ref().is_some_and(|d| d.dirty())
+        {
+            ctx.send_viewport_cmd(egui::ViewportCommand::CancelClose);
+            self.quit_prompt = true;
+        }
+        if self.quit_prompt {
+            let r = egui::Modal::new(egui::Id::unique("meso-quit-prompt")).show(&ctx, |ui| {
+                ui.heading("Save the edited pack?");
+                ui.label("The pack has changes that are not saved.");
+                ui.horizontal(|ui| {
+                    if ui.button("Save").clicked() && self.save() {
+                        self.allow_close = true;
+                    }
+                    if ui.button("Discard").clicked() {
+                        self.allow_close = true;
+                    }
+                    if ui.button("Cancel").clicked() {
+                        self.quit_prompt = false;
+                    }
+                });
+            });
+            if r.should_close() {
+                self.quit_prompt = false;
+            }
+            if self.allow_close {
+                self.quit_prompt = false;
+                ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+            }
+        }
+        if let Some(ex) = &mut self.explorer {
+            let mut open = true;
+            egui::Window::new("BRDF explorer")
+                .open(&mut open)
+                .default_size([900.0, 600.0])
+                .show(&ctx, |ui| ex.show(ui));
+            if !open {
+                self.explorer = None;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+#[path = "studio_tests.rs"]
+mod tests;

@@ -1,0 +1,228 @@
+//! The progressive viewport: shows the newest finished frame, turns mouse input into
+//! camera edits (orbit with the left button, pan with the right or middle button or
+//! shift-drag, zoom with the wheel) and a click into a pick position. While the
+//! camera moves the render runs at a quarter of the resolution with the residual
+//! skipped; the studio sends those edits, this module only reports what happened.
+
+use egui::{ColorImage, Sense, TextureHandle, TextureOptions, Ui, Vec2};
+use glam::DVec3;
+use meso_core::image::to_srgb8;
+use meso_core::scene::Camera;
+
+use crate::render_worker::Frame;
+
+/// Radians of orbit per point of drag.
+const ORBIT_PER_POINT: f64 = 0.008;
+/// Closest the camera may come to its target, and the farthest, in metres.
+const MIN_DISTANCE: f64 = 0.05;
+const MAX_DISTANCE: f64 = 500.0;
+
+/// Orbits the camera about its look-at point: `yaw` about the world up axis, `pitch`
+/// about the camera's right axis, stopping short of the poles.
+pub fn orbit(camera: &Camera, yaw: f64, pitch: f64) -> Camera {
+    let up = camera.up.normalize_or(DVec3::Y);
+    let offset = camera.position - camera.look_at;
+    let distance = offset.length();
+    let dir = offset / distance;
+    let elevation = dir.dot(up).clamp(-1.0, 1.0).asin();
+    let limit = 89f64.to_radians();
+    let new_elevation = (elevation + pitch).clamp(-limit, limit);
+    let horizontal = (dir - up * dir.dot(up)).normalize_or(up.any_orthonormal_vector());
+    let side = up.cross(horizontal);
+    let (s, c) = yaw.sin_cos();
+    let h = horizontal * c + side * s;
+    let d = h * new_elevation.cos() + up * new_elevation.sin();
+    Camera {
+        position: camera.look_at + d * distance,
+        ..*camera
+    }
+}
+
+/// Moves the camera and its target across the view so that the point under the
+/// cursor follows it: `dx`, `dy` in pixels of an image `height` pixels tall.
+pub fn pan(camera: &Camera, dx: f64, dy: f64, height: f64) -> Camera {
+    let forward = (camera.look_at - camera.position).normalize();
+    let right = forward.cross(camera.up).normalize();
+    let up = right.cross(forward);
+    let distance = (camera.look_at - camera.position).length();
+    let metres_per_pixel = 2.0 * distance * (camera.fov_y_deg.to_radians() * 0.5).tan() / height;
+    let shift = (-right * dx + up * dy) * metres_per_pixel;
+    Camera {
+        position: camera.position + shift,
+        look_at: camera.look_at + shift,
+        ..*camera
+    }
+}
+
+/// Moves the camera towards (factor < 1) or away from its target.
+pub fn zoom(camera: &Camera, factor: f64) -> Camera {
+    let offset = camera.position - camera.look_at;
+    let distance = (offset.length() * factor).clamp(MIN_DISTANCE, MAX_DISTANCE);
+    Camera {
+        position: camera.look_at + offset.normalize() * distance,
+        ..*camera
+    }
+}
+
+/// What the user did in the viewport this UI frame.
+#[derive(Default)]
+pub struct Input {
+    /// The camera after this frame's drag or wheel, if it moved.
+    pub camera: Option<Camera>,
+    pub drag_started: bool,
+    pub drag_stopped: bool,
+    /// A click (not a drag) at this position, in [0, 1]^2 of the image.
+    pub click: Option<(f64, f64)>,
+    /// The image size the panel shows, in physical pixels.
+    pub panel_pixels: (u32, u32),
+}
+
+#[derive(Default)]
+pub struct Viewport {
+    texture: Option<TextureHandle>,
+    /// The frame on screen and the exposure its texture was made with.
+    shown: Option<(Frame, f64)>,
+}
+
+impl Viewport {
+    pub fn frame(&self) -> Option<&Frame> {
+        self.shown.as_ref().map(|(f, _)| f)
+    }
+
+    /// Takes a newer frame for display.
+    pub fn set_frame(&mut self, frame: Frame) {
+        self.shown = Some((frame, f64::NAN));
+    }
+
+    pub fn show(&mut self, ui: &mut Ui, camera: &Camera, exposure: f64) -> Input {
+        let size = ui.available_size().max(Vec2::splat(16.0));
+        let ppp = ui.ctx().pixels_per_point();
+        let mut input = Input {
+            panel_pixels: (
+                (size.x * ppp).round().max(1.0) as u32,
+                (size.y * ppp).round().max(1.0) as u32,
+            ),
+            ..Default::default()
+        };
+        if let Some((frame, made_with)) = &mut self.shown
+            && (self.texture.is_none() || *made_with != exposure)
+        {
+            let img = &frame.image;
+            let rgb: Vec<u8> = to_srgb8(img, exposure).into_iter().flatten().collect();
+            let color = ColorImage::from_rgb([img.width() as usize, img.height() as usize], &rgb);
+            match &mut self.texture {
+                Some(t) => t.set(color, TextureOptions::LINEAR),
+                None => {
+                    self.texture = Some(ui.ctx().load_texture(
+                        "viewport",
+                        color,
+                        TextureOptions::LINEAR,
+                    ))
+                }
+            }
+            *made_with = exposure;
+        }
+        let (rect, response) = ui.allocate_exact_size(size, Sense::click_and_drag());
+        ui.painter()
+            .rect_filled(rect, 0.0, egui::Color32::from_gray(18));
+        if let Some(t) = &self.texture {
+            ui.painter().image(
+                t.id(),
+                rect,
+                egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)),
+                egui::Color32::WHITE,
+            );
+        } else {
+            ui.painter().text(
+                rect.center(),
+                egui::Align2::CENTER_CENTER,
+                "rendering…",
+                egui::FontId::proportional(16.0),
+                ui.visuals().weak_text_color(),
+            );
+        }
+        let response = response.on_hover_text_at_pointer(
+            "drag: orbit · right/middle or shift-drag: pan · wheel: zoom · click: pick a cluster",
+        );
+        input.drag_started = response.drag_started();
+        input.drag_stopped = response.drag_stopped();
+        let delta = response.drag_delta();
+        if response.dragged() && delta != Vec2::ZERO {
+            let panning = response.dragged_by(egui::PointerButton::Secondary)
+                || response.dragged_by(egui::PointerButton::Middle)
+                || ui.input(|i| i.modifiers.shift);
+            input.camera = Some(if panning {
+                pan(
+                    camera,
+                    f64::from(delta.x),
+                    f64::from(delta.y),
+                    f64::from(rect.height()),
+                )
+            } else {
+                orbit(
+                    camera,
+                    -f64::from(delta.x) * ORBIT_PER_POINT,
+                    f64::from(delta.y) * ORBIT_PER_POINT,
+                )
+            });
+        }
+        if response.hovered() {
+            let scroll = ui.input(|i| i.smooth_scroll_delta.y);
+            if scroll != 0.0 {
+                let base = input.camera.unwrap_or(*camera);
+                input.camera = Some(zoom(&base, (-f64::from(scroll) * 0.002).exp()));
+            }
+        }
+        if response.clicked()
+            && let Some(p) = response.interact_pointer_pos()
+        {
+            let rel = (p - rect.min) / rect.size();
+            input.click = Some((f64::from(rel.x), f64::from(rel.y)));
+        }
+        input
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn camera() -> Camera {
+        Camera {
+            position: DVec3::new(0.0, 0.7, 2.9),
+            look_at: DVec3::new(0.0, 0.33, 0.0),
+            up: DVec3::Y,
+            fov_y_deg: 35.0,
+        }
+    }
+
+    #[test]
+    fn orbit_keeps_the_distance_and_the_target_and_stops_at_the_pole() {
+        let c = camera();
+        let d = (c.position - c.look_at).length();
+        let o = orbit(&c, 0.7, 0.2);
+        assert!(((o.position - o.look_at).length() - d).abs() < 1e-12);
+        assert_eq!(o.look_at, c.look_at);
+        // A full turn of yaw comes back.
+        let back = orbit(&c, std::f64::consts::TAU, 0.0);
+        assert!((back.position - c.position).length() < 1e-9);
+        // Pitching far past the pole stops at 89 degrees, so `up` stays valid.
+        let top = orbit(&c, 0.0, 10.0);
+        assert!(top.problem().is_none());
+        let elevation = ((top.position - top.look_at) / d).y.asin().to_degrees();
+        assert!((elevation - 89.0).abs() < 1e-9, "{elevation}");
+    }
+
+    #[test]
+    fn pan_moves_position_and_target_together_and_zoom_clamps() {
+        let c = camera();
+        let p = pan(&c, 100.0, 0.0, 500.0);
+        assert!(((p.position - p.look_at) - (c.position - c.look_at)).length() < 1e-12);
+        // Dragging right moves the scene right: the camera moves to its left (-x here).
+        assert!(p.position.x < c.position.x);
+        let z = zoom(&c, 0.5);
+        let d = (c.position - c.look_at).length();
+        assert!(((z.position - z.look_at).length() - 0.5 * d).abs() < 1e-12);
+        assert!(((zoom(&c, 1e-9).position - c.look_at).length() - MIN_DISTANCE).abs() < 1e-12);
+    }
+}

@@ -46,6 +46,8 @@ pub struct Settings {
     pub resolution: f32,
     /// Samples per pixel after which the renderer rests.
     pub max_samples: u32,
+    /// Frame, ray and latency timings in the status bar.
+    pub show_timings: bool,
 }
 
 impl Default for Settings {
@@ -56,6 +58,7 @@ impl Default for Settings {
             exposure: 0.0,
             resolution: 0.5,
             max_samples: 1024,
+            show_timings: true,
         }
     }
 }
@@ -474,6 +477,7 @@ impl Studio {
                 {
                     self.set_max_samples(self.settings.max_samples);
                 }
+                ui.checkbox(&mut self.settings.show_timings, "timings in the status bar");
                 ui.horizontal(|ui| {
                     ui.label("resolution");
                     for (r, name) in [(0.25, "25%"), (0.5, "50%"), (1.0, "100%")] {
@@ -493,14 +497,19 @@ impl Studio {
             match self.viewport.frame() {
                 Some(f) => {
                     ui.label(format!(
-                        "{} spp · {}x{} · {:.1} ms/frame · {:.2} M rays/s · {} non-finite dropped",
+                        "{} spp · {}x{} · {} non-finite dropped",
                         f.progress.min_samples,
                         f.progress.width,
                         f.progress.height,
-                        f.frame_ms,
-                        f.rays_per_second / 1e6,
                         f.progress.dropped
                     ));
+                    if self.settings.show_timings {
+                        ui.label(format!(
+                            "{:.1} ms/frame · {:.2} M rays/s",
+                            f.frame_ms,
+                            f.rays_per_second / 1e6
+                        ));
+                    }
                 }
                 None => {
                     ui.label("waiting for the first frame");
@@ -529,11 +538,13 @@ impl Studio {
                 };
                 ui.label(format!("{} clusters · {parts}", material.clusters().len()));
             }
-            ui.separator();
-            if let Some(ms) = self.latency.last_edit_to_frame_ms {
-                ui.label(format!("edit to frame {ms:.0} ms"));
+            if self.settings.show_timings {
+                ui.separator();
+                if let Some(ms) = self.latency.last_edit_to_frame_ms {
+                    ui.label(format!("edit to frame {ms:.0} ms"));
+                }
+                ui.label(format!("UI {:.1} ms", self.ui_frame_ms));
             }
-            ui.label(format!("UI {:.1} ms", self.ui_frame_ms));
             if !self.worker.is_running() {
                 ui.colored_label(ui.visuals().error_fg_color, "the render thread stopped");
             }

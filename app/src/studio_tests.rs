@@ -188,3 +188,44 @@ fn clicking_the_object_picks_its_cluster_and_lights_can_be_added() {
     );
     wait_for_current_frame(&mut h);
 }
+
+/// The main window at 1280x800 after 8 samples per pixel (deterministic: replayable
+/// sampling, any thread count), rendered by wgpu (lavapipe in CI) and compared with
+/// app/tests/snapshots/studio_main.png. Regenerate knowingly with UPDATE_SNAPSHOTS=1
+/// and look at the image. Threshold: lavapipe and GPU drivers rasterise text with
+/// slightly different anti-aliasing; a moved panel or a changed render exceeds it.
+#[test]
+fn the_main_window_matches_its_snapshot() {
+    let settings = Settings {
+        max_samples: 8,
+        show_timings: false,
+        ..Settings::default()
+    };
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1280.0, 800.0))
+        .wgpu()
+        .build_ui_state(
+            |ui, s: &mut Studio| s.show(ui),
+            Studio::new(None, None, settings),
+        );
+    let deadline = Instant::now() + Duration::from_secs(120);
+    loop {
+        h.step();
+        let s = h.state();
+        let version = s.doc.as_ref().expect("doc").version;
+        if s.frame()
+            .is_some_and(|f| f.version >= version && f.progress.min_samples >= 8)
+        {
+            break;
+        }
+        assert!(Instant::now() < deadline, "the render did not reach 8 spp");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    h.run_steps(2);
+    h.snapshot_options(
+        "studio_main",
+        &egui_kittest::SnapshotOptions::new()
+            .threshold(2.0)
+            .max_failed_pixels(200),
+    );
+}

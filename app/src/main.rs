@@ -3,19 +3,9 @@
 //! the material panel and the progressive viewport (studio.rs). A thin shell: all it
 //! computes comes from `meso-core`'s public API.
 
-mod document;
-mod explorer;
-mod lobe_plot;
-mod material_panel;
-mod render_worker;
-mod scene_panel;
-mod sphere_preview;
-mod studio;
-mod viewport;
-
 use std::path::PathBuf;
 
-use studio::{Settings, Studio};
+use meso_studio::studio::{Settings, Studio};
 
 fn main() -> eframe::Result<()> {
     let scene = std::env::args_os().nth(1).map(PathBuf::from);
@@ -34,21 +24,24 @@ fn main() -> eframe::Result<()> {
                 .storage
                 .and_then(|s| eframe::get_value::<Settings>(s, eframe::APP_KEY))
                 .unwrap_or_default();
-            Ok(Box::new(Studio::new(
+            Ok(Box::new(App(Studio::new(
                 Some(cc.egui_ctx.clone()),
                 scene,
                 settings,
-            )))
+            ))))
         }),
     )
 }
 
-impl eframe::App for Studio {
+/// The studio as an eframe application.
+struct App(Studio);
+
+impl eframe::App for App {
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
-        self.show(ui);
+        self.0.show(ui);
     }
 
     fn save(&mut self, storage: &mut dyn eframe::Storage) {
-        eframe::set_value(storage, eframe::APP_KEY, &self.settings);
+        eframe::set_value(storage, eframe::APP_KEY, &self.0.settings);
     }
 }

@@ -20,8 +20,8 @@ use crate::lobe_plot::{self, Extra, Scale};
 
 const LOBE_STEPS: usize = 181;
 const BASIS_COLOURS: [Color32; 6] = [
-    Color32::from_rgb(230, 160, 60),
     Color32::from_rgb(120, 200, 120),
+    Color32::from_rgb(230, 200, 90),
     Color32::from_rgb(200, 120, 200),
     Color32::from_rgb(220, 220, 110),
     Color32::from_rgb(110, 200, 210),
@@ -167,27 +167,32 @@ impl MaterialPanel {
 
         ui.separator();
         ui.strong("Clusters");
-        egui::ScrollArea::vertical()
-            .id_salt("clusters")
-            .max_height(140.0)
-            .show(ui, |ui| {
-                for c in 0..m.clusters().len() {
-                    let texels = m
-                        .texel_cluster()
-                        .iter()
-                        .filter(|&&t| t as usize == c)
-                        .count();
-                    let label = format!(
-                        "cluster {c}: {texels} texels, {} bases",
-                        m.clusters()[c].bases.len()
-                    );
-                    if ui.selectable_label(self.cluster == c, label).clicked() {
-                        self.cluster = c;
-                        self.texel = None;
-                    }
-                }
+        ui.horizontal_top(|ui| {
+            ui.vertical(|ui| {
+                ui.set_width((ui.available_width() - 130.0).max(120.0));
+                egui::ScrollArea::vertical()
+                    .id_salt("clusters")
+                    .max_height(120.0)
+                    .show(ui, |ui| {
+                        for c in 0..m.clusters().len() {
+                            let texels = m
+                                .texel_cluster()
+                                .iter()
+                                .filter(|&&t| t as usize == c)
+                                .count();
+                            let label = format!(
+                                "{c}: {texels} texels, {} bases",
+                                m.clusters()[c].bases.len()
+                            );
+                            if ui.selectable_label(self.cluster == c, label).clicked() {
+                                self.cluster = c;
+                                self.texel = None;
+                            }
+                        }
+                    });
             });
-        self.texel_map(ui, &m);
+            self.texel_map(ui, &m);
+        });
 
         let c = self.cluster;
         ui.separator();
@@ -232,19 +237,6 @@ impl MaterialPanel {
         }
 
         ui.separator();
-        ui.strong(format!("Cluster {c}: dictionary"));
-        for (j, basis) in m.clusters()[c].bases.iter().enumerate() {
-            if let Some(b) = basis_editor(ui, c, j, basis)
-                && let Ok(e) = m.with_basis(c, j, b)
-            {
-                edits.push(SceneEdit::Material {
-                    index,
-                    material: with_pack(slot, e),
-                });
-            }
-        }
-
-        ui.separator();
         let texel = self
             .texel
             .filter(|&t| m.texel_cluster().get(t).is_some_and(|&tc| tc as usize == c))
@@ -271,10 +263,23 @@ impl MaterialPanel {
                 &extra,
                 self.theta_i_deg.to_radians(),
                 Scale::Linear,
-                220.0,
+                190.0,
             );
             ui.weak("blue: all bases summed (luminance of the weights, BTF incl. cos); thin: each basis");
         }
+        ui.separator();
+        ui.strong(format!("Cluster {c}: dictionary"));
+        for (j, basis) in m.clusters()[c].bases.iter().enumerate() {
+            if let Some(b) = basis_editor(ui, c, j, basis)
+                && let Ok(e) = m.with_basis(c, j, b)
+            {
+                edits.push(SceneEdit::Material {
+                    index,
+                    material: with_pack(slot, e),
+                });
+            }
+        }
+
         edits
     }
 
@@ -312,7 +317,7 @@ impl MaterialPanel {
             self.map = Some((texture, key, self.cluster));
         }
         if let Some((texture, _, _)) = &self.map {
-            let side = ui.available_width().min(160.0);
+            let side = ui.available_width().min(120.0);
             let response = ui.add(
                 egui::Image::new((texture.id(), egui::vec2(side, side)))
                     .sense(egui::Sense::click()),

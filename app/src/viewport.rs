@@ -141,8 +141,12 @@ impl Viewport {
                 ui.visuals().weak_text_color(),
             );
         }
-        let response = response.on_hover_text_at_pointer(
-            "drag: orbit · right/middle or shift-drag: pan · wheel: zoom · click: pick a cluster",
+        ui.painter().text(
+            rect.left_top() + Vec2::new(8.0, 6.0),
+            egui::Align2::LEFT_TOP,
+            "drag: orbit · right-drag: pan · wheel: zoom · click: pick a cluster",
+            egui::FontId::proportional(11.0),
+            egui::Color32::from_gray(150),
         );
         input.drag_started = response.drag_started();
         input.drag_stopped = response.drag_stopped();

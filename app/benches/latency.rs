@@ -124,6 +124,12 @@ fn bench_latency(c: &mut Criterion) {
         )),
         ..Default::default()
     };
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while studio.busy() || studio.doc.is_none() {
+        let _ = ctx.run_ui(input(), |ui| studio.show(ui));
+        assert!(Instant::now() < deadline, "the default scene did not load");
+        std::thread::sleep(Duration::from_millis(5));
+    }
     for _ in 0..3 {
         let _ = ctx.run_ui(input(), |ui| studio.show(ui));
     }

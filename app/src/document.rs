@@ -247,14 +247,17 @@ impl Document {
         Ok(())
     }
 
-    /// The edit that puts a pack read from `path` in place of the edited one.
-    pub fn open_pack(&mut self, path: &Path) -> Result<SceneEdit, String> {
+    /// The edit that puts `material` (read from `path`) in place of the edited pack;
+    /// the pack's file becomes `path`.
+    pub fn install_pack(
+        &mut self,
+        path: &Path,
+        material: Arc<SpmmMaterial>,
+        precision: ResidualPrecision,
+    ) -> Result<SceneEdit, String> {
         let Some(p) = &self.pack else {
             return Err("the scene has no SPMM material to put a pack on".into());
         };
-        let bytes = std::fs::read(path).map_err(|e| format!("`{}`: {e}", path.display()))?;
-        let material =
-            Arc::new(pack::decode_pack(&bytes).map_err(|e| format!("`{}`: {e}", path.display()))?);
         let Material::Spmm {
             uv_scale,
             residual,
@@ -273,7 +276,6 @@ impl Document {
                 npca: if npca == 0 { material.npca() } else { npca },
             },
         };
-        let precision = pack::residual_precision(&bytes);
         self.apply(&edit).map_err(|e| e.to_string())?;
         self.close_group();
         let p = self.pack.as_mut().expect("checked above");
@@ -289,4 +291,11 @@ fn spmm_of(m: &Material) -> Option<Arc<SpmmMaterial>> {
         Material::Spmm { material, .. } => Some(Arc::clone(material)),
         _ => None,
     }
+}
+
+/// Reads and validates a pack file (slow for large packs: run it as a job).
+pub fn read_pack_file(path: &Path) -> Result<(Arc<SpmmMaterial>, ResidualPrecision), String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("`{}`: {e}", path.display()))?;
+    let material = pack::decode_pack(&bytes).map_err(|e| format!("`{}`: {e}", path.display()))?;
+    Ok((Arc::new(material), pack::residual_precision(&bytes)))
 }

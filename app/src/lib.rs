@@ -5,6 +5,7 @@
 
 pub mod document;
 pub mod explorer;
+pub mod jobs;
 pub mod lobe_plot;
 pub mod material_panel;
 pub mod render_worker;

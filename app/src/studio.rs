@@ -6,16 +6,20 @@
 
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 use egui::{Key, KeyboardShortcut, Modifiers, Ui};
 use meso_core::render::{ModeKind, SceneEdit};
 use meso_core::scene::mesh::{Placement, load_obj};
-use meso_core::scene::{Material, load_scene};
+use meso_core::scene::{Material, Scene, load_scene};
+use meso_core::spmm::SpmmMaterial;
+use meso_core::spmm::pack::ResidualPrecision;
 use meso_core::trace::{SceneBvh, pick};
 
-use crate::document::Document;
+use crate::document::{Document, read_pack_file};
 use crate::explorer::Explorer;
+use crate::jobs::Job;
 use crate::material_panel::MaterialPanel;
 use crate::render_worker::{Command, RenderWorker};
 use crate::scene_panel::{self, Request};
@@ -99,6 +103,10 @@ pub struct Studio {
     allow_close: bool,
     explorer: Option<Explorer>,
     ui_frame_ms: f64,
+    repaint: Option<egui::Context>,
+    /// Loads in progress: a scene (with its BVH), a pack.
+    scene_job: Option<Job<(PathBuf, Scene, SceneBvh)>>,
+    pack_job: Option<Job<(PathBuf, Arc<SpmmMaterial>, ResidualPrecision)>>,
 }
 
 impl Studio {
@@ -108,7 +116,7 @@ impl Studio {
         let mut s = Self {
             doc: None,
             settings,
-            worker: RenderWorker::spawn(repaint),
+            worker: RenderWorker::spawn(repaint.clone()),
             viewport: Viewport::default(),
             material_panel: MaterialPanel::default(),
             mode: ModeKind::Spmm,
@@ -123,6 +131,9 @@ impl Studio {
             allow_close: false,
             explorer: None,
             ui_frame_ms: 0.0,
+            repaint,
+            scene_job: None,
+            pack_job: None,
         };
         s.set_max_samples(s.settings.max_samples);
         s.open_scene(&scene.unwrap_or_else(default_scene_path));
@@ -140,17 +151,58 @@ impl Studio {
         self.viewport.frame()
     }
 
+    /// Starts loading a scene in the background; the current one stays until it is
+    /// ready.
     pub fn open_scene(&mut self, path: &Path) {
-        match load_scene(path) {
-            Ok(scene) => {
-                remember(&mut self.settings.recent_scenes, path);
-                self.bvh = Some(SceneBvh::build(&scene.meshes));
-                let doc = Document::new(scene, Some(path.to_path_buf()));
-                self.material_panel = MaterialPanel::default();
-                self.render_size = (0, 0);
-                self.doc = Some(doc);
+        let path = path.to_path_buf();
+        let name = format!(
+            "loading {}",
+            path.file_name()
+                .map_or("scene".into(), |n| n.to_string_lossy())
+        );
+        self.scene_job = Some(Job::spawn(name, self.repaint.clone(), move || {
+            let scene = load_scene(&path).map_err(|e| e.to_string())?;
+            let bvh = SceneBvh::build(&scene.meshes);
+            Ok((path, scene, bvh))
+        }));
+    }
+
+    /// Whether a load is in progress.
+    pub fn busy(&self) -> bool {
+        self.scene_job.is_some() || self.pack_job.is_some()
+    }
+
+    /// Installs finished loads.
+    fn poll_jobs(&mut self) {
+        if let Some(r) = self.scene_job.as_ref().and_then(|j| j.poll()) {
+            self.scene_job = None;
+            match r {
+                Ok((path, scene, bvh)) => {
+                    remember(&mut self.settings.recent_scenes, &path);
+                    self.bvh = Some(bvh);
+                    self.doc = Some(Document::new(scene, Some(path)));
+                    self.material_panel = MaterialPanel::default();
+                    // The viewport loads it into the renderer at its size.
+                    self.render_size = (0, 0);
+                }
+                Err(e) => self.error = Some(e),
             }
-            Err(e) => self.error = Some(e.to_string()),
+        }
+        if let Some(r) = self.pack_job.as_ref().and_then(|j| j.poll()) {
+            self.pack_job = None;
+            let installed = r.and_then(|(path, material, precision)| {
+                let doc = self.doc.as_mut().ok_or("no scene is open")?;
+                let edit = doc.install_pack(&path, material, precision)?;
+                Ok((path, edit))
+            });
+            match installed {
+                Ok((path, edit)) => {
+                    remember(&mut self.settings.recent_packs, &path);
+                    self.material_panel = MaterialPanel::default();
+                    self.send(edit);
+                }
+                Err(e) => self.error = Some(e),
+            }
         }
     }
 
@@ -252,16 +304,18 @@ impl Studio {
         }
     }
 
+    /// Starts reading a pack in the background; it replaces the edited one when ready.
     pub fn open_pack(&mut self, path: &Path) {
-        let Some(doc) = &mut self.doc else { return };
-        match doc.open_pack(path) {
-            Ok(edit) => {
-                remember(&mut self.settings.recent_packs, path);
-                self.material_panel = MaterialPanel::default();
-                self.send(edit);
-            }
-            Err(e) => self.error = Some(e),
-        }
+        let path = path.to_path_buf();
+        let name = format!(
+            "reading {}",
+            path.file_name()
+                .map_or("pack".into(), |n| n.to_string_lossy())
+        );
+        self.pack_job = Some(Job::spawn(name, self.repaint.clone(), move || {
+            let (material, precision) = read_pack_file(&path)?;
+            Ok((path, material, precision))
+        }));
     }
 
     /// Writes the frame on screen (EXR: linear; PNG: after the viewport's exposure).
@@ -490,6 +544,17 @@ impl Studio {
 
     fn status(&self, ui: &mut Ui) {
         ui.horizontal_wrapped(|ui| {
+            for job in [
+                self.scene_job.as_ref().map(|j| (&j.name, j.started)),
+                self.pack_job.as_ref().map(|j| (&j.name, j.started)),
+            ]
+            .into_iter()
+            .flatten()
+            {
+                ui.spinner();
+                ui.label(format!("{}… {:.1} s", job.0, job.1.elapsed().as_secs_f64()));
+                ui.separator();
+            }
             let Some(doc) = &self.doc else {
                 ui.label("no scene");
                 return;
@@ -554,6 +619,7 @@ impl Studio {
     /// One UI frame of the whole window.
     pub fn show(&mut self, ui: &mut Ui) {
         let start = Instant::now();
+        self.poll_jobs();
         self.receive();
         self.shortcuts(ui);
         egui::Panel::top("menu").show(ui, |ui| self.menus(ui));
@@ -603,7 +669,7 @@ impl Studio {
 
     fn viewport_ui(&mut self, ui: &mut Ui) {
         let Some(camera) = self.doc.as_ref().map(|d| d.scene.camera) else {
-            ui.centered_and_justified(|ui| ui.label("Open a scene (File ▸ Open scene…)"));
+            ui.centered_and_justified(|ui| ui.label("Open a scene (File > Open scene…)"));
             return;
         };
         let input = self.viewport.show(ui, &camera, self.settings.exposure);

@@ -300,6 +300,12 @@ fn camera_size_and_geometry_edits_restart_everything_and_refit() {
     cam.position.x += 0.1;
     assert_eq!(m.apply(SceneEdit::Camera(cam)), Ok(Invalidation::All));
     assert_eq!(m.progress().min_samples, 0);
+    // From a full restart on, the image is exactly a fresh render's.
+    m.render_frame();
+    m.render_frame();
+    let mut moved = scene();
+    moved.camera = cam;
+    assert_eq!(m.image(), rendered(moved, 2).image());
     let mut bad = cam;
     bad.look_at = bad.position;
     assert!(

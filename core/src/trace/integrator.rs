@@ -424,9 +424,12 @@ impl SpmmMode {
             .fold(0, |m, (i, _)| m | material_bit(i))
     }
 
+    /// Forgets every sample and starts the sample indices again, so the image from
+    /// here on equals a fresh render of the edited scene, bit for bit.
     fn restart_all(&mut self) -> Invalidation {
         self.film.reset();
         self.frames = 0;
+        self.next_sample = 0;
         Invalidation::All
     }
 }

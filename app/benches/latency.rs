@@ -96,7 +96,7 @@ fn bench_latency(c: &mut Criterion) {
             let mut total = Duration::ZERO;
             for _ in 0..iters {
                 version += 1;
-                let e = if version % 2 == 0 { 1.0 } else { 0.8 };
+                let e = if version.is_multiple_of(2) { 1.0 } else { 0.8 };
                 let start = Instant::now();
                 worker.send(Command::Edit {
                     version,

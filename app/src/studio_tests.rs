@@ -227,6 +227,7 @@ fn the_main_window_matches_its_snapshot() {
             |ui, s: &mut Studio| s.show(ui),
             Studio::new(None, None, settings),
         );
+    loaded(&mut h);
     let deadline = Instant::now() + Duration::from_secs(120);
     loop {
         h.step();

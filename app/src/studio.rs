@@ -67,6 +67,12 @@ impl Default for Settings {
     }
 }
 
+/// "loading default.toml": what a background job does, for the status bar.
+fn job_name(verb: &str, path: &Path) -> String {
+    let file = path.file_name().unwrap_or(path.as_os_str());
+    format!("{verb} {}", file.to_string_lossy())
+}
+
 fn remember(list: &mut Vec<PathBuf>, path: &Path) {
     list.retain(|p| p != path);
     list.insert(0, path.to_path_buf());
@@ -155,11 +161,7 @@ impl Studio {
     /// ready.
     pub fn open_scene(&mut self, path: &Path) {
         let path = path.to_path_buf();
-        let name = format!(
-            "loading {}",
-            path.file_name()
-                .map_or("scene".into(), |n| n.to_string_lossy())
-        );
+        let name = job_name("loading", &path);
         self.scene_job = Some(Job::spawn(name, self.repaint.clone(), move || {
             let scene = load_scene(&path).map_err(|e| e.to_string())?;
             let bvh = SceneBvh::build(&scene.meshes);
@@ -307,11 +309,7 @@ impl Studio {
     /// Starts reading a pack in the background; it replaces the edited one when ready.
     pub fn open_pack(&mut self, path: &Path) {
         let path = path.to_path_buf();
-        let name = format!(
-            "reading {}",
-            path.file_name()
-                .map_or("pack".into(), |n| n.to_string_lossy())
-        );
+        let name = job_name("reading", &path);
         self.pack_job = Some(Job::spawn(name, self.repaint.clone(), move || {
             let (material, precision) = read_pack_file(&path)?;
             Ok((path, material, precision))

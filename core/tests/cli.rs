@@ -535,29 +535,21 @@ fn render_writes_an_image_and_reports_json() {
     let dir = tempfile::tempdir().expect("temp dir");
     let out = dir.path().join("r.exr");
     let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/default.toml");
-    let o = meso(
-        &[
-            "render",
-            scene,
-            "-o",
-            out.to_str().expect("utf-8"),
-            "--frames",
-            "2",
-            "--width",
-            "24",
-            "--height",
-            "16",
-            "--json",
-        ],
-        "",
-    );
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    let out_arg = out.to_str().expect("utf-8");
+    // Renders 2 frames of the default scene with `extra` flags, as JSON.
+    let render = |extra: &[&str]| {
+        let mut args = vec!["render", scene, "-o", out_arg, "--frames", "2", "--json"];
+        args.extend_from_slice(extra);
+        let o = meso(&args, "");
+        assert_eq!(
+            o.status.code(),
+            Some(0),
+            "{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        serde_json::from_str::<serde_json::Value>(&stdout(&o)).expect("JSON")
+    };
+    let v = render(&["--width", "24", "--height", "16"]);
     assert_eq!(v["frames"], 2);
     assert_eq!(v["mode"], "spmm");
     assert_eq!(v["rays"]["primary"], 2 * 24 * 16);
@@ -569,25 +561,7 @@ fn render_writes_an_image_and_reports_json() {
     assert!(img.pixels().iter().any(|p| p[0] > 0.0), "something is lit");
 
     // Three samples per pixel per frame: three times the primary rays.
-    let o = meso(
-        &[
-            "render",
-            scene,
-            "-o",
-            out.to_str().expect("utf-8"),
-            "--frames",
-            "2",
-            "--width",
-            "8",
-            "--height",
-            "8",
-            "--spp-per-frame",
-            "3",
-            "--json",
-        ],
-        "",
-    );
-    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    let v = render(&["--width", "8", "--height", "8", "--spp-per-frame", "3"]);
     assert_eq!(v["rays"]["primary"], 2 * 3 * 64);
     assert_eq!(v["samples_per_pixel"], 6);
     assert_bad_input(

@@ -182,7 +182,12 @@ impl Studio {
                 Ok((path, scene, bvh)) => {
                     remember(&mut self.settings.recent_scenes, &path);
                     self.bvh = Some(bvh);
-                    self.doc = Some(Document::new(scene, Some(path)));
+                    // Versions keep increasing across documents, so a frame of the
+                    // previous scene never passes for one of this.
+                    let mut doc = Document::new(scene, Some(path));
+                    doc.version = self.doc.as_ref().map_or(1, |d| d.version + 1);
+                    self.doc = Some(doc);
+                    self.in_flight.clear();
                     self.material_panel = MaterialPanel::default();
                     // The viewport loads it into the renderer at its size.
                     self.render_size = (0, 0);

@@ -380,12 +380,20 @@ fn basis_editor(
                     changed = true;
                 }
             }
-            normal_changed |= ui
-                .add(egui::Slider::new(&mut theta, 0.0..=85.0).text("normal θ (deg)"))
-                .changed();
-            normal_changed |= ui
-                .add(egui::Slider::new(&mut phi, 0.0..=360.0).text("normal φ (deg)"))
-                .changed();
+            ui.horizontal(|ui| {
+                normal_changed |= hemisphere(ui, &mut theta, &mut phi);
+                ui.vertical(|ui| {
+                    normal_changed |= ui
+                        .add(
+                            egui::Slider::new(&mut theta, 0.0..=MAX_TILT_DEG)
+                                .text("normal θ (deg)"),
+                        )
+                        .changed();
+                    normal_changed |= ui
+                        .add(egui::Slider::new(&mut phi, 0.0..=360.0).text("normal φ (deg)"))
+                        .changed();
+                });
+            });
         });
     if !(changed || normal_changed) {
         return None;
@@ -399,4 +407,103 @@ fn basis_editor(
         n
     };
     BasisFunction::new(brdf, normal).ok()
+}
+
+/// Largest tilt of a basis normal the editor offers (the spec needs z > 0).
+const MAX_TILT_DEG: f64 = 85.0;
+
+/// Where a normal at (theta, phi) degrees sits on the hemisphere disk of radius 1
+/// (orthographic view from above: x = sin theta cos phi, y = sin theta sin phi).
+pub fn disk_position(theta_deg: f64, phi_deg: f64) -> (f64, f64) {
+    let (t, p) = (theta_deg.to_radians(), phi_deg.to_radians());
+    (t.sin() * p.cos(), t.sin() * p.sin())
+}
+
+/// The normal under a disk position, its tilt limited to `MAX_TILT_DEG`.
+pub fn normal_at_disk(x: f64, y: f64) -> (f64, f64) {
+    let r = x.hypot(y).min(MAX_TILT_DEG.to_radians().sin());
+    let theta = r.asin().to_degrees();
+    let phi = if r > 0.0 {
+        y.atan2(x).to_degrees().rem_euclid(360.0)
+    } else {
+        0.0
+    };
+    (theta, phi)
+}
+
+/// A small draggable hemisphere seen from above: the dot is the normal; drag it to
+/// tilt (the rim is grazing, the centre the macro normal; +x to the right is the
+/// tangent, +y up the bitangent).
+fn hemisphere(ui: &mut Ui, theta: &mut f64, phi: &mut f64) -> bool {
+    let size = 64.0;
+    let (rect, response) = ui.allocate_exact_size(egui::vec2(size, size), egui::Sense::drag());
+    let c = rect.center();
+    let r = size * 0.5 - 3.0;
+    let painter = ui.painter();
+    let weak = ui.visuals().weak_text_color();
+    painter.circle_stroke(c, r, egui::Stroke::new(1.0, weak));
+    painter.circle_stroke(
+        c,
+        r * MAX_TILT_DEG.to_radians().sin() as f32 * 0.5,
+        egui::Stroke::new(0.5, weak.gamma_multiply(0.5)),
+    );
+    painter.line_segment(
+        [c - egui::vec2(r, 0.0), c + egui::vec2(r, 0.0)],
+        egui::Stroke::new(0.5, weak),
+    );
+    painter.line_segment(
+        [c - egui::vec2(0.0, r), c + egui::vec2(0.0, r)],
+        egui::Stroke::new(0.5, weak),
+    );
+    let mut changed = false;
+    if let Some(p) = response.interact_pointer_pos()
+        && response.dragged()
+    {
+        let d = (p - c) / r;
+        let (t, f) = normal_at_disk(f64::from(d.x), f64::from(-d.y));
+        *theta = t;
+        *phi = f;
+        changed = true;
+    }
+    let (x, y) = disk_position(*theta, *phi);
+    let dot = c + egui::vec2(x as f32, -(y as f32)) * r;
+    painter.circle_filled(dot, 4.0, Color32::from_rgb(90, 170, 255));
+    response.on_hover_text("drag to tilt the basis normal (centre: along the macro normal)");
+    changed
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn disk_positions_and_normals_are_inverse_and_the_tilt_is_limited() {
+        for (t, p) in [(0.0, 0.0), (30.0, 45.0), (60.0, 300.0), (85.0, 180.0)] {
+            let (x, y) = disk_position(t, p);
+            let (t2, p2) = normal_at_disk(x, y);
+            assert!((t - t2).abs() < 1e-9, "{t} {t2}");
+            if t > 0.0 {
+                assert!((p - p2).abs() < 1e-9, "{p} {p2}");
+            }
+        }
+        // Beyond the rim: clamped to the largest tilt, direction kept.
+        let (t, p) = normal_at_disk(0.0, -3.0);
+        assert!((t - MAX_TILT_DEG).abs() < 1e-9 && (p - 270.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn the_texel_lobe_is_the_sum_of_its_bases() {
+        let m = meso_core::spmm::pack::read_pack(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../materials/leather.spmm"
+        )))
+        .expect("the shipped leather pack");
+        let (sum, parts) = texel_lobes(&m, 0, 0.6);
+        assert_eq!(parts.len(), m.texel_weights(0).count());
+        for (k, p) in sum.iter().enumerate() {
+            let s: f64 = parts.iter().map(|b| b[k].value).sum();
+            assert!((p.value - s).abs() <= 1e-12 * s.abs().max(1e-12));
+        }
+        assert!(sum.iter().any(|p| p.value > 0.0));
+    }
 }

@@ -311,3 +311,33 @@ fn a_saved_pack_renders_in_core_exactly_as_in_the_viewport() {
     run_frames(mode.as_mut(), frame.progress.frames, |_, _| {});
     assert_eq!(*frame.image, mode.image(), "viewport and core render agree");
 }
+
+#[test]
+fn bad_files_show_an_error_naming_them_and_change_nothing() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut h = harness();
+    let before = material(&h);
+    let garbage = dir.path().join("garbage.spmm");
+    std::fs::write(&garbage, b"not a pack at all").expect("write");
+    h.state_mut().open_pack(&garbage);
+    loaded(&mut h);
+    let error = h.state().error.clone().expect("an error is shown");
+    assert!(error.contains("garbage.spmm"), "{error}");
+    assert!(Arc::ptr_eq(&before, &material(&h)), "the edited pack stays");
+    h.state_mut().error = None;
+
+    let bad_scene = dir.path().join("bad.toml");
+    std::fs::write(
+        &bad_scene,
+        "version = 1\n[camera]\nposition = [0.0, 0.0, 1.0]\n",
+    )
+    .expect("write");
+    h.state_mut().open_scene(&bad_scene);
+    loaded(&mut h);
+    let error = h.state().error.clone().expect("an error is shown");
+    assert!(
+        error.contains("bad.toml") && error.contains("look_at"),
+        "{error}"
+    );
+    assert!(Arc::ptr_eq(&before, &material(&h)), "the open scene stays");
+}

@@ -110,6 +110,8 @@ pub struct Studio {
     explorer: Option<Explorer>,
     ui_frame_ms: f64,
     repaint: Option<egui::Context>,
+    /// The window title last sent (sent again only when it changes).
+    shown_title: String,
     /// Loads in progress: a scene (with its BVH), a pack.
     scene_job: Option<Job<(PathBuf, Scene, SceneBvh)>>,
     pack_job: Option<Job<(PathBuf, Arc<SpmmMaterial>, ResidualPrecision)>>,
@@ -138,6 +140,7 @@ impl Studio {
             explorer: None,
             ui_frame_ms: 0.0,
             repaint,
+            shown_title: String::new(),
             scene_job: None,
             pack_job: None,
         };
@@ -665,8 +668,12 @@ impl Studio {
             doc.close_group();
         }
         self.dialogs(ui);
-        ui.ctx()
-            .send_viewport_cmd(egui::ViewportCommand::Title(self.title()));
+        let title = self.title();
+        if title != self.shown_title {
+            ui.ctx()
+                .send_viewport_cmd(egui::ViewportCommand::Title(title.clone()));
+            self.shown_title = title;
+        }
         self.ui_frame_ms = start.elapsed().as_secs_f64() * 1e3;
     }
 

@@ -226,12 +226,23 @@ impl Document {
         edits
     }
 
-    /// Whether the edited pack differs from its file.
+    /// Whether the edited pack differs from its file (a full comparison unless both
+    /// are the same object: callers that ask every frame cache it by `dirty_key`).
     pub fn dirty(&self) -> bool {
         match (&self.pack, self.material()) {
             (Some(p), Some(m)) => !Arc::ptr_eq(&p.saved, &m) && *p.saved != *m,
             _ => false,
         }
+    }
+
+    /// Changes whenever `dirty()` may change: the edited and the saved pack objects.
+    pub fn dirty_key(&self) -> (usize, usize) {
+        (
+            self.material().map_or(0, |m| Arc::as_ptr(&m) as usize),
+            self.pack
+                .as_ref()
+                .map_or(0, |p| Arc::as_ptr(&p.saved) as usize),
+        )
     }
 
     /// Writes the edited pack to `path` (atomic). On failure nothing changes: the edits

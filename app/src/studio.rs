@@ -112,6 +112,8 @@ pub struct Studio {
     repaint: Option<egui::Context>,
     /// The window title last sent (sent again only when it changes).
     shown_title: String,
+    /// (`Document::dirty_key`, dirty) of the last check.
+    dirty_cache: ((usize, usize), bool),
     /// Loads in progress: a scene (with its BVH), a pack.
     scene_job: Option<Job<(PathBuf, Scene, SceneBvh)>>,
     pack_job: Option<Job<(PathBuf, Arc<SpmmMaterial>, ResidualPrecision)>>,
@@ -141,6 +143,7 @@ impl Studio {
             ui_frame_ms: 0.0,
             repaint,
             shown_title: String::new(),
+            dirty_cache: ((0, 0), false),
             scene_job: None,
             pack_job: None,
         };
@@ -359,7 +362,18 @@ impl Studio {
         }
     }
 
-    fn title(&self) -> String {
+    /// `Document::dirty`, recomputed only when the packs involved change.
+    fn dirty(&mut self) -> bool {
+        let Some(doc) = &self.doc else { return false };
+        let key = doc.dirty_key();
+        if self.dirty_cache.0 != key {
+            self.dirty_cache = (key, doc.dirty());
+        }
+        self.dirty_cache.1
+    }
+
+    fn title(&mut self) -> String {
+        let dirty = self.dirty();
         let Some(doc) = &self.doc else {
             return "Meso Studio".into();
         };
@@ -369,10 +383,7 @@ impl Studio {
             .and_then(|p| p.path.as_ref())
             .and_then(|p| p.file_name())
             .map_or("untitled".into(), |n| n.to_string_lossy().into_owned());
-        format!(
-            "{}{name} — Meso Studio",
-            if doc.dirty() { "● " } else { "" }
-        )
+        format!("{}{name} — Meso Studio", if dirty { "● " } else { "" })
     }
 
     /// Takes the newest frame and measures how long the edits before it took.
@@ -765,10 +776,7 @@ impl Studio {
                 });
         }
         // Quitting with unsaved edits asks first.
-        if ctx.input(|i| i.viewport().close_requested())
-            && !self.allow_close
-            && self.doc.as_ref().is_some_and(|d| d.dirty())
-        {
+        if ctx.input(|i| i.viewport().close_requested()) && !self.allow_close && self.dirty() {
             ctx.send_viewport_cmd(egui::ViewportCommand::CancelClose);
             self.quit_prompt = true;
         }

@@ -356,13 +356,18 @@ fn basis_editor(
         .default_open(j == 0)
         .show(ui, |ui| {
             let mut model = brdf.model();
-            egui::ComboBox::from_id_salt(("model", cluster, j))
-                .selected_text(model.name())
-                .show_ui(ui, |ui| {
-                    for m in BrdfModel::ALL {
-                        ui.selectable_value(&mut model, m, m.name());
-                    }
-                });
+            ui.horizontal(|ui| {
+                let label = ui.label("model");
+                egui::ComboBox::from_id_salt(("model", cluster, j))
+                    .selected_text(model.name())
+                    .show_ui(ui, |ui| {
+                        for m in BrdfModel::ALL {
+                            ui.selectable_value(&mut model, m, m.name());
+                        }
+                    })
+                    .response
+                    .labelled_by(label.id);
+            });
             if model != brdf.model() {
                 brdf = AnalyticBrdf::with_defaults(model);
                 changed = true;

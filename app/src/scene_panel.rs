@@ -31,14 +31,19 @@ pub fn bundled_meshes() -> Vec<(&'static str, PathBuf)> {
     ]
 }
 
+/// A value with a label that screen readers (and tests) find it by.
+fn labelled_drag(ui: &mut Ui, name: &str, drag: egui::DragValue<'_>) -> bool {
+    let label = ui.label(name);
+    ui.add(drag).labelled_by(label.id).changed()
+}
+
 fn vec3_editor(ui: &mut Ui, label: &str, v: &mut DVec3, speed: f64) -> bool {
     ui.horizontal(|ui| {
         ui.label(label);
         let mut changed = false;
-        for c in [&mut v.x, &mut v.y, &mut v.z] {
-            changed |= ui
-                .add(egui::DragValue::new(c).speed(speed).max_decimals(3))
-                .changed();
+        for (c, axis) in [(&mut v.x, "x"), (&mut v.y, "y"), (&mut v.z, "z")] {
+            let drag = egui::DragValue::new(c).speed(speed).max_decimals(3);
+            changed |= labelled_drag(ui, axis, drag);
         }
         changed
     })
@@ -58,14 +63,11 @@ fn emission_editor(ui: &mut Ui, label: &str, e: &mut DVec3) -> bool {
     ui.horizontal(|ui| {
         ui.label(label);
         changed |= egui::widgets::color_picker::color_edit_button_rgb(ui, &mut colour).changed();
-        changed |= ui
-            .add(
-                egui::DragValue::new(&mut s)
-                    .range(0.0..=1e6)
-                    .speed(0.05)
-                    .max_decimals(3),
-            )
-            .changed();
+        let drag = egui::DragValue::new(&mut s)
+            .range(0.0..=1e6)
+            .speed(0.05)
+            .max_decimals(3);
+        changed |= labelled_drag(ui, "strength", drag);
     });
     if changed {
         *e = DVec3::new(colour[0] as f64, colour[1] as f64, colour[2] as f64) * s;
@@ -116,17 +118,21 @@ pub fn show(ui: &mut Ui, doc: &Document, mode: &mut ModeKind) -> Vec<Request> {
         let changed = ui
             .horizontal(|ui| {
                 ui.label("UV tiling");
-                let a = ui.add(
+                let a = labelled_drag(
+                    ui,
+                    "u",
                     egui::DragValue::new(&mut uv.x)
                         .range(0.01..=1000.0)
                         .speed(0.05),
                 );
-                let b = ui.add(
+                let b = labelled_drag(
+                    ui,
+                    "v",
                     egui::DragValue::new(&mut uv.y)
                         .range(0.01..=1000.0)
                         .speed(0.05),
                 );
-                a.changed() || b.changed()
+                a || b
             })
             .inner;
         if changed {

@@ -13,3 +13,5 @@ pub mod rng;
 pub mod scene;
 pub mod spmm;
 pub mod trace;
+pub mod btf;
+pub mod fit;

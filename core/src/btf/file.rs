@@ -316,3 +316,89 @@ pub fn decode_btf(bytes: &[u8]) -> Result<Btf, BtfFileErrorKind> {
         name, provenance, width, height, light_dirs, view_dirs, data,
     )?)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::btf::directions;
+
+    fn small() -> Btf {
+        let dirs = directions::rings(&[(0.0, 1), (45.0, 3)]);
+        let data: Vec<f32> = (0..2 * 3 * 16 * 3).map(|i| i as f32 * 0.25).collect();
+        Btf::new("t".into(), "test".into(), 2, 3, dirs.clone(), dirs, data).expect("valid")
+    }
+
+    /// Rewrites the header JSON of `bytes` with `edit` (offsets unchanged).
+    fn edit_header(bytes: &[u8], edit: impl Fn(&mut serde_json::Value)) -> Vec<u8> {
+        let n = u64::from_le_bytes(bytes[..8].try_into().expect("8")) as usize;
+        let mut h: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).expect("json");
+        edit(&mut h);
+        let mut hb = serde_json::to_vec(&h).expect("json");
+        while !hb.len().is_multiple_of(8) {
+            hb.push(b' ');
+        }
+        let mut out = (hb.len() as u64).to_le_bytes().to_vec();
+        out.extend(hb);
+        out.extend_from_slice(&bytes[8 + n..]);
+        out
+    }
+
+    #[test]
+    fn round_trip_is_exact_and_deterministic() {
+        let b = small();
+        for p in [BtfPrecision::F32, BtfPrecision::F16] {
+            let bytes = encode_btf(&b, p).expect("encode");
+            // Quarter steps up to 71.75 are exact in f16.
+            assert_eq!(decode_btf(&bytes).expect("decode"), b);
+            assert_eq!(encode_btf(&decode_btf(&bytes).expect("decode"), p).expect("encode"), bytes);
+        }
+        let dir = tempfile::tempdir().expect("dir");
+        let path = dir.path().join("a.btf");
+        write_btf(&path, &b, best_precision(&b)).expect("write");
+        assert_eq!(read_btf(&path).expect("read"), b);
+        assert_eq!(best_precision(&b), BtfPrecision::F16);
+    }
+
+    #[test]
+    fn corrupt_files_are_refused_with_the_place_named() {
+        let good = encode_btf(&small(), BtfPrecision::F32).expect("encode");
+        let cases: Vec<(Vec<u8>, &[&str])> = vec![
+            (good[..good.len() - 4].to_vec(), &["safetensors"]),
+            (b"garbage".to_vec(), &["safetensors"]),
+            (edit_header(&good, |h| h["__metadata__"]["format"] = "meso-spmm".into()), &["format", "meso-spmm"]),
+            (edit_header(&good, |h| h["__metadata__"]["version"] = "2".into()), &["version", "`2`"]),
+            (edit_header(&good, |h| h["__metadata__"]["width"] = "3".into()), &["reflectance", "shape", "[3, 3, 4, 4, 3]"]),
+            (edit_header(&good, |h| h["__metadata__"]["width"] = "0".into()), &["width", "1..="]),
+            (edit_header(&good, |h| { h["__metadata__"].as_object_mut().expect("map").remove("name"); }), &["`name`", "missing"]),
+            (edit_header(&good, |h| { let t = h["light_dirs"].clone(); h.as_object_mut().expect("map").insert("extra".into(), t); }), &[]),
+            (edit_header(&good, |h| h["light_dirs"]["dtype"] = "F32".into()), &[]),
+        ];
+        for (bytes, needles) in cases {
+            let e = decode_btf(&bytes).expect_err("must be refused").to_string();
+            for n in needles {
+                assert!(e.contains(n), "`{e}` should mention `{n}`");
+            }
+        }
+        // A NaN value names its texel, light, view and channel.
+        let mut b = good.clone();
+        let n = u64::from_le_bytes(b[..8].try_into().expect("8")) as usize;
+        // light_dirs and view_dirs (F64, 4 x 3 each) come first, then reflectance.
+        let at = 8 + n + 2 * 4 * 3 * 8 + (((1 * 4 + 2) * 4 + 3) * 3 + 1) * 4;
+        b[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+        let e = decode_btf(&b).expect_err("NaN").to_string();
+        assert!(e.contains("texel 1, light 2, view 3, channel 1") && e.contains("not finite"), "{e}");
+        // A direction below the horizon.
+        let mut b = good.clone();
+        let at = 8 + n + 3 * 8 * 3 + 2 * 8; // light_dirs[3].z
+        b[at..at + 8].copy_from_slice(&(-0.5f64).to_le_bytes());
+        let e = decode_btf(&b).expect_err("below horizon").to_string();
+        assert!(e.contains("light_dirs[3]") && e.contains("z > 0"), "{e}");
+        // Too large for F16.
+        let mut big = small().data().to_vec();
+        big[5] = 1e6;
+        let dirs = small().light_dirs().to_vec();
+        let b = Btf::new("t".into(), "".into(), 2, 3, dirs.clone(), dirs, big).expect("valid");
+        assert!(encode_btf(&b, BtfPrecision::F16).is_err());
+        assert_eq!(best_precision(&b), BtfPrecision::F32);
+    }
+}

@@ -1,0 +1,1 @@
+//! residual (in progress)

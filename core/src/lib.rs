@@ -7,6 +7,8 @@
 
 pub mod atomic;
 pub mod brdf;
+pub mod btf;
+pub mod fit;
 pub mod image;
 pub mod metrics;
 pub mod render;

@@ -3,10 +3,13 @@
 //! `--json` prints exactly one JSON object on stdout.
 
 mod brdf_cmd;
+mod btf_cmd;
 mod compare_cmd;
 mod failure;
+mod fit_cmd;
 mod pack_cmd;
 mod plot;
+mod progress;
 mod render_cmd;
 mod report_cmd;
 mod svg_chart;
@@ -37,6 +40,13 @@ enum Command {
     },
     /// Image error of B against the reference A: RMSE, PSNR, MSSIM, largest pixel error.
     Compare(compare_cmd::CompareArgs),
+    /// Bidirectional texture functions (.btf): synthesize, import, summarise, slice.
+    Btf {
+        #[command(subcommand)]
+        command: btf_cmd::BtfCommand,
+    },
+    /// Fit an SPMM pack to a BTF (clusters, dictionaries, sparse weights, PCA residual).
+    Fit(fit_cmd::FitArgs),
     /// Progressive render of a scene file (spmm mode) to EXR or PNG.
     Render(render_cmd::RenderArgs),
     /// Reports: speed against error of the render modes.
@@ -58,6 +68,8 @@ fn main() -> ExitCode {
     };
     let result = match cli.command {
         Command::Brdf { command } => brdf_cmd::run(command),
+        Command::Btf { command } => btf_cmd::run(command),
+        Command::Fit(args) => fit_cmd::run(&args),
         Command::Compare(args) => compare_cmd::run(&args),
         Command::Pack { command } => pack_cmd::run(command),
         Command::Render(args) => render_cmd::run(&args),

@@ -1,0 +1,120 @@
+//! `meso fit IN.btf -o OUT.spmm`: fit an SPMM pack to a BTF (core::fit), print the
+//! fit report (text, or one JSON object with --json), optionally save it as JSON.
+//! Ctrl-C stops between work items and leaves no output file.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::anyhow;
+use clap::Args;
+use meso_core::fit::{self, FitError, FitSettings};
+use meso_core::spmm::pack::{self, ResidualPrecision};
+
+use crate::failure::{CliError, ResultExt};
+use crate::progress::{ProgressLine, cancel_flag};
+
+#[derive(Args, Debug)]
+pub struct FitArgs {
+    /// The BTF to fit (.btf).
+    input: PathBuf,
+    #[arg(short = 'o', long)]
+    output: PathBuf,
+    /// Texel clusters (k-means).
+    #[arg(long, default_value_t = 32)]
+    clusters: usize,
+    /// Representatives per cluster (sub-clusters).
+    #[arg(long, default_value_t = 8)]
+    subclusters: usize,
+    /// Non-zero weights per texel at most.
+    #[arg(long, default_value_t = 9)]
+    max_bases: usize,
+    /// Principal components of the residual per cluster (0: mean only).
+    #[arg(long, default_value_t = 8)]
+    npca: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Name of the material (default: the BTF's).
+    #[arg(long)]
+    name: Option<String>,
+    /// Write the report as JSON here as well.
+    #[arg(long)]
+    report: Option<PathBuf>,
+    /// Store the residual tables as f32 (default f16).
+    #[arg(long)]
+    f32: bool,
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(args: &FitArgs) -> Result<(), CliError> {
+    let btf = crate::btf_cmd::load(&args.input)?;
+    let settings = FitSettings {
+        clusters: args.clusters,
+        subclusters: args.subclusters,
+        max_bases: args.max_bases,
+        npca: args.npca,
+        seed: args.seed,
+        ..FitSettings::default()
+    };
+    let name = args.name.clone().unwrap_or_else(|| btf.name().to_string());
+    let provenance = format!(
+        "meso fit {} --clusters {} --subclusters {} --max-bases {} --npca {} --seed {}",
+        file_name(&args.input),
+        args.clusters,
+        args.subclusters,
+        args.max_bases,
+        args.npca,
+        args.seed
+    );
+    let bar = ProgressLine::new();
+    let result = fit::fit_btf(
+        &btf,
+        &name,
+        &provenance,
+        &settings,
+        cancel_flag(),
+        &|s, d, n| bar.update(s.name(), d, n),
+    );
+    bar.finish();
+    let mut out = match result {
+        Ok(o) => o,
+        Err(FitError::Cancelled) => {
+            return Err(CliError::failure(anyhow!(
+                "cancelled (Ctrl-C); `{}` was not written",
+                args.output.display()
+            )));
+        }
+        Err(e @ FitError::Setting { .. }) => return Err(CliError::bad_input(e)),
+        Err(e) => return Err(CliError::failure(e)),
+    };
+    let precision = if args.f32 {
+        ResidualPrecision::F32
+    } else {
+        ResidualPrecision::F16
+    };
+    let bytes = pack::encode_pack(&out.material, precision);
+    out.report.set_pack_bytes(bytes.len() as u64);
+    meso_core::atomic::write_bytes_atomic(&args.output, &bytes)
+        .failure_ctx(|| format!("writing `{}`", args.output.display()))?;
+    let report_json = serde_json::to_value(&out.report)
+        .map_err(|e| CliError::failure(anyhow!("cannot encode the report: {e}")))?;
+    if let Some(path) = &args.report {
+        let text = serde_json::to_string_pretty(&report_json)
+            .map_err(|e| CliError::failure(anyhow!("cannot encode the report: {e}")))?;
+        meso_core::atomic::write_bytes_atomic(path, text.as_bytes())
+            .failure_ctx(|| format!("writing `{}`", path.display()))?;
+    }
+    if args.json {
+        let mut v = report_json;
+        v["output"] = args.output.display().to_string().into();
+        return crate::print_json(&v);
+    }
+    print!("{}", out.report.to_text());
+    println!("wrote {}", args.output.display());
+    Ok(())
+}
+
+fn file_name(p: &Path) -> String {
+    p.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}

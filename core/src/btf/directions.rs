@@ -1,0 +1,73 @@
+//! Direction sets of a BTF: the Bonn/UBO 81-direction layout of the University of
+//! Bonn BTF database (Sattler, Sarlette and Klein 2003; the "UBO2003" samples that
+//! Wu et al. 2011 fitted and Silva & Santos 2013 rendered: 81 x 81 directions) and
+//! custom ring layouts. A ring layout puts `count` directions at polar angle
+//! `theta_deg`, azimuths `360 k / count` degrees, k = 0 .. count - 1.
+
+use glam::DVec3;
+
+use crate::brdf::warp;
+
+/// The Bonn/UBO layout: rings at theta = 0, 15, 30, 45, 60, 75 degrees holding
+/// 1, 6, 12, 18, 20, 24 directions (azimuth steps 360, 60, 30, 20, 18, 15 degrees),
+/// 81 in all, the same set for light and view.
+pub const BONN_RINGS: [(f64, u32); 6] = [
+    (0.0, 1),
+    (15.0, 6),
+    (30.0, 12),
+    (45.0, 18),
+    (60.0, 20),
+    (75.0, 24),
+];
+
+/// Unit direction (tangent frame, z up) of polar angle `theta_deg` and azimuth
+/// `phi_deg`, both in degrees.
+pub fn from_angles_deg(theta_deg: f64, phi_deg: f64) -> DVec3 {
+    let d = warp::spherical(theta_deg.to_radians().cos(), phi_deg.to_radians());
+    // The pole is exact (0, 0, 1) whatever the azimuth.
+    if theta_deg == 0.0 { DVec3::Z } else { d }
+}
+
+/// Directions of a ring layout, ring by ring, azimuth increasing.
+pub fn rings(layout: &[(f64, u32)]) -> Vec<DVec3> {
+    let mut dirs = Vec::new();
+    for &(theta, count) in layout {
+        for k in 0..count {
+            dirs.push(from_angles_deg(theta, 360.0 * k as f64 / count as f64));
+        }
+    }
+    dirs
+}
+
+/// The 81 Bonn/UBO directions in the database's order (ring by ring, azimuth increasing).
+pub fn bonn81() -> Vec<DVec3> {
+    rings(&BONN_RINGS)
+}
+
+/// (theta, phi) in degrees of a unit direction, phi in [0, 360).
+pub fn to_angles_deg(d: DVec3) -> (f64, f64) {
+    let theta = d.z.clamp(-1.0, 1.0).acos().to_degrees();
+    let phi = d.y.atan2(d.x).to_degrees().rem_euclid(360.0);
+    (theta, phi)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bonn_layout_has_81_distinct_upper_directions() {
+        let d = bonn81();
+        assert_eq!(d.len(), 81);
+        assert_eq!(d[0], DVec3::Z);
+        for (i, a) in d.iter().enumerate() {
+            assert!((a.length() - 1.0).abs() < 1e-12 && a.z > 0.2);
+            for b in &d[..i] {
+                assert!(a.distance(*b) > 0.05);
+            }
+        }
+        // Ring 45 deg, k = 3: phi = 60 deg.
+        let (t, p) = to_angles_deg(d[1 + 6 + 12 + 3]);
+        assert!((t - 45.0).abs() < 1e-9 && (p - 60.0).abs() < 1e-9);
+    }
+}

@@ -1,0 +1,441 @@
+//! The `.btf` file: a BTF in the safetensors container (like the `.spmm` pack) with
+//! metadata `format = "meso-btf"`, `version = "1"` and three tensors, specified in
+//! docs/formats/btf.md. Reading checks the container against the real file size,
+//! then every metadata key, tensor name, dtype and shape, then the values (via
+//! `Btf::new`); writing emits a deterministic header and goes through `write_atomic`.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+use safetensors::{Dtype, SafeTensors};
+use serde_json::json;
+
+use super::{Btf, BtfError};
+use crate::atomic::{AtomicWriteError, write_bytes_atomic};
+
+pub const FORMAT: &str = "meso-btf";
+pub const VERSION: &str = "1";
+/// Files larger than this are refused before reading.
+pub const MAX_FILE_BYTES: u64 = 8 << 30;
+/// Largest magnitude an f16 holds; larger values force F32 storage.
+const F16_MAX: f32 = 65504.0;
+
+/// Precision of the reflectance tensor on disk.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BtfPrecision {
+    /// Half the size; relative rounding 2^-11 (about 5e-4), enough for 8-16 bit captures.
+    F16,
+    F32,
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error("`{}`: {kind}", path.display())]
+pub struct BtfFileError {
+    pub path: PathBuf,
+    pub kind: BtfFileErrorKind,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum BtfFileErrorKind {
+    #[error("cannot read: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("file is {0} bytes, more than the {MAX_FILE_BYTES} a .btf may have")]
+    TooLarge(u64),
+    #[error("not a valid safetensors container: {0}")]
+    Container(String),
+    #[error("metadata `{key}`: {problem}")]
+    Metadata { key: &'static str, problem: String },
+    #[error("tensor `{0}` is missing")]
+    MissingTensor(&'static str),
+    #[error("tensor `{0}` is not part of .btf format version 1")]
+    UnknownTensor(String),
+    #[error("tensor `{name}` has dtype {found}, expected {expected}")]
+    Dtype {
+        name: &'static str,
+        found: String,
+        expected: &'static str,
+    },
+    #[error("tensor `{name}` has shape {found:?}, expected {expected}")]
+    Shape {
+        name: &'static str,
+        found: Vec<usize>,
+        expected: String,
+    },
+    #[error(
+        "values {precision:?} cannot hold reflectance[{index}] = {value} (F16 holds magnitudes up to 65504)"
+    )]
+    Precision {
+        precision: BtfPrecision,
+        index: usize,
+        value: f32,
+    },
+    #[error("tensor {0}")]
+    Btf(#[from] BtfError),
+    #[error("cannot write: {0}")]
+    Write(#[from] AtomicWriteError),
+}
+
+/// Reads and validates a `.btf` file.
+pub fn read_btf(path: &Path) -> Result<Btf, BtfFileError> {
+    let at = |kind| BtfFileError {
+        path: path.to_path_buf(),
+        kind,
+    };
+    let len = std::fs::metadata(path).map_err(|e| at(e.into()))?.len();
+    if len > MAX_FILE_BYTES {
+        return Err(at(BtfFileErrorKind::TooLarge(len)));
+    }
+    let bytes = std::fs::read(path).map_err(|e| at(e.into()))?;
+    decode_btf(&bytes).map_err(at)
+}
+
+/// Writes a `.btf` atomically; F16 is refused when a value exceeds its range.
+pub fn write_btf(path: &Path, btf: &Btf, precision: BtfPrecision) -> Result<(), BtfFileError> {
+    let at = |kind| BtfFileError {
+        path: path.to_path_buf(),
+        kind,
+    };
+    let bytes = encode_btf(btf, precision).map_err(at)?;
+    write_bytes_atomic(path, &bytes).map_err(|e| at(e.into()))
+}
+
+/// The precision to store `btf` in: F16 when every value fits, else F32.
+pub fn best_precision(btf: &Btf) -> BtfPrecision {
+    if btf.data().iter().all(|x| x.abs() <= F16_MAX) {
+        BtfPrecision::F16
+    } else {
+        BtfPrecision::F32
+    }
+}
+
+fn dir_bytes(d: &[DVec3]) -> Vec<u8> {
+    d.iter()
+        .flat_map(|v| v.to_array())
+        .flat_map(f64::to_le_bytes)
+        .collect()
+}
+
+/// Serialises a BTF: header with sorted keys, data in the order of decreasing element
+/// size then name (every tensor aligned to its element size).
+pub fn encode_btf(btf: &Btf, precision: BtfPrecision) -> Result<Vec<u8>, BtfFileErrorKind> {
+    let (l, v) = (btf.light_dirs().len(), btf.view_dirs().len());
+    let (w, h) = (btf.width() as usize, btf.height() as usize);
+    let values = match precision {
+        BtfPrecision::F32 => btf.data().iter().flat_map(|x| x.to_le_bytes()).collect(),
+        BtfPrecision::F16 => {
+            if let Some(index) = btf.data().iter().position(|x| x.abs() > F16_MAX) {
+                return Err(BtfFileErrorKind::Precision {
+                    precision,
+                    index,
+                    value: btf.data()[index],
+                });
+            }
+            btf.data()
+                .iter()
+                .flat_map(|&x| half::f16::from_f32(x).to_le_bytes())
+                .collect::<Vec<u8>>()
+        }
+    };
+    let (dtype, elem) = match precision {
+        BtfPrecision::F16 => ("F16", 2),
+        BtfPrecision::F32 => ("F32", 4),
+    };
+    let mut tensors: BTreeMap<&str, (&str, usize, Vec<usize>, Vec<u8>)> = BTreeMap::new();
+    tensors.insert(
+        "light_dirs",
+        ("F64", 8, vec![l, 3], dir_bytes(btf.light_dirs())),
+    );
+    tensors.insert(
+        "view_dirs",
+        ("F64", 8, vec![v, 3], dir_bytes(btf.view_dirs())),
+    );
+    tensors.insert("reflectance", (dtype, elem, vec![h, w, l, v, 3], values));
+    let mut order: Vec<&str> = tensors.keys().copied().collect();
+    order.sort_by_key(|n| (std::cmp::Reverse(tensors[n].1), *n));
+    let mut header = serde_json::Map::new();
+    header.insert(
+        "__metadata__".into(),
+        json!({
+            "format": FORMAT,
+            "version": VERSION,
+            "name": btf.name(),
+            "provenance": btf.provenance(),
+            "width": btf.width().to_string(),
+            "height": btf.height().to_string(),
+        }),
+    );
+    let mut offset = 0usize;
+    for n in &order {
+        let t = &tensors[n];
+        header.insert(
+            n.to_string(),
+            json!({"dtype": t.0, "shape": t.2, "data_offsets": [offset, offset + t.3.len()]}),
+        );
+        offset += t.3.len();
+    }
+    let mut header_bytes = serde_json::to_vec(&serde_json::Value::Object(header))
+        .expect("a JSON map always serialises");
+    while !header_bytes.len().is_multiple_of(8) {
+        header_bytes.push(b' ');
+    }
+    let mut out = Vec::with_capacity(8 + header_bytes.len() + offset);
+    out.extend_from_slice(&(header_bytes.len() as u64).to_le_bytes());
+    out.extend_from_slice(&header_bytes);
+    for n in &order {
+        out.extend_from_slice(&tensors[n].3);
+    }
+    Ok(out)
+}
+
+fn dtype_name(d: Dtype) -> String {
+    format!("{d:?}")
+}
+
+fn meta_count(
+    meta: &std::collections::HashMap<String, String>,
+    key: &'static str,
+) -> Result<u32, BtfFileErrorKind> {
+    let raw = meta.get(key).ok_or(BtfFileErrorKind::Metadata {
+        key,
+        problem: "missing".into(),
+    })?;
+    let v: u32 = raw.parse().map_err(|_| BtfFileErrorKind::Metadata {
+        key,
+        problem: format!("`{raw}` is not a count"),
+    })?;
+    if !(1..=super::MAX_SIDE).contains(&v) {
+        return Err(BtfFileErrorKind::Metadata {
+            key,
+            problem: format!("{v} is outside 1..={}", super::MAX_SIDE),
+        });
+    }
+    Ok(v)
+}
+
+fn directions(st: &SafeTensors, name: &'static str) -> Result<Vec<DVec3>, BtfFileErrorKind> {
+    let t = st
+        .tensor(name)
+        .map_err(|_| BtfFileErrorKind::MissingTensor(name))?;
+    if t.dtype() != Dtype::F64 {
+        return Err(BtfFileErrorKind::Dtype {
+            name,
+            found: dtype_name(t.dtype()),
+            expected: "F64",
+        });
+    }
+    if t.shape().len() != 2 || t.shape()[1] != 3 {
+        return Err(BtfFileErrorKind::Shape {
+            name,
+            found: t.shape().to_vec(),
+            expected: "[N, 3]".into(),
+        });
+    }
+    Ok(t.data()
+        .chunks_exact(24)
+        .map(|c| {
+            let f = |k: usize| f64::from_le_bytes(c[k * 8..k * 8 + 8].try_into().expect("8 bytes"));
+            DVec3::new(f(0), f(1), f(2))
+        })
+        .collect())
+}
+
+/// Parses and validates `.btf` bytes (see `read_btf`).
+pub fn decode_btf(bytes: &[u8]) -> Result<Btf, BtfFileErrorKind> {
+    let (_, header) = SafeTensors::read_metadata(bytes)
+        .map_err(|e| BtfFileErrorKind::Container(e.to_string()))?;
+    let st =
+        SafeTensors::deserialize(bytes).map_err(|e| BtfFileErrorKind::Container(e.to_string()))?;
+    let meta = header.metadata().clone().unwrap_or_default();
+    let text = |key: &'static str| {
+        meta.get(key).cloned().ok_or(BtfFileErrorKind::Metadata {
+            key,
+            problem: "missing".into(),
+        })
+    };
+    let format = text("format")?;
+    if format != FORMAT {
+        return Err(BtfFileErrorKind::Metadata {
+            key: "format",
+            problem: format!("`{format}`, expected `{FORMAT}`"),
+        });
+    }
+    let version = text("version")?;
+    if version != VERSION {
+        return Err(BtfFileErrorKind::Metadata {
+            key: "version",
+            problem: format!("`{version}`, this build reads `{VERSION}`"),
+        });
+    }
+    let name = text("name")?;
+    let provenance = text("provenance")?;
+    let width = meta_count(&meta, "width")?;
+    let height = meta_count(&meta, "height")?;
+    for n in st.names() {
+        if !["light_dirs", "view_dirs", "reflectance"].contains(&n) {
+            return Err(BtfFileErrorKind::UnknownTensor(n.to_string()));
+        }
+    }
+    let light_dirs = directions(&st, "light_dirs")?;
+    let view_dirs = directions(&st, "view_dirs")?;
+    let t = st
+        .tensor("reflectance")
+        .map_err(|_| BtfFileErrorKind::MissingTensor("reflectance"))?;
+    let expected = [
+        height as usize,
+        width as usize,
+        light_dirs.len(),
+        view_dirs.len(),
+        3,
+    ];
+    if t.shape() != expected {
+        return Err(BtfFileErrorKind::Shape {
+            name: "reflectance",
+            found: t.shape().to_vec(),
+            expected: format!("{expected:?} (height, width, lights, views, rgb)"),
+        });
+    }
+    let data: Vec<f32> = match t.dtype() {
+        Dtype::F16 => t
+            .data()
+            .chunks_exact(2)
+            .map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32())
+            .collect(),
+        Dtype::F32 => t
+            .data()
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect(),
+        other => {
+            return Err(BtfFileErrorKind::Dtype {
+                name: "reflectance",
+                found: dtype_name(other),
+                expected: "F16 or F32",
+            });
+        }
+    };
+    Ok(Btf::new(
+        name, provenance, width, height, light_dirs, view_dirs, data,
+    )?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::btf::directions;
+
+    fn small() -> Btf {
+        let dirs = directions::rings(&[(0.0, 1), (45.0, 3)]);
+        let data: Vec<f32> = (0..2 * 3 * 16 * 3).map(|i| i as f32 * 0.25).collect();
+        Btf::new("t".into(), "test".into(), 2, 3, dirs.clone(), dirs, data).expect("valid")
+    }
+
+    /// Rewrites the header JSON of `bytes` with `edit` (offsets unchanged).
+    fn edit_header(bytes: &[u8], edit: impl Fn(&mut serde_json::Value)) -> Vec<u8> {
+        let n = u64::from_le_bytes(bytes[..8].try_into().expect("8")) as usize;
+        let mut h: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).expect("json");
+        edit(&mut h);
+        let mut hb = serde_json::to_vec(&h).expect("json");
+        while !hb.len().is_multiple_of(8) {
+            hb.push(b' ');
+        }
+        let mut out = (hb.len() as u64).to_le_bytes().to_vec();
+        out.extend(hb);
+        out.extend_from_slice(&bytes[8 + n..]);
+        out
+    }
+
+    #[test]
+    fn round_trip_is_exact_and_deterministic() {
+        let b = small();
+        for p in [BtfPrecision::F32, BtfPrecision::F16] {
+            let bytes = encode_btf(&b, p).expect("encode");
+            // Quarter steps up to 71.75 are exact in f16.
+            assert_eq!(decode_btf(&bytes).expect("decode"), b);
+            assert_eq!(
+                encode_btf(&decode_btf(&bytes).expect("decode"), p).expect("encode"),
+                bytes
+            );
+        }
+        let dir = tempfile::tempdir().expect("dir");
+        let path = dir.path().join("a.btf");
+        write_btf(&path, &b, best_precision(&b)).expect("write");
+        assert_eq!(read_btf(&path).expect("read"), b);
+        assert_eq!(best_precision(&b), BtfPrecision::F16);
+    }
+
+    #[test]
+    fn corrupt_files_are_refused_with_the_place_named() {
+        let good = encode_btf(&small(), BtfPrecision::F32).expect("encode");
+        let cases: Vec<(Vec<u8>, &[&str])> = vec![
+            (good[..good.len() - 4].to_vec(), &["safetensors"]),
+            (b"garbage".to_vec(), &["safetensors"]),
+            (
+                edit_header(&good, |h| h["__metadata__"]["format"] = "meso-spmm".into()),
+                &["format", "meso-spmm"],
+            ),
+            (
+                edit_header(&good, |h| h["__metadata__"]["version"] = "2".into()),
+                &["version", "`2`"],
+            ),
+            (
+                edit_header(&good, |h| h["__metadata__"]["width"] = "3".into()),
+                &["reflectance", "shape", "[3, 3, 4, 4, 3]"],
+            ),
+            (
+                edit_header(&good, |h| h["__metadata__"]["width"] = "0".into()),
+                &["width", "1..="],
+            ),
+            (
+                edit_header(&good, |h| {
+                    h["__metadata__"]
+                        .as_object_mut()
+                        .expect("map")
+                        .remove("name");
+                }),
+                &["`name`", "missing"],
+            ),
+            (
+                edit_header(&good, |h| {
+                    let t = h["light_dirs"].clone();
+                    h.as_object_mut().expect("map").insert("extra".into(), t);
+                }),
+                &[],
+            ),
+            (
+                edit_header(&good, |h| h["light_dirs"]["dtype"] = "F32".into()),
+                &[],
+            ),
+        ];
+        for (bytes, needles) in cases {
+            let e = decode_btf(&bytes).expect_err("must be refused").to_string();
+            for n in needles {
+                assert!(e.contains(n), "`{e}` should mention `{n}`");
+            }
+        }
+        // A NaN value names its texel, light, view and channel.
+        let mut b = good.clone();
+        let n = u64::from_le_bytes(b[..8].try_into().expect("8")) as usize;
+        // light_dirs and view_dirs (F64, 4 x 3 each) come first, then reflectance.
+        let at = 8 + n + 2 * 4 * 3 * 8 + (((1 * 4 + 2) * 4 + 3) * 3 + 1) * 4;
+        b[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+        let e = decode_btf(&b).expect_err("NaN").to_string();
+        assert!(
+            e.contains("texel 1, light 2, view 3, channel 1") && e.contains("not finite"),
+            "{e}"
+        );
+        // A direction below the horizon.
+        let mut b = good.clone();
+        let at = 8 + n + 3 * 8 * 3 + 2 * 8; // light_dirs[3].z
+        b[at..at + 8].copy_from_slice(&(-0.5f64).to_le_bytes());
+        let e = decode_btf(&b).expect_err("below horizon").to_string();
+        assert!(e.contains("light_dirs[3]") && e.contains("z > 0"), "{e}");
+        // Too large for F16.
+        let mut big = small().data().to_vec();
+        big[5] = 1e6;
+        let dirs = small().light_dirs().to_vec();
+        let b = Btf::new("t".into(), "".into(), 2, 3, dirs.clone(), dirs, big).expect("valid");
+        assert!(encode_btf(&b, BtfPrecision::F16).is_err());
+        assert_eq!(best_precision(&b), BtfPrecision::F32);
+    }
+}

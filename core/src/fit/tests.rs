@@ -1,0 +1,295 @@
+use std::sync::atomic::AtomicBool;
+
+use glam::DVec3;
+
+use super::*;
+use crate::brdf::{AnalyticBrdf, BasisFunction, BrdfModel};
+use crate::btf::directions;
+use crate::spmm::{Cluster, SparseWeights, SpmmMaterial};
+
+fn basis(model: BrdfModel, params: &[(&str, f64)], normal: DVec3) -> BasisFunction {
+    BasisFunction::new(
+        AnalyticBrdf::new(model, params).expect("valid"),
+        normal.normalize(),
+    )
+    .expect("valid")
+}
+
+/// A known SPMM without residual: two clusters (left and right half of an 8x8 grid)
+/// of two bases each; in the second, a quarter of the texels use only the diffuse
+/// basis (a Lambertian-only texel in the first would be a third shape, which the
+/// k-means may rightly put with the Oren-Nayar texels).
+fn known_material() -> SpmmMaterial {
+    let a = Cluster {
+        bases: vec![
+            basis(BrdfModel::Lambertian, &[], DVec3::Z),
+            basis(
+                BrdfModel::Ward,
+                &[("ax", 0.2), ("ay", 0.1)],
+                DVec3::new(0.1, 0.0, 1.0),
+            ),
+        ],
+    };
+    let b = Cluster {
+        bases: vec![
+            basis(BrdfModel::OrenNayar, &[("sigma", 0.6)], DVec3::Z),
+            basis(
+                BrdfModel::CookTorrance,
+                &[("m", 0.3), ("f0", 0.5)],
+                DVec3::Z,
+            ),
+        ],
+    };
+    let (w, h) = (8u32, 8u32);
+    let mut texel_cluster = Vec::new();
+    let mut weights = SparseWeights {
+        offsets: vec![0],
+        basis: Vec::new(),
+        rgb: Vec::new(),
+    };
+    for t in 0..(w * h) as usize {
+        let c = u32::from(t % 8 >= 4);
+        texel_cluster.push(c);
+        let s = SampleStream::new(&[11, t as u64]);
+        let diffuse = [
+            0.2 + 0.6 * s.at(0),
+            0.2 + 0.6 * s.at(1),
+            0.2 + 0.6 * s.at(2),
+        ]
+        .map(|x| x as f32);
+        weights.basis.push(0);
+        weights.rgb.push(diffuse);
+        if c == 0 || t % 4 != 0 {
+            let spec = 0.3 + 0.3 * s.at(3);
+            weights.basis.push(1);
+            weights
+                .rgb
+                .push([spec as f32, (spec * 0.9) as f32, (spec * 0.8) as f32]);
+        }
+        weights.offsets.push(weights.basis.len() as u32);
+    }
+    SpmmMaterial::new(
+        "known".into(),
+        "test".into(),
+        w,
+        h,
+        vec![a, b],
+        texel_cluster,
+        weights,
+        None,
+    )
+    .expect("valid")
+}
+
+fn btf_of(m: &SpmmMaterial, dirs: &[DVec3]) -> Btf {
+    let mut data = Vec::new();
+    for t in 0..(m.width() * m.height()) as usize {
+        for wi in dirs {
+            for wo in dirs {
+                let v = m.eval_texel(t, *wi, *wo, false, 0);
+                data.extend([v.x as f32, v.y as f32, v.z as f32]);
+            }
+        }
+    }
+    Btf::new(
+        "b".into(),
+        "".into(),
+        m.width(),
+        m.height(),
+        dirs.to_vec(),
+        dirs.to_vec(),
+        data,
+    )
+    .expect("valid")
+}
+
+fn quiet(_: Stage, _: usize, _: usize) {}
+
+#[test]
+fn fitting_a_known_spmm_recovers_it() {
+    let truth = known_material();
+    let dirs = directions::rings(&[(0.0, 1), (25.0, 6), (50.0, 8), (70.0, 8)]);
+    let btf = btf_of(&truth, &dirs);
+    let settings = FitSettings {
+        clusters: 2,
+        subclusters: 3,
+        max_bases: 4,
+        npca: 0,
+        ..FitSettings::default()
+    };
+    let out = fit_btf(
+        &btf,
+        "fit",
+        "test",
+        &settings,
+        &AtomicBool::new(false),
+        &quiet,
+    )
+    .expect("fit");
+    let r = &out.report;
+    assert!(
+        r.overall.rmse_basis < 0.01 * r.mean_reflectance,
+        "RMSE {} vs mean {}",
+        r.overall.rmse_basis,
+        r.mean_reflectance
+    );
+    // Same non-zero bases: each fitted basis with a weight is identified with the true
+    // basis whose values at the tabulated pairs it correlates with best.
+    let pairs: Vec<(DVec3, DVec3)> = dirs
+        .iter()
+        .flat_map(|a| dirs.iter().map(move |b| (*a, *b)))
+        .collect();
+    let col =
+        |b: &BasisFunction| -> Vec<f64> { pairs.iter().map(|(i, o)| b.eval(*i, *o)).collect() };
+    let cos = |a: &[f64], b: &[f64]| {
+        let d: f64 = a.iter().zip(b).map(|(x, y)| x * y).sum();
+        d / (a.iter().map(|x| x * x).sum::<f64>().sqrt()
+            * b.iter().map(|x| x * x).sum::<f64>().sqrt())
+    };
+    let true_cols: Vec<Vec<Vec<f64>>> = truth
+        .clusters()
+        .iter()
+        .map(|c| c.bases.iter().map(col).collect())
+        .collect();
+    let m = &out.material;
+    let mut same = 0;
+    for t in 0..64 {
+        let tc = truth.texel_cluster()[t] as usize;
+        let mut want: Vec<u16> = truth.texel_weights(t).map(|(j, _)| j).collect();
+        want.sort();
+        let fc = m.texel_cluster()[t] as usize;
+        let mut got: Vec<u16> = m
+            .texel_weights(t)
+            .map(|(j, _)| {
+                let c = col(&m.clusters()[fc].bases[usize::from(j)]);
+                (0..true_cols[tc].len())
+                    .max_by(|&x, &y| {
+                        cos(&c, &true_cols[tc][x]).total_cmp(&cos(&c, &true_cols[tc][y]))
+                    })
+                    .expect("two true bases") as u16
+            })
+            .collect();
+        got.sort();
+        got.dedup();
+        same += usize::from(got == want);
+    }
+    assert!(
+        same >= 58,
+        "{same} of 64 texels have the true non-zero bases"
+    );
+}
+
+fn weave_btf() -> Btf {
+    let text = r#"
+version = 1
+name = "w"
+width = 8
+height = 8
+direction_rings = [[0.0, 1], [40.0, 5], [70.0, 6]]
+detail = 2
+supersample = 1
+[mesostructure]
+kind = "weave"
+depth = 3.0
+threads = 2
+[[region]]
+tangent_deg = 90.0
+[[region.lobe]]
+model = "lambertian"
+weight = [0.5, 0.2, 0.1]
+[[region.lobe]]
+model = "ward"
+params = { ax = 0.1, ay = 0.3 }
+weight = [0.2, 0.2, 0.2]
+[[region]]
+[[region.lobe]]
+model = "oren_nayar"
+params = { sigma = 0.4 }
+weight = [0.3, 0.3, 0.6]
+[[region]]
+[[region.lobe]]
+model = "lambertian"
+weight = [0.05, 0.05, 0.05]
+"#;
+    let setup =
+        crate::btf::synth::parse_recipe(text, std::path::Path::new("."), "t").expect("recipe");
+    crate::btf::synth::synthesize(&setup, &AtomicBool::new(false), &|_, _| {}).expect("synth")
+}
+
+#[test]
+fn full_rank_residual_is_exact_and_error_falls_with_npca() {
+    let btf = weave_btf();
+    let settings = FitSettings {
+        clusters: 3,
+        subclusters: 2,
+        max_bases: 3,
+        npca: 64,
+        fit_pairs: 300,
+        ..FitSettings::default()
+    };
+    let out = fit_btf(&btf, "w", "t", &settings, &AtomicBool::new(false), &quiet).expect("fit");
+    let m = &out.material;
+    let (dl, dv) = (btf.light_dirs(), btf.view_dirs());
+    let rmse = |k: usize, residual: bool| {
+        let mut sse = 0.0;
+        for t in 0..btf.texels() {
+            for (l, wi) in dl.iter().enumerate() {
+                for (v, wo) in dv.iter().enumerate() {
+                    let got = m.eval_texel(t, *wi, *wo, residual, k);
+                    let want = btf.value(t, l, v);
+                    sse += (got.x - f64::from(want[0])).powi(2)
+                        + (got.y - f64::from(want[1])).powi(2)
+                        + (got.z - f64::from(want[2])).powi(2);
+                }
+            }
+        }
+        (sse / btf.data().len() as f64).sqrt()
+    };
+    let mean = btf.mean_value();
+    let full = rmse(64, true);
+    assert!(full < 1e-5 * mean, "full rank RMSE {full} vs mean {mean}");
+    let mut prev = rmse(0, false);
+    for k in [0, 1, 2, 4, 8, 16, 64] {
+        let e = rmse(k, true);
+        assert!(e <= prev * (1.0 + 1e-6), "N_PCA {k}: {e} after {prev}");
+        prev = e;
+    }
+    // The report's closed form agrees with the evaluated material.
+    for (k, e) in &out.report.overall.rmse_npca {
+        let direct = rmse(*k, true);
+        assert!(
+            (e - direct).abs() <= 1e-4 * mean + 1e-3 * direct,
+            "N_PCA {k}: report {e}, direct {direct}"
+        );
+    }
+    assert!((out.report.overall.rmse_basis - rmse(0, false)).abs() <= 1e-4 * mean);
+}
+
+#[test]
+fn fits_are_deterministic_and_cancellable() {
+    let btf = weave_btf();
+    let settings = FitSettings {
+        clusters: 2,
+        subclusters: 2,
+        max_bases: 3,
+        npca: 2,
+        fit_pairs: 200,
+        seed: 5,
+        ..FitSettings::default()
+    };
+    let a = fit_btf(&btf, "w", "t", &settings, &AtomicBool::new(false), &quiet).expect("fit");
+    let b = fit_btf(&btf, "w", "t", &settings, &AtomicBool::new(false), &quiet).expect("fit");
+    assert_eq!(a.material, b.material);
+    assert!(matches!(
+        fit_btf(&btf, "w", "t", &settings, &AtomicBool::new(true), &quiet),
+        Err(FitError::Cancelled)
+    ));
+    let bad = FitSettings {
+        clusters: 0,
+        ..settings
+    };
+    let e = fit_btf(&btf, "w", "t", &bad, &AtomicBool::new(false), &quiet)
+        .err()
+        .expect("refused");
+    assert!(e.to_string().contains("--clusters"), "{e}");
+}

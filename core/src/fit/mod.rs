@@ -141,6 +141,7 @@ pub fn fit_btf(
     check("subclusters", settings.subclusters, 1, 64, "must be in 1..=64")?;
     check("max-bases", settings.max_bases, 1, 64, "must be in 1..=64")?;
     check("npca", settings.npca, 0, 256, "must be in 0..=256")?;
+    check("fit-pairs", settings.fit_pairs, 16, usize::MAX, "must be at least 16")?;
     let cancelled = || cancel.load(Ordering::Relaxed);
     let t_all = Instant::now();
     let texels = btf.texels();

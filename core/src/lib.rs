@@ -7,11 +7,11 @@
 
 pub mod atomic;
 pub mod brdf;
+pub mod btf;
+pub mod fit;
 pub mod image;
 pub mod metrics;
 pub mod rng;
 pub mod scene;
 pub mod spmm;
 pub mod trace;
-pub mod btf;
-pub mod fit;

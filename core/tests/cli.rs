@@ -616,24 +616,52 @@ fn btf_synth_info_fit_and_slice() {
     let recipe = dir.path().join("weave.toml");
     std::fs::write(&recipe, SMALL_BTF_RECIPE).expect("write recipe");
     let btf = dir.path().join("weave.btf");
-    let (r, b) = (recipe.to_str().expect("utf-8"), btf.to_str().expect("utf-8"));
+    let (r, b) = (
+        recipe.to_str().expect("utf-8"),
+        btf.to_str().expect("utf-8"),
+    );
     let o = meso(&["btf", "synth", r, "-o", b, "--json"], "");
-    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("one JSON object");
     assert_eq!(v["lights"], 9);
     let o = meso(&["btf", "info", b, "--json"], "");
     assert_eq!(o.status.code(), Some(0));
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
-    assert_eq!((v["width"].as_u64(), v["view_dirs_deg"][5][0].as_f64()), (Some(6), Some(70.0)));
+    assert_eq!(
+        (v["width"].as_u64(), v["view_dirs_deg"][5][0].as_f64()),
+        (Some(6), Some(70.0))
+    );
 
     let pack = dir.path().join("weave.spmm");
     let report = dir.path().join("report.json");
     let p = pack.to_str().expect("utf-8");
-    let args = ["fit", b, "-o", p, "--clusters", "2", "--subclusters", "2", "--npca", "3", "--json"];
+    let args = [
+        "fit",
+        b,
+        "-o",
+        p,
+        "--clusters",
+        "2",
+        "--subclusters",
+        "2",
+        "--npca",
+        "3",
+        "--json",
+    ];
     let mut with_report = args.to_vec();
     with_report.extend(["--report", report.to_str().expect("utf-8")]);
     let o = meso(&with_report, "");
-    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("one JSON object");
     let rows = v["overall"]["rmse_npca"].as_array().expect("rows");
     assert_eq!(rows.len(), 4); // N_PCA 0, 1, 2 and 3
@@ -652,10 +680,27 @@ fn btf_synth_info_fit_and_slice() {
 
     let png = dir.path().join("slice.png");
     let o = meso(
-        &["btf", "slice", b, "-o", png.to_str().expect("utf-8"), "--light", "45,0", "--view", "0,0", "--pack", p],
+        &[
+            "btf",
+            "slice",
+            b,
+            "-o",
+            png.to_str().expect("utf-8"),
+            "--light",
+            "45,0",
+            "--view",
+            "0,0",
+            "--pack",
+            p,
+        ],
         "",
     );
-    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     assert!(std::fs::metadata(&png).expect("png").len() > 0);
 }
 
@@ -663,18 +708,57 @@ fn btf_synth_info_fit_and_slice() {
 fn btf_and_fit_bad_input_is_named() {
     let dir = tempfile::tempdir().expect("temp dir");
     let recipe = dir.path().join("bad.toml");
-    std::fs::write(&recipe, SMALL_BTF_RECIPE.replace("threads = 2", "thread = 2")).expect("write");
+    std::fs::write(
+        &recipe,
+        SMALL_BTF_RECIPE.replace("threads = 2", "thread = 2"),
+    )
+    .expect("write");
     let out = dir.path().join("x.btf");
-    let (r, x) = (recipe.to_str().expect("utf-8"), out.to_str().expect("utf-8"));
-    assert_bad_input(&meso(&["btf", "synth", r, "-o", x], ""), &["bad.toml", "thread", "line"]);
+    let (r, x) = (
+        recipe.to_str().expect("utf-8"),
+        out.to_str().expect("utf-8"),
+    );
+    assert_bad_input(
+        &meso(&["btf", "synth", r, "-o", x], ""),
+        &["bad.toml", "thread", "line"],
+    );
     assert!(!out.exists());
     assert_bad_input(&meso(&["btf", "info", "missing.btf"], ""), &["missing.btf"]);
     std::fs::write(&out, b"not a btf").expect("write");
-    assert_bad_input(&meso(&["fit", x, "-o", "y.spmm"], ""), &["x.btf", "safetensors"]);
-    assert_bad_input(&meso(&["btf", "import", dir.path().to_str().expect("utf-8"), "-o", x], ""), &["directions.csv"]);
+    assert_bad_input(
+        &meso(&["fit", x, "-o", "y.spmm"], ""),
+        &["x.btf", "safetensors"],
+    );
+    assert_bad_input(
+        &meso(
+            &[
+                "btf",
+                "import",
+                dir.path().to_str().expect("utf-8"),
+                "-o",
+                x,
+            ],
+            "",
+        ),
+        &["directions.csv"],
+    );
     // A valid BTF with a bad setting.
     std::fs::write(&recipe, SMALL_BTF_RECIPE).expect("write");
-    assert_eq!(meso(&["btf", "synth", r, "-o", x], "").status.code(), Some(0));
-    assert_bad_input(&meso(&["fit", x, "-o", "y.spmm", "--clusters", "0"], ""), &["--clusters"]);
-    assert_bad_input(&meso(&["btf", "slice", x, "-o", "s.png", "--light", "95,0", "--view", "0,0"], ""), &["--light"]);
+    assert_eq!(
+        meso(&["btf", "synth", r, "-o", x], "").status.code(),
+        Some(0)
+    );
+    assert_bad_input(
+        &meso(&["fit", x, "-o", "y.spmm", "--clusters", "0"], ""),
+        &["--clusters"],
+    );
+    assert_bad_input(
+        &meso(
+            &[
+                "btf", "slice", x, "-o", "s.png", "--light", "95,0", "--view", "0,0",
+            ],
+            "",
+        ),
+        &["--light"],
+    );
 }

@@ -62,7 +62,9 @@ pub enum BtfFileErrorKind {
         found: Vec<usize>,
         expected: String,
     },
-    #[error("values {precision:?} cannot hold reflectance[{index}] = {value} (F16 holds magnitudes up to 65504)")]
+    #[error(
+        "values {precision:?} cannot hold reflectance[{index}] = {value} (F16 holds magnitudes up to 65504)"
+    )]
     Precision {
         precision: BtfPrecision,
         index: usize,
@@ -139,7 +141,9 @@ pub fn encode_btf(btf: &Btf, precision: BtfPrecision) -> Result<Vec<u8>, BtfFile
         BtfPrecision::F16 => ("F16", 2),
         BtfPrecision::F32 => ("F32", 4),
     };
-    let mut tensors: BTreeMap<&str, (&str, usize, Vec<usize>, Vec<u8>)> = BTreeMap::new();
+    // name -> (dtype, element bytes, shape, data)
+    type Entry<'a> = (&'a str, usize, Vec<usize>, Vec<u8>);
+    let mut tensors: BTreeMap<&str, Entry> = BTreeMap::new();
     tensors.insert(
         "light_dirs",
         ("F64", 8, vec![l, 3], dir_bytes(btf.light_dirs())),
@@ -242,8 +246,8 @@ fn directions(st: &SafeTensors, name: &'static str) -> Result<Vec<DVec3>, BtfFil
 pub fn decode_btf(bytes: &[u8]) -> Result<Btf, BtfFileErrorKind> {
     let (_, header) = SafeTensors::read_metadata(bytes)
         .map_err(|e| BtfFileErrorKind::Container(e.to_string()))?;
-    let st = SafeTensors::deserialize(bytes)
-        .map_err(|e| BtfFileErrorKind::Container(e.to_string()))?;
+    let st =
+        SafeTensors::deserialize(bytes).map_err(|e| BtfFileErrorKind::Container(e.to_string()))?;
     let meta = header.metadata().clone().unwrap_or_default();
     let text = |key: &'static str| {
         meta.get(key).cloned().ok_or(BtfFileErrorKind::Metadata {
@@ -350,7 +354,10 @@ mod tests {
             let bytes = encode_btf(&b, p).expect("encode");
             // Quarter steps up to 71.75 are exact in f16.
             assert_eq!(decode_btf(&bytes).expect("decode"), b);
-            assert_eq!(encode_btf(&decode_btf(&bytes).expect("decode"), p).expect("encode"), bytes);
+            assert_eq!(
+                encode_btf(&decode_btf(&bytes).expect("decode"), p).expect("encode"),
+                bytes
+            );
         }
         let dir = tempfile::tempdir().expect("dir");
         let path = dir.path().join("a.btf");
@@ -365,13 +372,42 @@ mod tests {
         let cases: Vec<(Vec<u8>, &[&str])> = vec![
             (good[..good.len() - 4].to_vec(), &["safetensors"]),
             (b"garbage".to_vec(), &["safetensors"]),
-            (edit_header(&good, |h| h["__metadata__"]["format"] = "meso-spmm".into()), &["format", "meso-spmm"]),
-            (edit_header(&good, |h| h["__metadata__"]["version"] = "2".into()), &["version", "`2`"]),
-            (edit_header(&good, |h| h["__metadata__"]["width"] = "3".into()), &["reflectance", "shape", "[3, 3, 4, 4, 3]"]),
-            (edit_header(&good, |h| h["__metadata__"]["width"] = "0".into()), &["width", "1..="]),
-            (edit_header(&good, |h| { h["__metadata__"].as_object_mut().expect("map").remove("name"); }), &["`name`", "missing"]),
-            (edit_header(&good, |h| { let t = h["light_dirs"].clone(); h.as_object_mut().expect("map").insert("extra".into(), t); }), &[]),
-            (edit_header(&good, |h| h["light_dirs"]["dtype"] = "F32".into()), &[]),
+            (
+                edit_header(&good, |h| h["__metadata__"]["format"] = "meso-spmm".into()),
+                &["format", "meso-spmm"],
+            ),
+            (
+                edit_header(&good, |h| h["__metadata__"]["version"] = "2".into()),
+                &["version", "`2`"],
+            ),
+            (
+                edit_header(&good, |h| h["__metadata__"]["width"] = "3".into()),
+                &["reflectance", "shape", "[3, 3, 4, 4, 3]"],
+            ),
+            (
+                edit_header(&good, |h| h["__metadata__"]["width"] = "0".into()),
+                &["width", "1..="],
+            ),
+            (
+                edit_header(&good, |h| {
+                    h["__metadata__"]
+                        .as_object_mut()
+                        .expect("map")
+                        .remove("name");
+                }),
+                &["`name`", "missing"],
+            ),
+            (
+                edit_header(&good, |h| {
+                    let t = h["light_dirs"].clone();
+                    h.as_object_mut().expect("map").insert("extra".into(), t);
+                }),
+                &[],
+            ),
+            (
+                edit_header(&good, |h| h["light_dirs"]["dtype"] = "F32".into()),
+                &[],
+            ),
         ];
         for (bytes, needles) in cases {
             let e = decode_btf(&bytes).expect_err("must be refused").to_string();
@@ -383,10 +419,15 @@ mod tests {
         let mut b = good.clone();
         let n = u64::from_le_bytes(b[..8].try_into().expect("8")) as usize;
         // light_dirs and view_dirs (F64, 4 x 3 each) come first, then reflectance.
-        let at = 8 + n + 2 * 4 * 3 * 8 + (((1 * 4 + 2) * 4 + 3) * 3 + 1) * 4;
+        // Texel 1, light 2, view 3, channel 1 of a 4 x 4 direction table.
+        let texel_1 = 4 * 4 * 3;
+        let at = 8 + n + 2 * 4 * 3 * 8 + (texel_1 + (2 * 4 + 3) * 3 + 1) * 4;
         b[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
         let e = decode_btf(&b).expect_err("NaN").to_string();
-        assert!(e.contains("texel 1, light 2, view 3, channel 1") && e.contains("not finite"), "{e}");
+        assert!(
+            e.contains("texel 1, light 2, view 3, channel 1") && e.contains("not finite"),
+            "{e}"
+        );
         // A direction below the horizon.
         let mut b = good.clone();
         let at = 8 + n + 3 * 8 * 3 + 2 * 8; // light_dirs[3].z

@@ -40,7 +40,9 @@ pub enum ImportErrorKind {
     },
     #[error("the listing names no images")]
     Empty,
-    #[error("{first} and {second} both give light ({theta_i}, {phi_i}) deg with view ({theta_v}, {phi_v}) deg")]
+    #[error(
+        "{first} and {second} both give light ({theta_i}, {phi_i}) deg with view ({theta_v}, {phi_v}) deg"
+    )]
     DuplicatePair {
         first: String,
         second: String,
@@ -136,7 +138,10 @@ fn parse_csv(text: &str) -> Result<Vec<Entry>, ImportErrorKind> {
         if cols.len() != 5 {
             return Err(ImportErrorKind::Csv {
                 line,
-                problem: format!("{} columns, expected 5 (file,theta_i,phi_i,theta_v,phi_v)", cols.len()),
+                problem: format!(
+                    "{} columns, expected 5 (file,theta_i,phi_i,theta_v,phi_v)",
+                    cols.len()
+                ),
             });
         }
         let mut angles = [0.0; 4];
@@ -188,7 +193,10 @@ pub fn import_dir(dir: &Path, name: &str) -> Result<Btf, ImportError> {
         (csv.clone(), parse_csv(&text).map_err(|k| err(&csv, k))?)
     } else if toml_path.exists() {
         let text = std::fs::read_to_string(&toml_path).map_err(|e| err(&toml_path, e.into()))?;
-        (toml_path.clone(), parse_toml(&text).map_err(|k| err(&toml_path, k))?)
+        (
+            toml_path.clone(),
+            parse_toml(&text).map_err(|k| err(&toml_path, k))?,
+        )
     } else {
         return Err(err(dir, ImportErrorKind::NoListing));
     };
@@ -214,8 +222,14 @@ pub fn import_dir(dir: &Path, name: &str) -> Result<Btf, ImportError> {
                 }));
             }
         }
-        let l = index_of(&mut lights, directions::from_angles_deg(e.angles[0], e.angles[1]));
-        let v = index_of(&mut views, directions::from_angles_deg(e.angles[2], e.angles[3]));
+        let l = index_of(
+            &mut lights,
+            directions::from_angles_deg(e.angles[0], e.angles[1]),
+        );
+        let v = index_of(
+            &mut views,
+            directions::from_angles_deg(e.angles[2], e.angles[3]),
+        );
         pairs.push((l, v));
     }
     let (nl, nv) = (lights.len(), views.len());
@@ -371,7 +385,10 @@ mod tests {
             .collect();
         std::fs::remove_file(dir.path().join("directions.csv")).expect("rm");
         std::fs::write(dir.path().join("directions.toml"), toml).expect("write toml");
-        assert_eq!(import_dir(dir.path(), "set").expect("toml import").data(), btf.data());
+        assert_eq!(
+            import_dir(dir.path(), "set").expect("toml import").data(),
+            btf.data()
+        );
     }
 
     #[test]
@@ -380,21 +397,41 @@ mod tests {
         let csv = image_set(dir.path());
         let check = |listing: &str, needles: &[&str]| {
             std::fs::write(dir.path().join("directions.csv"), listing).expect("write");
-            let e = import_dir(dir.path(), "x").expect_err("must fail").to_string();
+            let e = import_dir(dir.path(), "x")
+                .expect_err("must fail")
+                .to_string();
             for n in needles {
                 assert!(e.contains(n), "`{e}` should mention `{n}`");
             }
         };
         // A missing file.
-        check(&csv.replace("l1v1.exr", "gone.exr"), &["line 5", "gone.exr"]);
+        check(
+            &csv.replace("l1v1.exr", "gone.exr"),
+            &["line 5", "gone.exr"],
+        );
         // A missing pair.
         let three: String = csv.lines().take(4).map(|l| format!("{l}\n")).collect();
-        check(&three, &["no image for light (45.00, 90.00)", "4 images are needed, found 3"]);
+        check(
+            &three,
+            &[
+                "no image for light (45.00, 90.00)",
+                "4 images are needed, found 3",
+            ],
+        );
         // A duplicate pair.
-        check(&csv.replace("l1v1.exr,45,90,45,90", "l1v1.exr,45,90,0,0"), &["line 4", "line 5"]);
+        check(
+            &csv.replace("l1v1.exr,45,90,45,90", "l1v1.exr,45,90,0,0"),
+            &["line 4", "line 5"],
+        );
         // A bad angle and a malformed row.
-        check(&csv.replace("l1v1.exr,45,90", "l1v1.exr,95,90"), &["line 5", "theta_i", "[0, 90)"]);
-        check(&csv.replace("l1v1.exr,45,90", "l1v1.exr,4x,90"), &["line 5", "theta_i", "4x"]);
+        check(
+            &csv.replace("l1v1.exr,45,90", "l1v1.exr,95,90"),
+            &["line 5", "theta_i", "[0, 90)"],
+        );
+        check(
+            &csv.replace("l1v1.exr,45,90", "l1v1.exr,4x,90"),
+            &["line 5", "theta_i", "4x"],
+        );
         check("name,a\n", &["line 1", "header"]);
         // A mismatched size.
         write_image(&dir.path().join("l0v1.exr"), &Image::new(4, 2), 0.0).expect("write");
@@ -405,7 +442,9 @@ mod tests {
         write_image(&dir.path().join("l0v1.exr"), &img, 0.0).expect("write");
         check(&csv, &["line 3", "pixel (2, 1) channel 1", "NaN"]);
         std::fs::remove_file(dir.path().join("directions.csv")).expect("rm");
-        let e = import_dir(dir.path(), "x").expect_err("no listing").to_string();
+        let e = import_dir(dir.path(), "x")
+            .expect_err("no listing")
+            .to_string();
         assert!(e.contains("directions.csv"), "{e}");
     }
 }

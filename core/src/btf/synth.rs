@@ -214,12 +214,7 @@ impl Region {
     fn diffuse_albedo(&self) -> DVec3 {
         self.lobes
             .iter()
-            .filter(|l| {
-                matches!(
-                    l.brdf.model(),
-                    BrdfModel::Lambertian | BrdfModel::OrenNayar
-                )
-            })
+            .filter(|l| matches!(l.brdf.model(), BrdfModel::Lambertian | BrdfModel::OrenNayar))
             .map(|l| l.weight)
             .sum()
     }
@@ -398,7 +393,11 @@ pub struct SynthSetup {
     pub regions: Vec<Region>,
 }
 
-fn value_err(key: &'static str, value: impl std::fmt::Display, rule: &'static str) -> SynthErrorKind {
+fn value_err(
+    key: &'static str,
+    value: impl std::fmt::Display,
+    rule: &'static str,
+) -> SynthErrorKind {
     SynthErrorKind::Value {
         key,
         value: value.to_string(),
@@ -468,12 +467,13 @@ pub fn parse_recipe(text: &str, dir: &Path, source: &str) -> Result<SynthSetup, 
     for (ri, reg) in r.regions.iter().enumerate() {
         let mut lobes = Vec::new();
         for (li, lobe) in reg.lobes.iter().enumerate() {
-            let model = BrdfModel::from_name(&lobe.model).map_err(|source| SynthErrorKind::Lobe {
-                region: ri,
-                name: reg.name.clone(),
-                lobe: li,
-                source,
-            })?;
+            let model =
+                BrdfModel::from_name(&lobe.model).map_err(|source| SynthErrorKind::Lobe {
+                    region: ri,
+                    name: reg.name.clone(),
+                    lobe: li,
+                    source,
+                })?;
             let mut named = Vec::new();
             for (k, v) in &lobe.params {
                 let x = v
@@ -523,7 +523,10 @@ pub fn parse_recipe(text: &str, dir: &Path, source: &str) -> Result<SynthSetup, 
     }
     Ok(SynthSetup {
         name: r.name,
-        provenance: format!("meso btf synth {source} (mesostructure {:?})", kind_name(&r.mesostructure)),
+        provenance: format!(
+            "meso btf synth {source} (mesostructure {:?})",
+            kind_name(&r.mesostructure)
+        ),
         width: r.width,
         height: r.height,
         light_dirs: dirs.clone(),
@@ -568,7 +571,11 @@ fn check_unit(key: &'static str, x: f64, max: f64) -> Result<f64, SynthErrorKind
     if x.is_finite() && (0.0..=max).contains(&x) {
         Ok(x)
     } else {
-        Err(value_err(key, x, "must be in the documented range (see docs/formats/btf.md)"))
+        Err(value_err(
+            key,
+            x,
+            "must be in the documented range (see docs/formats/btf.md)",
+        ))
     }
 }
 
@@ -580,7 +587,12 @@ fn profile(s: f64, half: f64) -> f64 {
 
 /// Samples one tile's procedural height (before `depth` scaling) and region at (u, v)
 /// in [0, 1)^2, v up.
-fn procedural(m: &Mesostructure, u: f64, v: f64, seeds: &[DVec2]) -> Result<(f64, u8), SynthErrorKind> {
+fn procedural(
+    m: &Mesostructure,
+    u: f64,
+    v: f64,
+    seeds: &[DVec2],
+) -> Result<(f64, u8), SynthErrorKind> {
     Ok(match m {
         Mesostructure::Flat {} | Mesostructure::Image { .. } => (0.0, 0),
         Mesostructure::Weave { threads, gap, .. } => {
@@ -607,7 +619,10 @@ fn procedural(m: &Mesostructure, u: f64, v: f64, seeds: &[DVec2]) -> Result<(f64
             ((h.0 - floor) / (2.0 * amp + 1.0), h.1)
         }
         Mesostructure::Knit { columns, rows, .. } => {
-            let (nc, nr) = (check_count("columns", *columns)?, check_count("rows", *rows)?);
+            let (nc, nr) = (
+                check_count("columns", *columns)?,
+                check_count("rows", *rows)?,
+            );
             let (cu, cv) = (u * nc, v * nr);
             let x = cu - cu.floor();
             let base_v = cv - cv.floor();
@@ -779,7 +794,13 @@ fn build_field(
             }
         }
     }
-    Ok(HeightField::new(gw, gh, f64::from(detail), heights, regions))
+    Ok(HeightField::new(
+        gw,
+        gh,
+        f64::from(detail),
+        heights,
+        regions,
+    ))
 }
 
 /// The local shading frame of a surface point: the SPMM frame rule around `n`, its
@@ -898,7 +919,8 @@ pub fn synthesize(
                         let key = [setup.seed, t as u64, v as u64, sub as u64];
                         let stream = SampleStream::new(&key);
                         for k in 0..n_gather {
-                            let u = DVec2::new(stream.at(2 * k as u64), stream.at(2 * k as u64 + 1));
+                            let u =
+                                DVec2::new(stream.at(2 * k as u64), stream.at(2 * k as u64 + 1));
                             let wg_local = warp::cosine_hemisphere(u);
                             let wg = frame.to_world(wg_local);
                             if wg.z <= 0.0 {

@@ -148,9 +148,7 @@ fn starts(model: BrdfModel) -> Vec<Vec<f64>> {
         BrdfModel::Lafortune => [2.0, 10.0, 50.0, 300.0]
             .map(|n| vec![-1.0, -1.0, 1.0, n])
             .to_vec(),
-        BrdfModel::AshikhminShirley => [5.0, 30.0, 200.0, 1500.0]
-            .map(|n| vec![n, n, 0.5])
-            .to_vec(),
+        BrdfModel::AshikhminShirley => [5.0, 30.0, 200.0, 1500.0].map(|n| vec![n, n, 0.5]).to_vec(),
     }
 }
 
@@ -320,7 +318,11 @@ fn prune(set: Vec<Candidate>, y: &[f64], pairs: &Pairs) -> Vec<Candidate> {
 /// selection with joint refinement described in the module header, then one pass
 /// that re-chooses each kept basis given the others (a first greedy pick is often a
 /// compromise lobe that a later pick makes unnecessary).
-pub fn fit_representative(y: &[f64], pairs: &Pairs, settings: &DictionarySettings) -> Vec<BasisFunction> {
+pub fn fit_representative(
+    y: &[f64],
+    pairs: &Pairs,
+    settings: &DictionarySettings,
+) -> Vec<BasisFunction> {
     let energy = dot(y, y);
     if energy <= 0.0 {
         return Vec::new();
@@ -358,8 +360,7 @@ pub fn fit_representative(y: &[f64], pairs: &Pairs, settings: &DictionarySetting
 pub fn near_duplicate(a: &BasisFunction, b: &BasisFunction) -> bool {
     a.brdf().model() == b.brdf().model()
         && a.normal().distance(b.normal()) < 1e-3
-        && a
-            .brdf()
+        && a.brdf()
             .param_values()
             .iter()
             .zip(b.brdf().param_values())
@@ -391,37 +392,57 @@ mod tests {
             DVec3::new(0.15, -0.1, 1.0).normalize(),
         )
         .expect("valid");
-        let y: Vec<f64> = p.wi.iter().zip(&p.wo).map(|(a, b)| 0.7 * truth.eval(*a, *b)).collect();
+        let y: Vec<f64> =
+            p.wi.iter()
+                .zip(&p.wo)
+                .map(|(a, b)| 0.7 * truth.eval(*a, *b))
+                .collect();
         let (c, sse) = fit_single(BrdfModel::Ward, &y, &p, 60);
-        assert!(sse < 1e-8 * dot(&y, &y), "relative sse {}", sse / dot(&y, &y));
+        assert!(
+            sse < 1e-8 * dot(&y, &y),
+            "relative sse {}",
+            sse / dot(&y, &y)
+        );
         let got = c.basis();
         let v = got.brdf().param_values();
-        assert!((v[0] - 0.2).abs() < 1e-3 && (v[1] - 0.12).abs() < 1e-3, "{v:?}");
+        assert!(
+            (v[0] - 0.2).abs() < 1e-3 && (v[1] - 0.12).abs() < 1e-3,
+            "{v:?}"
+        );
         assert!(got.normal().distance(truth.normal().normalize()) < 1e-3);
     }
 
     #[test]
     fn a_diffuse_plus_specular_mixture_keeps_two_bases() {
         let p = pairs();
-        let lamb = BasisFunction::new(AnalyticBrdf::with_defaults(BrdfModel::Lambertian), DVec3::Z).expect("valid");
+        let lamb = BasisFunction::new(AnalyticBrdf::with_defaults(BrdfModel::Lambertian), DVec3::Z)
+            .expect("valid");
         let ct = BasisFunction::new(
             AnalyticBrdf::new(BrdfModel::CookTorrance, &[("m", 0.25), ("f0", 0.6)]).expect("valid"),
             DVec3::Z,
         )
         .expect("valid");
-        let y: Vec<f64> = p
-            .wi
-            .iter()
-            .zip(&p.wo)
-            .map(|(a, b)| 0.5 * lamb.eval(*a, *b) + 0.3 * ct.eval(*a, *b))
-            .collect();
+        let y: Vec<f64> =
+            p.wi.iter()
+                .zip(&p.wo)
+                .map(|(a, b)| 0.5 * lamb.eval(*a, *b) + 0.3 * ct.eval(*a, *b))
+                .collect();
         let bases = fit_representative(&y, &p, &DictionarySettings::default());
         assert!((2..=3).contains(&bases.len()), "{bases:?}");
         let cols: Vec<Vec<f64>> = bases
             .iter()
-            .map(|b| p.wi.iter().zip(&p.wo).map(|(a, c)| b.eval(*a, *c)).collect())
+            .map(|b| {
+                p.wi.iter()
+                    .zip(&p.wo)
+                    .map(|(a, c)| b.eval(*a, *c))
+                    .collect()
+            })
             .collect();
         let (_, sse) = project(&cols, &y);
-        assert!(sse < 1e-6 * dot(&y, &y), "relative sse {} {bases:?}", sse / dot(&y, &y));
+        assert!(
+            sse < 1e-6 * dot(&y, &y),
+            "relative sse {} {bases:?}",
+            sse / dot(&y, &y)
+        );
     }
 }

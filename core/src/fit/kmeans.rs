@@ -80,18 +80,15 @@ pub fn kmeans(points: &[f32], dim: usize, k: usize, seed: u64, max_iter: usize) 
                 best
             })
             .collect();
-        let changed = nearest
-            .iter()
-            .zip(&assignment)
-            .any(|((c, _), a)| c != a);
+        let changed = nearest.iter().zip(&assignment).any(|((c, _), a)| c != a);
         for (a, (c, _)) in assignment.iter_mut().zip(&nearest) {
             *a = *c;
         }
         // New centroids in index order (deterministic sums).
         let mut sums = vec![0.0f64; k * dim];
         let mut counts = vec![0usize; k];
-        for i in 0..n {
-            let c = assignment[i] as usize;
+        for (i, &a) in assignment.iter().enumerate() {
+            let c = a as usize;
             counts[c] += 1;
             for (s, x) in sums[c * dim..(c + 1) * dim].iter_mut().zip(point(i)) {
                 *s += f64::from(*x);
@@ -150,7 +147,11 @@ mod tests {
         assert_eq!(a, kmeans(&pts, 2, 3, 7, 100));
         for b in 0..3 {
             let first = a.assignment[b * 50];
-            assert!(a.assignment[b * 50..(b + 1) * 50].iter().all(|&c| c == first));
+            assert!(
+                a.assignment[b * 50..(b + 1) * 50]
+                    .iter()
+                    .all(|&c| c == first)
+            );
         }
         let mut labels: Vec<u32> = (0..3).map(|b| a.assignment[b * 50]).collect();
         labels.sort();

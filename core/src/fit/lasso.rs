@@ -16,7 +16,11 @@ pub fn nnls_gram(g: &DMatrix<f64>, b: &[f64], cols: &[usize]) -> Vec<f64> {
     let n = cols.len();
     let mut w = vec![0.0; n];
     let mut passive = vec![false; n];
-    let scale = cols.iter().map(|&j| g[(j, j)]).fold(0.0, f64::max).max(1e-300);
+    let scale = cols
+        .iter()
+        .map(|&j| g[(j, j)])
+        .fold(0.0, f64::max)
+        .max(1e-300);
     let tol = 1e-12 * scale;
     let grad = |w: &[f64], k: usize| {
         let j = cols[k];
@@ -96,7 +100,13 @@ pub fn lasso_support(g: &DMatrix<f64>, b: &[f64], max_bases: usize) -> Vec<usize
     let norm: Vec<f64> = (0..d).map(|j| g[(j, j)].max(0.0).sqrt()).collect();
     let usable: Vec<usize> = (0..d).filter(|&j| norm[j] > 1e-300).collect();
     let bn: Vec<f64> = (0..d)
-        .map(|j| if norm[j] > 1e-300 { b[j] / norm[j] } else { 0.0 })
+        .map(|j| {
+            if norm[j] > 1e-300 {
+                b[j] / norm[j]
+            } else {
+                0.0
+            }
+        })
         .collect();
     let gn = |i: usize, j: usize| g[(i, j)] / (norm[i] * norm[j]);
     let lambda_max = usable.iter().map(|&j| bn[j]).fold(0.0, f64::max);
@@ -112,7 +122,12 @@ pub fn lasso_support(g: &DMatrix<f64>, b: &[f64], max_bases: usize) -> Vec<usize
         for _sweep in 0..500 {
             let mut change: f64 = 0.0;
             for &j in &usable {
-                let r = bn[j] - usable.iter().filter(|&&k| k != j).map(|&k| gn(j, k) * u[k]).sum::<f64>();
+                let r = bn[j]
+                    - usable
+                        .iter()
+                        .filter(|&&k| k != j)
+                        .map(|&k| gn(j, k) * u[k])
+                        .sum::<f64>();
                 let new = (r - lambda).max(0.0);
                 change = change.max((new - u[j]).abs());
                 u[j] = new;
@@ -161,14 +176,18 @@ mod tests {
     use crate::rng::SampleStream;
 
     fn random_matrix(rows: usize, cols: usize, seed: u64) -> DMatrix<f64> {
-        DMatrix::from_fn(rows, cols, |r, c| SampleStream::new(&[seed, r as u64, c as u64]).at(0))
+        DMatrix::from_fn(rows, cols, |r, c| {
+            SampleStream::new(&[seed, r as u64, c as u64]).at(0)
+        })
     }
 
     #[test]
     fn nnls_matches_brute_force_over_supports() {
         for seed in 0..20 {
             let a = random_matrix(30, 5, seed);
-            let y = DVector::from_fn(30, |r, _| SampleStream::new(&[seed, 99, r as u64]).at(0) - 0.3);
+            let y = DVector::from_fn(30, |r, _| {
+                SampleStream::new(&[seed, 99, r as u64]).at(0) - 0.3
+            });
             let g = a.transpose() * &a;
             let b: Vec<f64> = (a.transpose() * &y).iter().copied().collect();
             let w = nnls_gram(&g, &b, &[0, 1, 2, 3, 4]);
@@ -187,14 +206,22 @@ mod tests {
                     best = best.min(cost(&full));
                 }
             }
-            assert!(cost(&w) <= best * (1.0 + 1e-9) + 1e-12, "seed {seed}: {} vs {best}", cost(&w));
+            assert!(
+                cost(&w) <= best * (1.0 + 1e-9) + 1e-12,
+                "seed {seed}: {} vs {best}",
+                cost(&w)
+            );
         }
     }
 
     #[test]
     fn lasso_recovers_a_sparse_non_negative_mixture() {
         let a = random_matrix(200, 12, 5);
-        let truth = [(2usize, [0.5, 0.2, 0.1]), (7, [0.3, 0.3, 0.6]), (9, [0.0, 0.4, 0.2])];
+        let truth = [
+            (2usize, [0.5, 0.2, 0.1]),
+            (7, [0.3, 0.3, 0.6]),
+            (9, [0.0, 0.4, 0.2]),
+        ];
         let mut b = vec![[0.0; 3]; 12];
         let g = a.transpose() * &a;
         for ch in 0..3 {

@@ -109,7 +109,13 @@ pub struct FitOutput {
     pub report: FitReport,
 }
 
-fn check(name: &'static str, value: usize, lo: usize, hi: usize, rule: &'static str) -> Result<(), FitError> {
+fn check(
+    name: &'static str,
+    value: usize,
+    lo: usize,
+    hi: usize,
+    rule: &'static str,
+) -> Result<(), FitError> {
     if (lo..=hi).contains(&value) {
         Ok(())
     } else {
@@ -138,10 +144,22 @@ pub fn fit_btf(
     progress: Progress,
 ) -> Result<FitOutput, FitError> {
     check("clusters", settings.clusters, 1, 255, "must be in 1..=255")?;
-    check("subclusters", settings.subclusters, 1, 64, "must be in 1..=64")?;
+    check(
+        "subclusters",
+        settings.subclusters,
+        1,
+        64,
+        "must be in 1..=64",
+    )?;
     check("max-bases", settings.max_bases, 1, 64, "must be in 1..=64")?;
     check("npca", settings.npca, 0, 256, "must be in 0..=256")?;
-    check("fit-pairs", settings.fit_pairs, 16, usize::MAX, "must be at least 16")?;
+    check(
+        "fit-pairs",
+        settings.fit_pairs,
+        16,
+        usize::MAX,
+        "must be at least 16",
+    )?;
     let cancelled = || cancel.load(Ordering::Relaxed);
     let t_all = Instant::now();
     let texels = btf.texels();
@@ -176,7 +194,11 @@ pub fn fit_btf(
     let clustering = kmeans::kmeans(&features, dim, settings.clusters, settings.seed, 60);
     let n_clusters = clustering.k;
     let members: Vec<Vec<usize>> = (0..n_clusters)
-        .map(|c| (0..texels).filter(|&t| clustering.assignment[t] as usize == c).collect())
+        .map(|c| {
+            (0..texels)
+                .filter(|&t| clustering.assignment[t] as usize == c)
+                .collect()
+        })
         .collect();
     progress(Stage::Clustering, 1, 1);
     if cancelled() {
@@ -198,7 +220,13 @@ pub fn fit_btf(
             .iter()
             .flat_map(|&t| features[t * dim..(t + 1) * dim].iter().copied())
             .collect();
-        let sub = kmeans::kmeans(&feats, dim, settings.subclusters, settings.seed ^ (c as u64 + 1), 60);
+        let sub = kmeans::kmeans(
+            &feats,
+            dim,
+            settings.subclusters,
+            settings.seed ^ (c as u64 + 1),
+            60,
+        );
         for r in 0..sub.k {
             let group: Vec<usize> = mem
                 .iter()
@@ -233,7 +261,11 @@ pub fn fit_btf(
                 return None;
             }
             let bases = dictionary::fit_representative(y, &pairs, &settings.dictionary);
-            progress(Stage::Dictionary, done.fetch_add(1, Ordering::Relaxed) + 1, jobs.len());
+            progress(
+                Stage::Dictionary,
+                done.fetch_add(1, Ordering::Relaxed) + 1,
+                jobs.len(),
+            );
             Some(bases)
         })
         .collect();
@@ -243,7 +275,11 @@ pub fn fit_btf(
     let mut clusters: Vec<Cluster> = vec![Cluster { bases: Vec::new() }; n_clusters];
     for ((c, _), bases) in jobs.iter().zip(fitted) {
         for b in bases.into_iter().flatten() {
-            if !clusters[*c].bases.iter().any(|e| dictionary::near_duplicate(e, &b)) {
+            if !clusters[*c]
+                .bases
+                .iter()
+                .any(|e| dictionary::near_duplicate(e, &b))
+            {
                 clusters[*c].bases.push(b);
             }
         }
@@ -287,7 +323,8 @@ pub fn fit_btf(
         })
         .collect();
     let done = AtomicUsize::new(0);
-    let weights: Vec<Option<Vec<(usize, [f64; 3])>>> = (0..texels)
+    type TexelWeights = Vec<(usize, [f64; 3])>;
+    let weights: Vec<Option<TexelWeights>> = (0..texels)
         .into_par_iter()
         .map(|t| {
             if cancelled() {
@@ -310,7 +347,7 @@ pub fn fit_btf(
                 .collect();
             let w = lasso::texel_weights(&grams[c], &b, settings.max_bases);
             let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-            if d % 64 == 0 || d == texels {
+            if d.is_multiple_of(64) || d == texels {
                 progress(Stage::Weights, d, texels);
             }
             Some(w)
@@ -319,7 +356,8 @@ pub fn fit_btf(
     if cancelled() {
         return Err(FitError::Cancelled);
     }
-    let weights: Vec<Vec<(usize, [f64; 3])>> = weights.into_iter().map(Option::unwrap_or_default).collect();
+    let weights: Vec<Vec<(usize, [f64; 3])>> =
+        weights.into_iter().map(Option::unwrap_or_default).collect();
     let s_weights = t0.elapsed().as_secs_f64();
 
     // 4. Residual per cluster: mean + PCA over all pairs.
@@ -348,7 +386,11 @@ pub fn fit_btf(
                 }
             }
             let r = residual::fit_cluster_residual(&rows, d, settings.npca);
-            progress(Stage::Residual, done.fetch_add(1, Ordering::Relaxed) + 1, n_clusters);
+            progress(
+                Stage::Residual,
+                done.fetch_add(1, Ordering::Relaxed) + 1,
+                n_clusters,
+            );
             Some(r)
         })
         .collect();
@@ -415,6 +457,8 @@ pub fn fit_btf(
         residual: s_residual,
         total: t_all.elapsed().as_secs_f64(),
     };
-    let report = report::build(btf, &material, &members, &residuals, &weights, settings, seconds);
+    let report = report::build(
+        btf, &material, &members, &residuals, &weights, settings, seconds,
+    );
     Ok(FitOutput { material, report })
 }

@@ -169,11 +169,17 @@ impl FitReport {
             rel(self.overall.rmse_basis)
         ));
         for (k, e) in &self.overall.rmse_npca {
-            s.push_str(&format!("  with residual, N_PCA = {k}: RMSE {e:.5} ({:.2}%)\n", rel(*e)));
+            s.push_str(&format!(
+                "  with residual, N_PCA = {k}: RMSE {e:.5} ({:.2}%)\n",
+                rel(*e)
+            ));
         }
         s.push_str(&format!(
             "dictionary bases {} in all; bases per texel mean {:.2} (min {}, max {})\n",
-            self.dictionary_bases, self.bases_per_texel_mean, self.bases_per_texel_min, self.bases_per_texel_max
+            self.dictionary_bases,
+            self.bases_per_texel_mean,
+            self.bases_per_texel_min,
+            self.bases_per_texel_max
         ));
         if self.pack_bytes > 0 {
             s.push_str(&format!(
@@ -188,7 +194,12 @@ impl FitReport {
         s.push_str("cluster  texels  bases  RMSE basis  RMSE +residual(N_PCA max)  first components' energy\n");
         for c in &self.per_cluster {
             let last = c.errors.rmse_npca.last().map_or(0.0, |x| x.1);
-            let energy: Vec<String> = c.retained_energy.iter().take(4).map(|e| format!("{:.3}", e)).collect();
+            let energy: Vec<String> = c
+                .retained_energy
+                .iter()
+                .take(4)
+                .map(|e| format!("{:.3}", e))
+                .collect();
             s.push_str(&format!(
                 "{:>7}  {:>6}  {:>5}  {:>10.5}  {:>25.5}  {}\n",
                 c.cluster,

@@ -70,7 +70,10 @@ pub fn fit_cluster_residual(rows: &[f64], d: usize, npca: usize) -> ClusterResid
                 break;
             }
             let u = eig.eigenvectors.column(i);
-            let mut v: Vec<f64> = (xc.transpose() * u).iter().map(|x| x / lambda.sqrt()).collect();
+            let mut v: Vec<f64> = (xc.transpose() * u)
+                .iter()
+                .map(|x| x / lambda.sqrt())
+                .collect();
             // Modified Gram-Schmidt against the kept components (twice, for round-off).
             for _ in 0..2 {
                 for c in &components {
@@ -136,7 +139,11 @@ mod tests {
         for t in 0..n {
             for j in 0..d {
                 let rec: f64 = r.mean[j]
-                    + r.components.iter().zip(&r.coefficients[t]).map(|(c, k)| k * c[j]).sum::<f64>();
+                    + r.components
+                        .iter()
+                        .zip(&r.coefficients[t])
+                        .map(|(c, k)| k * c[j])
+                        .sum::<f64>();
                 assert!((rec - rows[t * d + j]).abs() < 1e-9, "texel {t} entry {j}");
             }
         }
@@ -153,7 +160,9 @@ mod tests {
                 (0..d)
                     .map(|j| {
                         let rec: f64 = r.mean[j]
-                            + (0..k).map(|c| r.coefficients[t][c] * r.components[c][j]).sum::<f64>();
+                            + (0..k)
+                                .map(|c| r.coefficients[t][c] * r.components[c][j])
+                                .sum::<f64>();
                         (rec - rows[t * d + j]).powi(2)
                     })
                     .sum::<f64>()

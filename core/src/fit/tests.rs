@@ -8,7 +8,11 @@ use crate::btf::directions;
 use crate::spmm::{Cluster, SparseWeights, SpmmMaterial};
 
 fn basis(model: BrdfModel, params: &[(&str, f64)], normal: DVec3) -> BasisFunction {
-    BasisFunction::new(AnalyticBrdf::new(model, params).expect("valid"), normal.normalize()).expect("valid")
+    BasisFunction::new(
+        AnalyticBrdf::new(model, params).expect("valid"),
+        normal.normalize(),
+    )
+    .expect("valid")
 }
 
 /// A known SPMM without residual: two clusters (left and right half of an 8x8 grid)
@@ -19,13 +23,21 @@ fn known_material() -> SpmmMaterial {
     let a = Cluster {
         bases: vec![
             basis(BrdfModel::Lambertian, &[], DVec3::Z),
-            basis(BrdfModel::Ward, &[("ax", 0.2), ("ay", 0.1)], DVec3::new(0.1, 0.0, 1.0)),
+            basis(
+                BrdfModel::Ward,
+                &[("ax", 0.2), ("ay", 0.1)],
+                DVec3::new(0.1, 0.0, 1.0),
+            ),
         ],
     };
     let b = Cluster {
         bases: vec![
             basis(BrdfModel::OrenNayar, &[("sigma", 0.6)], DVec3::Z),
-            basis(BrdfModel::CookTorrance, &[("m", 0.3), ("f0", 0.5)], DVec3::Z),
+            basis(
+                BrdfModel::CookTorrance,
+                &[("m", 0.3), ("f0", 0.5)],
+                DVec3::Z,
+            ),
         ],
     };
     let (w, h) = (8u32, 8u32);
@@ -39,17 +51,34 @@ fn known_material() -> SpmmMaterial {
         let c = u32::from(t % 8 >= 4);
         texel_cluster.push(c);
         let s = SampleStream::new(&[11, t as u64]);
-        let diffuse = [0.2 + 0.6 * s.at(0), 0.2 + 0.6 * s.at(1), 0.2 + 0.6 * s.at(2)].map(|x| x as f32);
+        let diffuse = [
+            0.2 + 0.6 * s.at(0),
+            0.2 + 0.6 * s.at(1),
+            0.2 + 0.6 * s.at(2),
+        ]
+        .map(|x| x as f32);
         weights.basis.push(0);
         weights.rgb.push(diffuse);
         if c == 0 || t % 4 != 0 {
             let spec = 0.3 + 0.3 * s.at(3);
             weights.basis.push(1);
-            weights.rgb.push([spec as f32, (spec * 0.9) as f32, (spec * 0.8) as f32]);
+            weights
+                .rgb
+                .push([spec as f32, (spec * 0.9) as f32, (spec * 0.8) as f32]);
         }
         weights.offsets.push(weights.basis.len() as u32);
     }
-    SpmmMaterial::new("known".into(), "test".into(), w, h, vec![a, b], texel_cluster, weights, None).expect("valid")
+    SpmmMaterial::new(
+        "known".into(),
+        "test".into(),
+        w,
+        h,
+        vec![a, b],
+        texel_cluster,
+        weights,
+        None,
+    )
+    .expect("valid")
 }
 
 fn btf_of(m: &SpmmMaterial, dirs: &[DVec3]) -> Btf {
@@ -62,7 +91,16 @@ fn btf_of(m: &SpmmMaterial, dirs: &[DVec3]) -> Btf {
             }
         }
     }
-    Btf::new("b".into(), "".into(), m.width(), m.height(), dirs.to_vec(), dirs.to_vec(), data).expect("valid")
+    Btf::new(
+        "b".into(),
+        "".into(),
+        m.width(),
+        m.height(),
+        dirs.to_vec(),
+        dirs.to_vec(),
+        data,
+    )
+    .expect("valid")
 }
 
 fn quiet(_: Stage, _: usize, _: usize) {}
@@ -79,7 +117,15 @@ fn fitting_a_known_spmm_recovers_it() {
         npca: 0,
         ..FitSettings::default()
     };
-    let out = fit_btf(&btf, "fit", "test", &settings, &AtomicBool::new(false), &quiet).expect("fit");
+    let out = fit_btf(
+        &btf,
+        "fit",
+        "test",
+        &settings,
+        &AtomicBool::new(false),
+        &quiet,
+    )
+    .expect("fit");
     let r = &out.report;
     assert!(
         r.overall.rmse_basis < 0.01 * r.mean_reflectance,
@@ -89,13 +135,22 @@ fn fitting_a_known_spmm_recovers_it() {
     );
     // Same non-zero bases: each fitted basis with a weight is identified with the true
     // basis whose values at the tabulated pairs it correlates with best.
-    let pairs: Vec<(DVec3, DVec3)> = dirs.iter().flat_map(|a| dirs.iter().map(move |b| (*a, *b))).collect();
-    let col = |b: &BasisFunction| -> Vec<f64> { pairs.iter().map(|(i, o)| b.eval(*i, *o)).collect() };
+    let pairs: Vec<(DVec3, DVec3)> = dirs
+        .iter()
+        .flat_map(|a| dirs.iter().map(move |b| (*a, *b)))
+        .collect();
+    let col =
+        |b: &BasisFunction| -> Vec<f64> { pairs.iter().map(|(i, o)| b.eval(*i, *o)).collect() };
     let cos = |a: &[f64], b: &[f64]| {
         let d: f64 = a.iter().zip(b).map(|(x, y)| x * y).sum();
-        d / (a.iter().map(|x| x * x).sum::<f64>().sqrt() * b.iter().map(|x| x * x).sum::<f64>().sqrt())
+        d / (a.iter().map(|x| x * x).sum::<f64>().sqrt()
+            * b.iter().map(|x| x * x).sum::<f64>().sqrt())
     };
-    let true_cols: Vec<Vec<Vec<f64>>> = truth.clusters().iter().map(|c| c.bases.iter().map(col).collect()).collect();
+    let true_cols: Vec<Vec<Vec<f64>>> = truth
+        .clusters()
+        .iter()
+        .map(|c| c.bases.iter().map(col).collect())
+        .collect();
     let m = &out.material;
     let mut same = 0;
     for t in 0..64 {
@@ -108,7 +163,9 @@ fn fitting_a_known_spmm_recovers_it() {
             .map(|(j, _)| {
                 let c = col(&m.clusters()[fc].bases[usize::from(j)]);
                 (0..true_cols[tc].len())
-                    .max_by(|&x, &y| cos(&c, &true_cols[tc][x]).total_cmp(&cos(&c, &true_cols[tc][y])))
+                    .max_by(|&x, &y| {
+                        cos(&c, &true_cols[tc][x]).total_cmp(&cos(&c, &true_cols[tc][y]))
+                    })
                     .expect("two true bases") as u16
             })
             .collect();
@@ -116,7 +173,10 @@ fn fitting_a_known_spmm_recovers_it() {
         got.dedup();
         same += usize::from(got == want);
     }
-    assert!(same >= 58, "{same} of 64 texels have the true non-zero bases");
+    assert!(
+        same >= 58,
+        "{same} of 64 texels have the true non-zero bases"
+    );
 }
 
 fn weave_btf() -> Btf {
@@ -151,7 +211,8 @@ weight = [0.3, 0.3, 0.6]
 model = "lambertian"
 weight = [0.05, 0.05, 0.05]
 "#;
-    let setup = crate::btf::synth::parse_recipe(text, std::path::Path::new("."), "t").expect("recipe");
+    let setup =
+        crate::btf::synth::parse_recipe(text, std::path::Path::new("."), "t").expect("recipe");
     crate::btf::synth::synthesize(&setup, &AtomicBool::new(false), &|_, _| {}).expect("synth")
 }
 
@@ -196,7 +257,10 @@ fn full_rank_residual_is_exact_and_error_falls_with_npca() {
     // The report's closed form agrees with the evaluated material.
     for (k, e) in &out.report.overall.rmse_npca {
         let direct = rmse(*k, true);
-        assert!((e - direct).abs() <= 1e-4 * mean + 1e-3 * direct, "N_PCA {k}: report {e}, direct {direct}");
+        assert!(
+            (e - direct).abs() <= 1e-4 * mean + 1e-3 * direct,
+            "N_PCA {k}: report {e}, direct {direct}"
+        );
     }
     assert!((out.report.overall.rmse_basis - rmse(0, false)).abs() <= 1e-4 * mean);
 }
@@ -220,7 +284,12 @@ fn fits_are_deterministic_and_cancellable() {
         fit_btf(&btf, "w", "t", &settings, &AtomicBool::new(true), &quiet),
         Err(FitError::Cancelled)
     ));
-    let bad = FitSettings { clusters: 0, ..settings };
-    let e = fit_btf(&btf, "w", "t", &bad, &AtomicBool::new(false), &quiet).err().expect("refused");
+    let bad = FitSettings {
+        clusters: 0,
+        ..settings
+    };
+    let e = fit_btf(&btf, "w", "t", &bad, &AtomicBool::new(false), &quiet)
+        .err()
+        .expect("refused");
     assert!(e.to_string().contains("--clusters"), "{e}");
 }

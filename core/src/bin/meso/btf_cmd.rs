@@ -96,7 +96,15 @@ pub fn run(command: BtfCommand) -> Result<(), CliError> {
             pack,
             scale,
             exposure,
-        } => slice(&file, &output, &light, &view, pack.as_deref(), scale, exposure),
+        } => slice(
+            &file,
+            &output,
+            &light,
+            &view,
+            pack.as_deref(),
+            scale,
+            exposure,
+        ),
     }
 }
 
@@ -155,7 +163,13 @@ fn synth_cmd(recipe: &Path, output: &Path, force_f32: bool, as_json: bool) -> Re
     Ok(())
 }
 
-fn import_cmd(dir: &Path, output: &Path, name: Option<String>, force_f32: bool, as_json: bool) -> Result<(), CliError> {
+fn import_cmd(
+    dir: &Path,
+    output: &Path,
+    name: Option<String>,
+    force_f32: bool,
+    as_json: bool,
+) -> Result<(), CliError> {
     let name = name.unwrap_or_else(|| {
         dir.file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -195,7 +209,9 @@ fn info(path: &Path, as_json: bool) -> Result<(), CliError> {
     let (lo, hi) = b
         .data()
         .iter()
-        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, c), &x| (a.min(x), c.max(x)));
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, c), &x| {
+            (a.min(x), c.max(x))
+        });
     if as_json {
         return crate::print_json(&json!({
             "file": path.display().to_string(),
@@ -208,8 +224,15 @@ fn info(path: &Path, as_json: bool) -> Result<(), CliError> {
     println!("{}: BTF `{}`", path.display(), b.name());
     println!("provenance   {}", b.provenance());
     println!("texels       {} x {}", b.width(), b.height());
-    println!("directions   {} light x {} view", b.light_dirs().len(), b.view_dirs().len());
-    println!("values       mean {:.5}, min {lo:.5}, max {hi:.5}", b.mean_value());
+    println!(
+        "directions   {} light x {} view",
+        b.light_dirs().len(),
+        b.view_dirs().len()
+    );
+    println!(
+        "values       mean {:.5}, min {lo:.5}, max {hi:.5}",
+        b.mean_value()
+    );
     Ok(())
 }
 

@@ -70,9 +70,14 @@ pub fn run(args: &FitArgs) -> Result<(), CliError> {
         args.seed
     );
     let bar = ProgressLine::new();
-    let result = fit::fit_btf(&btf, &name, &provenance, &settings, cancel_flag(), &|s, d, n| {
-        bar.update(s.name(), d, n)
-    });
+    let result = fit::fit_btf(
+        &btf,
+        &name,
+        &provenance,
+        &settings,
+        cancel_flag(),
+        &|s, d, n| bar.update(s.name(), d, n),
+    );
     bar.finish();
     let mut out = match result {
         Ok(o) => o,

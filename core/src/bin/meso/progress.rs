@@ -39,7 +39,9 @@ impl ProgressLine {
         if !self.enabled {
             return;
         }
-        let Ok(mut last) = self.last.lock() else { return };
+        let Ok(mut last) = self.last.lock() else {
+            return;
+        };
         let now = Instant::now();
         if done < total && last.is_some_and(|t| now - t < Duration::from_millis(100)) {
             return;
@@ -47,7 +49,9 @@ impl ProgressLine {
         *last = Some(now);
         let width = 30;
         let filled = (done * width).checked_div(total).unwrap_or(width);
-        let bar: String = (0..width).map(|i| if i < filled { '#' } else { '.' }).collect();
+        let bar: String = (0..width)
+            .map(|i| if i < filled { '#' } else { '.' })
+            .collect();
         let mut err = std::io::stderr().lock();
         let _ = write!(err, "\r{label:<14} [{bar}] {done}/{total}   ");
         let _ = err.flush();

@@ -35,7 +35,11 @@ fn flat_lambertian_is_albedo_over_pi_times_cos() {
                 for (c, albedo) in [0.8, 0.5, 0.2].iter().enumerate() {
                     let want = albedo / std::f64::consts::PI * wi.z;
                     let err = (f64::from(got[c]) - want).abs();
-                    assert!(err <= 1e-6 * want, "texel {t} light {l} view {v}: {} vs {want}", got[c]);
+                    assert!(
+                        err <= 1e-6 * want,
+                        "texel {t} light {l} view {v}: {} vs {want}",
+                        got[c]
+                    );
                 }
             }
         }
@@ -97,25 +101,33 @@ fn a_tall_weave_shadows_grazing_light() {
         "grazing light: tall {tall_grazing} vs flat {flat_grazing}"
     );
     // Some texel is fully shadowed at grazing light while lit from above.
-    let shadowed = (0..tall.texels()).any(|t| {
-        (1..9).any(|l| tall.value(t, l, 0)[0] == 0.0) && tall.value(t, 0, 0)[0] > 0.0
-    });
+    let shadowed = (0..tall.texels())
+        .any(|t| (1..9).any(|l| tall.value(t, l, 0)[0] == 0.0) && tall.value(t, 0, 0)[0] > 0.0);
     assert!(shadowed);
     // Masking: the tall weave's values vary with the view direction at a fixed light.
     let t = 5;
     let views: Vec<f32> = (0..9).map(|v| tall.value(t, 0, v)[0]).collect();
-    assert!(views.iter().any(|x| (x - views[0]).abs() > 1e-3), "{views:?}");
+    assert!(
+        views.iter().any(|x| (x - views[0]).abs() > 1e-3),
+        "{views:?}"
+    );
 }
 
 #[test]
 fn interreflection_adds_light_in_a_weave() {
     let text = weave(4.0);
-    let with = run(&text.replace("supersample = 1", "supersample = 1\ninterreflection_samples = 16"));
+    let with = run(&text.replace(
+        "supersample = 1",
+        "supersample = 1\ninterreflection_samples = 16",
+    ));
     let without = run(&text);
     let sum = |b: &Btf| b.data().iter().map(|&x| f64::from(x)).sum::<f64>();
     assert!(sum(&with) > 1.01 * sum(&without));
     // Replayable: the same recipe gives the same bytes.
-    let again = run(&text.replace("supersample = 1", "supersample = 1\ninterreflection_samples = 16"));
+    let again = run(&text.replace(
+        "supersample = 1",
+        "supersample = 1\ninterreflection_samples = 16",
+    ));
     assert_eq!(with, again);
 }
 
@@ -131,7 +143,8 @@ fn every_procedural_kind_builds_a_tileable_field() {
             "[[region]]\nname = \"paper\"",
             "[[region]]\n[[region.lobe]]\nmodel = \"lambertian\"\nweight = [0.1, 0.1, 0.1]\n[[region]]\nname = \"paper\"",
         );
-        let setup = parse_recipe(&text, Path::new("."), "t").unwrap_or_else(|e| panic!("{kind}: {e}"));
+        let setup =
+            parse_recipe(&text, Path::new("."), "t").unwrap_or_else(|e| panic!("{kind}: {e}"));
         let f = &setup.field;
         assert!(f.h_max > f.h_min, "{kind}: not flat");
         assert!(f.heights.iter().all(|h| h.is_finite()));
@@ -142,19 +155,60 @@ fn every_procedural_kind_builds_a_tileable_field() {
 fn malformed_recipes_are_named() {
     let cases: Vec<(String, &[&str])> = vec![
         (FLAT.replace("width = 4", "widht = 4"), &["widht", "line"]),
-        (FLAT.replace("width = 4", "width = 0"), &["width", "1..=4096"]),
-        (FLAT.replace("\"lambertian\"", "\"lambert\""), &["region 0", "lobe 0", "lambert"]),
-        (FLAT.replace("weight = [0.8, 0.5, 0.2]", "weight = [0.8, -0.5, 0.2]"), &["region 0 lobe 0", "weight"]),
+        (
+            FLAT.replace("width = 4", "width = 0"),
+            &["width", "1..=4096"],
+        ),
+        (
+            FLAT.replace("\"lambertian\"", "\"lambert\""),
+            &["region 0", "lobe 0", "lambert"],
+        ),
+        (
+            FLAT.replace("weight = [0.8, 0.5, 0.2]", "weight = [0.8, -0.5, 0.2]"),
+            &["region 0 lobe 0", "weight"],
+        ),
         (FLAT.replace("version = 1", "version = 2"), &["version 2"]),
-        (FLAT.replace("kind = \"flat\"", "kind = \"weave\"\ndepth = 1.0\nthreads = 2"), &["uses region 1", "1 region"]),
-        (FLAT.replace("kind = \"flat\"", "kind = \"weave\"\ndepth = -1.0\nthreads = 2"), &["depth", "-1"]),
-        (FLAT.replace("kind = \"flat\"", "kind = \"flat\"\ndepht = 1.0"), &["depht"]),
-        (FLAT.replace("direction_rings = [[0.0, 1], [40.0, 5], [75.0, 6]]", "directions = \"ubo\""), &["ubo", "bonn81"]),
-        (FLAT.replace("[75.0, 6]", "[95.0, 6]"), &["direction_rings", "95"]),
-        (FLAT.replace("[[region.lobe]]\nmodel = \"lambertian\"", "[[region.lobe]]\nmodel = \"ward\"\nparams = { ax = 2.0, ay = 0.1 }"), &["ax", "2"]),
+        (
+            FLAT.replace(
+                "kind = \"flat\"",
+                "kind = \"weave\"\ndepth = 1.0\nthreads = 2",
+            ),
+            &["uses region 1", "1 region"],
+        ),
+        (
+            FLAT.replace(
+                "kind = \"flat\"",
+                "kind = \"weave\"\ndepth = -1.0\nthreads = 2",
+            ),
+            &["depth", "-1"],
+        ),
+        (
+            FLAT.replace("kind = \"flat\"", "kind = \"flat\"\ndepht = 1.0"),
+            &["depht"],
+        ),
+        (
+            FLAT.replace(
+                "direction_rings = [[0.0, 1], [40.0, 5], [75.0, 6]]",
+                "directions = \"ubo\"",
+            ),
+            &["ubo", "bonn81"],
+        ),
+        (
+            FLAT.replace("[75.0, 6]", "[95.0, 6]"),
+            &["direction_rings", "95"],
+        ),
+        (
+            FLAT.replace(
+                "[[region.lobe]]\nmodel = \"lambertian\"",
+                "[[region.lobe]]\nmodel = \"ward\"\nparams = { ax = 2.0, ay = 0.1 }",
+            ),
+            &["ax", "2"],
+        ),
     ];
     for (text, needles) in cases {
-        let err = parse_recipe(&text, Path::new("."), "t").expect_err("must be refused").to_string();
+        let err = parse_recipe(&text, Path::new("."), "t")
+            .expect_err("must be refused")
+            .to_string();
         for n in needles {
             assert!(err.contains(n), "`{err}` should mention `{n}`");
         }
@@ -170,9 +224,13 @@ fn image_height_fields_check_their_size() {
         "kind = \"flat\"",
         "kind = \"image\"\ndepth = 1.0\npath = \"h.png\"",
     );
-    let err = parse_recipe(&text, dir.path(), "t").expect_err("wrong size").to_string();
+    let err = parse_recipe(&text, dir.path(), "t")
+        .expect_err("wrong size")
+        .to_string();
     assert!(err.contains("3x3") && err.contains("16x12"), "{err}");
     let missing = text.replace("h.png", "nope.png");
-    let err = parse_recipe(&missing, dir.path(), "t").expect_err("missing").to_string();
+    let err = parse_recipe(&missing, dir.path(), "t")
+        .expect_err("missing")
+        .to_string();
     assert!(err.contains("nope.png"), "{err}");
 }

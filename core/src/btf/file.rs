@@ -141,7 +141,9 @@ pub fn encode_btf(btf: &Btf, precision: BtfPrecision) -> Result<Vec<u8>, BtfFile
         BtfPrecision::F16 => ("F16", 2),
         BtfPrecision::F32 => ("F32", 4),
     };
-    let mut tensors: BTreeMap<&str, (&str, usize, Vec<usize>, Vec<u8>)> = BTreeMap::new();
+    // name -> (dtype, element bytes, shape, data)
+    type Entry<'a> = (&'a str, usize, Vec<usize>, Vec<u8>);
+    let mut tensors: BTreeMap<&str, Entry> = BTreeMap::new();
     tensors.insert(
         "light_dirs",
         ("F64", 8, vec![l, 3], dir_bytes(btf.light_dirs())),
@@ -417,7 +419,9 @@ mod tests {
         let mut b = good.clone();
         let n = u64::from_le_bytes(b[..8].try_into().expect("8")) as usize;
         // light_dirs and view_dirs (F64, 4 x 3 each) come first, then reflectance.
-        let at = 8 + n + 2 * 4 * 3 * 8 + (((1 * 4 + 2) * 4 + 3) * 3 + 1) * 4;
+        // Texel 1, light 2, view 3, channel 1 of a 4 x 4 direction table.
+        let texel_1 = 4 * 4 * 3;
+        let at = 8 + n + 2 * 4 * 3 * 8 + (texel_1 + (2 * 4 + 3) * 3 + 1) * 4;
         b[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
         let e = decode_btf(&b).expect_err("NaN").to_string();
         assert!(

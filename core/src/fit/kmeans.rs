@@ -87,8 +87,8 @@ pub fn kmeans(points: &[f32], dim: usize, k: usize, seed: u64, max_iter: usize) 
         // New centroids in index order (deterministic sums).
         let mut sums = vec![0.0f64; k * dim];
         let mut counts = vec![0usize; k];
-        for i in 0..n {
-            let c = assignment[i] as usize;
+        for (i, &a) in assignment.iter().enumerate() {
+            let c = a as usize;
             counts[c] += 1;
             for (s, x) in sums[c * dim..(c + 1) * dim].iter_mut().zip(point(i)) {
                 *s += f64::from(*x);

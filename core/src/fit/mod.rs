@@ -153,6 +153,13 @@ pub fn fit_btf(
     )?;
     check("max-bases", settings.max_bases, 1, 64, "must be in 1..=64")?;
     check("npca", settings.npca, 0, 256, "must be in 0..=256")?;
+    check(
+        "fit-pairs",
+        settings.fit_pairs,
+        16,
+        usize::MAX,
+        "must be at least 16",
+    )?;
     let cancelled = || cancel.load(Ordering::Relaxed);
     let t_all = Instant::now();
     let texels = btf.texels();
@@ -316,7 +323,8 @@ pub fn fit_btf(
         })
         .collect();
     let done = AtomicUsize::new(0);
-    let weights: Vec<Option<Vec<(usize, [f64; 3])>>> = (0..texels)
+    type TexelWeights = Vec<(usize, [f64; 3])>;
+    let weights: Vec<Option<TexelWeights>> = (0..texels)
         .into_par_iter()
         .map(|t| {
             if cancelled() {
@@ -339,7 +347,7 @@ pub fn fit_btf(
                 .collect();
             let w = lasso::texel_weights(&grams[c], &b, settings.max_bases);
             let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-            if d % 64 == 0 || d == texels {
+            if d.is_multiple_of(64) || d == texels {
                 progress(Stage::Weights, d, texels);
             }
             Some(w)

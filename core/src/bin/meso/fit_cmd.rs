@@ -32,6 +32,9 @@ pub struct FitArgs {
     npca: usize,
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Direction pairs the nonlinear dictionary fits see (a seeded subset).
+    #[arg(long, default_value_t = 1024)]
+    fit_pairs: usize,
     /// Name of the material (default: the BTF's).
     #[arg(long)]
     name: Option<String>,
@@ -53,6 +56,7 @@ pub fn run(args: &FitArgs) -> Result<(), CliError> {
         max_bases: args.max_bases,
         npca: args.npca,
         seed: args.seed,
+        fit_pairs: args.fit_pairs,
         ..FitSettings::default()
     };
     let name = args.name.clone().unwrap_or_else(|| btf.name().to_string());

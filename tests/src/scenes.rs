@@ -33,7 +33,11 @@ fn the_default_scene_loads() {
 
 #[test]
 fn the_cornell_box_and_cloth_scenes_load() {
-    for (name, meshes, lights) in [("cornell.toml", 16, 1), ("cloth.toml", 2, 2)] {
+    for (name, meshes, lights) in [
+        ("cornell.toml", 16, 1),
+        ("cloth.toml", 2, 2),
+        ("fitted.toml", 2, 1),
+    ] {
         let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
             .join("scenes")
             .join(name);

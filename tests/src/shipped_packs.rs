@@ -37,3 +37,29 @@ fn shipped_packs_validate_and_match_their_recipes() {
         );
     }
 }
+
+/// The packs fitted to synthesized BTFs (docs/fitting.md): valid, at most 4 MB, with a
+/// residual tabulated on the 81 x 81 Bonn directions.
+#[test]
+fn fitted_packs_validate_and_stay_small() {
+    let bonn = meso_core::btf::directions::bonn81();
+    for name in ["knitted_wool", "woven_cloth", "grain_leather", "corduroy"] {
+        let file = root().join("materials").join(format!("{name}.spmm"));
+        let len = std::fs::metadata(&file).expect("the pack is shipped").len();
+        assert!(len <= 4 << 20, "{name}: {len} bytes, over 4 MB");
+        let m = pack::read_pack(&file).expect("the shipped pack validates");
+        assert!(
+            root()
+                .join("materials/btf_recipes")
+                .join(format!("{name}.toml"))
+                .exists(),
+            "{name}: its BTF recipe is shipped"
+        );
+        let r = m.residual().expect("a fitted pack has a residual");
+        assert_eq!(
+            (r.light_dirs.as_slice(), r.view_dirs.as_slice()),
+            (bonn.as_slice(), bonn.as_slice())
+        );
+        assert_eq!(r.npca, 5);
+    }
+}

@@ -895,9 +895,14 @@ pub fn synthesize(
             for (v, &wo) in setup.view_dirs.iter().enumerate() {
                 for sub in 0..ss * ss {
                     let (a, b) = (sub % ss, sub / ss);
+                    // Sub-sample points sit a quarter sub-sample-cell of the height grid
+                    // off the centres, which never falls on a region-cell edge
+                    // (detail (2a + 1) / 2ss + 1 / 4ss is never an integer): on an edge
+                    // the hit point's tiny direction-dependent offset chose the region.
+                    let off = 0.25 / (ss as f64 * field.detail);
                     let q = DVec3::new(
-                        col as f64 + (a as f64 + 0.5) / ss as f64,
-                        y0 + (b as f64 + 0.5) / ss as f64,
+                        col as f64 + (a as f64 + 0.5) / ss as f64 + off,
+                        y0 + (b as f64 + 0.5) / ss as f64 + off,
                         z_mid,
                     );
                     let o = q + wo * ((z_top - z_mid) / wo.z);

@@ -60,7 +60,7 @@ impl Default for FitSettings {
             npca: 8,
             seed: 0,
             feature_pairs: 512,
-            fit_pairs: 1024,
+            fit_pairs: 6561,
             dictionary: DictionarySettings::default(),
         }
     }

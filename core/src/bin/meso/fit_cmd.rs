@@ -32,8 +32,8 @@ pub struct FitArgs {
     npca: usize,
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Direction pairs the nonlinear dictionary fits see (a seeded subset).
-    #[arg(long, default_value_t = 1024)]
+    /// Direction pairs the nonlinear dictionary fits see (a seeded subset; default all of the Bonn layout).
+    #[arg(long, default_value_t = 6561)]
     fit_pairs: usize,
     /// Name of the material (default: the BTF's).
     #[arg(long)]

@@ -835,3 +835,32 @@ fn btf_and_fit_bad_input_is_named() {
         &["--light"],
     );
 }
+
+#[test]
+fn a_closed_output_pipe_ends_the_command_quietly() {
+    use std::io::{BufRead, BufReader};
+    // Far more output than a pipe buffers; the reader stops after one line.
+    let input: String = (0..200_000).map(|_| "0,0,1,0,0,1\n").collect();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_meso"))
+        .args(["brdf", "eval", "--model", "lambertian"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("meso starts");
+    let mut stdin = child.stdin.take().expect("stdin");
+    let writer = std::thread::spawn(move || {
+        let _ = stdin.write_all(input.as_bytes());
+    });
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().expect("stdout"))
+        .read_line(&mut first)
+        .expect("one line");
+    assert!(first.starts_with("3.18309886e-1"), "{first}");
+    let out = child.wait_with_output().expect("meso ends");
+    let _ = writer.join();
+    let err = String::from_utf8_lossy(&out.stderr);
+    // Ended by SIGPIPE like any Unix filter: no panic, no error line.
+    assert!(err.is_empty(), "{err}");
+    assert_ne!(out.status.code(), Some(101), "not a panic");
+}

@@ -62,6 +62,7 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    restore_sigpipe();
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(err) => return failure::report_clap_error(err),
@@ -87,4 +88,15 @@ fn print_json(value: &serde_json::Value) -> Result<(), CliError> {
         .map_err(|e| CliError::failure(anyhow::anyhow!("cannot encode the JSON report: {e}")))?;
     println!("{text}");
     Ok(())
+}
+
+/// Rust ignores SIGPIPE, so writing to a closed pipe (`meso pack info X | head`) would
+/// make `println!` panic. Command-line tools end quietly instead: restore the default.
+fn restore_sigpipe() {
+    #[cfg(unix)]
+    // SAFETY: called first thing in `main`, before any other thread exists; setting a
+    // signal's disposition to its default has no other effect on the process.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
 }

@@ -8,6 +8,7 @@
 pub mod atomic;
 pub mod brdf;
 pub mod btf;
+pub mod container;
 pub mod fit;
 pub mod image;
 pub mod metrics;

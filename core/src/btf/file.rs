@@ -9,10 +9,10 @@ use std::path::{Path, PathBuf};
 
 use glam::DVec3;
 use safetensors::{Dtype, SafeTensors};
-use serde_json::json;
 
 use super::{Btf, BtfError};
 use crate::atomic::{AtomicWriteError, write_bytes_atomic};
+use crate::container::{self, Tensor};
 
 pub const FORMAT: &str = "meso-btf";
 pub const VERSION: &str = "1";
@@ -137,61 +137,31 @@ pub fn encode_btf(btf: &Btf, precision: BtfPrecision) -> Result<Vec<u8>, BtfFile
                 .collect::<Vec<u8>>()
         }
     };
-    let (dtype, elem) = match precision {
-        BtfPrecision::F16 => ("F16", 2),
-        BtfPrecision::F32 => ("F32", 4),
+    let dtype = match precision {
+        BtfPrecision::F16 => Dtype::F16,
+        BtfPrecision::F32 => Dtype::F32,
     };
-    // name -> (dtype, element bytes, shape, data)
-    type Entry<'a> = (&'a str, usize, Vec<usize>, Vec<u8>);
-    let mut tensors: BTreeMap<&str, Entry> = BTreeMap::new();
-    tensors.insert(
-        "light_dirs",
-        ("F64", 8, vec![l, 3], dir_bytes(btf.light_dirs())),
-    );
-    tensors.insert(
-        "view_dirs",
-        ("F64", 8, vec![v, 3], dir_bytes(btf.view_dirs())),
-    );
-    tensors.insert("reflectance", (dtype, elem, vec![h, w, l, v, 3], values));
-    let mut order: Vec<&str> = tensors.keys().copied().collect();
-    order.sort_by_key(|n| (std::cmp::Reverse(tensors[n].1), *n));
-    let mut header = serde_json::Map::new();
-    header.insert(
-        "__metadata__".into(),
-        json!({
-            "format": FORMAT,
-            "version": VERSION,
-            "name": btf.name(),
-            "provenance": btf.provenance(),
-            "width": btf.width().to_string(),
-            "height": btf.height().to_string(),
-        }),
-    );
-    let mut offset = 0usize;
-    for n in &order {
-        let t = &tensors[n];
-        header.insert(
-            n.to_string(),
-            json!({"dtype": t.0, "shape": t.2, "data_offsets": [offset, offset + t.3.len()]}),
-        );
-        offset += t.3.len();
-    }
-    let mut header_bytes = serde_json::to_vec(&serde_json::Value::Object(header))
-        .expect("a JSON map always serialises");
-    while !header_bytes.len().is_multiple_of(8) {
-        header_bytes.push(b' ');
-    }
-    let mut out = Vec::with_capacity(8 + header_bytes.len() + offset);
-    out.extend_from_slice(&(header_bytes.len() as u64).to_le_bytes());
-    out.extend_from_slice(&header_bytes);
-    for n in &order {
-        out.extend_from_slice(&tensors[n].3);
-    }
-    Ok(out)
-}
-
-fn dtype_name(d: Dtype) -> String {
-    format!("{d:?}")
+    let tensor = |dtype, shape, data| Tensor { dtype, shape, data };
+    let tensors = BTreeMap::from([
+        (
+            "light_dirs",
+            tensor(Dtype::F64, vec![l, 3], dir_bytes(btf.light_dirs())),
+        ),
+        (
+            "view_dirs",
+            tensor(Dtype::F64, vec![v, 3], dir_bytes(btf.view_dirs())),
+        ),
+        ("reflectance", tensor(dtype, vec![h, w, l, v, 3], values)),
+    ]);
+    let metadata = [
+        ("format", FORMAT.to_string()),
+        ("version", VERSION.to_string()),
+        ("name", btf.name().to_string()),
+        ("provenance", btf.provenance().to_string()),
+        ("width", btf.width().to_string()),
+        ("height", btf.height().to_string()),
+    ];
+    Ok(container::encode(&metadata, &tensors))
 }
 
 fn meta_count(
@@ -222,7 +192,7 @@ fn directions(st: &SafeTensors, name: &'static str) -> Result<Vec<DVec3>, BtfFil
     if t.dtype() != Dtype::F64 {
         return Err(BtfFileErrorKind::Dtype {
             name,
-            found: dtype_name(t.dtype()),
+            found: format!("{:?}", t.dtype()),
             expected: "F64",
         });
     }
@@ -244,31 +214,16 @@ fn directions(st: &SafeTensors, name: &'static str) -> Result<Vec<DVec3>, BtfFil
 
 /// Parses and validates `.btf` bytes (see `read_btf`).
 pub fn decode_btf(bytes: &[u8]) -> Result<Btf, BtfFileErrorKind> {
-    let (_, header) = SafeTensors::read_metadata(bytes)
-        .map_err(|e| BtfFileErrorKind::Container(e.to_string()))?;
-    let st =
-        SafeTensors::deserialize(bytes).map_err(|e| BtfFileErrorKind::Container(e.to_string()))?;
-    let meta = header.metadata().clone().unwrap_or_default();
+    let container::Opened {
+        tensors: st,
+        metadata: meta,
+    } = container::open(bytes, FORMAT, VERSION)?;
     let text = |key: &'static str| {
         meta.get(key).cloned().ok_or(BtfFileErrorKind::Metadata {
             key,
             problem: "missing".into(),
         })
     };
-    let format = text("format")?;
-    if format != FORMAT {
-        return Err(BtfFileErrorKind::Metadata {
-            key: "format",
-            problem: format!("`{format}`, expected `{FORMAT}`"),
-        });
-    }
-    let version = text("version")?;
-    if version != VERSION {
-        return Err(BtfFileErrorKind::Metadata {
-            key: "version",
-            problem: format!("`{version}`, this build reads `{VERSION}`"),
-        });
-    }
     let name = text("name")?;
     let provenance = text("provenance")?;
     let width = meta_count(&meta, "width")?;
@@ -311,7 +266,7 @@ pub fn decode_btf(bytes: &[u8]) -> Result<Btf, BtfFileErrorKind> {
         other => {
             return Err(BtfFileErrorKind::Dtype {
                 name: "reflectance",
-                found: dtype_name(other),
+                found: format!("{other:?}"),
                 expected: "F16 or F32",
             });
         }
@@ -441,5 +396,16 @@ mod tests {
         let b = Btf::new("t".into(), "".into(), 2, 3, dirs.clone(), dirs, big).expect("valid");
         assert!(encode_btf(&b, BtfPrecision::F16).is_err());
         assert_eq!(best_precision(&b), BtfPrecision::F32);
+    }
+}
+
+impl From<container::OpenError> for BtfFileErrorKind {
+    fn from(e: container::OpenError) -> Self {
+        match e {
+            container::OpenError::Container(m) => BtfFileErrorKind::Container(m),
+            container::OpenError::Metadata { key, problem } => {
+                BtfFileErrorKind::Metadata { key, problem }
+            }
+        }
     }
 }

@@ -11,11 +11,11 @@ use std::path::{Path, PathBuf};
 
 use glam::DVec3;
 use safetensors::{Dtype, SafeTensors};
-use serde_json::json;
 
 use super::material::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial};
 use crate::atomic::{AtomicWriteError, write_bytes_atomic};
 use crate::brdf::{AnalyticBrdf, BasisFunction, BrdfError, BrdfModel};
+use crate::container::{self, Tensor, dtype_name};
 
 pub const FORMAT: &str = "meso-spmm";
 pub const VERSION: &str = "1";
@@ -123,26 +123,8 @@ pub fn write_pack(
     })
 }
 
-struct Tensor {
-    dtype: Dtype,
-    shape: Vec<usize>,
-    data: Vec<u8>,
-}
-
 fn le_bytes<T: Copy, const N: usize>(values: &[T], to: impl Fn(T) -> [u8; N]) -> Vec<u8> {
     values.iter().flat_map(|v| to(*v)).collect()
-}
-
-fn dtype_name(d: Dtype) -> &'static str {
-    match d {
-        Dtype::U8 => "U8",
-        Dtype::U16 => "U16",
-        Dtype::U32 => "U32",
-        Dtype::F16 => "F16",
-        Dtype::F32 => "F32",
-        Dtype::F64 => "F64",
-        _ => "other",
-    }
 }
 
 /// Serialises a material. The header lists tensors by name with sorted keys, and the
@@ -259,43 +241,21 @@ pub fn encode_pack(m: &SpmmMaterial, precision: ResidualPrecision) -> Vec<u8> {
         );
     }
 
-    let mut order: Vec<&'static str> = tensors.keys().copied().collect();
-    order.sort_by_key(|name| (std::cmp::Reverse(tensors[name].dtype.bitsize()), *name));
-    let mut header = serde_json::Map::new();
-    let metadata = json!({
-        "format": FORMAT,
-        "version": VERSION,
-        "name": m.name(),
-        "provenance": m.provenance(),
-        "edited": if m.edited() { "true" } else { "false" },
-        "width": m.width().to_string(),
-        "height": m.height().to_string(),
-        "clusters": m.clusters().len().to_string(),
-        "npca": m.npca().to_string(),
-    });
-    header.insert("__metadata__".into(), metadata);
-    let mut offset = 0usize;
-    for name in &order {
-        let t = &tensors[name];
-        header.insert(
-            name.to_string(),
-            json!({"dtype": dtype_name(t.dtype), "shape": t.shape, "data_offsets": [offset, offset + t.data.len()]}),
-        );
-        offset += t.data.len();
-    }
-    let mut header_bytes = serde_json::to_vec(&serde_json::Value::Object(header))
-        .expect("a JSON map always serialises");
-    // The container pads the header with spaces so the data starts 8-byte aligned.
-    while !header_bytes.len().is_multiple_of(8) {
-        header_bytes.push(b' ');
-    }
-    let mut out = Vec::with_capacity(8 + header_bytes.len() + offset);
-    out.extend_from_slice(&(header_bytes.len() as u64).to_le_bytes());
-    out.extend_from_slice(&header_bytes);
-    for name in &order {
-        out.extend_from_slice(&tensors[name].data);
-    }
-    out
+    let metadata = [
+        ("format", FORMAT.to_string()),
+        ("version", VERSION.to_string()),
+        ("name", m.name().to_string()),
+        ("provenance", m.provenance().to_string()),
+        (
+            "edited",
+            if m.edited() { "true" } else { "false" }.to_string(),
+        ),
+        ("width", m.width().to_string()),
+        ("height", m.height().to_string()),
+        ("clusters", m.clusters().len().to_string()),
+        ("npca", m.npca().to_string()),
+    ];
+    container::encode(&metadata, &tensors)
 }
 
 const KNOWN_TENSORS: [&str; 13] = [
@@ -413,31 +373,17 @@ fn meta_usize(
 
 /// Parses and validates pack bytes (see `read_pack`); also used by the fuzz tests.
 pub fn decode_pack(bytes: &[u8]) -> Result<SpmmMaterial, PackErrorKind> {
-    let (_, header) =
-        SafeTensors::read_metadata(bytes).map_err(|e| PackErrorKind::Container(e.to_string()))?;
-    let st =
-        SafeTensors::deserialize(bytes).map_err(|e| PackErrorKind::Container(e.to_string()))?;
-    let meta = header.metadata().clone().unwrap_or_default();
+    let opened = container::open(bytes, FORMAT, VERSION)?;
+    let container::Opened {
+        tensors: st,
+        metadata: meta,
+    } = opened;
     let text = |key: &'static str| {
         meta.get(key).cloned().ok_or(PackErrorKind::Metadata {
             key,
             problem: "missing".into(),
         })
     };
-    let format = text("format")?;
-    if format != FORMAT {
-        return Err(PackErrorKind::Metadata {
-            key: "format",
-            problem: format!("`{format}`, expected `{FORMAT}`"),
-        });
-    }
-    let version = text("version")?;
-    if version != VERSION {
-        return Err(PackErrorKind::Metadata {
-            key: "version",
-            problem: format!("`{version}`, this build reads `{VERSION}`"),
-        });
-    }
     let name = text("name")?;
     let provenance = text("provenance")?;
     let edited = match text("edited")?.as_str() {
@@ -641,4 +587,15 @@ pub fn tensor_sizes(bytes: &[u8]) -> Result<Vec<(String, usize)>, PackErrorKind>
     tensors.sort();
     sizes.extend(tensors);
     Ok(sizes)
+}
+
+impl From<container::OpenError> for PackErrorKind {
+    fn from(e: container::OpenError) -> Self {
+        match e {
+            container::OpenError::Container(m) => PackErrorKind::Container(m),
+            container::OpenError::Metadata { key, problem } => {
+                PackErrorKind::Metadata { key, problem }
+            }
+        }
+    }
 }

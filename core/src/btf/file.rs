@@ -276,6 +276,17 @@ pub fn decode_btf(bytes: &[u8]) -> Result<Btf, BtfFileErrorKind> {
     )?)
 }
 
+impl From<container::OpenError> for BtfFileErrorKind {
+    fn from(e: container::OpenError) -> Self {
+        match e {
+            container::OpenError::Container(m) => BtfFileErrorKind::Container(m),
+            container::OpenError::Metadata { key, problem } => {
+                BtfFileErrorKind::Metadata { key, problem }
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -396,16 +407,5 @@ mod tests {
         let b = Btf::new("t".into(), "".into(), 2, 3, dirs.clone(), dirs, big).expect("valid");
         assert!(encode_btf(&b, BtfPrecision::F16).is_err());
         assert_eq!(best_precision(&b), BtfPrecision::F32);
-    }
-}
-
-impl From<container::OpenError> for BtfFileErrorKind {
-    fn from(e: container::OpenError) -> Self {
-        match e {
-            container::OpenError::Container(m) => BtfFileErrorKind::Container(m),
-            container::OpenError::Metadata { key, problem } => {
-                BtfFileErrorKind::Metadata { key, problem }
-            }
-        }
     }
 }

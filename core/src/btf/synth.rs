@@ -337,32 +337,18 @@ impl HeightField {
     /// Whether the ray from surface point `p` towards `d` (d.z > 0) is blocked before
     /// it leaves the height field's slab.
     fn occluded(&self, p: DVec3, d: DVec3) -> bool {
-        let horizontal = d.truncate().length();
-        if horizontal < 1e-12 {
-            return false;
-        }
-        let step = 0.5 / (self.detail * horizontal);
-        // Start half a step out so the starting point's own patch does not occlude.
-        let mut t = 0.5 * step;
-        loop {
-            let q = p + d * t;
-            if q.z > self.h_max {
-                return false;
-            }
-            if q.z < self.height(q.truncate()) - 1e-6 {
-                return true;
-            }
-            t += step;
-        }
+        self.hit_up(p, d).is_some()
     }
 
-    /// Like `occluded`, but returns the surface point hit (for gather rays).
+    /// Where the ray from surface point `p` towards `d` (d.z > 0) first goes under the
+    /// surface before leaving the slab (for gather rays), if it does.
     fn hit_up(&self, p: DVec3, d: DVec3) -> Option<DVec2> {
         let horizontal = d.truncate().length();
         if horizontal < 1e-12 {
             return None;
         }
         let step = 0.5 / (self.detail * horizontal);
+        // Start half a step out so the starting point's own patch does not occlude.
         let mut t = 0.5 * step;
         loop {
             let q = p + d * t;

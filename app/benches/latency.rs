@@ -65,6 +65,7 @@ fn bench_latency(c: &mut Criterion) {
         version: 1,
         scene: Box::new(scene.clone()),
         mode: ModeKind::Spmm,
+        device: meso_core::render::Device::Cpu,
         width: 256,
         height: 256,
     });

@@ -10,7 +10,8 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use meso_core::image::Image;
-use meso_core::render::{ModeKind, Progress, RenderMode, SceneEdit};
+use meso_core::modes;
+use meso_core::render::{Device, ModeKind, Prepare, Progress, RenderMode, SceneEdit};
 use meso_core::scene::Scene;
 
 pub enum Command {
@@ -19,6 +20,7 @@ pub enum Command {
         version: u64,
         scene: Box<Scene>,
         mode: ModeKind,
+        device: Device,
         width: u32,
         height: u32,
     },
@@ -145,11 +147,12 @@ fn run(rx: Receiver<Command>, shared: Arc<Mutex<Shared>>, repaint: Option<egui::
                     version: v,
                     scene,
                     mode: kind,
+                    device,
                     width,
                     height,
                 } => {
                     version = v;
-                    kind.create(*scene, width, height)
+                    modes::create(kind, device, *scene, width, height, Prepare::quietly())
                         .map(|m| mode = Some(m))
                         .map_err(|e| (v, e.to_string()))
                 }
@@ -181,7 +184,7 @@ fn run(rx: Receiver<Command>, shared: Arc<Mutex<Shared>>, repaint: Option<egui::
             image: Arc::new(m.image()),
             progress: m.progress(),
             frame_ms: stats.seconds * 1e3,
-            rays_per_second: stats.rays.total() as f64 / stats.seconds.max(1e-9),
+            rays_per_second: stats.counters.rays.total() as f64 / stats.seconds.max(1e-9),
             finished: Instant::now(),
         };
         if let Ok(mut s) = shared.lock() {

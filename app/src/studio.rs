@@ -15,7 +15,7 @@ use meso_core::scene::mesh::{Placement, load_obj};
 use meso_core::scene::{Material, Scene, load_scene};
 use meso_core::spmm::SpmmMaterial;
 use meso_core::spmm::pack::ResidualPrecision;
-use meso_core::trace::{SceneBvh, pick};
+use meso_core::geometry::{SceneBvh, pick};
 
 use crate::document::{Document, read_pack_file};
 use crate::explorer::Explorer;
@@ -226,6 +226,7 @@ impl Studio {
             version: doc.version,
             scene: Box::new(doc.scene.clone()),
             mode: self.mode,
+            device: meso_core::render::Device::Cpu,
             width: size.0,
             height: size.1,
         });

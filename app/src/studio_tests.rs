@@ -305,9 +305,15 @@ fn a_saved_pack_renders_in_core_exactly_as_in_the_viewport() {
         "the saved pack reopens identically"
     );
     let scene = meso_core::scene::load_scene(&scene_path).expect("scene");
-    let mut mode = ModeKind::Spmm
-        .create(scene, frame.progress.width, frame.progress.height)
-        .expect("size");
+    let mut mode = meso_core::modes::create(
+        ModeKind::Spmm,
+        meso_core::render::Device::Cpu,
+        scene,
+        frame.progress.width,
+        frame.progress.height,
+        meso_core::render::Prepare::quietly(),
+    )
+    .expect("size");
     run_frames(mode.as_mut(), frame.progress.frames, |_, _| {});
     assert_eq!(*frame.image, mode.image(), "viewport and core render agree");
 }

@@ -16,7 +16,7 @@ use meso_core::render::{ModeKind, SceneEdit};
 use meso_core::rng::SampleStream;
 use meso_core::scene::mesh::{Placement, load_obj, vertex_normals};
 use meso_core::scene::{TriangleMesh, load_scene};
-use meso_core::trace::SceneBvh;
+use meso_core::geometry::SceneBvh;
 use rayon::prelude::*;
 
 fn root() -> std::path::PathBuf {
@@ -215,7 +215,7 @@ fn bench_frames(c: &mut Criterion) {
             if !ao {
                 s.ambient = None;
             }
-            let mut mode = ModeKind::Spmm.create(s, size, size).expect("size");
+            let mut mode = meso_core::modes::create(ModeKind::Spmm, meso_core::render::Device::Cpu, s, size, size, meso_core::render::Prepare::quietly()).expect("size");
             mode.apply(SceneEdit::Moving(moving)).expect("valid edit");
             let label = format!(
                 "AO {}, residual {}",

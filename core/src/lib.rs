@@ -1,7 +1,8 @@
 //! Meso's core library: everything that works without a window.
 //!
-//! Modules depend downwards only: render modes on materials and geometry, materials on
-//! the BRDF dictionary, everything on `rng`, `atomic` and `image`. `docs/ARCHITECTURE.md`
+//! Modules depend downwards only: the registry (`modes`) on the modes (`trace`), modes
+//! on the seam (`render`), geometry, environment and materials, materials on the BRDF
+//! dictionary, everything on `rng`, `atomic` and `image`. `docs/ARCHITECTURE.md`
 //! is the map; the `meso` binary (`src/bin/meso`) and the `meso-studio` app use this
 //! crate through its public API only.
 
@@ -9,9 +10,12 @@ pub mod atomic;
 pub mod brdf;
 pub mod btf;
 pub mod container;
+pub mod environment;
 pub mod fit;
+pub mod geometry;
 pub mod image;
 pub mod metrics;
+pub mod modes;
 pub mod render;
 pub mod rng;
 pub mod scene;

@@ -8,7 +8,8 @@ use std::path::PathBuf;
 
 use meso_core::image::{Image, read_exr, write_exr};
 use meso_core::metrics::compare;
-use meso_core::render::{ModeKind, run_frames};
+use meso_core::modes;
+use meso_core::render::{Prepare, run_frames};
 use meso_core::scene::load_scene;
 
 fn root() -> PathBuf {
@@ -34,9 +35,9 @@ fn render(g: &Golden, threads: usize) -> Image {
         .build()
         .expect("thread pool");
     pool.install(|| {
-        let mut mode = ModeKind::Spmm
-            .create(scene, g.width, g.height)
-            .expect("valid size");
+        let (kind, device) = (scene.render.mode, scene.render.device);
+        let mut mode = modes::create(kind, device, scene, g.width, g.height, Prepare::quietly())
+            .expect("the scene's mode renders it");
         let run = run_frames(mode.as_mut(), g.frames, |_, _| {});
         assert_eq!(run.dropped, 0, "{}: no non-finite sample", g.scene);
         mode.image()
@@ -61,6 +62,7 @@ fn test_scenes_match_their_golden_images_on_any_thread_count() {
         }
         let reference = read_exr(&path).expect("golden image (MESO_UPDATE_GOLDEN=1 makes it)");
         let c = compare(&reference, &image, 0.0).expect("same size");
+        eprintln!("{name}: rmse {:e} mssim {}", c.rmse, c.mssim);
         if !(c.rmse <= g.max_rmse && c.mssim >= g.min_mssim) {
             failures.push(format!("{name}: {c:?}"));
         }

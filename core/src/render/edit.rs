@@ -1,10 +1,14 @@
 //! Edits a render mode accepts while it accumulates, and what each one invalidated.
 //! The rule (DESIGN.md, the seed's section 4): restart only what the edit changes. An
 //! emission change re-weights the film's layers and keeps every sample; a moved light
-//! or a new ambient radius restarts that one layer; a material edit restarts the pixels
-//! whose samples shaded the material; a camera, size or geometry change restarts all.
+//! or a new ambient radius restarts that one layer (`layers.rs`); a material edit
+//! restarts the pixels whose samples shaded the material; a camera, size or geometry
+//! change restarts all. The values' rules live in their types (`Light::problem`, ...).
 
-use crate::scene::{Ambient, Background, Camera, Light, Material, Scene, TriangleMesh};
+use crate::scene::{
+    Ambient, Background, Camera, Environment, Light, Material, Problem, RenderSettings, Scene,
+    TriangleMesh,
+};
 
 #[derive(Clone, Debug)]
 pub enum SceneEdit {
@@ -29,6 +33,8 @@ pub enum SceneEdit {
     AddLight(Light),
     RemoveLight(usize),
     Ambient(Option<Ambient>),
+    /// Environment lighting on, off or changed; a strength change keeps every sample.
+    Environment(Option<Environment>),
     Background(Background),
     /// The camera is being dragged: the SPMM residual is skipped (the seed's trick)
     /// until `Moving(false)`, which restarts the pixels that skipped it.
@@ -36,12 +42,15 @@ pub enum SceneEdit {
 }
 
 /// What an edit cost the accumulated image.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Invalidation {
     /// Every sample kept; the image is re-weighted (emission or colour edits).
     Nothing,
-    /// One layer restarts (a light moved or resized, the ambient radius changed).
+    /// One layer restarts (a light moved or resized, the ambient radius changed, the
+    /// environment turned or replaced).
     Layer(usize),
+    /// These layers restart (a background switched to or from the environment).
+    Layers(Vec<usize>),
     /// These many pixels restart (they shaded the edited material).
     Pixels(usize),
     /// Everything restarts.
@@ -57,10 +66,15 @@ pub enum EditError {
     NoSuchLight { index: usize, count: usize },
     #[error("the new meshes use material {material}, but the scene has {count}")]
     MeshMaterial { material: usize, count: usize },
-    #[error("image size {width}x{height} is outside 1..=16384")]
-    Size { width: u32, height: u32 },
     #[error("{0}")]
-    Invalid(String),
+    Size(String),
+    #[error("{what} {problem}")]
+    Invalid { what: &'static str, problem: Problem },
+    #[error("uv_scale {0} must be positive and finite")]
+    UvScale(String),
+    /// The mode cannot render what the edit brings (e.g. a material it cannot shade).
+    #[error(transparent)]
+    Unsupported(#[from] super::Unsupported),
 }
 
 impl SceneEdit {
@@ -74,18 +88,17 @@ impl SceneEdit {
             index,
             count: lights,
         };
-        let invalid = |p: Option<String>| p.map_or(Ok(()), |p| Err(EditError::Invalid(p)));
+        let invalid = |what: &'static str, p: Option<Problem>| {
+            p.map_or(Ok(()), |problem| Err(EditError::Invalid { what, problem }))
+        };
         match self {
             SceneEdit::Camera(camera) => {
-                invalid(camera.problem())?;
+                invalid("camera", camera.problem())?;
                 scene.camera = *camera;
             }
             SceneEdit::Resize { width, height } => {
-                if !((1..=16384).contains(width) && (1..=16384).contains(height)) {
-                    return Err(EditError::Size {
-                        width: *width,
-                        height: *height,
-                    });
+                if let Some(p) = RenderSettings::size_problem(*width, *height) {
+                    return Err(EditError::Size(p));
                 }
             }
             SceneEdit::Meshes(meshes) => {
@@ -107,27 +120,22 @@ impl SceneEdit {
                         index: *index,
                         count,
                     })?;
-                if let Material::Spmm {
-                    uv_scale, material, ..
-                } = material
+                if let Material::Spmm { uv_scale, .. } = material
                     && !(uv_scale.is_finite() && uv_scale.min_element() > 0.0)
                 {
-                    return Err(EditError::Invalid(format!(
-                        "uv_scale {uv_scale} of `{}` must be positive and finite",
-                        material.name()
-                    )));
+                    return Err(EditError::UvScale(uv_scale.to_string()));
                 }
                 *slot = material.clone();
             }
             SceneEdit::Light { index, light } => {
-                invalid(light.problem())?;
+                invalid("light", light.problem())?;
                 *scene
                     .lights
                     .get_mut(*index)
                     .ok_or_else(|| no_light(*index))? = *light;
             }
             SceneEdit::AddLight(light) => {
-                invalid(light.problem())?;
+                invalid("light", light.problem())?;
                 scene.lights.push(*light);
             }
             SceneEdit::RemoveLight(index) => {
@@ -137,17 +145,18 @@ impl SceneEdit {
                 scene.lights.remove(*index);
             }
             SceneEdit::Ambient(ambient) => {
-                invalid(ambient.as_ref().and_then(|a| a.problem()))?;
+                invalid("ambient", ambient.as_ref().and_then(|a| a.problem()))?;
                 scene.ambient = *ambient;
             }
+            SceneEdit::Environment(environment) => {
+                invalid(
+                    "environment",
+                    environment.as_ref().and_then(|e| e.problem()),
+                )?;
+                scene.environment = environment.clone();
+            }
             SceneEdit::Background(background) => {
-                if let Background::Color(c) = background
-                    && !(c.is_finite() && c.min_element() >= 0.0)
-                {
-                    return Err(EditError::Invalid(format!(
-                        "background colour {c} must be finite and non-negative"
-                    )));
-                }
+                invalid("background", background.problem())?;
                 scene.background = background.clone();
             }
             SceneEdit::Moving(_) => {}

@@ -24,8 +24,9 @@ pub struct SceneFile {
     #[serde(default, rename = "light")]
     pub lights: Vec<Spanned<LightFile>>,
     pub ambient: Option<AmbientFile>,
-    #[serde(default)]
-    pub background: BackgroundFile,
+    pub environment: Option<EnvironmentFile>,
+    /// Absent: rays that leave the scene see the `[environment]` (black without one).
+    pub background: Option<BackgroundFile>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -41,6 +42,8 @@ pub struct RenderFile {
     pub seed: u64,
     #[serde(default = "default_depth")]
     pub max_specular_depth: Spanned<u32>,
+    pub mode: Option<Spanned<String>>,
+    pub device: Option<Spanned<String>>,
 }
 
 fn default_size() -> Spanned<u32> {
@@ -61,6 +64,8 @@ impl Default for RenderFile {
             frames: default_frames(),
             seed: 0,
             max_specular_depth: default_depth(),
+            mode: None,
+            device: None,
         }
     }
 }
@@ -153,17 +158,25 @@ pub struct AmbientFile {
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
+pub struct EnvironmentFile {
+    pub path: Spanned<PathBuf>,
+    #[serde(default = "one")]
+    pub strength: Spanned<f64>,
+    #[serde(default = "zero")]
+    pub rotate_y_deg: Spanned<f64>,
+    /// Meso's addition: false samples the map alone (to measure what MIS gains).
+    #[serde(default = "yes")]
+    pub mis: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct BackgroundFile {
     #[serde(default = "origin")]
     pub color: Spanned<[f64; 3]>,
     pub environment: Option<Spanned<PathBuf>>,
-}
-
-impl Default for BackgroundFile {
-    fn default() -> Self {
-        Self {
-            color: origin(),
-            environment: None,
-        }
-    }
 }

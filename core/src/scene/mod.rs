@@ -1,11 +1,16 @@
 //! Scenes (spec/scene.md, docs/scenes.md): a TOML file read with serde and
 //! `deny_unknown_fields`, checked into a `Scene` whose every value is valid: camera,
 //! analytic / SPMM / mirror materials, OBJ meshes and quads in world space, point and
-//! area lights, ambient occlusion, background. Every error names the scene file, the
-//! line and the key (or the referenced file and its own fault).
+//! area lights, ambient occlusion, environment lighting, background, and the render
+//! mode and device. Every error names the scene file, the line and the key (or the
+//! referenced file and its own fault). Each rule lives in the type that owns the value
+//! (`Camera::problem`, `Light::problem`, ...): the loader and edits both ask it.
 
+mod environment;
 mod file;
 pub mod mesh;
+#[cfg(test)]
+pub(crate) mod test_scenes;
 #[cfg(test)]
 mod tests;
 
@@ -21,6 +26,7 @@ use crate::brdf::{AnalyticBrdf, BrdfModel};
 use crate::image::{self, Image};
 use crate::spmm::SpmmMaterial;
 use crate::spmm::pack;
+pub use environment::Environment;
 pub use mesh::TriangleMesh;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -30,6 +36,74 @@ pub struct RenderSettings {
     pub frames: u32,
     pub seed: u64,
     pub max_specular_depth: u32,
+    pub mode: ModeKind,
+    pub device: Device,
+}
+
+/// The largest image side any mode renders.
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+
+impl RenderSettings {
+    /// Why an image of `width` x `height` cannot be rendered (the one size rule: scene
+    /// files, command-line flags and resize edits all ask it).
+    pub fn size_problem(width: u32, height: u32) -> Option<String> {
+        let ok = |v: u32| (1..=MAX_IMAGE_SIDE).contains(&v);
+        (!(ok(width) && ok(height)))
+            .then(|| format!("image size {width}x{height} is outside 1..={MAX_IMAGE_SIDE}"))
+    }
+}
+
+/// The render modes (DESIGN.md, "The three render modes").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ModeKind {
+    /// Progressive ray tracing of SPMM and analytic materials (Silva & Santos 2013).
+    #[default]
+    Spmm,
+    /// Bi-scale precomputed radiance transfer with biclustering (Sun et al. 2010).
+    Biscale,
+    /// Frequency-adaptive shading of measured BRDFs (Bagher et al. 2013).
+    Adaptive,
+}
+
+impl ModeKind {
+    pub const ALL: [ModeKind; 3] = [ModeKind::Spmm, ModeKind::Biscale, ModeKind::Adaptive];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ModeKind::Spmm => "spmm",
+            ModeKind::Biscale => "biscale",
+            ModeKind::Adaptive => "adaptive",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|m| m.name() == name)
+    }
+}
+
+/// Where a mode runs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Device {
+    #[default]
+    Cpu,
+    Gpu,
+}
+
+impl Device {
+    pub const ALL: [Device; 2] = [Device::Cpu, Device::Gpu];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Device::Cpu => "cpu",
+            Device::Gpu => "gpu",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|d| d.name() == name)
+    }
 }
 
 /// A pinhole camera (right-handed, y up).
@@ -81,9 +155,48 @@ pub struct Ambient {
 
 #[derive(Clone, Debug)]
 pub enum Background {
+    /// No `[background]` table: rays that leave the scene see the `[environment]`
+    /// (black without one).
+    FromEnvironment,
     Color(DVec3),
-    /// Lat-long environment, +y up (docs/scenes.md gives the column convention).
+    /// Lat-long image, +y up (the `[environment]` convention), seen but not lighting.
     Environment(Arc<Image>),
+}
+
+impl Background {
+    /// Why this background is invalid (same rules as the scene file).
+    pub fn problem(&self) -> Option<Problem> {
+        match self {
+            Background::FromEnvironment => None,
+            Background::Color(c) => (!(c.is_finite() && c.min_element() >= 0.0))
+                .then(|| Problem::new("color", format!("{c} must be finite and non-negative"))),
+            Background::Environment(img) => {
+                crate::environment::check_map(img).map(|m| Problem::new("environment", m))
+            }
+        }
+    }
+}
+
+/// What is wrong with a value and under which key of its table.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Problem {
+    pub key: &'static str,
+    pub message: String,
+}
+
+impl Problem {
+    pub fn new(key: &'static str, message: impl Into<String>) -> Self {
+        Self {
+            key,
+            message: message.into(),
+        }
+    }
+}
+
+impl std::fmt::Display for Problem {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "`{}`: {}", self.key, self.message)
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -98,24 +211,49 @@ pub struct Scene {
     pub meshes: Vec<TriangleMesh>,
     pub lights: Vec<Light>,
     pub ambient: Option<Ambient>,
+    /// Distant lighting from a lat-long map (`[environment]`).
+    pub environment: Option<Environment>,
     pub background: Background,
 }
 
+impl Material {
+    /// The kind's name in scene files.
+    pub fn kind_name(&self) -> &'static str {
+        match self {
+            Material::Brdf { .. } => "brdf",
+            Material::Spmm { .. } => "spmm",
+            Material::Mirror { .. } => "mirror",
+        }
+    }
+}
+
 impl Camera {
-    /// Why this camera cannot render (for edits made outside a scene file; the loader
-    /// reports the same rules with the file's line).
-    pub fn problem(&self) -> Option<String> {
+    /// Why this camera cannot render, and the key at fault.
+    pub fn problem(&self) -> Option<Problem> {
         let forward = self.look_at - self.position;
-        if !(self.position.is_finite() && self.look_at.is_finite() && self.up.is_finite()) {
-            Some("camera position, look_at and up must be finite".into())
-        } else if !(self.fov_y_deg > 0.0 && self.fov_y_deg < 180.0) {
-            Some(format!("fov_y_deg {} is outside (0, 180)", self.fov_y_deg))
+        for (key, v) in [
+            ("position", self.position),
+            ("look_at", self.look_at),
+            ("up", self.up),
+        ] {
+            if !v.is_finite() {
+                return Some(Problem::new(key, format!("{v} is not finite")));
+            }
+        }
+        if !(self.fov_y_deg > 0.0 && self.fov_y_deg < 180.0) {
+            Some(Problem::new(
+                "fov_y_deg",
+                format!("{} is outside (0, 180)", self.fov_y_deg),
+            ))
         } else if forward.length() < 1e-9 {
-            Some("look_at equals the camera position".into())
+            Some(Problem::new("look_at", "equals the camera position"))
         } else if forward.cross(self.up).length()
             < 1e-9 * forward.length() * self.up.length().max(1e-300)
         {
-            Some("up is zero or parallel to the viewing direction".into())
+            Some(Problem::new(
+                "up",
+                "is zero or parallel to the viewing direction",
+            ))
         } else {
             None
         }
@@ -141,46 +279,56 @@ impl Light {
         self
     }
 
-    /// Why this light is invalid (same rules as the scene file).
-    pub fn problem(&self) -> Option<String> {
-        let e = self.emission();
+    /// Why this light is invalid, and the key at fault.
+    pub fn problem(&self) -> Option<Problem> {
+        let (key, e) = match self {
+            Light::Point { intensity, .. } => ("intensity", *intensity),
+            Light::Area { radiance, .. } => ("radiance", *radiance),
+        };
         if !(e.is_finite() && e.min_element() >= 0.0) {
-            return Some(format!("emission {e} must be finite and non-negative"));
+            return Some(Problem::new(key, format!("{e} must be finite and non-negative")));
         }
         match *self {
-            Light::Point { position, .. } => {
-                (!position.is_finite()).then(|| format!("position {position} is not finite"))
-            }
+            Light::Point { position, .. } => (!position.is_finite())
+                .then(|| Problem::new("position", format!("{position} is not finite"))),
             Light::Area {
                 corner,
                 edge_u,
                 edge_v,
                 ..
             } => {
-                if !(corner.is_finite() && edge_u.is_finite() && edge_v.is_finite()) {
-                    Some("corner and edges must be finite".into())
-                } else if edge_u.cross(edge_v).length() <= 1e-12 {
-                    Some("the area light has zero area".into())
-                } else {
-                    None
+                for (key, v) in [("corner", corner), ("edge_u", edge_u), ("edge_v", edge_v)] {
+                    if !v.is_finite() {
+                        return Some(Problem::new(key, format!("{v} is not finite")));
+                    }
                 }
+                (edge_u.cross(edge_v).length() <= 1e-12)
+                    .then(|| Problem::new("edge_v", "the area light has zero area"))
             }
+        }
+    }
+
+    /// The kind's name in scene files.
+    pub fn kind_name(&self) -> &'static str {
+        match self {
+            Light::Point { .. } => "point",
+            Light::Area { .. } => "area",
         }
     }
 }
 
 impl Ambient {
-    /// Why this ambient term is invalid (same rules as the scene file).
-    pub fn problem(&self) -> Option<String> {
+    /// Why this ambient term is invalid, and the key at fault.
+    pub fn problem(&self) -> Option<Problem> {
         if !(self.radiance.is_finite() && self.radiance.min_element() >= 0.0) {
-            Some(format!(
-                "ambient radiance {} must be finite and non-negative",
-                self.radiance
+            Some(Problem::new(
+                "radiance",
+                format!("{} must be finite and non-negative", self.radiance),
             ))
         } else if self.radius.is_nan() || self.radius <= 0.0 {
-            Some(format!(
-                "ambient radius {} must be positive (inf: no limit)",
-                self.radius
+            Some(Problem::new(
+                "radius",
+                format!("{} must be positive (inf: no limit)", self.radius),
             ))
         } else {
             None
@@ -220,6 +368,15 @@ impl Ctx<'_> {
             key: Some(key.into()),
             message: message.into(),
         })
+    }
+    /// A `Problem` of the value under table `table`, at the span of its key.
+    fn problem<T>(
+        &self,
+        table: &str,
+        problem: Problem,
+        span_of: impl Fn(&str) -> Range<usize>,
+    ) -> Result<T, SceneError> {
+        self.err(&span_of(problem.key), format!("{table}.{}", problem.key), problem.message)
     }
     fn finite3(&self, v: &Spanned<[f64; 3]>, key: &str) -> Result<DVec3, SceneError> {
         let d = DVec3::from_array(*v.get_ref());
@@ -280,14 +437,13 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
         );
     }
     let r = &f.render;
-    for (v, key) in [(&r.width, "render.width"), (&r.height, "render.height")] {
-        if !(1..=16384).contains(v.get_ref()) {
-            return ctx.err(
-                &v.span(),
-                key,
-                format!("{} is outside [1, 16384]", v.get_ref()),
-            );
-        }
+    if let Some(p) = RenderSettings::size_problem(*r.width.get_ref(), *r.height.get_ref()) {
+        let span = if (1..=MAX_IMAGE_SIDE).contains(r.width.get_ref()) {
+            r.height.span()
+        } else {
+            r.width.span()
+        };
+        return ctx.err(&span, "render.width/height", p);
     }
     if *r.frames.get_ref() == 0 {
         return ctx.err(&r.frames.span(), "render.frames", "must be at least 1");
@@ -299,43 +455,56 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
             "must be at most 64",
         );
     }
+    let mode = match &r.mode {
+        None => ModeKind::default(),
+        Some(m) => ModeKind::from_name(m.get_ref()).map_or_else(
+            || {
+                ctx.err(
+                    &m.span(),
+                    "render.mode",
+                    format!("`{}`: modes are spmm, biscale, adaptive", m.get_ref()),
+                )
+            },
+            Ok,
+        )?,
+    };
+    let device = match &r.device {
+        None => Device::default(),
+        Some(d) => Device::from_name(d.get_ref()).map_or_else(
+            || {
+                ctx.err(
+                    &d.span(),
+                    "render.device",
+                    format!("`{}`: devices are cpu, gpu", d.get_ref()),
+                )
+            },
+            Ok,
+        )?,
+    };
     let render = RenderSettings {
         width: *r.width.get_ref(),
         height: *r.height.get_ref(),
         frames: *r.frames.get_ref(),
         seed: r.seed,
         max_specular_depth: *r.max_specular_depth.get_ref(),
+        mode,
+        device,
     };
 
     let c = &f.camera;
     let camera = Camera {
-        position: ctx.finite3(&c.position, "camera.position")?,
-        look_at: ctx.finite3(&c.look_at, "camera.look_at")?,
-        up: ctx.finite3(&c.up, "camera.up")?,
+        position: DVec3::from_array(*c.position.get_ref()),
+        look_at: DVec3::from_array(*c.look_at.get_ref()),
+        up: DVec3::from_array(*c.up.get_ref()),
         fov_y_deg: *c.fov_y_deg.get_ref(),
     };
-    if !(camera.fov_y_deg > 0.0 && camera.fov_y_deg < 180.0) {
-        return ctx.err(
-            &c.fov_y_deg.span(),
-            "camera.fov_y_deg",
-            format!("{} is outside (0, 180)", camera.fov_y_deg),
-        );
-    }
-    let forward = camera.look_at - camera.position;
-    if forward.length() < 1e-9 {
-        return ctx.err(
-            &c.look_at.span(),
-            "camera.look_at",
-            "equals the camera position",
-        );
-    }
-    if forward.cross(camera.up).length() < 1e-9 * forward.length() * camera.up.length().max(1e-300)
-    {
-        return ctx.err(
-            &c.up.span(),
-            "camera.up",
-            "is zero or parallel to the viewing direction",
-        );
+    if let Some(p) = camera.problem() {
+        return ctx.problem("camera", p, |k| match k {
+            "position" => c.position.span(),
+            "look_at" => c.look_at.span(),
+            "up" => c.up.span(),
+            _ => c.fov_y_deg.span(),
+        });
     }
 
     let mut material_names = Vec::new();
@@ -422,19 +591,17 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
         let span = l.span();
         let l = l.get_ref();
         let key = |k: &str| format!("light[{i}].{k}");
-        // Positions and edges may be negative; intensities and radiances may not.
-        let need =
-            |v: &Option<Spanned<[f64; 3]>>, k: &str, power: bool| -> Result<DVec3, SceneError> {
-                match v {
-                    Some(v) if power => ctx.non_negative3(v, &key(k)),
-                    Some(v) => ctx.finite3(v, &key(k)),
-                    None => ctx.err(
-                        &span,
-                        key(k),
-                        format!("a {} light needs `{k}`", l.kind.get_ref()),
-                    ),
-                }
-            };
+        // Values are checked by `Light::problem` below.
+        let need = |v: &Option<Spanned<[f64; 3]>>, k: &str| -> Result<DVec3, SceneError> {
+            match v {
+                Some(v) => Ok(DVec3::from_array(*v.get_ref())),
+                None => ctx.err(
+                    &span,
+                    key(k),
+                    format!("a {} light needs `{k}`", l.kind.get_ref()),
+                ),
+            }
+        };
         let forbid = |v: bool, k: &str| -> Result<(), SceneError> {
             if v {
                 ctx.err(
@@ -446,33 +613,26 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
                 Ok(())
             }
         };
-        match l.kind.get_ref().as_str() {
+        let light = match l.kind.get_ref().as_str() {
             "point" => {
                 forbid(l.corner.is_some(), "corner")?;
                 forbid(l.edge_u.is_some(), "edge_u")?;
                 forbid(l.edge_v.is_some(), "edge_v")?;
                 forbid(l.radiance.is_some(), "radiance")?;
-                lights.push(Light::Point {
-                    position: need(&l.position, "position", false)?,
-                    intensity: need(&l.intensity, "intensity", true)?,
-                });
+                Light::Point {
+                    position: need(&l.position, "position")?,
+                    intensity: need(&l.intensity, "intensity")?,
+                }
             }
             "area" => {
                 forbid(l.position.is_some(), "position")?;
                 forbid(l.intensity.is_some(), "intensity")?;
-                let (eu, ev) = (
-                    need(&l.edge_u, "edge_u", false)?,
-                    need(&l.edge_v, "edge_v", false)?,
-                );
-                if eu.cross(ev).length() <= 1e-12 {
-                    return ctx.err(&span, key("edge_v"), "the area light has zero area");
+                Light::Area {
+                    corner: need(&l.corner, "corner")?,
+                    edge_u: need(&l.edge_u, "edge_u")?,
+                    edge_v: need(&l.edge_v, "edge_v")?,
+                    radiance: need(&l.radiance, "radiance")?,
                 }
-                lights.push(Light::Area {
-                    corner: need(&l.corner, "corner", false)?,
-                    edge_u: eu,
-                    edge_v: ev,
-                    radiance: need(&l.radiance, "radiance", true)?,
-                });
             }
             other => {
                 return ctx.err(
@@ -481,38 +641,79 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
                     format!("`{other}`: lights are `point` or `area`"),
                 );
             }
+        };
+        if let Some(p) = light.problem() {
+            return ctx.problem(&format!("light[{i}]"), p, |k| {
+                match k {
+                    "position" => l.position.as_ref(),
+                    "intensity" => l.intensity.as_ref(),
+                    "corner" => l.corner.as_ref(),
+                    "edge_u" => l.edge_u.as_ref(),
+                    "edge_v" => l.edge_v.as_ref(),
+                    _ => l.radiance.as_ref(),
+                }
+                .map_or(span.clone(), |v| v.span())
+            });
         }
+        lights.push(light);
     }
 
     let ambient = match &f.ambient {
         None => None,
         Some(a) => {
-            let radius = *a.radius.get_ref();
-            if radius.is_nan() || radius <= 0.0 {
-                return ctx.err(
-                    &a.radius.span(),
-                    "ambient.radius",
-                    format!("{radius} must be positive (inf: no limit)"),
-                );
+            let ambient = Ambient {
+                radiance: DVec3::from_array(*a.radiance.get_ref()),
+                radius: *a.radius.get_ref(),
+            };
+            if let Some(p) = ambient.problem() {
+                return ctx.problem("ambient", p, |k| {
+                    if k == "radius" {
+                        a.radius.span()
+                    } else {
+                        a.radiance.span()
+                    }
+                });
             }
-            Some(Ambient {
-                radiance: ctx.non_negative3(&a.radiance, "ambient.radiance")?,
-                radius,
-            })
+            Some(ambient)
         }
     };
-    let background = match &f.background.environment {
-        Some(env) => {
-            let path = folder.join(env.get_ref());
-            let img = image::read_image(&path).map_err(|e| SceneError {
-                file: ctx.file.to_path_buf(),
-                line: ctx.line_of(&env.span()),
-                key: Some("background.environment".into()),
-                message: e.to_string(),
-            })?;
-            Background::Environment(Arc::new(img))
+    let read_map = |path: &Spanned<PathBuf>, key: &str| -> Result<Arc<Image>, SceneError> {
+        let img = image::read_image(&folder.join(path.get_ref())).map_err(|e| SceneError {
+            file: ctx.file.to_path_buf(),
+            line: ctx.line_of(&path.span()),
+            key: Some(key.into()),
+            message: e.to_string(),
+        })?;
+        if let Some(p) = crate::environment::check_map(&img) {
+            return ctx.err(&path.span(), key, format!("`{}`: {p}", path.get_ref().display()));
         }
-        None => Background::Color(ctx.non_negative3(&f.background.color, "background.color")?),
+        Ok(Arc::new(img))
+    };
+    let environment = match &f.environment {
+        None => None,
+        Some(e) => {
+            let env = Environment {
+                map: read_map(&e.path, "environment.path")?,
+                strength: *e.strength.get_ref(),
+                rotate_y_deg: *e.rotate_y_deg.get_ref(),
+                mis: e.mis,
+            };
+            if let Some(p) = env.problem() {
+                return ctx.problem("environment", p, |k| match k {
+                    "strength" => e.strength.span(),
+                    "rotate_y_deg" => e.rotate_y_deg.span(),
+                    _ => e.path.span(),
+                });
+            }
+            Some(env)
+        }
+    };
+    let background = match &f.background {
+        None => Background::FromEnvironment,
+        Some(b) => match &b.environment {
+            Some(env) => Background::Environment(read_map(env, "background.environment")?),
+            None => Background::Color(ctx.non_negative3(&b.color, "background.color")?),
+        },
     };
     let material_files = f
         .materials
@@ -528,6 +729,7 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
         meshes,
         lights,
         ambient,
+        environment,
         background,
     })
 }

@@ -104,7 +104,9 @@ fn the_spec_example_loads_with_its_values() {
             height: 48,
             frames: 8,
             seed: 3,
-            max_specular_depth: 2
+            max_specular_depth: 2,
+            mode: crate::scene::ModeKind::Spmm,
+            device: crate::scene::Device::Cpu,
         }
     );
     assert_eq!(s.camera.fov_y_deg, 35.0);

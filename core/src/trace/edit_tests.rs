@@ -2,84 +2,18 @@
 //! image after an edit equals (to float rounding) a render that had the edit from the
 //! start, wherever the edit claims to keep samples.
 
-use std::sync::Arc;
-
-use glam::{DVec2, DVec3};
+use glam::DVec3;
 
 use super::SpmmMode;
+use crate::scene::test_scenes::edit_test_scene as scene;
 use crate::brdf::{AnalyticBrdf, BrdfModel};
 use crate::image::Image;
+use crate::render::layers::{AMBIENT, FIRST_LIGHT};
 use crate::render::{Invalidation, RenderMode, SceneEdit};
-use crate::scene::mesh::quad;
-use crate::scene::{Ambient, Background, Camera, Light, Material, RenderSettings, Scene};
+use crate::scene::{Ambient, Background, Light, Material, Scene};
 
 const SIZE: u32 = 24;
 
-/// A Lambertian floor (material 0) and an SPMM panel with a residual (material 1)
-/// under an area light and a point light, with AO.
-pub(crate) fn scene() -> Scene {
-    let panel = crate::spmm::tests::sample_material(4, 4, 2, Some(3));
-    Scene {
-        render: RenderSettings {
-            width: SIZE,
-            height: SIZE,
-            frames: 1,
-            seed: 9,
-            max_specular_depth: 2,
-        },
-        camera: Camera {
-            position: DVec3::new(0.0, 1.2, 2.0),
-            look_at: DVec3::new(0.0, 0.2, 0.0),
-            up: DVec3::Y,
-            fov_y_deg: 50.0,
-        },
-        material_names: vec!["floor".into(), "panel".into()],
-        material_files: Vec::new(),
-        materials: vec![
-            Material::Brdf {
-                brdf: AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
-                albedo: DVec3::splat(0.6),
-            },
-            Material::Spmm {
-                material: Arc::new(panel),
-                uv_scale: DVec2::splat(2.0),
-                residual: true,
-                npca: 3,
-            },
-        ],
-        meshes: vec![
-            quad(
-                DVec3::new(-2.0, 0.0, 2.0),
-                DVec3::new(4.0, 0.0, 0.0),
-                DVec3::new(0.0, 0.0, -4.0),
-                0,
-            ),
-            quad(
-                DVec3::new(-0.4, 0.0, 0.0),
-                DVec3::new(0.8, 0.0, 0.0),
-                DVec3::new(0.0, 0.8, 0.0),
-                1,
-            ),
-        ],
-        lights: vec![
-            Light::Area {
-                corner: DVec3::new(-0.3, 1.5, 0.2),
-                edge_u: DVec3::new(0.6, 0.0, 0.0),
-                edge_v: DVec3::new(0.0, 0.0, 0.6),
-                radiance: DVec3::splat(6.0),
-            },
-            Light::Point {
-                position: DVec3::new(1.0, 1.0, 1.0),
-                intensity: DVec3::new(1.0, 0.5, 0.2),
-            },
-        ],
-        ambient: Some(Ambient {
-            radiance: DVec3::splat(0.3),
-            radius: 0.5,
-        }),
-        background: Background::Color(DVec3::new(0.1, 0.1, 0.2)),
-    }
-}
 
 fn rendered(scene: Scene, frames: u32) -> SpmmMode {
     let mut m = SpmmMode::new(scene, SIZE, SIZE).expect("size");
@@ -147,7 +81,7 @@ fn a_moved_light_restarts_only_its_layer() {
             index: 0,
             light: moved
         }),
-        Ok(Invalidation::Layer(2))
+        Ok(Invalidation::Layer(FIRST_LIGHT))
     );
     assert_eq!(
         m.progress().min_samples,
@@ -337,7 +271,7 @@ fn camera_size_and_geometry_edits_restart_everything_and_refit() {
         m.apply(SceneEdit::Meshes(meshes.clone())),
         Ok(Invalidation::All)
     );
-    assert!(m.geometry_update().refit, "same triangles are refitted");
+    assert!(m.bvh().refitted(), "same triangles are refitted");
     meshes[1].material = 7;
     assert!(
         m.apply(SceneEdit::Meshes(meshes)).is_err(),
@@ -354,7 +288,7 @@ fn lights_are_added_and_removed_and_the_ambient_radius_restarts_its_layer() {
     };
     assert_eq!(
         m.apply(SceneEdit::AddLight(extra)),
-        Ok(Invalidation::Layer(4))
+        Ok(Invalidation::Layer(FIRST_LIGHT + 2))
     );
     m.render_frame();
     assert_eq!(
@@ -370,7 +304,7 @@ fn lights_are_added_and_removed_and_the_ambient_radius_restarts_its_layer() {
     });
     assert_eq!(
         m.apply(SceneEdit::Ambient(wider)),
-        Ok(Invalidation::Layer(1))
+        Ok(Invalidation::Layer(AMBIENT))
     );
     assert_eq!(m.progress().min_samples, 0);
     // AO off and on again with the same radius keeps the layer's samples.

@@ -1,20 +1,21 @@
-//! The `spmm` render mode's progressive ray tracer (Silva & Santos 2013, section 4):
-//! the BVH (obvhs) for closest-hit and occlusion queries with refitting, the pinhole
-//! camera for primary rays, and the integrator (`SpmmMode`, a `render::RenderMode`).
+//! The `spmm` render mode on the CPU: progressive ray tracing of SPMM packs, analytic
+//! BRDFs and mirrors (Silva & Santos 2013, section 4) under point and area lights,
+//! ambient occlusion and environment lighting. One file per concept: the integrator
+//! (the mode itself), shading, light sampling, environment sampling.
 
-pub mod bvh;
-pub mod camera;
-pub mod integrator;
-pub mod pick;
+mod environment;
+mod integrator;
+mod lights;
+mod shading;
 
-pub use bvh::{Hit, SceneBvh};
-pub use camera::{PinholeCamera, Ray};
-pub use integrator::{RayCounts, SpmmMode};
-pub use pick::{Pick, pick};
+pub use integrator::SpmmMode;
+use integrator::Path;
 
 #[cfg(test)]
 mod edit_tests;
-/// A small scene with a Lambertian floor, an SPMM panel with a residual, an area and
-/// a point light and AO, for tests of modes and reports.
 #[cfg(test)]
-pub(crate) use edit_tests::scene as edit_test_scene;
+mod environment_tests;
+#[cfg(test)]
+mod hard_case_tests;
+#[cfg(test)]
+mod tests;

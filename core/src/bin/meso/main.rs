@@ -7,6 +7,7 @@ mod btf_cmd;
 mod compare_cmd;
 mod failure;
 mod fit_cmd;
+mod mode_args;
 mod pack_cmd;
 mod plot;
 mod progress;
@@ -47,7 +48,7 @@ enum Command {
     },
     /// Fit an SPMM pack to a BTF (clusters, dictionaries, sparse weights, PCA residual).
     Fit(fit_cmd::FitArgs),
-    /// Progressive render of a scene file (spmm mode) to EXR or PNG.
+    /// Progressive render of a scene file in a render mode to EXR or PNG.
     Render(render_cmd::RenderArgs),
     /// Reports: speed against error of the render modes.
     Report {

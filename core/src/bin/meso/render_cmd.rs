@@ -1,6 +1,7 @@
 //! `meso render SCENE -o OUT.exr|OUT.png`: a progressive render of a scene file through
-//! a render mode (spec/cli.md; only `spmm` exists today); `--json` reports time,
-//! frames, rays by kind, rays per second and dropped non-finite samples.
+//! a render mode (spec/cli.md: `--mode`, `--device`); `--json` reports time, frames,
+//! the mode and device, its counters (samples, shading points, rays by kind), rays
+//! per second, the preparation's stages and dropped non-finite samples.
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -8,11 +9,13 @@ use std::time::Instant;
 
 use anyhow::anyhow;
 use clap::Args;
-use meso_core::render::{ModeKind, run_frames};
-use meso_core::scene::load_scene;
+use meso_core::modes;
+use meso_core::render::{Prepare, run_frames};
+use meso_core::scene::{RenderSettings, load_scene};
 use serde_json::json;
 
 use crate::failure::{CliError, ResultExt};
+use crate::mode_args::{ModeArgs, mode_error};
 
 #[derive(Args, Debug)]
 pub struct RenderArgs {
@@ -34,6 +37,8 @@ pub struct RenderArgs {
     /// Exposure in stops for PNG output.
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     exposure: f64,
+    #[command(flatten)]
+    mode: ModeArgs,
     #[arg(long)]
     json: bool,
 }
@@ -43,11 +48,13 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
     let frames = args.frames.unwrap_or(scene.render.frames);
     let width = args.width.unwrap_or(scene.render.width);
     let height = args.height.unwrap_or(scene.render.height);
-    if frames == 0 || !(1..=16384).contains(&width) || !(1..=16384).contains(&height) {
-        return Err(CliError::bad_input(anyhow!(
-            "--frames must be at least 1 and --width/--height in [1, 16384] (got {frames}, {width}x{height})"
-        )));
+    if frames == 0 {
+        return Err(CliError::bad_input(anyhow!("--frames must be at least 1")));
     }
+    if let Some(p) = RenderSettings::size_problem(width, height) {
+        return Err(CliError::bad_input(anyhow!("--width/--height: {p}")));
+    }
+    let (kind, device) = args.mode.resolve(&scene)?;
     if !(1..=65536).contains(&args.spp_per_frame) {
         return Err(CliError::bad_input(anyhow!(
             "--spp-per-frame {} is outside [1, 65536]",
@@ -61,12 +68,27 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
         )));
     }
     let start = Instant::now();
-    let mut mode = ModeKind::Spmm
-        .create(scene, width, height)
-        .map_err(|e| CliError::bad_input(anyhow!(e)))?;
-    mode.set_samples_per_frame(args.spp_per_frame);
-    let bvh_ms = mode.geometry_update().time.as_secs_f64() * 1e3;
     let progress = std::io::stderr().is_terminal() && !args.json;
+    let show = |stage: &str, fraction: f32| {
+        if progress {
+            eprint!("\rpreparing: {stage} {:3.0}%   ", fraction * 100.0);
+        }
+    };
+    let cancel = std::sync::atomic::AtomicBool::new(false);
+    let mut mode = modes::create(
+        kind,
+        device,
+        scene,
+        width,
+        height,
+        Prepare::new(&show, &cancel),
+    )
+    .map_err(mode_error)?;
+    mode.set_samples_per_frame(args.spp_per_frame);
+    let preparation = mode.preparation();
+    if progress {
+        eprintln!();
+    }
     let run = run_frames(mode.as_mut(), frames, |done, _| {
         if progress {
             eprint!("\rrendering: frame {done}/{frames}");
@@ -75,7 +97,8 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
     if progress {
         eprintln!();
     }
-    let rays = run.rays;
+    let counters = run.counters;
+    let rays = counters.rays;
     let trace_s = run.seconds;
     let image = mode.image();
     let dropped = mode.progress().dropped;
@@ -91,11 +114,15 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
             "height": height,
             "frames": frames,
             "mode": mode.kind().name(),
+            "device": mode.device().name(),
             "spp_per_frame": args.spp_per_frame,
             "samples_per_pixel": mode.progress().min_samples,
             "seconds": total_s,
             "trace_seconds": trace_s,
-            "bvh_build_ms": bvh_ms,
+            "bvh_build_ms": preparation.seconds("bvh").map(|s| s * 1e3),
+            "preparation": preparation,
+            "samples": counters.samples,
+            "shading_points": counters.shading_points,
             "rays": rays,
             "rays_total": rays.total(),
             "rays_per_second": rays_per_s,

@@ -1,5 +1,5 @@
-//! `meso report convergence SCENE -o DIR`: the speed-against-error report of the
-//! scene's render mode (`render::convergence`): convergence.csv (one row per variant
+//! `meso report convergence SCENE -o DIR [--mode M --device D]`: the speed-against-error
+//! report of a render mode (`modes::convergence`): convergence.csv (one row per variant
 //! and checkpoint), convergence.json (with per-variant summaries), two SVG charts
 //! (RMSE and MSSIM against render time) and the converged reference as EXR and PNG.
 
@@ -10,11 +10,11 @@ use std::path::PathBuf;
 use anyhow::anyhow;
 use clap::{Args, Subcommand};
 use meso_core::atomic::write_bytes_atomic;
-use meso_core::render::ModeKind;
-use meso_core::render::convergence::{ConvergenceReport, ConvergenceRequest, convergence_report};
-use meso_core::scene::load_scene;
+use meso_core::modes::convergence::{ConvergenceReport, ConvergenceRequest, convergence_report};
+use meso_core::scene::{RenderSettings, load_scene};
 
 use crate::failure::{CliError, ResultExt};
+use crate::mode_args::ModeArgs;
 use crate::svg_chart::{Chart, Series, render};
 
 #[derive(Subcommand, Debug)]
@@ -40,6 +40,8 @@ pub struct ConvergenceArgs {
     /// Last checkpoint (a power of two).
     #[arg(long, default_value_t = 256)]
     max_frames: u32,
+    #[command(flatten)]
+    mode: ModeArgs,
     #[arg(long)]
     json: bool,
 }
@@ -52,13 +54,10 @@ pub fn run(command: ReportCommand) -> Result<(), CliError> {
 
 fn convergence(args: &ConvergenceArgs) -> Result<(), CliError> {
     let scene = load_scene(&args.scene).map_err(CliError::bad_input)?;
-    if !(1..=16384).contains(&args.width) || !(1..=16384).contains(&args.height) {
-        return Err(CliError::bad_input(anyhow!(
-            "--width/--height must lie in [1, 16384] (got {}x{})",
-            args.width,
-            args.height
-        )));
+    if let Some(p) = RenderSettings::size_problem(args.width, args.height) {
+        return Err(CliError::bad_input(anyhow!("--width/--height: {p}")));
     }
+    let (mode, device) = args.mode.resolve(&scene)?;
     if args.max_frames == 0 || args.max_frames > args.reference_frames {
         return Err(CliError::bad_input(anyhow!(
             "--max-frames {} must be at least 1 and at most --reference-frames {}",
@@ -73,7 +72,8 @@ fn convergence(args: &ConvergenceArgs) -> Result<(), CliError> {
         height: args.height,
         reference_frames: args.reference_frames,
         max_frames: args.max_frames,
-        mode: ModeKind::Spmm,
+        mode,
+        device,
     };
     let verbose = std::io::stderr().is_terminal() && !args.json;
     let report = convergence_report(&scene, &request, |m| {
@@ -130,7 +130,7 @@ fn write_outputs(args: &ConvergenceArgs, report: &ConvergenceReport) -> Result<(
     let json = serde_json::to_string_pretty(report)
         .map_err(|e| CliError::failure(anyhow!("cannot encode the report: {e}")))?;
     write("convergence.json", json.as_bytes())?;
-    let series = |metric: fn(&meso_core::render::convergence::Checkpoint) -> f64| -> Vec<Series> {
+    let series = |metric: fn(&meso_core::modes::convergence::Checkpoint) -> f64| -> Vec<Series> {
         report
             .summaries
             .iter()

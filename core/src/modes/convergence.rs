@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use super::{EditError, ModeKind, run_frames};
+use crate::render::{Device, ModeError, ModeKind, Prepare, run_frames};
 use crate::image::Image;
 use crate::metrics::{Comparison, MetricsError, compare};
 use crate::scene::{Material, Scene};
@@ -25,6 +25,7 @@ pub struct ConvergenceRequest {
     /// The last checkpoint (rounded up to a power of two).
     pub max_frames: u32,
     pub mode: ModeKind,
+    pub device: Device,
 }
 
 /// One scene variant.
@@ -78,7 +79,7 @@ pub struct ConvergenceReport {
 #[derive(Debug, thiserror::Error)]
 pub enum ConvergenceError {
     #[error(transparent)]
-    Mode(#[from] EditError),
+    Mode(#[from] ModeError),
     #[error(transparent)]
     Metrics(#[from] MetricsError),
     #[error("--max-frames and --reference-frames must be at least 1 and max <= reference")]
@@ -146,7 +147,7 @@ fn variants(scene: &Scene, notes: &mut Vec<String>) -> Vec<(Variant, Scene)> {
 }
 
 fn converged(scene: &Scene, r: &ConvergenceRequest) -> Result<(Image, f64), ConvergenceError> {
-    let mut mode = r.mode.create(scene.clone(), r.width, r.height)?;
+    let mut mode = super::create(r.mode, r.device, scene.clone(), r.width, r.height, Prepare::quietly())?;
     let run = run_frames(mode.as_mut(), r.reference_frames, |_, _| {});
     Ok((mode.image(), run.seconds))
 }
@@ -184,9 +185,14 @@ pub fn convergence_report(
             .find(|(n, _)| *n == v.reference)
             .expect("every variant's reference was rendered above")
             .1;
-        let mut mode = request
-            .mode
-            .create(s.clone(), request.width, request.height)?;
+        let mut mode = super::create(
+            request.mode,
+            request.device,
+            s.clone(),
+            request.width,
+            request.height,
+            Prepare::quietly(),
+        )?;
         let (mut frames, mut seconds, mut next) = (0u32, 0.0, 1u32);
         let mut reached = None;
         let mut last: Option<Comparison> = None;
@@ -238,7 +244,7 @@ pub fn convergence_report(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::trace::edit_test_scene;
+    use crate::scene::test_scenes::edit_test_scene;
 
     #[test]
     fn error_falls_with_frames_and_the_residual_variants_show_their_bias() {
@@ -249,6 +255,7 @@ mod tests {
             reference_frames: 256,
             max_frames: 64,
             mode: ModeKind::Spmm,
+            device: Device::Cpu,
         };
         let report = convergence_report(&scene, &request, |_| {}).expect("report");
         let names: Vec<&str> = report

@@ -62,7 +62,7 @@ pub fn pick(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::trace::edit_test_scene;
+    use crate::scene::test_scenes::edit_test_scene;
 
     #[test]
     fn picks_the_panel_its_texel_and_cluster_and_misses_the_sky() {

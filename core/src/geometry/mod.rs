@@ -1,0 +1,12 @@
+//! Geometry every render mode and the editor share: the scene's triangles in a BVH
+//! (closest-hit and occlusion queries, refitting), the pinhole camera's primary rays,
+//! and picking (what surface, texel and cluster lie under an image position).
+//! Nothing here knows about films, layers or modes.
+
+pub mod bvh;
+pub mod camera;
+pub mod pick;
+
+pub use bvh::{Hit, SceneBvh};
+pub use camera::{PinholeCamera, Ray};
+pub use pick::{Pick, pick};

@@ -1,0 +1,148 @@
+//! The registry above every render mode: makes a mode by kind and device, says whether
+//! a mode can render a scene (naming what it cannot), and holds what drives any mode
+//! (the convergence report). The one place that knows every mode: `meso`, the studio
+//! and the reports ask it, never a mode's type directly.
+
+pub mod convergence;
+
+use crate::render::{Device, ModeError, ModeKind, Prepare, RenderMode};
+use crate::scene::Scene;
+use crate::trace::SpmmMode;
+
+/// True if the mode exists in this build on that device.
+pub fn is_built(kind: ModeKind, device: Device) -> bool {
+    matches!((kind, device), (ModeKind::Spmm, Device::Cpu))
+}
+
+/// `Ok` if the mode exists and can render everything in `scene`; otherwise what stops
+/// it (not built, or the materials and lights it cannot render, each by name).
+pub fn supports(kind: ModeKind, device: Device, scene: &Scene) -> Result<(), ModeError> {
+    match (kind, device) {
+        (ModeKind::Spmm, Device::Cpu) => Ok(SpmmMode::supports(scene)?),
+        _ => Err(ModeError::NotBuilt { mode: kind, device }),
+    }
+}
+
+/// Makes the mode for `scene` at `width` x `height`; a long preparation reports its
+/// progress through `prepare` and stops when asked.
+pub fn create(
+    kind: ModeKind,
+    device: Device,
+    scene: Scene,
+    width: u32,
+    height: u32,
+    prepare: Prepare,
+) -> Result<Box<dyn RenderMode>, ModeError> {
+    supports(kind, device, &scene)?;
+    match (kind, device) {
+        (ModeKind::Spmm, Device::Cpu) => {
+            Ok(Box::new(SpmmMode::prepare(scene, width, height, prepare)?))
+        }
+        _ => Err(ModeError::NotBuilt { mode: kind, device }),
+    }
+}
+
+/// `create` at the scene's own size and mode, without progress.
+pub fn create_for(scene: Scene) -> Result<Box<dyn RenderMode>, ModeError> {
+    let (kind, device, w, h) = (
+        scene.render.mode,
+        scene.render.device,
+        scene.render.width,
+        scene.render.height,
+    );
+    create(kind, device, scene, w, h, Prepare::quietly())
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::atomic::AtomicBool;
+
+    use super::*;
+    use crate::render::{Unrenderable, Unsupported};
+    use crate::scene::test_scenes::edit_test_scene;
+
+    #[test]
+    fn modes_not_built_say_so() {
+        let scene = edit_test_scene();
+        for (kind, device) in [
+            (ModeKind::Biscale, Device::Cpu),
+            (ModeKind::Adaptive, Device::Cpu),
+            (ModeKind::Spmm, Device::Gpu),
+        ] {
+            let err = create(kind, device, scene.clone(), 8, 8, Prepare::quietly())
+                .err()
+                .expect("not built");
+            assert_eq!(err, ModeError::NotBuilt { mode: kind, device });
+            assert!(err.to_string().contains(kind.name()), "{err}");
+        }
+        assert!(create(ModeKind::Spmm, Device::Cpu, scene, 8, 8, Prepare::quietly()).is_ok());
+    }
+
+    #[test]
+    fn a_cancelled_preparation_stops_and_progress_is_reported() {
+        let scene = edit_test_scene();
+        let cancel = AtomicBool::new(true);
+        let err = create(
+            ModeKind::Spmm,
+            Device::Cpu,
+            scene.clone(),
+            8,
+            8,
+            Prepare::new(&|_, _| {}, &cancel),
+        )
+        .err()
+        .expect("cancelled");
+        assert_eq!(err, ModeError::Cancelled(crate::render::Cancelled));
+        let stages = std::sync::Mutex::new(Vec::new());
+        let record = |s: &str, f: f32| stages.lock().expect("not poisoned").push((s.to_string(), f));
+        let cancel = AtomicBool::new(false);
+        let mode = create(
+            ModeKind::Spmm,
+            Device::Cpu,
+            scene,
+            8,
+            8,
+            Prepare::new(&record, &cancel),
+        )
+        .expect("prepared");
+        let seen = stages.into_inner().expect("not poisoned");
+        for s in ["bvh", "materials", "environment"] {
+            assert!(seen.iter().any(|(n, _)| n == s), "{seen:?}");
+            assert!(mode.preparation().seconds(s).is_some());
+        }
+    }
+
+    #[test]
+    fn bad_sizes_are_refused_by_the_one_size_rule() {
+        for (w, h) in [(0, 8), (8, 0), (16385, 8)] {
+            let err = create(ModeKind::Spmm, Device::Cpu, edit_test_scene(), w, h, Prepare::quietly())
+                .err()
+                .expect("refused");
+            assert!(matches!(err, ModeError::Size(ref m) if m.contains("16384")), "{err}");
+        }
+    }
+
+    #[test]
+    fn unsupported_names_every_part() {
+        let u = Unsupported {
+            mode: ModeKind::Biscale,
+            device: Device::Cpu,
+            parts: vec![
+                Unrenderable::Material {
+                    index: 2,
+                    name: "gold".into(),
+                    kind: "merl",
+                },
+                Unrenderable::Light {
+                    index: 0,
+                    kind: "point",
+                },
+            ],
+        };
+        assert_eq!(
+            u.to_string(),
+            "the biscale mode (cpu) cannot render material `gold` (merl), light[0] (point)"
+        );
+        assert!(!u.only_lights());
+    }
+}

@@ -1,0 +1,80 @@
+//! Small scenes built in code for tests of modes, edits, picking and reports.
+
+use std::sync::Arc;
+
+use glam::{DVec2, DVec3};
+
+use super::mesh::quad;
+use super::{Ambient, Background, Camera, Light, Material, RenderSettings, Scene};
+use crate::brdf::{AnalyticBrdf, BrdfModel};
+
+const SIZE: u32 = 24;
+
+/// A Lambertian floor (material 0) and an SPMM panel with a residual (material 1)
+/// under an area light and a point light, with AO.
+pub(crate) fn edit_test_scene() -> Scene {
+    let panel = crate::spmm::tests::sample_material(4, 4, 2, Some(3));
+    Scene {
+        render: RenderSettings {
+            width: SIZE,
+            height: SIZE,
+            frames: 1,
+            seed: 9,
+            max_specular_depth: 2,
+            mode: crate::scene::ModeKind::Spmm,
+            device: crate::scene::Device::Cpu,
+        },
+        camera: Camera {
+            position: DVec3::new(0.0, 1.2, 2.0),
+            look_at: DVec3::new(0.0, 0.2, 0.0),
+            up: DVec3::Y,
+            fov_y_deg: 50.0,
+        },
+        material_names: vec!["floor".into(), "panel".into()],
+        material_files: Vec::new(),
+        materials: vec![
+            Material::Brdf {
+                brdf: AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
+                albedo: DVec3::splat(0.6),
+            },
+            Material::Spmm {
+                material: Arc::new(panel),
+                uv_scale: DVec2::splat(2.0),
+                residual: true,
+                npca: 3,
+            },
+        ],
+        meshes: vec![
+            quad(
+                DVec3::new(-2.0, 0.0, 2.0),
+                DVec3::new(4.0, 0.0, 0.0),
+                DVec3::new(0.0, 0.0, -4.0),
+                0,
+            ),
+            quad(
+                DVec3::new(-0.4, 0.0, 0.0),
+                DVec3::new(0.8, 0.0, 0.0),
+                DVec3::new(0.0, 0.8, 0.0),
+                1,
+            ),
+        ],
+        lights: vec![
+            Light::Area {
+                corner: DVec3::new(-0.3, 1.5, 0.2),
+                edge_u: DVec3::new(0.6, 0.0, 0.0),
+                edge_v: DVec3::new(0.0, 0.0, 0.6),
+                radiance: DVec3::splat(6.0),
+            },
+            Light::Point {
+                position: DVec3::new(1.0, 1.0, 1.0),
+                intensity: DVec3::new(1.0, 0.5, 0.2),
+            },
+        ],
+        ambient: Some(Ambient {
+            radiance: DVec3::splat(0.3),
+            radius: 0.5,
+        }),
+        environment: None,
+        background: Background::Color(DVec3::new(0.1, 0.1, 0.2)),
+    }
+}

@@ -1,0 +1,181 @@
+//! Shading in the spmm mode: the surface frame at a hit (interpolated normal, tangent
+//! along +u as the SPMM convention needs), each material's response to light (albedo
+//! f cos_i for analytic BRDFs, the BTF for SPMM packs, with the residual skipped while
+//! the camera moves), and the hemisphere sampling that suits each material.
+
+use std::f64::consts::PI;
+
+use glam::{DVec2, DVec3};
+
+use super::SpmmMode;
+use crate::brdf::warp;
+use crate::geometry::Hit;
+use crate::scene::Material;
+use crate::spmm::{EvalSettings, PrepareRequest, PreparedSpmm, TexelFilter};
+
+/// What shading a material needs at render time.
+pub(super) enum Shader {
+    /// Analytic BRDFs and mirrors read the scene's material directly.
+    Scene,
+    /// An SPMM pack prepared for this render, with its settings when still and moving.
+    Spmm {
+        prepared: Box<PreparedSpmm>,
+        still: EvalSettings,
+        moving: EvalSettings,
+    },
+}
+
+impl Shader {
+    pub(super) fn new(material: &Material) -> Self {
+        match material {
+            Material::Spmm {
+                material,
+                uv_scale,
+                residual,
+                npca,
+            } => {
+                let still = EvalSettings {
+                    residual: *residual,
+                    max_npca: *npca,
+                    filter: TexelFilter::Nearest,
+                    uv_scale: *uv_scale,
+                };
+                Shader::Spmm {
+                    prepared: Box::new(material.prepare(&PrepareRequest {
+                        used_clusters: None,
+                        residual: *residual,
+                        max_npca: *npca,
+                    })),
+                    still,
+                    moving: EvalSettings {
+                        residual: false,
+                        ..still
+                    },
+                }
+            }
+            _ => Shader::Scene,
+        }
+    }
+
+    /// True if moving changes this material's evaluation (it has a residual in use).
+    pub(super) fn skips_residual_when_moving(&self) -> bool {
+        matches!(self, Shader::Spmm { prepared, still, .. } if still.residual && prepared.has_residual())
+    }
+
+    /// A direction of the upper hemisphere (shading frame) for sampling light over it,
+    /// and its pdf. Analytic BRDFs use cosine-distributed directions: their response
+    /// carries cos_i. An SPMM's BTF does not vanish with the shading cosine (each basis
+    /// has its own normal), and dividing it by a cosine pdf has infinite variance; it
+    /// gets a defensive half-cosine, half-uniform mixture whose pdf is at least
+    /// 1 / 4 pi (docs/rendering.md has the measured difference).
+    pub(super) fn hemisphere_sample(&self, u: DVec2) -> (DVec3, f64) {
+        match self {
+            Shader::Spmm { .. } => {
+                let local = if u.x < 0.5 {
+                    warp::cosine_hemisphere(DVec2::new(2.0 * u.x, u.y))
+                } else {
+                    // Uniform: cos theta = uniform in [0, 1).
+                    let z = 1.0 - u.y;
+                    let r = (1.0 - z * z).max(0.0).sqrt();
+                    let phi = std::f64::consts::TAU * (2.0 * u.x - 1.0);
+                    DVec3::new(r * phi.cos(), r * phi.sin(), z)
+                };
+                (local, Self::defensive_pdf(local))
+            }
+            Shader::Scene => {
+                let local = warp::cosine_hemisphere(u);
+                (local, local.z / PI)
+            }
+        }
+    }
+
+    /// The pdf of the SPMM's defensive mixture (upper hemisphere, shading frame).
+    pub(super) fn defensive_pdf(local: DVec3) -> f64 {
+        if local.z > 0.0 {
+            0.5 * local.z / PI + 0.25 / PI
+        } else {
+            0.0
+        }
+    }
+}
+
+/// A surface point ready to shade.
+pub(super) struct Shading {
+    pub p: DVec3,
+    /// Shading frame: tangent, bitangent, normal (facing the incoming ray).
+    pub t: DVec3,
+    pub b: DVec3,
+    pub n: DVec3,
+    pub uv: DVec2,
+    pub material: usize,
+}
+
+impl Shading {
+    pub fn to_local(&self, w: DVec3) -> DVec3 {
+        DVec3::new(w.dot(self.t), w.dot(self.b), w.dot(self.n))
+    }
+    pub fn to_world(&self, l: DVec3) -> DVec3 {
+        self.t * l.x + self.b * l.y + self.n * l.z
+    }
+}
+
+impl SpmmMode {
+    pub(super) fn shading(&self, hit: &Hit, dir: DVec3) -> Shading {
+        let mesh = &self.scene.meshes[hit.mesh];
+        let [i0, i1, i2] = mesh.indices[hit.triangle].map(|i| i as usize);
+        let w0 = 1.0 - hit.b1 - hit.b2;
+        let (p0, p1, p2) = (mesh.positions[i0], mesh.positions[i1], mesh.positions[i2]);
+        let p = p0 * w0 + p1 * hit.b1 + p2 * hit.b2;
+        let mut ng = (p1 - p0).cross(p2 - p0).normalize_or(DVec3::Y);
+        if ng.dot(dir) > 0.0 {
+            ng = -ng;
+        }
+        let mut n = (mesh.normals[i0] * w0 + mesh.normals[i1] * hit.b1 + mesh.normals[i2] * hit.b2)
+            .normalize_or(ng);
+        // Normals facing away from the viewer are flipped to the side the ray came from.
+        if n.dot(ng) < 0.0 {
+            n = -n;
+        }
+        let (uv0, uv1, uv2) = (mesh.uvs[i0], mesh.uvs[i1], mesh.uvs[i2]);
+        let uv = uv0 * w0 + uv1 * hit.b1 + uv2 * hit.b2;
+        // Tangent along increasing u (dp/du), made orthogonal to n.
+        let (e1, e2, d1, d2) = (p1 - p0, p2 - p0, uv1 - uv0, uv2 - uv0);
+        let det = d1.x * d2.y - d2.x * d1.y;
+        let dpdu = if det.abs() > 1e-20 {
+            (e1 * d2.y - e2 * d1.y) / det
+        } else {
+            DVec3::ZERO
+        };
+        let t = (dpdu - n * n.dot(dpdu))
+            .try_normalize()
+            .unwrap_or_else(|| warp::orthonormal_basis(n).0);
+        let b = n.cross(t);
+        Shading {
+            p,
+            t,
+            b,
+            n,
+            uv,
+            material: mesh.material,
+        }
+    }
+
+    /// The material's response to light from `wi` seen from `wo`, cosine included:
+    /// albedo f cos_i for BRDFs, the BTF for SPMM packs (world-space unit vectors).
+    pub(super) fn response(&self, s: &Shading, wi: DVec3, wo: DVec3) -> DVec3 {
+        let (li, lo) = (s.to_local(wi), s.to_local(wo));
+        match (&self.scene.materials[s.material], &self.shaders[s.material]) {
+            (Material::Brdf { brdf, albedo }, _) => *albedo * (brdf.eval(li, lo) * li.z.max(0.0)),
+            (
+                Material::Spmm { .. },
+                Shader::Spmm {
+                    prepared,
+                    still,
+                    moving,
+                },
+            ) => prepared.eval_uv(s.uv, li, lo, if self.moving { moving } else { still }),
+            // `supports` refused every other material before the mode was made.
+            _ => DVec3::ZERO,
+        }
+    }
+}

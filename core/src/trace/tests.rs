@@ -1,0 +1,342 @@
+//! The spmm mode against closed forms: point and area lights, a light covering the
+//! hemisphere, ambient light on a tilted-basis SPMM plane, AO of an open plane and a
+//! corner, replay of single pixels and independence of the thread count.
+
+use glam::{DVec2, DVec3};
+
+use super::SpmmMode;
+use crate::render::RenderMode;
+use crate::scene::{Background, Light, Material, Scene};
+use crate::brdf::{AnalyticBrdf, BrdfModel};
+use crate::scene::mesh::quad;
+use crate::scene::{Ambient, Camera, RenderSettings};
+
+const ALBEDO: f64 = 0.6;
+
+/// A large Lambertian floor seen straight down through a narrow field of view, so
+/// every pixel looks at (almost exactly) the origin.
+fn floor_scene(lights: Vec<Light>, ambient: Option<Ambient>, wall: bool) -> Scene {
+    let mut meshes = vec![quad(
+        DVec3::new(-50.0, 0.0, 50.0),
+        DVec3::new(100.0, 0.0, 0.0),
+        DVec3::new(0.0, 0.0, -100.0),
+        0,
+    )];
+    if wall {
+        // A wall through x = 0 facing +x; the camera looks at the floor next to it.
+        meshes.push(quad(
+            DVec3::new(0.0, 0.0, 50.0),
+            DVec3::new(0.0, 0.0, -100.0),
+            DVec3::new(0.0, 100.0, 0.0),
+            0,
+        ));
+    }
+    let look = if wall {
+        DVec3::new(1e-3, 0.0, 0.0)
+    } else {
+        DVec3::ZERO
+    };
+    Scene {
+        render: RenderSettings {
+            width: 3,
+            height: 3,
+            frames: 1,
+            seed: 1,
+            max_specular_depth: 2,
+            mode: crate::scene::ModeKind::Spmm,
+            device: crate::scene::Device::Cpu,
+        },
+        camera: Camera {
+            position: look + DVec3::new(0.0, 1.0, 0.0),
+            look_at: look,
+            up: DVec3::NEG_Z,
+            fov_y_deg: 0.01,
+        },
+        material_names: vec!["floor".into()],
+        material_files: Vec::new(),
+        materials: vec![Material::Brdf {
+            brdf: AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
+            albedo: DVec3::splat(ALBEDO),
+        }],
+        meshes,
+        lights,
+        ambient,
+        environment: None,
+        background: Background::Color(DVec3::ZERO),
+    }
+}
+
+fn mode(scene: &Scene) -> SpmmMode {
+    SpmmMode::new(scene.clone(), scene.render.width, scene.render.height).expect("valid size")
+}
+
+fn converge(scene: &Scene, frames: u32) -> DVec3 {
+    let mut r = mode(scene);
+    for _ in 0..frames {
+        r.render_frame();
+    }
+    assert_eq!(r.progress().dropped, 0);
+    let p = r.image().get(1, 1);
+    DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+}
+
+#[test]
+fn lambertian_plane_under_a_point_light_matches_the_closed_form() {
+    // L = albedo / pi * I cos(theta) / r^2 with the light 2 m above the origin.
+    let scene = floor_scene(
+        vec![Light::Point {
+            position: DVec3::new(0.0, 2.0, 0.0),
+            intensity: DVec3::splat(4.0),
+        }],
+        None,
+        false,
+    );
+    let got = converge(&scene, 1);
+    let expected = ALBEDO / std::f64::consts::PI * 4.0 / 4.0;
+    assert!(
+        (got.x - expected).abs() < 1e-5 * expected,
+        "{got} vs {expected}"
+    );
+    // An oblique light at 60 degrees from the normal, 2 m away: cos = 0.5.
+    let pos = DVec3::new(
+        2.0 * 60f64.to_radians().sin(),
+        2.0 * 60f64.to_radians().cos(),
+        0.0,
+    );
+    let scene = floor_scene(
+        vec![Light::Point {
+            position: pos,
+            intensity: DVec3::splat(4.0),
+        }],
+        None,
+        false,
+    );
+    let got = converge(&scene, 1);
+    // The pixel's footprint (1.5e-5 m) moves the oblique distance by ~3e-5 relative.
+    assert!((got.x - 0.5 * expected).abs() < 1e-4 * expected, "{got}");
+}
+
+#[test]
+fn a_small_area_light_approaches_a_point_light_of_intensity_le_times_area() {
+    let side = 0.02;
+    let light = Light::Area {
+        corner: DVec3::new(-side / 2.0, 2.0, -side / 2.0),
+        edge_u: DVec3::new(side, 0.0, 0.0),
+        edge_v: DVec3::new(0.0, 0.0, side),
+        radiance: DVec3::splat(10_000.0),
+    };
+    let scene = floor_scene(vec![light], None, false);
+    let got = converge(&scene, 64);
+    let expected = ALBEDO / std::f64::consts::PI * (10_000.0 * side * side) / 4.0;
+    // The light subtends 1e-4 sr: cosines and distance vary by < 1e-4 over it.
+    assert!(
+        (got.x - expected).abs() < 1e-3 * expected,
+        "{got} vs {expected}"
+    );
+    // Facing away (edge_u x edge_v up): no light reaches the floor.
+    let up = Light::Area {
+        corner: DVec3::new(-side / 2.0, 2.0, -side / 2.0),
+        edge_u: DVec3::new(0.0, 0.0, side),
+        edge_v: DVec3::new(side, 0.0, 0.0),
+        radiance: DVec3::splat(1e4),
+    };
+    assert_eq!(
+        converge(&floor_scene(vec![up], None, false), 4),
+        DVec3::ZERO
+    );
+}
+
+/// Cosine-weighted solid-angle fraction (the form factor) from a point to the
+/// rectangle [0, a] x [0, b] at height h directly above one corner, parallel to the
+/// surface: (1 / 2 pi) [A / sqrt(1 + A^2) atan(B / sqrt(1 + A^2)) + (A <-> B)] with
+/// A = a / h, B = b / h (the standard closed form, e.g. Howell's catalogue, C-11).
+fn corner_form_factor(a: f64, b: f64, h: f64) -> f64 {
+    let (x, y) = (a / h, b / h);
+    let (sx, sy) = ((1.0 + x * x).sqrt(), (1.0 + y * y).sqrt());
+    ((x / sx) * (y / sx).atan() + (y / sy) * (x / sy).atan()) / std::f64::consts::TAU
+}
+
+#[test]
+fn a_light_covering_the_hemisphere_matches_the_closed_form() {
+    // A 2s x 2s light at height h = s / 5 centred above the origin, off-centre by
+    // (dx, dz) so all four corner rectangles differ: its cosine-weighted fraction
+    // is the sum of the four corner form factors (0.97 of the hemisphere).
+    let (s, h, dx, dz) = (1.0, 0.2, 0.1, -0.15);
+    let light = Light::Area {
+        corner: DVec3::new(dx - s, h, dz - s),
+        edge_u: DVec3::new(2.0 * s, 0.0, 0.0),
+        edge_v: DVec3::new(0.0, 0.0, 2.0 * s),
+        radiance: DVec3::splat(2.0),
+    };
+    let fraction = corner_form_factor(s + dx, s + dz, h)
+        + corner_form_factor(s - dx, s + dz, h)
+        + corner_form_factor(s + dx, s - dz, h)
+        + corner_form_factor(s - dx, s - dz, h);
+    assert!(fraction > 0.95 && fraction < 1.0, "{fraction}");
+    let mut scene = floor_scene(vec![light], None, false);
+    (scene.render.width, scene.render.height) = (64, 64);
+    let mut r = mode(&scene);
+    let frames = 400;
+    for _ in 0..frames {
+        r.render_frame();
+    }
+    let img = r.image();
+    let mean = img.pixels().iter().map(|p| p[0] as f64).sum::<f64>() / (64.0 * 64.0);
+    let expected = ALBEDO * 2.0 * fraction;
+    // Area sampling of this light has a relative standard deviation per sample of
+    // about sqrt(4 s^2 / (3 pi h^2)) = 3.3; over 64^2 x 400 samples the mean's is
+    // 0.26%: 1.2% is 4.5 standard errors.
+    assert!(
+        (mean - expected).abs() < 0.012 * expected,
+        "{mean} vs {expected}"
+    );
+}
+
+#[test]
+fn ambient_light_on_an_spmm_plane_converges_to_the_integral_of_its_btf() {
+    use crate::brdf::BasisFunction;
+    use crate::spmm::{Cluster, SparseWeights, SpmmMaterial};
+    // One texel, one Ward basis whose normal is tilted 35 degrees: its BTF does not
+    // vanish with the shading cosine, the case the defensive mixture exists for.
+    let normal = DVec3::new(35f64.to_radians().sin(), 0.0, 35f64.to_radians().cos());
+    let basis = BasisFunction::new(
+        AnalyticBrdf::new(BrdfModel::Ward, &[("ax", 0.3), ("ay", 0.15)]).expect("valid"),
+        normal,
+    )
+    .expect("unit normal");
+    let pack = SpmmMaterial::new(
+        "tilted".into(),
+        "test".into(),
+        1,
+        1,
+        vec![Cluster { bases: vec![basis] }],
+        vec![0],
+        SparseWeights {
+            offsets: vec![0, 1],
+            basis: vec![0],
+            rgb: vec![[0.5, 0.5, 0.5]],
+        },
+        None,
+    )
+    .expect("valid material");
+    let mut scene = floor_scene(
+        vec![],
+        Some(Ambient {
+            radiance: DVec3::splat(0.8),
+            radius: f64::INFINITY,
+        }),
+        false,
+    );
+    scene.materials[0] = Material::Spmm {
+        material: std::sync::Arc::new(pack),
+        uv_scale: DVec2::ONE,
+        residual: true,
+        npca: 0,
+    };
+    (scene.render.width, scene.render.height) = (32, 32);
+    let mut r = mode(&scene);
+    for _ in 0..200 {
+        r.render_frame();
+    }
+    let img = r.image();
+    let mean = img.pixels().iter().map(|p| p[0] as f64).sum::<f64>() / 1024.0;
+    // The camera looks straight down: wo is the shading normal, in the frame the
+    // renderer builds for the floor (tangent along +u = +x, normal +y).
+    let wo = DVec3::Z;
+    let n = 600;
+    let mut integral = 0.0;
+    for i in 0..n {
+        let z = (i as f64 + 0.5) / n as f64;
+        for j in 0..n {
+            let phi = std::f64::consts::TAU * (j as f64 + 0.5) / n as f64;
+            let r = (1.0 - z * z).sqrt();
+            let wi = DVec3::new(r * phi.cos(), r * phi.sin(), z);
+            integral += basis.eval(wi, wo);
+        }
+    }
+    integral *= std::f64::consts::TAU / (n * n) as f64;
+    let expected = 0.8 * 0.5 * integral;
+    assert!(
+        (mean - expected).abs() < 0.01 * expected,
+        "{mean} vs {expected}"
+    );
+}
+
+#[test]
+fn ambient_occlusion_of_an_open_plane_is_one_and_half_in_a_corner() {
+    let ambient = Some(Ambient {
+        radiance: DVec3::splat(0.5),
+        radius: f64::INFINITY,
+    });
+    // Every cosine-sampled ray escapes: each sample is exactly albedo * L_a.
+    let got = converge(&floor_scene(vec![], ambient, false), 8);
+    assert!((got.x - ALBEDO * 0.5).abs() < 1e-7, "{got}");
+    // Next to an infinite wall the cosine-weighted visible fraction is 1/2
+    // (the wall hides the half-space x < 0).
+    let frames = 4000;
+    let got = converge(&floor_scene(vec![], ambient, true), frames);
+    let expected = ALBEDO * 0.5 * 0.5;
+    // Binomial standard error of the visible fraction: sqrt(0.25 / 4000) ~ 0.008.
+    assert!(
+        (got.x - expected).abs() < 4.0 * 0.0079 * ALBEDO * 0.5,
+        "{got} vs {expected}"
+    );
+}
+
+#[test]
+fn frames_are_replayable_and_independent_of_thread_count() {
+    let light = Light::Area {
+        corner: DVec3::new(-0.5, 2.0, -0.5),
+        edge_u: DVec3::new(1.0, 0.0, 0.0),
+        edge_v: DVec3::new(0.0, 0.0, 1.0),
+        radiance: DVec3::splat(5.0),
+    };
+    let mut scene = floor_scene(
+        vec![light],
+        Some(Ambient {
+            radiance: DVec3::splat(0.2),
+            radius: 0.5,
+        }),
+        true,
+    );
+    scene.render.width = 16;
+    scene.render.height = 12;
+    scene.camera.fov_y_deg = 60.0;
+    let render = |threads: usize, frames: u32| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        let mut r = mode(&scene);
+        let stats: Vec<_> = (0..frames)
+            .map(|_| pool.install(|| r.render_frame()).counters.rays)
+            .collect();
+        (r.image(), stats)
+    };
+    let (a, ca) = render(2, 3);
+    let (b, cb) = render(1, 3);
+    assert_eq!(a, b);
+    assert_eq!(ca, cb);
+    assert_eq!(ca[0].primary, 16 * 12);
+    assert_ne!(render(2, 4).0, a, "another frame adds other samples");
+    // Every pixel replays alone: the film after two frames holds samples 0 and 1.
+    let mut r = mode(&scene);
+    r.render_frame();
+    r.render_frame();
+    let w = r.layer_weights();
+    let img = r.image();
+    let mut lit = 0;
+    for (x, y) in (0..12).flat_map(|y| (0..16).map(move |x| (x, y))) {
+        let v: DVec3 = (0..2)
+            .flat_map(|i| r.sample(x, y, i).0.into_iter().zip(&w).map(|(l, w)| l * *w))
+            .sum::<DVec3>()
+            / 2.0;
+        let got = img.get(x, y);
+        assert!(
+            (v.x as f32 - got[0]).abs() <= 1e-6 * got[0].abs().max(1e-6),
+            "pixel {x},{y}: {v} vs {got:?}"
+        );
+        lit += usize::from(got[0] > 0.0);
+    }
+    assert!(lit > 100, "most pixels see lit surfaces");
+}

@@ -1,10 +1,12 @@
 //! The speed-against-error report of a render mode (DESIGN.md: "every fast path
 //! reports its speed against its error"): a converged reference, then the error of the
 //! progressive image after 1, 2, 4, ... frames with the render time spent, for the
-//! scene as written and for its cheaper variants (AO off; the SPMM residual skipped as
-//! while the camera moves; N_PCA limited). A variant that changes what is computed
-//! (AO off) is measured against its own reference; approximations of the same image
-//! (residual off, fewer PCA terms) against the full one, so their bias shows.
+//! scene as written and for its variants (AO off; environment light without MIS; the
+//! SPMM residual skipped as while the camera moves; N_PCA limited). A variant that changes what is computed
+//! (AO off) is measured against its own reference; other estimators of the same image
+//! (no MIS) and approximations of it (residual off, fewer PCA terms) against the full
+//! one, so their noise or bias shows. Any mode can be reported; its reference is
+//! rendered by the same mode.
 
 use std::time::Instant;
 
@@ -63,6 +65,9 @@ pub struct VariantSummary {
 
 #[derive(Clone, Debug, Serialize)]
 pub struct ConvergenceReport {
+    /// The mode measured; references are always the converged spmm mode on the CPU.
+    pub mode: ModeKind,
+    pub device: Device,
     pub width: u32,
     pub height: u32,
     pub reference_frames: u32,
@@ -127,6 +132,18 @@ fn variants(scene: &Scene, notes: &mut Vec<String>) -> Vec<(Variant, Scene)> {
     } else {
         notes.push("the scene has no ambient term: no AO-off variant".into());
     }
+    match &scene.environment {
+        Some(env) if env.mis => {
+            // The same image by map sampling alone: what MIS gains at equal frames.
+            let mut s = scene.clone();
+            if let Some(e) = &mut s.environment {
+                e.mis = false;
+            }
+            out.push((v("no_mis", "full"), s));
+        }
+        Some(_) => notes.push("the environment samples the map alone (mis = false): no MIS variant".into()),
+        None => {}
+    }
     match residual_terms(scene) {
         Some(k) => {
             out.push((
@@ -147,7 +164,15 @@ fn variants(scene: &Scene, notes: &mut Vec<String>) -> Vec<(Variant, Scene)> {
 }
 
 fn converged(scene: &Scene, r: &ConvergenceRequest) -> Result<(Image, f64), ConvergenceError> {
-    let mut mode = super::create(r.mode, r.device, scene.clone(), r.width, r.height, Prepare::quietly())?;
+    // The reference is the spmm mode on the CPU, whichever mode is being measured.
+    let mut mode = super::create(
+        ModeKind::Spmm,
+        Device::Cpu,
+        scene.clone(),
+        r.width,
+        r.height,
+        Prepare::quietly(),
+    )?;
     let run = run_frames(mode.as_mut(), r.reference_frames, |_, _| {});
     Ok((mode.image(), run.seconds))
 }
@@ -230,6 +255,8 @@ pub fn convergence_report(
     }
     let reference = references.swap_remove(0).1;
     Ok(ConvergenceReport {
+        mode: request.mode,
+        device: request.device,
         reference,
         width: request.width,
         height: request.height,

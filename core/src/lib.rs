@@ -11,6 +11,7 @@ pub mod btf;
 pub mod container;
 pub mod fit;
 pub mod image;
+pub mod merl;
 pub mod metrics;
 pub mod render;
 pub mod rng;

@@ -1,9 +1,8 @@
 //! Measured isotropic BRDFs in the MERL binary format (Matusik et al. 2003, "A
-//! Data-Driven Reflectance Model"): a 90 x 90 x 180 table over the half/difference
-//! angles of Rusinkiewicz 1998, RGB, with the format's per-channel scale factors.
-//! This file holds the table type and its errors; reading and writing are in
-//! `file.rs`, the parametrisation and lookups in `lookup.rs`, importance sampling in
-//! `sample.rs`, tabulation of analytic BRDFs in `tabulate.rs`. Layout: docs/formats/merl.md.
+//! Data-Driven Reflectance Model"): a 90 x 90 x 180 RGB table over Rusinkiewicz's
+//! half/difference angles, with the format's per-channel scales. Here: the table type
+//! and its errors; `file.rs` reads and writes, `lookup.rs` parametrises and looks up,
+//! `sample.rs` importance-samples, `tabulate.rs` tabulates analytic BRDFs.
 
 mod file;
 mod lookup;
@@ -189,7 +188,7 @@ impl MerlBrdf {
             .count()
     }
 
-    /// The importance-sampling tables, built on first use (about 3 million lookups).
+    /// The importance-sampling tables, built on first use (about 1.5 million lookups).
     pub fn sampler(&self) -> &MerlSampler {
         self.sampler.get_or_init(|| MerlSampler::new(self))
     }

@@ -1,9 +1,8 @@
-//! Importance sampling of a MERL table by tabulated distributions (the approach of
-//! Lawrence et al. 2004 in its simplest, piecewise-constant form): for each of 45 bands
-//! of the outgoing polar angle, a 2D piecewise-constant density over the incident
-//! hemisphere in (cos theta_i, phi_i - phi_o), proportional to the table's luminance
-//! times cos theta_i at the band's centre, plus a small uniform floor so that the pdf
-//! is positive wherever the BRDF is. Not a fit: no interpolation between bands.
+//! Importance sampling of a MERL table by tabulated distributions (the piecewise-
+//! constant 2D sampling of pbrt-v3, section 13.6.7): per band of theta_o, a 2D density
+//! over (cos theta_i, phi_i - phi_o) proportional to the table's luminance times
+//! cos theta_i at the band's centre, plus a uniform floor so that the pdf is positive
+//! wherever the BRDF is. No interpolation between bands.
 
 use std::f64::consts::{FRAC_PI_2, PI};
 

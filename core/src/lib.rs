@@ -14,6 +14,7 @@ pub mod environment;
 pub mod fit;
 pub mod geometry;
 pub mod image;
+pub mod merl;
 pub mod metrics;
 pub mod modes;
 pub mod render;

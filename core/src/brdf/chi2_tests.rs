@@ -3,10 +3,12 @@
 //! integrate the pdf over the same bins, and reject when the chi^2 statistic is
 //! improbable. Bins live in a frame around the lobe axis with polar edges crowded
 //! near it, so sharp lobes (n = 1e4, roughness 0.02) still spread over many bins.
+//! `histogram` and `p_value` are shared with the MERL sampler's test, which bins
+//! its own way.
 
 use std::f64::consts::PI;
 
-use glam::DVec3;
+use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
@@ -15,10 +17,10 @@ use crate::rng::SampleStream;
 
 const THETA_BINS: usize = 40;
 const PHI_BINS: usize = 48;
-const SAMPLES: u64 = 1_000_000;
+pub(crate) const SAMPLES: u64 = 1_000_000;
 const MIN_EXPECTED: f64 = 5.0;
 /// Overall false-alarm rate of the whole suite (Sidak-corrected per test).
-const SIGNIFICANCE: f64 = 0.01;
+pub(crate) const SIGNIFICANCE: f64 = 0.01;
 
 struct Binning {
     frame: Frame,
@@ -206,27 +208,52 @@ fn chi2_p_value(
     binning: &Binning,
     seed: u64,
 ) -> Result<f64, String> {
-    let mut observed = vec![0.0f64; THETA_BINS * PHI_BINS];
+    let (observed, accepted) = histogram(
+        |u| brdf.sample(wo, u).map(|s| s.wi),
+        |wi| binning.index(wi),
+        THETA_BINS * PHI_BINS,
+        seed,
+    );
+    let expected = binning.integrate(|wi| brdf.pdf(wo, wi));
+    // The quadrature's own error: cells converge to 1e-8; the worst total measured is 6e-9.
+    p_value(&observed, &expected, accepted, 1e-6)
+}
+
+/// Counts of `SAMPLES` draws of `sample` (uniform numbers keyed by `seed` and the
+/// sample index) over `bins` bins, and how many draws returned a direction.
+pub(crate) fn histogram(
+    sample: impl Fn(DVec2) -> Option<DVec3>,
+    bin_of: impl Fn(DVec3) -> usize,
+    bins: usize,
+    seed: u64,
+) -> (Vec<f64>, u64) {
+    let mut observed = vec![0.0f64; bins];
     let mut accepted = 0u64;
     for k in 0..SAMPLES {
         let u = SampleStream::new(&[seed, k]).next_2d();
-        if let Some(s) = brdf.sample(wo, u) {
-            observed[binning.index(s.wi)] += 1.0;
+        if let Some(wi) = sample(u) {
+            observed[bin_of(wi)] += 1.0;
             accepted += 1;
         }
     }
-    let expected: Vec<f64> = binning
-        .integrate(|wi| brdf.pdf(wo, wi))
-        .into_iter()
-        .map(|e| e * SAMPLES as f64)
-        .collect();
+    (observed, accepted)
+}
+
+/// The chi^2 p-value of `observed` counts (from `histogram`) against `expected_prob`,
+/// the pdf's integral over each bin, whose total may differ from the returned share of
+/// samples by 5 binomial sigma plus `integration_error`.
+pub(crate) fn p_value(
+    observed: &[f64],
+    expected_prob: &[f64],
+    accepted: u64,
+    integration_error: f64,
+) -> Result<f64, String> {
+    let expected: Vec<f64> = expected_prob.iter().map(|e| e * SAMPLES as f64).collect();
     // The pdf integrates to the probability that `sample` returns a direction.
     let total_expected: f64 = expected.iter().sum();
     let accept_rate = accepted as f64 / SAMPLES as f64;
     let se = (accept_rate * (1.0 - accept_rate) / SAMPLES as f64).sqrt();
-    // 5 sigma of the binomial acceptance count, plus the quadrature's own error
-    // (cells converge to 1e-8; the worst total measured is 6e-9).
-    if (total_expected / SAMPLES as f64 - accept_rate).abs() > 5.0 * se + 1e-6 {
+    if (total_expected / SAMPLES as f64 - accept_rate).abs() > 5.0 * se + integration_error {
         return Err(format!(
             "pdf integrates to {} but {} of samples were returned",
             total_expected / SAMPLES as f64,

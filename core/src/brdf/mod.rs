@@ -18,7 +18,7 @@ mod ward;
 pub mod warp;
 
 #[cfg(test)]
-mod chi2_tests;
+pub(crate) mod chi2_tests;
 #[cfg(test)]
 mod tests;
 

@@ -72,7 +72,7 @@ pub struct ModelArgs {
 
 impl ModelArgs {
     /// Parses and validates the model and its parameters (exit 2 on any fault).
-    fn build(&self) -> Result<AnalyticBrdf, CliError> {
+    pub fn build(&self) -> Result<AnalyticBrdf, CliError> {
         let model = BrdfModel::from_name(&self.model).bad_input_ctx(|| "--model".into())?;
         let mut params = Vec::with_capacity(self.params.len());
         for raw in &self.params {
@@ -183,7 +183,7 @@ fn unit_direction(v: DVec3, name: &str, line_no: usize) -> Result<DVec3, CliErro
     Ok(v / len)
 }
 
-fn params_json(brdf: &AnalyticBrdf) -> serde_json::Value {
+pub fn params_json(brdf: &AnalyticBrdf) -> serde_json::Value {
     let specs = brdf.model().param_specs();
     let map: serde_json::Map<String, serde_json::Value> = specs
         .iter()

@@ -7,6 +7,7 @@ mod btf_cmd;
 mod compare_cmd;
 mod failure;
 mod fit_cmd;
+mod merl_cmd;
 mod mode_args;
 mod pack_cmd;
 mod plot;
@@ -48,6 +49,11 @@ enum Command {
     },
     /// Fit an SPMM pack to a BTF (clusters, dictionaries, sparse weights, PCA residual).
     Fit(fit_cmd::FitArgs),
+    /// Measured BRDFs in the MERL binary format: summarise, validate, evaluate, tabulate.
+    Merl {
+        #[command(subcommand)]
+        command: merl_cmd::MerlCommand,
+    },
     /// Progressive render of a scene file in a render mode to EXR or PNG.
     Render(render_cmd::RenderArgs),
     /// Reports: speed against error of the render modes.
@@ -73,6 +79,7 @@ fn main() -> ExitCode {
         Command::Btf { command } => btf_cmd::run(command),
         Command::Fit(args) => fit_cmd::run(&args),
         Command::Compare(args) => compare_cmd::run(&args),
+        Command::Merl { command } => merl_cmd::run(command),
         Command::Pack { command } => pack_cmd::run(command),
         Command::Render(args) => render_cmd::run(&args),
         Command::Report { command } => report_cmd::run(command),

@@ -1089,3 +1089,61 @@ fn merl_bad_input_exits_2_naming_the_fault() {
         "{err}"
     );
 }
+
+#[test]
+fn render_modes_devices_and_unsupported_scenes_exit_2_naming_why() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let out = dir.path().join("r.exr");
+    let out_arg = out.to_str().expect("utf-8");
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/env.toml");
+    let render = |extra: &[&str]| {
+        let mut args = vec!["render", scene, "-o", out_arg, "--width", "16", "--height", "16"];
+        args.extend_from_slice(extra);
+        meso(&args, "")
+    };
+    // Modes and devices not built yet say so; unknown names are usage errors.
+    assert_bad_input(&render(&["--mode", "biscale"]), &["biscale", "not built yet"]);
+    assert_bad_input(&render(&["--device", "gpu"]), &["spmm", "gpu", "not built yet"]);
+    assert_bad_input(&render(&["--mode", "fast"]), &["fast", "spmm, biscale, adaptive"]);
+    // The environment scene renders in its own mode, which --json names with its counters.
+    let o = render(&["--frames", "2", "--json", "--mode", "spmm", "--device", "cpu"]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    assert_eq!((v["mode"].as_str(), v["device"].as_str()), (Some("spmm"), Some("cpu")));
+    assert_eq!(v["samples"], 2 * 16 * 16);
+    assert!(v["rays"]["environment"].as_u64().expect("count") > 0);
+    assert!(v["shading_points"].as_u64().expect("count") > 0);
+    // A material the mode cannot shade: exit 2 naming it, and no image written.
+    let merl_scene = dir.path().join("merl.toml");
+    std::fs::write(
+        &merl_scene,
+        r#"version = 1
+[camera]
+position = [0.0, 0.5, 2.0]
+look_at = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov_y_deg = 40.0
+[materials.gold]
+kind = "merl"
+tabulate = { model = "lambertian", albedo = [0.9, 0.7, 0.2] }
+[[quad]]
+corner = [-1.0, 0.0, 1.0]
+edge_u = [2.0, 0.0, 0.0]
+edge_v = [0.0, 0.0, -2.0]
+material = "gold"
+"#,
+    )
+    .expect("write scene");
+    let fresh = dir.path().join("never.exr");
+    let o = meso(
+        &[
+            "render",
+            merl_scene.to_str().expect("utf-8"),
+            "-o",
+            fresh.to_str().expect("utf-8"),
+        ],
+        "",
+    );
+    assert_bad_input(&o, &["spmm", "material `gold` (merl)"]);
+    assert!(!fresh.exists());
+}

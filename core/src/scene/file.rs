@@ -96,6 +96,20 @@ pub struct MaterialFile {
     pub npca: Option<Spanned<u32>>,
     // kind = "mirror"
     pub reflectance: Option<Spanned<[f64; 3]>>,
+    // kind = "merl": a file, or a table made at load from an analytic BRDF
+    pub path: Option<Spanned<PathBuf>>,
+    pub tabulate: Option<Spanned<TabulateFile>>,
+    pub tint: Option<Spanned<[f64; 3]>>,
+}
+
+/// `tabulate = { model = "...", params = {...}, albedo = [...] }` of a `merl` material.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TabulateFile {
+    pub model: String,
+    #[serde(default)]
+    pub params: BTreeMap<String, f64>,
+    pub albedo: Option<[f64; 3]>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -24,6 +24,7 @@ use toml::Spanned;
 
 use crate::brdf::{AnalyticBrdf, BrdfModel};
 use crate::image::{self, Image};
+use crate::merl::{self, MerlBrdf};
 use crate::spmm::SpmmMaterial;
 use crate::spmm::pack;
 pub use environment::Environment;
@@ -131,6 +132,11 @@ pub enum Material {
     Mirror {
         reflectance: DVec3,
     },
+    /// A measured isotropic BRDF (MERL table); f_rgb = tint * table(wi, wo).
+    Merl {
+        brdf: Arc<MerlBrdf>,
+        tint: DVec3,
+    },
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -223,6 +229,7 @@ impl Material {
             Material::Brdf { .. } => "brdf",
             Material::Spmm { .. } => "spmm",
             Material::Mirror { .. } => "mirror",
+            Material::Merl { .. } => "merl",
         }
     }
 }
@@ -754,11 +761,15 @@ fn build_material(
         ("residual", m.residual.is_some()),
         ("npca", m.npca.is_some()),
         ("reflectance", m.reflectance.is_some()),
+        ("path", m.path.is_some()),
+        ("tabulate", m.tabulate.is_some()),
+        ("tint", m.tint.is_some()),
     ];
     let accepted: &[&str] = match m.kind.get_ref().as_str() {
         "brdf" => &["model", "params", "albedo"],
         "spmm" => &["pack", "uv_scale", "residual", "npca"],
         "mirror" => &["reflectance"],
+        "merl" => &["path", "tabulate", "tint"],
         _ => &[],
     };
     if !accepted.is_empty()
@@ -848,10 +859,44 @@ fn build_material(
             };
             Ok(Material::Mirror { reflectance })
         }
+        "merl" => {
+            let brdf = match (&m.path, &m.tabulate) {
+                (Some(path), None) => MerlBrdf::read(&folder.join(path.get_ref()))
+                    .or_else(|e| ctx.err(&path.span(), key("path"), e.to_string()))?,
+                (None, Some(t)) => {
+                    let span = t.span();
+                    let t = t.get_ref();
+                    let model = BrdfModel::from_name(&t.model)
+                        .or_else(|e| ctx.err(&span, key("tabulate.model"), e.to_string()))?;
+                    let named: Vec<(&str, f64)> =
+                        t.params.iter().map(|(k, v)| (k.as_str(), *v)).collect();
+                    let analytic = AnalyticBrdf::new(model, &named)
+                        .or_else(|e| ctx.err(&span, key("tabulate.params"), e.to_string()))?;
+                    let albedo = DVec3::from_array(t.albedo.unwrap_or([1.0; 3]));
+                    merl::tabulate(&analytic, albedo)
+                        .or_else(|e| ctx.err(&span, key("tabulate.albedo"), e.to_string()))?
+                }
+                _ => {
+                    return ctx.err(
+                        &span,
+                        key("path"),
+                        "a `merl` material needs exactly one of `path` and `tabulate`",
+                    );
+                }
+            };
+            let tint = match &m.tint {
+                Some(t) => ctx.non_negative3(t, &key("tint"))?,
+                None => DVec3::ONE,
+            };
+            Ok(Material::Merl {
+                brdf: Arc::new(brdf),
+                tint,
+            })
+        }
         other => ctx.err(
             &m.kind.span(),
             key("kind"),
-            format!("`{other}`: materials are `brdf`, `spmm` or `mirror`"),
+            format!("`{other}`: materials are `brdf`, `spmm`, `mirror` or `merl`"),
         ),
     }
 }

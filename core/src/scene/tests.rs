@@ -19,7 +19,34 @@ fn setup() -> tempfile::TempDir {
         dir.path().join("leather.spmm"),
     )
     .expect("copy pack");
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../materials/env/env_sky.exr"),
+        dir.path().join("sky.exr"),
+    )
+    .expect("copy map");
     dir
+}
+
+/// The example with the tables the render modes added: `[render] mode/device`, an
+/// `[environment]`, an inline-tabulated `merl` material, and no `[background]`.
+fn with_mode_tables(example: &str) -> String {
+    example
+        .replace(
+            "max_specular_depth = 2\n",
+            "max_specular_depth = 2\nmode = \"biscale\"\ndevice = \"gpu\"\n",
+        )
+        .replace("[background]\ncolor = [0.1, 0.2, 0.3]\n", "")
+        + r#"
+[materials.paint]
+kind = "merl"
+tabulate = { model = "cook_torrance", params = { m = 0.3, f0 = 0.05 }, albedo = [0.8, 0.2, 0.1] }
+tint = [1.0, 0.5, 1.0]
+
+[environment]
+path = "sky.exr"
+strength = 2.5
+rotate_y_deg = -40.0
+"#
 }
 
 const EXAMPLE: &str = r#"version = 1
@@ -178,6 +205,31 @@ fn the_spec_example_loads_with_its_values() {
 }
 
 #[test]
+fn mode_device_environment_and_merl_tables_load_with_their_values() {
+    let dir = setup();
+    let s = load_scene(&write(dir.path(), &with_mode_tables(EXAMPLE))).expect("valid scene");
+    assert_eq!((s.render.mode, s.render.device), (ModeKind::Biscale, Device::Gpu));
+    let env = s.environment.as_ref().expect("an environment");
+    assert_eq!((env.strength, env.rotate_y_deg, env.mis), (2.5, -40.0, true));
+    assert_eq!((env.map.width(), env.map.height()), (512, 256));
+    assert!(matches!(s.background, Background::FromEnvironment));
+    let paint = s.material_names.iter().position(|n| n == "paint").expect("paint");
+    match &s.materials[paint] {
+        Material::Merl { brdf, tint } => {
+            assert_eq!(*tint, DVec3::new(1.0, 0.5, 1.0));
+            // The table holds albedo x Cook-Torrance at its cells: red > green > blue.
+            let v = brdf.eval(DVec3::new(0.3, 0.0, 0.95).normalize(), DVec3::Z);
+            assert!(v.x > v.y && v.y > v.z && v.z > 0.0, "{v}");
+        }
+        other => panic!("paint is a merl material, got {other:?}"),
+    }
+    // Defaults: spmm on the CPU, no environment, black background from it.
+    let plain = load_scene(&write(dir.path(), EXAMPLE)).expect("valid");
+    assert_eq!((plain.render.mode, plain.render.device), (ModeKind::Spmm, Device::Cpu));
+    assert!(plain.environment.is_none());
+}
+
+#[test]
 fn computed_normals_are_area_weighted() {
     // Two triangles sharing vertex 0: one of area 2 facing +z, one of area 0.5 facing +x.
     let positions = [
@@ -291,6 +343,51 @@ fn bad_cases() -> Vec<(String, Option<usize>, Vec<&'static str>)> {
             EXAMPLE.replace("look_at = [0.0, 0.4, 0.0]", "look_at = [0.0, 0.6, 2.5]"),
             line_of("look_at"),
             vec!["camera.look_at"],
+        ),
+        (
+            with_mode_tables(EXAMPLE).replace("mode = \"biscale\"", "mode = \"fast\""),
+            line_of("max_specular_depth").map(|l| l + 1),
+            vec!["render.mode", "fast", "spmm, biscale, adaptive"],
+        ),
+        (
+            with_mode_tables(EXAMPLE).replace("device = \"gpu\"", "device = \"tpu\""),
+            line_of("max_specular_depth").map(|l| l + 2),
+            vec!["render.device", "tpu"],
+        ),
+        (
+            with_mode_tables(EXAMPLE).replace("strength = 2.5", "strength = -1.0"),
+            None,
+            vec!["environment.strength", "non-negative"],
+        ),
+        (
+            with_mode_tables(EXAMPLE).replace("rotate_y_deg = -40.0", "rotate_y_deg = nan"),
+            None,
+            vec!["environment.rotate_y_deg", "not finite"],
+        ),
+        (
+            with_mode_tables(EXAMPLE).replace("path = \"sky.exr\"", "path = \"nosky.exr\""),
+            None,
+            vec!["environment.path", "nosky.exr"],
+        ),
+        (
+            with_mode_tables(EXAMPLE).replace("strength = 2.5", "strenght = 2.5"),
+            None,
+            vec!["strenght"],
+        ),
+        (
+            with_mode_tables(EXAMPLE).replace("tint = [1.0, 0.5, 1.0]", "path = \"x.binary\""),
+            None,
+            vec!["materials.paint.path", "exactly one"],
+        ),
+        (
+            with_mode_tables(EXAMPLE).replace("model = \"cook_torrance\"", "model = \"velvet\""),
+            None,
+            vec!["materials.paint.tabulate.model", "velvet"],
+        ),
+        (
+            with_mode_tables(EXAMPLE).replace("tabulate = {", "bogus = 1\ntabulate = {"),
+            None,
+            vec!["bogus"],
         ),
     ]
 }

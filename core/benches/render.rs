@@ -4,7 +4,8 @@
 //!   to 1.25M triangles, on 1 thread and on all threads;
 //! - BVH build against refit (same triangles moved) for those meshes;
 //! - milliseconds per frame of the default scene at 256^2 and 512^2, AO on and off,
-//!   still and moving (residual skipped), 1 thread and all threads.
+//!   still and moving (residual skipped), 1 thread and all threads;
+//! - the environment scene per frame: MIS, map sampling alone, no environment.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -12,7 +13,8 @@ use std::path::Path;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use glam::{DMat3, DVec2, DVec3};
 use meso_core::brdf::warp;
-use meso_core::render::{ModeKind, SceneEdit};
+use meso_core::modes;
+use meso_core::render::{Device, ModeKind, Prepare, RenderMode, SceneEdit};
 use meso_core::rng::SampleStream;
 use meso_core::scene::mesh::{Placement, load_obj, vertex_normals};
 use meso_core::scene::{TriangleMesh, load_scene};
@@ -200,6 +202,32 @@ fn bench_rays(c: &mut Criterion) {
     }
 }
 
+fn create(scene: meso_core::scene::Scene, size: u32) -> Box<dyn RenderMode> {
+    modes::create(ModeKind::Spmm, Device::Cpu, scene, size, size, Prepare::quietly())
+        .expect("the spmm mode renders the test scenes")
+}
+
+/// The environment scene at 256^2: map sampling alone against MIS (two rays), and
+/// the same scene without its environment (primary rays and shading only).
+fn bench_environment(c: &mut Criterion) {
+    let scene = load_scene(&root().join("tests/scenes/env.toml")).expect("env scene");
+    let mut group = c.benchmark_group("environment frame 256x256");
+    group.sample_size(10);
+    group.throughput(Throughput::Elements(256 * 256));
+    for (label, mis, env) in [("MIS", true, true), ("map only", false, true), ("no environment", false, false)] {
+        let mut s = scene.clone();
+        match (&mut s.environment, env) {
+            (Some(e), true) => e.mis = mis,
+            (e, _) => *e = None,
+        }
+        let mut mode = create(s, 256);
+        group.bench_function(BenchmarkId::new(label, "all threads"), |b| {
+            b.iter(|| mode.render_frame())
+        });
+    }
+    group.finish();
+}
+
 fn bench_frames(c: &mut Criterion) {
     let scene = load_scene(&root().join("tests/scenes/default.toml")).expect("default scene");
     let one = rayon::ThreadPoolBuilder::new()
@@ -215,7 +243,7 @@ fn bench_frames(c: &mut Criterion) {
             if !ao {
                 s.ambient = None;
             }
-            let mut mode = meso_core::modes::create(ModeKind::Spmm, meso_core::render::Device::Cpu, s, size, size, meso_core::render::Prepare::quietly()).expect("size");
+            let mut mode = create(s, size);
             mode.apply(SceneEdit::Moving(moving)).expect("valid edit");
             let label = format!(
                 "AO {}, residual {}",
@@ -233,5 +261,5 @@ fn bench_frames(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, bench_rays, bench_frames);
+criterion_group!(benches, bench_rays, bench_frames, bench_environment);
 criterion_main!(benches);

@@ -156,7 +156,7 @@ mod tests {
         assert!(d.light(0) && !d.light(2));
         step(&mut doc, &mut mode, &mut d, SceneEdit::AddLight(point(7.0)));
         step(&mut doc, &mut mode, &mut d, SceneEdit::Light { index: 1, light: point(2.5) });
-        assert_eq!(mode.lights, vec![point(2.5), point(7.0)]);
+        assert_eq!(mode.lights, vec![point(2.5), point(40.0), point(7.0)]);
     }
 
     #[test]

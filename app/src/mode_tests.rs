@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use egui::accesskit::Role;
 use egui_kittest::Harness;
-use egui_kittest::kittest::Queryable;
+use egui_kittest::kittest::{NodeT, Queryable};
 use glam::DVec3;
 use meso_core::image::Image;
 use meso_core::render::{
@@ -178,6 +178,17 @@ fn next_frame_mode(h: &mut Harness<'_, Studio>) -> ModeKind {
     h.state().frame().expect("a frame").mode
 }
 
+/// Steps until a frame of the document's version rendered by `mode` is shown (the
+/// old mode may still show that version until the new one is installed).
+fn wait_for_mode_frame(h: &mut Harness<'_, Studio>, mode: ModeKind) {
+    step_until(h, "a frame of the new mode", |h| {
+        let version = h.state().doc.as_ref().expect("doc").version;
+        h.state()
+            .frame()
+            .is_some_and(|f| f.mode == mode && f.version >= version)
+    });
+}
+
 /// Picks a render mode in the panel's combo box.
 fn choose_mode(h: &mut Harness<'_, Studio>, name: &str) {
     h.get_by_role_and_label(Role::ComboBox, "Render mode").click();
@@ -194,9 +205,14 @@ fn a_slow_switch_keeps_the_old_mode_rendering_cancel_keeps_it_and_a_finished_one
     choose_mode(&mut h, "biscale");
     assert!(h.state().switching(), "the preparation runs in the background");
     step_until(&mut h, "the progress bar", |h| {
-        h.query_by_role(Role::ProgressIndicator).is_some()
+        h.query_all_by_role(Role::ProgressIndicator)
+            .any(|n| {
+                n.accesskit_node()
+                    .label()
+                    .is_some_and(|l| l.contains("waiting for the test"))
+            })
     });
-    assert!(h.query_by_label_contains("preparing biscale (cpu)").is_some());
+    assert!(h.query_by_label_contains("switching to biscale (cpu)").is_some());
     // The old mode keeps rendering meanwhile.
     for _ in 0..2 {
         assert_eq!(next_frame_mode(&mut h), ModeKind::Spmm);
@@ -205,7 +221,7 @@ fn a_slow_switch_keeps_the_old_mode_rendering_cancel_keeps_it_and_a_finished_one
     h.get_by_label("Cancel").click();
     step_until(&mut h, "the cancelled job to end", |h| !h.state().switching());
     assert_eq!(h.state().mode(), (ModeKind::Spmm, Device::Cpu));
-    assert!(h.query_by_role(Role::ProgressIndicator).is_none());
+    assert!(h.query_by_role(Role::ProgressIndicator).is_none(), "no bar, no spinner");
     assert!(h.state().mode_message.is_none(), "cancelling is no error");
     assert_eq!(next_frame_mode(&mut h), ModeKind::Spmm);
 
@@ -220,8 +236,7 @@ fn a_slow_switch_keeps_the_old_mode_rendering_cancel_keeps_it_and_a_finished_one
     release.store(true, Ordering::Relaxed);
     step_until(&mut h, "the switch", |h| !h.state().switching());
     assert_eq!(h.state().mode(), (ModeKind::Biscale, Device::Cpu));
-    wait_for_current_frame(&mut h);
-    assert_eq!(h.state().frame().expect("frame").mode, ModeKind::Biscale);
+    wait_for_mode_frame(&mut h, ModeKind::Biscale);
     assert_eq!(next_frame_mode(&mut h), ModeKind::Biscale);
     assert_eq!(
         *applied.lock().expect("not poisoned"),
@@ -252,8 +267,7 @@ fn a_mode_that_cannot_render_a_light_asks_and_renders_without_it() {
         .click();
     step_until(&mut h, "the switch", |h| !h.state().switching());
     assert_eq!(h.state().mode(), (ModeKind::Adaptive, Device::Cpu));
-    wait_for_current_frame(&mut h);
-    assert_eq!(h.state().frame().expect("frame").mode, ModeKind::Adaptive);
+    wait_for_mode_frame(&mut h, ModeKind::Adaptive);
     h.run_steps(2);
     assert!(
         h.query_by_label_contains("light 0: area (disabled in adaptive)").is_some(),

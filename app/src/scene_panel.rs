@@ -149,13 +149,13 @@ fn mode_ui(ui: &mut Ui, state: &PanelState<'_>, out: &mut Vec<Request>) {
         ui.label(if s.cancelling {
             format!("cancelling the switch to {}…", s.target)
         } else {
-            format!("preparing {}: {stage}", s.target)
+            format!("switching to {}…", s.target)
         });
         ui.horizontal(|ui| {
             ui.add(
                 egui::ProgressBar::new(fraction)
-                    .show_percentage()
-                    .desired_width(160.0),
+                    .text(format!("{:.0}% · {stage}", fraction * 100.0))
+                    .desired_width(180.0),
             );
             if ui
                 .add_enabled(!s.cancelling, egui::Button::new("Cancel"))

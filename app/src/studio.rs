@@ -349,6 +349,24 @@ impl Studio {
         }
     }
 
+    /// The prompt's "switch with these lights disabled": asks again (the lights may
+    /// have changed while the prompt was open) and leaves out what the mode cannot
+    /// render, if that is only lights and the ambient term.
+    fn switch_without_lights(&mut self, kind: ModeKind, device: Device) {
+        self.unsupported_prompt = None;
+        let Some(doc) = &self.doc else { return };
+        match self.maker.supports(kind, device, &doc.scene) {
+            Ok(()) => self.start_switch(kind, device, Disabled::default()),
+            Err(ModeError::Unsupported(u)) if u.only_lights() => {
+                self.start_switch(kind, device, Disabled::from_unsupported(&u))
+            }
+            Err(e) => {
+                let staying = mode_name(self.mode.0, self.mode.1);
+                self.mode_message = Some(format!("{e}; staying in {staying}."));
+            }
+        }
+    }
+
     /// Prepares `kind` on `device` in the background for the document's scene
     /// without the `disabled` parts, at the current render size.
     fn start_switch(&mut self, kind: ModeKind, device: Device, disabled: Disabled) {
@@ -1271,8 +1289,7 @@ impl Studio {
                             .button(format!("Switch with these lights disabled for {}", u.mode.name()))
                             .clicked()
                         {
-                            self.unsupported_prompt = None;
-                            self.start_switch(u.mode, u.device, Disabled::from_unsupported(&u));
+                            self.switch_without_lights(u.mode, u.device);
                         }
                         if ui.button(format!("Stay in {current}")).clicked() {
                             self.unsupported_prompt = None;

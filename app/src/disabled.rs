@@ -136,18 +136,35 @@ mod tests {
             mode: ModeKind::Adaptive,
             device: Device::Cpu,
             parts: vec![
-                Unrenderable::Light { index: 3, kind: "point" },
-                Unrenderable::Light { index: 1, kind: "point" },
+                Unrenderable::Light {
+                    index: 3,
+                    kind: "point",
+                },
+                Unrenderable::Light {
+                    index: 1,
+                    kind: "point",
+                },
             ],
         });
         let mut mode = d.scene_for_mode(&doc);
         assert_eq!(mode.lights, vec![point(0.0), point(2.0), point(4.0)]);
         // Light 4 of the document is the mode's light 2.
-        let l = SceneEdit::Light { index: 4, light: point(40.0) };
+        let l = SceneEdit::Light {
+            index: 4,
+            light: point(40.0),
+        };
         step(&mut doc, &mut mode, &mut d, l);
         assert_eq!(mode.lights[2], point(40.0));
         // A disabled light's edit stays in the document.
-        step(&mut doc, &mut mode, &mut d, SceneEdit::Light { index: 1, light: point(10.0) });
+        step(
+            &mut doc,
+            &mut mode,
+            &mut d,
+            SceneEdit::Light {
+                index: 1,
+                light: point(10.0),
+            },
+        );
         assert_eq!(doc.lights[1], point(10.0));
         // Removing an enabled light before a disabled one shifts the map.
         step(&mut doc, &mut mode, &mut d, SceneEdit::RemoveLight(0));
@@ -155,7 +172,15 @@ mod tests {
         step(&mut doc, &mut mode, &mut d, SceneEdit::RemoveLight(2));
         assert!(d.light(0) && !d.light(2));
         step(&mut doc, &mut mode, &mut d, SceneEdit::AddLight(point(7.0)));
-        step(&mut doc, &mut mode, &mut d, SceneEdit::Light { index: 1, light: point(2.5) });
+        step(
+            &mut doc,
+            &mut mode,
+            &mut d,
+            SceneEdit::Light {
+                index: 1,
+                light: point(2.5),
+            },
+        );
         assert_eq!(mode.lights, vec![point(2.5), point(40.0), point(7.0)]);
     }
 

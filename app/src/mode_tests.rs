@@ -15,8 +15,8 @@ use egui_kittest::kittest::{NodeT, Queryable};
 use glam::DVec3;
 use meso_core::image::Image;
 use meso_core::render::{
-    Device, EditError, FrameStats, Invalidation, ModeError, ModeKind, Prepare,
-    PreparationReport, Progress, RenderMode, SceneEdit, Unrenderable, Unsupported,
+    Device, EditError, FrameStats, Invalidation, ModeError, ModeKind, PreparationReport, Prepare,
+    Progress, RenderMode, SceneEdit, Unrenderable, Unsupported,
 };
 use meso_core::scene::{Light, Scene};
 
@@ -55,7 +55,10 @@ impl RenderMode for Tagged {
     }
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
         if let SceneEdit::Light { index, light } = &edit {
-            self.applied.lock().expect("not poisoned").push((*index, *light));
+            self.applied
+                .lock()
+                .expect("not poisoned")
+                .push((*index, *light));
         }
         self.inner.apply(edit)
     }
@@ -157,7 +160,11 @@ fn test_modes() -> (Arc<AtomicBool>, Applied, Arc<dyn ModeMaker>) {
 }
 
 /// Steps until `done`, failing after 60 s with `what`.
-fn step_until(h: &mut Harness<'_, Studio>, what: &str, mut done: impl FnMut(&Harness<'_, Studio>) -> bool) {
+fn step_until(
+    h: &mut Harness<'_, Studio>,
+    what: &str,
+    mut done: impl FnMut(&Harness<'_, Studio>) -> bool,
+) {
     let deadline = Instant::now() + Duration::from_secs(60);
     loop {
         h.step();
@@ -191,7 +198,8 @@ fn wait_for_mode_frame(h: &mut Harness<'_, Studio>, mode: ModeKind) {
 
 /// Picks a render mode in the panel's combo box.
 fn choose_mode(h: &mut Harness<'_, Studio>, name: &str) {
-    h.get_by_role_and_label(Role::ComboBox, "Render mode").click();
+    h.get_by_role_and_label(Role::ComboBox, "Render mode")
+        .click();
     h.run_steps(2);
     h.get_by_label(name).click();
     h.run_steps(2);
@@ -203,25 +211,35 @@ fn a_slow_switch_keeps_the_old_mode_rendering_cancel_keeps_it_and_a_finished_one
     let mut h = harness_with(maker, small());
     wait_for_current_frame(&mut h);
     choose_mode(&mut h, "biscale");
-    assert!(h.state().switching(), "the preparation runs in the background");
+    assert!(
+        h.state().switching(),
+        "the preparation runs in the background"
+    );
     step_until(&mut h, "the progress bar", |h| {
-        h.query_all_by_role(Role::ProgressIndicator)
-            .any(|n| {
-                n.accesskit_node()
-                    .label()
-                    .is_some_and(|l| l.contains("waiting for the test"))
-            })
+        h.query_all_by_role(Role::ProgressIndicator).any(|n| {
+            n.accesskit_node()
+                .label()
+                .is_some_and(|l| l.contains("waiting for the test"))
+        })
     });
-    assert!(h.query_by_label_contains("switching to biscale (cpu)").is_some());
+    assert!(
+        h.query_by_label_contains("switching to biscale (cpu)")
+            .is_some()
+    );
     // The old mode keeps rendering meanwhile.
     for _ in 0..2 {
         assert_eq!(next_frame_mode(&mut h), ModeKind::Spmm);
     }
     assert!(h.state().switching());
     h.get_by_label("Cancel").click();
-    step_until(&mut h, "the cancelled job to end", |h| !h.state().switching());
+    step_until(&mut h, "the cancelled job to end", |h| {
+        !h.state().switching()
+    });
     assert_eq!(h.state().mode(), (ModeKind::Spmm, Device::Cpu));
-    assert!(h.query_by_role(Role::ProgressIndicator).is_none(), "no bar, no spinner");
+    assert!(
+        h.query_by_role(Role::ProgressIndicator).is_none(),
+        "no bar, no spinner"
+    );
     assert!(h.state().mode_message.is_none(), "cancelling is no error");
     assert_eq!(next_frame_mode(&mut h), ModeKind::Spmm);
 
@@ -253,13 +271,17 @@ fn a_mode_that_cannot_render_a_light_asks_and_renders_without_it() {
     choose_mode(&mut h, "adaptive");
     assert!(!h.state().switching(), "nothing starts before the answer");
     assert!(
-        h.query_by_label_contains("cannot render light[0] (area)").is_some(),
+        h.query_by_label_contains("cannot render light[0] (area)")
+            .is_some(),
         "the message names the light"
     );
     h.get_by_label("Stay in spmm (cpu)").click();
     h.run_steps(2);
     assert_eq!(h.state().mode(), (ModeKind::Spmm, Device::Cpu));
-    assert!(h.query_by_label_contains("cannot render light[0]").is_none());
+    assert!(
+        h.query_by_label_contains("cannot render light[0]")
+            .is_none()
+    );
     assert_eq!(next_frame_mode(&mut h), ModeKind::Spmm);
 
     choose_mode(&mut h, "adaptive");
@@ -270,7 +292,8 @@ fn a_mode_that_cannot_render_a_light_asks_and_renders_without_it() {
     wait_for_mode_frame(&mut h, ModeKind::Adaptive);
     h.run_steps(2);
     assert!(
-        h.query_by_label_contains("light 0: area (disabled in adaptive)").is_some(),
+        h.query_by_label_contains("light 0: area (disabled in adaptive)")
+            .is_some(),
         "the lights panel marks the light"
     );
     // Its edits stay in the document; the mode never gets them, frames still come.
@@ -300,7 +323,10 @@ fn a_mode_that_is_not_built_says_so_and_the_old_mode_keeps_rendering() {
         message.contains("not built") && message.contains("staying in spmm (cpu)"),
         "{message}"
     );
-    assert!(h.query_by_label_contains("not built").is_some(), "it is shown");
+    assert!(
+        h.query_by_label_contains("not built").is_some(),
+        "it is shown"
+    );
     assert_eq!(h.state().mode(), (ModeKind::Spmm, Device::Cpu));
     assert_eq!(next_frame_mode(&mut h), ModeKind::Spmm);
     let f = h.state().frame().expect("frame");
@@ -330,9 +356,15 @@ fn the_compare_view_shows_exactly_what_metrics_compare_says() {
     let m = h.state().measured().expect("measured").clone();
     let again = meso_core::metrics::compare(&m.reference, &m.live, 0.0).expect("same size");
     assert_eq!(again, m.comparison);
-    assert!(m.comparison.rmse > 0.0 && m.comparison.mssim < 1.0, "4 spp is not converged");
+    assert!(
+        m.comparison.rmse > 0.0 && m.comparison.mssim < 1.0,
+        "4 spp is not converged"
+    );
     h.run_steps(2);
-    assert!(h.query_by_label_contains("reference: spmm, 8 spp").is_some());
+    assert!(
+        h.query_by_label_contains("reference: spmm, 8 spp")
+            .is_some()
+    );
     let shown = format!("RMSE {:.4}", m.comparison.rmse);
     step_until(&mut h, "the numbers in the status bar", |h| {
         h.query_by_label_contains(&shown).is_some()
@@ -343,11 +375,27 @@ fn the_compare_view_shows_exactly_what_metrics_compare_says() {
 fn environment_edits_are_undoable_and_reach_the_renderer() {
     let mut h = harness_with(Arc::new(CoreModes), small());
     wait_for_current_frame(&mut h);
-    assert!(h.state().doc.as_ref().expect("doc").scene.environment.is_none());
+    assert!(
+        h.state()
+            .doc
+            .as_ref()
+            .expect("doc")
+            .scene
+            .environment
+            .is_none()
+    );
     h.get_by_label("env_studio").click();
     h.step();
     loaded(&mut h);
-    let env = |h: &Harness<'_, Studio>| h.state().doc.as_ref().expect("doc").scene.environment.clone();
+    let env = |h: &Harness<'_, Studio>| {
+        h.state()
+            .doc
+            .as_ref()
+            .expect("doc")
+            .scene
+            .environment
+            .clone()
+    };
     let on = env(&h).expect("the environment is on");
     assert_eq!((on.strength, on.rotate_y_deg), (1.0, 0.0));
     wait_for_current_frame(&mut h);

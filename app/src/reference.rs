@@ -130,7 +130,14 @@ fn run(
         }
         if let Some(Start { key, scene }) = newest {
             let (w, h) = key.1;
-            match modes::create(ModeKind::Spmm, Device::Cpu, *scene, w, h, Prepare::quietly()) {
+            match modes::create(
+                ModeKind::Spmm,
+                Device::Cpu,
+                *scene,
+                w,
+                h,
+                Prepare::quietly(),
+            ) {
                 Ok(m) => {
                     current = Some((key, m));
                     if let Ok(mut e) = errors.lock() {
@@ -184,7 +191,10 @@ mod tests {
             {
                 return x;
             }
-            assert!(Instant::now() < deadline, "no reference of version {version}");
+            assert!(
+                Instant::now() < deadline,
+                "no reference of version {version}"
+            );
             std::thread::sleep(Duration::from_millis(2));
         }
     }
@@ -198,8 +208,15 @@ mod tests {
         let a = wait(&r, 3, 2);
         assert_eq!((a.image.width(), a.image.height(), a.spp), (24, 16, 2));
         // The same image as core's mode at the same samples: it is the spmm mode.
-        let mut m = modes::create(ModeKind::Spmm, Device::Cpu, scene.clone(), 24, 16, Prepare::quietly())
-            .expect("mode");
+        let mut m = modes::create(
+            ModeKind::Spmm,
+            Device::Cpu,
+            scene.clone(),
+            24,
+            16,
+            Prepare::quietly(),
+        )
+        .expect("mode");
         m.render_frame();
         m.render_frame();
         assert_eq!(*a.image, m.image());

@@ -38,7 +38,9 @@ pub enum Command {
     },
     /// The document moved to `version` without a change this mode sees (an edit of a
     /// light the mode renders without): the next frame carries the version.
-    Unchanged { version: u64 },
+    Unchanged {
+        version: u64,
+    },
     /// Samples per pixel after which the thread idles.
     MaxSamples(u32),
 }
@@ -185,7 +187,10 @@ fn run(
                         .map(|m| mode = Some(m))
                         .map_err(|e| (v, e.to_string()))
                 }
-                Command::Install { version: v, mode: m } => {
+                Command::Install {
+                    version: v,
+                    mode: m,
+                } => {
                     version = v;
                     mode = Some(m);
                     Ok(())

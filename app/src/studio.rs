@@ -12,6 +12,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use egui::{Key, KeyboardShortcut, Modifiers, Ui};
+use meso_core::geometry::{SceneBvh, pick};
 use meso_core::image::Image;
 use meso_core::metrics::{self, Comparison};
 use meso_core::render::{
@@ -21,7 +22,6 @@ use meso_core::scene::mesh::{Placement, load_obj};
 use meso_core::scene::{Environment, Material, Scene, load_scene};
 use meso_core::spmm::SpmmMaterial;
 use meso_core::spmm::pack::ResidualPrecision;
-use meso_core::geometry::{SceneBvh, pick};
 
 use crate::disabled::Disabled;
 use crate::document::{Document, read_pack_file};
@@ -433,12 +433,14 @@ impl Studio {
             }
             Ok(Err(ModeError::Cancelled(_))) => {}
             Ok(Err(e)) => {
-                self.mode_message =
-                    Some(format!("switching to {target} failed: {e}; staying in {staying}."))
+                self.mode_message = Some(format!(
+                    "switching to {target} failed: {e}; staying in {staying}."
+                ))
             }
             Err(e) => {
-                self.mode_message =
-                    Some(format!("switching to {target} failed: {e}; staying in {staying}."))
+                self.mode_message = Some(format!(
+                    "switching to {target} failed: {e}; staying in {staying}."
+                ))
             }
         }
     }
@@ -1105,7 +1107,9 @@ impl Studio {
                 None => "reference: spmm, starting".into(),
             },
         });
-        let input = self.viewport.show(ui, &camera, self.settings.exposure, compare);
+        let input = self
+            .viewport
+            .show(ui, &camera, self.settings.exposure, compare);
         let scale = f64::from(self.settings.resolution);
         let full = (
             ((f64::from(input.panel_pixels.0) * scale) as u32).clamp(16, 4096),
@@ -1178,7 +1182,10 @@ impl Studio {
             self.settings.reference_spp,
         );
         if let Some(r) = reference.latest()
-            && self.reference_latest.as_ref().is_none_or(|old| old.seq != r.seq)
+            && self
+                .reference_latest
+                .as_ref()
+                .is_none_or(|old| old.seq != r.seq)
         {
             self.viewport.set_reference(Arc::clone(&r.image));
             self.reference_latest = Some(r);
@@ -1286,7 +1293,10 @@ impl Studio {
                     ));
                     ui.horizontal(|ui| {
                         if ui
-                            .button(format!("Switch with these lights disabled for {}", u.mode.name()))
+                            .button(format!(
+                                "Switch with these lights disabled for {}",
+                                u.mode.name()
+                            ))
                             .clicked()
                         {
                             self.switch_without_lights(u.mode, u.device);

@@ -189,6 +189,9 @@ impl Viewport {
                 ui.visuals().weak_text_color(),
             );
         }
+        if let Some(labels) = compare {
+            self.split_ui(ui, rect, &labels);
+        }
         ui.painter().text(
             rect.left_top() + Vec2::new(8.0, 6.0),
             egui::Align2::LEFT_TOP,
@@ -196,9 +199,6 @@ impl Viewport {
             egui::FontId::proportional(11.0),
             egui::Color32::from_gray(150),
         );
-        if let Some(labels) = compare {
-            self.split_ui(ui, rect, &labels);
-        }
         input.drag_started = response.drag_started();
         input.drag_stopped = response.drag_stopped();
         let delta = response.drag_delta();
@@ -270,7 +270,11 @@ impl Viewport {
             egui::vec2(8.0, rect.height()),
         );
         let response = ui
-            .interact(handle, egui::Id::new("meso-compare-divider"), Sense::drag())
+            .interact(
+                handle,
+                egui::Id::unique("meso-compare-divider"),
+                Sense::drag(),
+            )
             .on_hover_cursor(egui::CursorIcon::ResizeHorizontal);
         if response.dragged() && rect.width() > 0.0 {
             self.split = (self.split + response.drag_delta().x / rect.width()).clamp(0.02, 0.98);
@@ -287,13 +291,24 @@ impl Viewport {
         let font = egui::FontId::proportional(13.0);
         let bg = egui::Color32::from_black_alpha(160);
         for (text, pos, align) in [
-            (&labels.live, egui::pos2(x - 8.0, rect.bottom() - 8.0), egui::Align2::RIGHT_BOTTOM),
-            (&labels.reference, egui::pos2(x + 8.0, rect.bottom() - 8.0), egui::Align2::LEFT_BOTTOM),
+            (
+                &labels.live,
+                egui::pos2(x - 8.0, rect.bottom() - 8.0),
+                egui::Align2::RIGHT_BOTTOM,
+            ),
+            (
+                &labels.reference,
+                egui::pos2(x + 8.0, rect.bottom() - 8.0),
+                egui::Align2::LEFT_BOTTOM,
+            ),
         ] {
-            let galley = ui.painter().layout_no_wrap(text.clone(), font.clone(), egui::Color32::WHITE);
+            let galley =
+                ui.painter()
+                    .layout_no_wrap(text.clone(), font.clone(), egui::Color32::WHITE);
             let r = align.anchor_size(pos, galley.size()).expand(3.0);
             ui.painter().rect_filled(r, 3.0, bg);
-            ui.painter().galley(r.min + Vec2::splat(3.0), galley, egui::Color32::WHITE);
+            ui.painter()
+                .galley(r.min + Vec2::splat(3.0), galley, egui::Color32::WHITE);
         }
     }
 }

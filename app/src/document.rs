@@ -3,7 +3,7 @@
 //! where it lives on disk, a version bumped by every edit, and undo/redo.
 //!
 //! Undo stores whole snapshots of what edits change (materials, lights, ambient,
-//! background; cheap: packs are shared `Arc`s), grouped so that one slider drag is one
+//! environment, background; cheap: packs and maps are shared `Arc`s), grouped so that one slider drag is one
 //! step. Undoing replays the difference as ordinary edits, so the renderer restarts
 //! only what changed. The camera is a view, not an edit: it is not undone.
 
@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use meso_core::render::{EditError, SceneEdit};
-use meso_core::scene::{Ambient, Background, Light, Material, Scene};
+use meso_core::scene::{Ambient, Background, Environment, Light, Material, Scene};
 use meso_core::spmm::SpmmMaterial;
 use meso_core::spmm::pack::{self, ResidualPrecision};
 
@@ -21,7 +21,17 @@ pub struct Snapshot {
     materials: Vec<Material>,
     lights: Vec<Light>,
     ambient: Option<Ambient>,
+    environment: Option<Environment>,
     background: Background,
+}
+
+/// The same lighting: the same map object, strength, rotation and sampling.
+fn same_environment(a: &Option<Environment>, b: &Option<Environment>) -> bool {
+    match (a, b) {
+        (None, None) => true,
+        (Some(x), Some(y)) => x.same_but_strength(y) && x.strength == y.strength,
+        _ => false,
+    }
 }
 
 fn same_material(a: &Material, b: &Material) -> bool {
@@ -58,6 +68,7 @@ fn same_background(a: &Background, b: &Background) -> bool {
     match (a, b) {
         (Background::Color(x), Background::Color(y)) => x == y,
         (Background::Environment(x), Background::Environment(y)) => Arc::ptr_eq(x, y),
+        (Background::FromEnvironment, Background::FromEnvironment) => true,
         _ => false,
     }
 }
@@ -68,6 +79,7 @@ impl Snapshot {
             materials: scene.materials.clone(),
             lights: scene.lights.clone(),
             ambient: scene.ambient,
+            environment: scene.environment.clone(),
             background: scene.background.clone(),
         }
     }
@@ -96,6 +108,9 @@ impl Snapshot {
         }
         if self.ambient != target.ambient {
             edits.push(SceneEdit::Ambient(target.ambient));
+        }
+        if !same_environment(&self.environment, &target.environment) {
+            edits.push(SceneEdit::Environment(target.environment.clone()));
         }
         if !same_background(&self.background, &target.background) {
             edits.push(SceneEdit::Background(target.background.clone()));

@@ -1,13 +1,18 @@
 //! Meso Studio, the desktop material editor, as a library: the window (`studio`)
-//! over the document (`document`), the render thread (`render_worker`), the viewport,
-//! the material and scene panels, and the BRDF explorer. `main.rs` runs it in eframe;
+//! over the document (`document`), the render thread (`render_worker`) and the modes
+//! it runs (`mode_maker`, with the lights a mode renders without in `disabled`), the
+//! viewport and the compare view's reference (`reference`), the material and scene
+//! panels, background jobs (`jobs`), and the BRDF explorer. `main.rs` runs it in eframe;
 //! benchmarks and tests drive it headless.
 
+pub mod disabled;
 pub mod document;
 pub mod explorer;
 pub mod jobs;
 pub mod lobe_plot;
 pub mod material_panel;
+pub mod mode_maker;
+pub mod reference;
 pub mod render_worker;
 pub mod scene_panel;
 pub mod sphere_preview;

@@ -3,6 +3,8 @@
 //! renderer to; the thread applies everything pending, renders one progressive frame
 //! with the scene's render mode, and publishes the image in a latest-wins slot, then
 //! asks egui to repaint. It idles once every pixel has `max_samples` samples.
+//! A mode prepared elsewhere (the studio's mode-switch job) is swapped in by
+//! `Install`; until then the previous mode keeps rendering.
 
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
 use std::sync::{Arc, Mutex};
@@ -10,9 +12,10 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use meso_core::image::Image;
-use meso_core::modes;
 use meso_core::render::{Device, ModeKind, Prepare, Progress, RenderMode, SceneEdit};
 use meso_core::scene::Scene;
+
+use crate::mode_maker::{ModeMaker, core_modes};
 
 pub enum Command {
     /// Replace the scene (and mode) entirely.
@@ -24,9 +27,19 @@ pub enum Command {
         width: u32,
         height: u32,
     },
+    /// Replace the mode by one prepared off this thread for the scene at `version`.
+    Install {
+        version: u64,
+        mode: Box<dyn RenderMode>,
+    },
     Edit {
         version: u64,
         edit: Box<SceneEdit>,
+    },
+    /// The document moved to `version` without a change this mode sees (an edit of a
+    /// light the mode renders without): the next frame carries the version.
+    Unchanged {
+        version: u64,
     },
     /// Samples per pixel after which the thread idles.
     MaxSamples(u32),
@@ -37,6 +50,9 @@ pub enum Command {
 pub struct Frame {
     /// The newest document version applied before this frame was rendered.
     pub version: u64,
+    /// The mode that rendered it.
+    pub mode: ModeKind,
+    pub device: Device,
     pub image: Arc<Image>,
     pub progress: Progress,
     pub frame_ms: f64,
@@ -63,8 +79,13 @@ pub struct RenderWorker {
 }
 
 impl RenderWorker {
-    /// Starts the thread; `repaint` is woken after each frame.
+    /// Starts the thread with core's modes; `repaint` is woken after each frame.
     pub fn spawn(repaint: Option<egui::Context>) -> Self {
+        Self::spawn_with(repaint, core_modes())
+    }
+
+    /// Starts the thread; `Load` makes its modes with `maker`.
+    pub fn spawn_with(repaint: Option<egui::Context>, maker: Arc<dyn ModeMaker>) -> Self {
         let (tx, rx) = mpsc::channel();
         let shared = Arc::new(Mutex::new(Shared {
             frame: None,
@@ -73,7 +94,7 @@ impl RenderWorker {
         let out = Arc::clone(&shared);
         let thread = std::thread::Builder::new()
             .name("meso-render".into())
-            .spawn(move || run(rx, out, repaint))
+            .spawn(move || run(rx, out, repaint, maker.as_ref()))
             .ok();
         Self {
             commands: Some(tx),
@@ -117,7 +138,12 @@ impl Drop for RenderWorker {
     }
 }
 
-fn run(rx: Receiver<Command>, shared: Arc<Mutex<Shared>>, repaint: Option<egui::Context>) {
+fn run(
+    rx: Receiver<Command>,
+    shared: Arc<Mutex<Shared>>,
+    repaint: Option<egui::Context>,
+    maker: &dyn ModeMaker,
+) {
     let mut mode: Option<Box<dyn RenderMode>> = None;
     let mut version = 0;
     let mut max_samples = 4096u32;
@@ -141,7 +167,11 @@ fn run(rx: Receiver<Command>, shared: Arc<Mutex<Shared>>, repaint: Option<egui::
                 Err(mpsc::TryRecvError::Disconnected) => return,
             }
         }
+        // Anything but a sample limit may change the image: publish a frame even if
+        // the film is already converged (an emission edit re-weights it).
+        let mut changed = false;
         for command in pending {
+            changed |= !matches!(command, Command::MaxSamples(_));
             let result = match command {
                 Command::Load {
                     version: v,
@@ -152,9 +182,18 @@ fn run(rx: Receiver<Command>, shared: Arc<Mutex<Shared>>, repaint: Option<egui::
                     height,
                 } => {
                     version = v;
-                    modes::create(kind, device, *scene, width, height, Prepare::quietly())
+                    maker
+                        .create(kind, device, *scene, width, height, Prepare::quietly())
                         .map(|m| mode = Some(m))
                         .map_err(|e| (v, e.to_string()))
+                }
+                Command::Install {
+                    version: v,
+                    mode: m,
+                } => {
+                    version = v;
+                    mode = Some(m);
+                    Ok(())
                 }
                 Command::Edit { version: v, edit } => {
                     version = v;
@@ -162,6 +201,10 @@ fn run(rx: Receiver<Command>, shared: Arc<Mutex<Shared>>, repaint: Option<egui::
                         Some(m) => m.apply(*edit).map(|_| ()).map_err(|e| (v, e.to_string())),
                         None => Err((v, "no scene is loaded".into())),
                     }
+                }
+                Command::Unchanged { version: v } => {
+                    version = v;
+                    Ok(())
                 }
                 Command::MaxSamples(n) => {
                     max_samples = n.max(1);
@@ -175,12 +218,19 @@ fn run(rx: Receiver<Command>, shared: Arc<Mutex<Shared>>, repaint: Option<egui::
             }
         }
         let Some(m) = mode.as_mut() else { continue };
-        if m.progress().min_samples >= max_samples {
+        let converged = m.progress().min_samples >= max_samples;
+        if converged && !changed {
             continue;
         }
-        let stats = m.render_frame();
+        let stats = if converged {
+            Default::default()
+        } else {
+            m.render_frame()
+        };
         let frame = Frame {
             version,
+            mode: m.kind(),
+            device: m.device(),
             image: Arc::new(m.image()),
             progress: m.progress(),
             frame_ms: stats.seconds * 1e3,

@@ -1,16 +1,19 @@
-//! The lights and scene panel (left): the scene file and render mode, the edited
-//! object's mesh and UV tiling, point and area lights (add, remove, move, size, colour
-//! and strength), ambient occlusion and the background. Every change is returned as a
-//! `SceneEdit` (or a request the studio carries out, such as opening a file).
+//! The lights and scene panel (left): the scene file and render mode (with the
+//! progress of a mode being prepared), the edited object's mesh and UV tiling, point
+//! and area lights (add, remove, move, size, colour and strength; marked when the
+//! mode renders without them), ambient occlusion, the environment (map, strength,
+//! rotation) and the background. Every change is returned as a `SceneEdit` (or a
+//! request the studio carries out, such as opening a file or switching modes).
 
 use std::path::PathBuf;
 use std::sync::Arc;
 
 use egui::Ui;
 use glam::{DVec2, DVec3};
-use meso_core::render::{ModeKind, SceneEdit};
-use meso_core::scene::{Ambient, Background, Light, Material};
+use meso_core::render::{Device, ModeKind, SceneEdit};
+use meso_core::scene::{Ambient, Background, Environment, Light, Material};
 
+use crate::disabled::Disabled;
 use crate::document::Document;
 
 /// Something the studio must do for the panel.
@@ -19,6 +22,52 @@ pub enum Request {
     OpenSceneDialog,
     /// Replace the edited object's mesh with this OBJ.
     Mesh(PathBuf),
+    /// Switch the renderer to this mode (checked, then prepared in the background).
+    SwitchMode(ModeKind, Device),
+    /// Stop preparing the mode being switched to.
+    CancelSwitch,
+    /// Turn the environment on (with the last map, or the first shipped one).
+    EnvironmentOn,
+    /// Read this map (in the background) and light the scene with it.
+    EnvironmentMap(PathBuf),
+    EnvironmentFileDialog,
+}
+
+/// A mode switch in progress, as the panel shows it.
+pub struct Switching {
+    /// "biscale (cpu)".
+    pub target: String,
+    /// The stage and fraction the preparation last reported.
+    pub progress: Option<(String, f32)>,
+    pub cancelling: bool,
+}
+
+/// What the panel shows besides the document.
+pub struct PanelState<'a> {
+    /// The mode rendering now.
+    pub mode: (ModeKind, Device),
+    pub switching: Option<Switching>,
+    /// What the current mode renders without.
+    pub disabled: &'a Disabled,
+    /// The maps shipped with Meso (name, file).
+    pub environments: &'a [(String, PathBuf)],
+    /// The file name of the environment map in use, if the studio read it.
+    pub environment_name: Option<String>,
+}
+
+/// The environment maps under `materials/env/` of the workspace (EXR), by name.
+pub fn shipped_environments() -> Vec<(String, PathBuf)> {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../materials/env");
+    let mut maps: Vec<_> = std::fs::read_dir(&dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("exr")))
+        .filter_map(|p| Some((p.file_stem()?.to_string_lossy().into_owned(), p)))
+        .collect();
+    maps.sort();
+    maps
 }
 
 /// Meshes offered in the mesh menu: the project's own test meshes.
@@ -75,7 +124,105 @@ fn emission_editor(ui: &mut Ui, label: &str, e: &mut DVec3) -> bool {
     changed
 }
 
-pub fn show(ui: &mut Ui, doc: &Document, mode: &mut ModeKind) -> Vec<Request> {
+/// The mode and device pickers, and the preparation's progress with its Cancel.
+fn mode_ui(ui: &mut Ui, state: &PanelState<'_>, out: &mut Vec<Request>) {
+    let (mut kind, mut device) = state.mode;
+    egui::ComboBox::from_label("Render mode")
+        .selected_text(kind.name())
+        .show_ui(ui, |ui| {
+            for m in ModeKind::ALL {
+                ui.selectable_value(&mut kind, m, m.name());
+            }
+        });
+    egui::ComboBox::from_label("Device")
+        .selected_text(device.name())
+        .show_ui(ui, |ui| {
+            for d in Device::ALL {
+                ui.selectable_value(&mut device, d, d.name());
+            }
+        });
+    if (kind, device) != state.mode {
+        out.push(Request::SwitchMode(kind, device));
+    }
+    if let Some(s) = &state.switching {
+        let (stage, fraction) = s.progress.clone().unwrap_or(("starting".into(), 0.0));
+        ui.label(if s.cancelling {
+            format!("cancelling the switch to {}…", s.target)
+        } else {
+            format!("switching to {}…", s.target)
+        });
+        ui.horizontal(|ui| {
+            ui.add(
+                egui::ProgressBar::new(fraction)
+                    .text(format!("{:.0}% · {stage}", fraction * 100.0))
+                    .desired_width(180.0),
+            );
+            if ui
+                .add_enabled(!s.cancelling, egui::Button::new("Cancel"))
+                .clicked()
+            {
+                out.push(Request::CancelSwitch);
+            }
+        });
+        ui.weak("the current mode keeps rendering until it is ready");
+    }
+}
+
+/// On/off, the map, strength and rotation of the environment lighting.
+fn environment_ui(ui: &mut Ui, doc: &Document, state: &PanelState<'_>, out: &mut Vec<Request>) {
+    ui.heading("Environment");
+    let env = doc.scene.environment.as_ref();
+    let mut on = env.is_some();
+    if ui.checkbox(&mut on, "environment on").changed() {
+        out.push(if on {
+            Request::EnvironmentOn
+        } else {
+            Request::Edit(SceneEdit::Environment(None))
+        });
+    }
+    ui.horizontal_wrapped(|ui| {
+        ui.label("map");
+        for (name, path) in state.environments {
+            let current = state.environment_name.as_deref() == Some(name.as_str()) && on;
+            if ui.selectable_label(current, name.as_str()).clicked() {
+                out.push(Request::EnvironmentMap(path.clone()));
+            }
+        }
+        if ui.button("File…").clicked() {
+            out.push(Request::EnvironmentFileDialog);
+        }
+    });
+    let Some(e) = env else { return };
+    if let Some(name) = &state.environment_name {
+        ui.weak(format!("{name}: {}x{}", e.map.width(), e.map.height()));
+    }
+    let mut strength = e.strength;
+    if ui
+        .add(
+            egui::Slider::new(&mut strength, 0.0..=16.0)
+                .logarithmic(true)
+                .text("environment strength"),
+        )
+        .changed()
+    {
+        out.push(Request::Edit(SceneEdit::Environment(Some(Environment {
+            strength,
+            ..e.clone()
+        }))));
+    }
+    let mut rotate = e.rotate_y_deg;
+    if ui
+        .add(egui::Slider::new(&mut rotate, -180.0..=180.0).text("environment rotation (deg)"))
+        .changed()
+    {
+        out.push(Request::Edit(SceneEdit::Environment(Some(Environment {
+            rotate_y_deg: rotate,
+            ..e.clone()
+        }))));
+    }
+}
+
+pub fn show(ui: &mut Ui, doc: &Document, state: &PanelState<'_>) -> Vec<Request> {
     let mut out = Vec::new();
     let scene = &doc.scene;
     ui.heading("Scene");
@@ -88,13 +235,7 @@ pub fn show(ui: &mut Ui, doc: &Document, mode: &mut ModeKind) -> Vec<Request> {
     if ui.button("Open scene…").clicked() {
         out.push(Request::OpenSceneDialog);
     }
-    egui::ComboBox::from_label("Render mode")
-        .selected_text(mode.name())
-        .show_ui(ui, |ui| {
-            for m in ModeKind::ALL {
-                ui.selectable_value(mode, m, m.name());
-            }
-        });
+    mode_ui(ui, state, &mut out);
 
     if let Some(pack) = &doc.pack
         && let Material::Spmm {
@@ -154,10 +295,13 @@ pub fn show(ui: &mut Ui, doc: &Document, mode: &mut ModeKind) -> Vec<Request> {
         let mut l = *light;
         let mut changed = false;
         let mut remove = false;
-        let title = match l {
+        let mut title = match l {
             Light::Point { .. } => format!("light {index}: point"),
             Light::Area { .. } => format!("light {index}: area"),
         };
+        if state.disabled.light(index) {
+            title += &format!(" (disabled in {})", state.mode.0.name());
+        }
         egui::CollapsingHeader::new(title)
             .id_salt(("light", index))
             .default_open(index == 0)
@@ -230,6 +374,9 @@ pub fn show(ui: &mut Ui, doc: &Document, mode: &mut ModeKind) -> Vec<Request> {
 
     ui.separator();
     ui.heading("Ambient occlusion");
+    if state.disabled.ambient {
+        ui.label(format!("disabled in {}", state.mode.0.name()));
+    }
     let mut on = scene.ambient.is_some();
     let mut a = scene.ambient.unwrap_or(Ambient {
         radiance: DVec3::splat(0.25),
@@ -256,13 +403,31 @@ pub fn show(ui: &mut Ui, doc: &Document, mode: &mut ModeKind) -> Vec<Request> {
     }
 
     ui.separator();
-    if let Background::Color(c) = &scene.background {
-        let mut c = *c;
-        if emission_editor(ui, "background", &mut c) {
-            out.push(Request::Edit(SceneEdit::Background(Background::Color(c))));
+    environment_ui(ui, doc, state, &mut out);
+
+    ui.separator();
+    let mut from_env = matches!(scene.background, Background::FromEnvironment);
+    if ui
+        .checkbox(&mut from_env, "background shows the environment")
+        .changed()
+    {
+        out.push(Request::Edit(SceneEdit::Background(if from_env {
+            Background::FromEnvironment
+        } else {
+            Background::Color(DVec3::new(0.02, 0.02, 0.025))
+        })));
+    }
+    match &scene.background {
+        Background::Color(c) => {
+            let mut c = *c;
+            if emission_editor(ui, "background", &mut c) {
+                out.push(Request::Edit(SceneEdit::Background(Background::Color(c))));
+            }
         }
-    } else {
-        ui.label("background: environment map");
+        Background::Environment(_) => {
+            ui.label("background: its own map (from the scene file)");
+        }
+        Background::FromEnvironment => {}
     }
     out
 }

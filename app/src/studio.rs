@@ -2,28 +2,37 @@
 //! Menus (File, Edit, View) with shortcuts, the lights and scene panel (left), the
 //! material panel (right), the viewport (centre) and the status bar. The studio owns
 //! the document and sends every edit to the render thread as a versioned message;
-//! it shows the newest finished frame and never waits for one.
+//! it shows the newest finished frame and never waits for one. Switching the render
+//! mode prepares the new mode as a background job (progress, Cancel) while the old
+//! one keeps rendering; the compare view renders a reference beside the live image.
 
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use egui::{Key, KeyboardShortcut, Modifiers, Ui};
-use meso_core::render::{ModeKind, SceneEdit};
+use meso_core::geometry::{SceneBvh, pick};
+use meso_core::image::Image;
+use meso_core::metrics::{self, Comparison};
+use meso_core::render::{
+    Device, ModeError, ModeKind, Prepare, RenderMode, SceneEdit, Unrenderable, Unsupported,
+};
 use meso_core::scene::mesh::{Placement, load_obj};
-use meso_core::scene::{Material, Scene, load_scene};
+use meso_core::scene::{Environment, Material, Scene, load_scene};
 use meso_core::spmm::SpmmMaterial;
 use meso_core::spmm::pack::ResidualPrecision;
-use meso_core::geometry::{SceneBvh, pick};
 
+use crate::disabled::Disabled;
 use crate::document::{Document, read_pack_file};
 use crate::explorer::Explorer;
 use crate::jobs::Job;
 use crate::material_panel::MaterialPanel;
+use crate::mode_maker::{ModeMaker, core_modes, mode_name};
+use crate::reference::{Reference, ReferenceRenderer};
 use crate::render_worker::{Command, RenderWorker};
-use crate::scene_panel::{self, Request};
-use crate::viewport::Viewport;
+use crate::scene_panel::{self, PanelState, Request, Switching};
+use crate::viewport::{CompareLabels, Viewport};
 
 pub const UNDO: KeyboardShortcut = KeyboardShortcut::new(Modifiers::COMMAND, Key::Z);
 pub const REDO: KeyboardShortcut =
@@ -52,6 +61,10 @@ pub struct Settings {
     pub max_samples: u32,
     /// Frame, ray and latency timings in the status bar.
     pub show_timings: bool,
+    /// The compare view: live image left of the divider, a reference right of it.
+    pub compare: bool,
+    /// Samples per pixel the compare view's reference is refined to.
+    pub reference_spp: u32,
 }
 
 impl Default for Settings {
@@ -63,6 +76,8 @@ impl Default for Settings {
             resolution: 0.5,
             max_samples: 1024,
             show_timings: true,
+            compare: false,
+            reference_spp: 256,
         }
     }
 }
@@ -79,6 +94,67 @@ fn remember(list: &mut Vec<PathBuf>, path: &Path) {
     list.truncate(8);
 }
 
+/// Least time between two comparisons of the live image with the reference.
+const MEASURE_EVERY: Duration = Duration::from_millis(250);
+
+/// A mode being prepared to replace the current one.
+struct Switch {
+    kind: ModeKind,
+    device: Device,
+    /// What the new mode renders without.
+    disabled: Disabled,
+    /// The document version of the scene it is prepared for.
+    version: u64,
+    job: Job<Result<Box<dyn RenderMode>, ModeError>>,
+    /// Edits made while it is prepared, already translated for it: replayed after
+    /// it is installed, so it ends at the document's current scene.
+    replay: Vec<(u64, SceneEdit)>,
+}
+
+/// The compare view's numbers and the two images they were computed from.
+#[derive(Clone)]
+pub struct Measured {
+    pub reference: Arc<Image>,
+    pub live: Arc<Image>,
+    pub reference_spp: u32,
+    pub comparison: Comparison,
+}
+
+/// The edit a mode should get for a document edit (already applied to the document's
+/// `scene`), or `None` if it only concerns parts the mode renders without. A light
+/// added while a mode renders without some lights is checked: if the mode cannot
+/// render it either, it is left out too.
+fn route(
+    maker: &dyn ModeMaker,
+    mode: (ModeKind, Device),
+    disabled: &mut Disabled,
+    scene: &Scene,
+    edit: SceneEdit,
+) -> Option<SceneEdit> {
+    if let SceneEdit::AddLight(_) = &edit
+        && (!disabled.is_empty() || mode != (ModeKind::Spmm, Device::Cpu))
+    {
+        let mode_scene = disabled.scene_for_mode(scene);
+        // The new light is the last of the document's and of the mode's.
+        let last = mode_scene.lights.len().saturating_sub(1);
+        if let Err(ModeError::Unsupported(u)) = maker.supports(mode.0, mode.1, &mode_scene)
+            && u.parts
+                .iter()
+                .any(|p| matches!(p, Unrenderable::Light { index, .. } if *index == last))
+        {
+            disabled.disable_light(scene.lights.len().saturating_sub(1));
+            return None;
+        }
+    }
+    disabled.translate(edit)
+}
+
+fn ctx_repaint_after(ctx: Option<&egui::Context>, after: Duration) {
+    if let Some(ctx) = ctx {
+        ctx.request_repaint_after(after);
+    }
+}
+
 /// Statistics of the newest frame, for the status bar.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Latency {
@@ -92,7 +168,32 @@ pub struct Studio {
     worker: RenderWorker,
     viewport: Viewport,
     pub material_panel: MaterialPanel,
-    mode: ModeKind,
+    /// Where render modes come from (core's registry unless a test injects one).
+    maker: Arc<dyn ModeMaker>,
+    /// The mode rendering now and what it renders without.
+    mode: (ModeKind, Device),
+    disabled: Disabled,
+    /// A mode being prepared to replace it.
+    switch: Option<Switch>,
+    /// A mode that cannot render some lights: switch without them, or stay?
+    unsupported_prompt: Option<Unsupported>,
+    /// Why the last switch did not happen, shown until dismissed.
+    pub mode_message: Option<String>,
+    /// Shipped environment maps, the map read last (file, image), and the last
+    /// environment used (turning it on again brings it back).
+    environments: Vec<(String, PathBuf)>,
+    env_source: Option<(PathBuf, Arc<Image>)>,
+    last_environment: Option<Environment>,
+    env_job: Option<Job<(PathBuf, Arc<Image>)>>,
+    /// The compare view's reference renderer, its newest image, and the metrics.
+    reference: Option<ReferenceRenderer>,
+    reference_latest: Option<Reference>,
+    measure_job: Option<Job<Measured>>,
+    measured: Option<Measured>,
+    /// When the last comparison started and what it compared (live frame time,
+    /// reference image number).
+    measure_started: Instant,
+    measure_key: Option<(Instant, u64)>,
     /// For clicks: the scene's geometry (rebuilt when meshes change).
     bvh: Option<SceneBvh>,
     /// Full-quality render size and the size the renderer has now.
@@ -123,13 +224,38 @@ impl Studio {
     /// Opens `scene` (or the default scene); a scene that fails to load leaves an empty
     /// studio with the error shown.
     pub fn new(repaint: Option<egui::Context>, scene: Option<PathBuf>, settings: Settings) -> Self {
+        Self::with_maker(repaint, scene, settings, core_modes())
+    }
+
+    /// `new` with render modes made by `maker`.
+    pub fn with_maker(
+        repaint: Option<egui::Context>,
+        scene: Option<PathBuf>,
+        settings: Settings,
+        maker: Arc<dyn ModeMaker>,
+    ) -> Self {
         let mut s = Self {
             doc: None,
             settings,
-            worker: RenderWorker::spawn(repaint.clone()),
+            worker: RenderWorker::spawn_with(repaint.clone(), Arc::clone(&maker)),
             viewport: Viewport::default(),
             material_panel: MaterialPanel::default(),
-            mode: ModeKind::Spmm,
+            maker,
+            mode: (ModeKind::Spmm, Device::Cpu),
+            disabled: Disabled::default(),
+            switch: None,
+            unsupported_prompt: None,
+            mode_message: None,
+            environments: scene_panel::shipped_environments(),
+            env_source: None,
+            last_environment: None,
+            env_job: None,
+            reference: None,
+            reference_latest: None,
+            measure_job: None,
+            measured: None,
+            measure_started: Instant::now(),
+            measure_key: None,
             bvh: None,
             full_size: (0, 0),
             render_size: (0, 0),
@@ -177,11 +303,210 @@ impl Studio {
 
     /// Whether a load is in progress.
     pub fn busy(&self) -> bool {
-        self.scene_job.is_some() || self.pack_job.is_some()
+        self.scene_job.is_some() || self.pack_job.is_some() || self.env_job.is_some()
+    }
+
+    /// The mode rendering now.
+    pub fn mode(&self) -> (ModeKind, Device) {
+        self.mode
+    }
+
+    /// Whether a mode is being prepared to replace the current one.
+    pub fn switching(&self) -> bool {
+        self.switch.is_some()
+    }
+
+    /// Lights and ambient the current mode renders without.
+    pub fn disabled(&self) -> &Disabled {
+        &self.disabled
+    }
+
+    /// The compare view's latest numbers and the two images they come from.
+    pub fn measured(&self) -> Option<&Measured> {
+        self.measured.as_ref()
+    }
+
+    /// Asks for another render mode: it is checked first (`supports`); a mode that
+    /// is not built or cannot render a material says so and the current mode stays;
+    /// one that cannot render some lights asks whether to switch without them;
+    /// otherwise the new mode is prepared in the background. Choosing the current
+    /// mode stops a switch in progress.
+    pub fn request_mode(&mut self, kind: ModeKind, device: Device) {
+        self.unsupported_prompt = None;
+        self.mode_message = None;
+        if let Some(sw) = self.switch.take() {
+            sw.job.cancel();
+        }
+        let Some(doc) = &self.doc else { return };
+        if (kind, device) == self.mode {
+            return;
+        }
+        let staying = mode_name(self.mode.0, self.mode.1);
+        match self.maker.supports(kind, device, &doc.scene) {
+            Ok(()) => self.start_switch(kind, device, Disabled::default()),
+            Err(ModeError::Unsupported(u)) if u.only_lights() => self.unsupported_prompt = Some(u),
+            Err(e) => self.mode_message = Some(format!("{e}; staying in {staying}.")),
+        }
+    }
+
+    /// The prompt's "switch with these lights disabled": asks again (the lights may
+    /// have changed while the prompt was open) and leaves out what the mode cannot
+    /// render, if that is only lights and the ambient term.
+    fn switch_without_lights(&mut self, kind: ModeKind, device: Device) {
+        self.unsupported_prompt = None;
+        let Some(doc) = &self.doc else { return };
+        match self.maker.supports(kind, device, &doc.scene) {
+            Ok(()) => self.start_switch(kind, device, Disabled::default()),
+            Err(ModeError::Unsupported(u)) if u.only_lights() => {
+                self.start_switch(kind, device, Disabled::from_unsupported(&u))
+            }
+            Err(e) => {
+                let staying = mode_name(self.mode.0, self.mode.1);
+                self.mode_message = Some(format!("{e}; staying in {staying}."));
+            }
+        }
+    }
+
+    /// Prepares `kind` on `device` in the background for the document's scene
+    /// without the `disabled` parts, at the current render size.
+    fn start_switch(&mut self, kind: ModeKind, device: Device, disabled: Disabled) {
+        let Some(doc) = &self.doc else { return };
+        let scene = disabled.scene_for_mode(&doc.scene);
+        let (w, h) = if self.render_size == (0, 0) {
+            (self.full_size.0.max(16), self.full_size.1.max(16))
+        } else {
+            self.render_size
+        };
+        let maker = Arc::clone(&self.maker);
+        let name = format!("preparing {}", mode_name(kind, device));
+        let job = Job::spawn_controlled(name, self.repaint.clone(), move |c| {
+            let report = |stage: &str, fraction: f32| c.report(stage, fraction);
+            let prepare = Prepare::new(&report, c.cancel_flag());
+            Ok(maker.create(kind, device, scene, w, h, prepare))
+        });
+        self.switch = Some(Switch {
+            kind,
+            device,
+            disabled,
+            version: doc.version,
+            job,
+            replay: Vec::new(),
+        });
+    }
+
+    /// Stops preparing the new mode; the current one stays.
+    pub fn cancel_switch(&mut self) {
+        if let Some(sw) = &self.switch {
+            sw.job.cancel();
+        }
+    }
+
+    /// Installs a prepared mode: the render thread swaps to it (the old mode renders
+    /// until then), then gets the edits made while it was prepared.
+    fn poll_switch(&mut self) {
+        let Some(r) = self.switch.as_ref().and_then(|s| s.job.poll()) else {
+            return;
+        };
+        let sw = self.switch.take().expect("polled above");
+        let target = mode_name(sw.kind, sw.device);
+        let staying = mode_name(self.mode.0, self.mode.1);
+        match r {
+            Ok(Ok(mode)) => {
+                self.worker.send(Command::Install {
+                    version: sw.version,
+                    mode,
+                });
+                for (version, edit) in sw.replay {
+                    self.worker.send(Command::Edit {
+                        version,
+                        edit: Box::new(edit),
+                    });
+                }
+                if let Some(doc) = &self.doc {
+                    self.worker.send(Command::Unchanged {
+                        version: doc.version,
+                    });
+                    self.in_flight.push_back((doc.version, Instant::now()));
+                }
+                self.mode = (sw.kind, sw.device);
+                self.disabled = sw.disabled;
+            }
+            Ok(Err(ModeError::Cancelled(_))) => {}
+            Ok(Err(e)) => {
+                self.mode_message = Some(format!(
+                    "switching to {target} failed: {e}; staying in {staying}."
+                ))
+            }
+            Err(e) => {
+                self.mode_message = Some(format!(
+                    "switching to {target} failed: {e}; staying in {staying}."
+                ))
+            }
+        }
+    }
+
+    /// Reads an environment map in the background; it lights the scene when ready.
+    pub fn open_environment(&mut self, path: &Path) {
+        let path = path.to_path_buf();
+        let name = job_name("reading", &path);
+        self.env_job = Some(Job::spawn(name, self.repaint.clone(), move || {
+            let map = meso_core::image::read_image(&path)
+                .map_err(|e| format!("`{}`: {e}", path.display()))?;
+            if let Some(p) = meso_core::environment::check_map(&map) {
+                return Err(format!("`{}`: {p}", path.display()));
+            }
+            Ok((path, Arc::new(map)))
+        }));
+    }
+
+    /// Turns the environment on: the last one used, or the first shipped map.
+    fn environment_on(&mut self) {
+        if let Some(e) = self.last_environment.clone() {
+            self.edit(SceneEdit::Environment(Some(e)));
+        } else if let Some((_, path)) = self.environments.first().cloned() {
+            self.open_environment(&path);
+        } else {
+            self.error = Some("no environment map is shipped: pick a file".into());
+        }
+    }
+
+    fn environment_dialog(&mut self) {
+        if let Some(p) = rfd::FileDialog::new()
+            .add_filter("environment map", &["exr", "hdr", "png"])
+            .pick_file()
+        {
+            self.open_environment(&p);
+        }
     }
 
     /// Installs finished loads.
     fn poll_jobs(&mut self) {
+        self.poll_switch();
+        if let Some(r) = self.env_job.as_ref().and_then(|j| j.poll()) {
+            self.env_job = None;
+            match r {
+                Ok((path, map)) => {
+                    let env = match self.doc.as_ref().and_then(|d| d.scene.environment.clone()) {
+                        Some(e) => Environment {
+                            map: Arc::clone(&map),
+                            ..e
+                        },
+                        None => Environment {
+                            map: Arc::clone(&map),
+                            strength: 1.0,
+                            rotate_y_deg: 0.0,
+                            mis: true,
+                        },
+                    };
+                    self.env_source = Some((path, map));
+                    self.edit(SceneEdit::Environment(Some(env)));
+                    if let Some(doc) = &mut self.doc {
+                        doc.close_group();
+                    }
+                }
+                Err(e) => self.error = Some(e),
+            }
+        }
         if let Some(r) = self.scene_job.as_ref().and_then(|j| j.poll()) {
             self.scene_job = None;
             match r {
@@ -195,6 +520,13 @@ impl Studio {
                     self.doc = Some(doc);
                     self.in_flight.clear();
                     self.material_panel = MaterialPanel::default();
+                    // A new scene opens in the spmm mode, which renders everything.
+                    if let Some(sw) = self.switch.take() {
+                        sw.job.cancel();
+                    }
+                    self.unsupported_prompt = None;
+                    self.mode = (ModeKind::Spmm, Device::Cpu);
+                    self.disabled = Disabled::default();
                     // The viewport loads it into the renderer at its size.
                     self.render_size = (0, 0);
                 }
@@ -224,9 +556,9 @@ impl Studio {
         self.render_size = size;
         self.worker.send(Command::Load {
             version: doc.version,
-            scene: Box::new(doc.scene.clone()),
-            mode: self.mode,
-            device: meso_core::render::Device::Cpu,
+            scene: Box::new(self.disabled.scene_for_mode(&doc.scene)),
+            mode: self.mode.0,
+            device: self.mode.1,
             width: size.0,
             height: size.1,
         });
@@ -251,16 +583,40 @@ impl Studio {
         }
     }
 
+    /// Sends an edit already applied to the document to the renderer, translated
+    /// for what the mode renders without (and noted for a mode being prepared).
     fn send(&mut self, edit: SceneEdit) {
         let Some(doc) = &self.doc else { return };
         if let SceneEdit::Meshes(m) = &edit {
             self.bvh = Some(SceneBvh::build(m));
         }
-        self.worker.send(Command::Edit {
-            version: doc.version,
-            edit: Box::new(edit),
-        });
-        self.in_flight.push_back((doc.version, Instant::now()));
+        let version = doc.version;
+        if let Some(sw) = &mut self.switch
+            && let Some(e) = route(
+                self.maker.as_ref(),
+                (sw.kind, sw.device),
+                &mut sw.disabled,
+                &doc.scene,
+                edit.clone(),
+            )
+        {
+            sw.replay.push((version, e));
+        }
+        let command = match route(
+            self.maker.as_ref(),
+            self.mode,
+            &mut self.disabled,
+            &doc.scene,
+            edit,
+        ) {
+            Some(e) => Command::Edit {
+                version,
+                edit: Box::new(e),
+            },
+            None => Command::Unchanged { version },
+        };
+        self.worker.send(command);
+        self.in_flight.push_back((version, Instant::now()));
     }
 
     pub fn undo(&mut self) {
@@ -550,6 +906,12 @@ impl Studio {
                     self.set_max_samples(self.settings.max_samples);
                 }
                 ui.checkbox(&mut self.settings.show_timings, "timings in the status bar");
+                ui.checkbox(&mut self.settings.compare, "Compare with a reference");
+                ui.add(
+                    egui::Slider::new(&mut self.settings.reference_spp, 1..=4096)
+                        .logarithmic(true)
+                        .text("reference spp"),
+                );
                 ui.horizontal(|ui| {
                     ui.label("resolution");
                     for (r, name) in [(0.25, "25%"), (0.5, "50%"), (1.0, "100%")] {
@@ -565,6 +927,8 @@ impl Studio {
             for job in [
                 self.scene_job.as_ref().map(|j| (&j.name, j.started)),
                 self.pack_job.as_ref().map(|j| (&j.name, j.started)),
+                self.env_job.as_ref().map(|j| (&j.name, j.started)),
+                self.switch.as_ref().map(|s| (&s.job.name, s.job.started)),
             ]
             .into_iter()
             .flatten()
@@ -621,6 +985,24 @@ impl Studio {
                 };
                 ui.label(format!("{} clusters · {parts}", material.clusters().len()));
             }
+            if self.settings.compare {
+                ui.separator();
+                ui.label(format!("live: {}", mode_name(self.mode.0, self.mode.1)));
+                match &self.reference_latest {
+                    Some(r) => ui.label(format!("reference: spmm, {} spp", r.spp)),
+                    None => ui.label("reference: starting"),
+                };
+                if let Some(m) = &self.measured {
+                    let c = &m.comparison;
+                    ui.label(format!(
+                        "RMSE {:.4} · PSNR {:.2} dB · MSSIM {:.4}",
+                        c.rmse, c.psnr_db, c.mssim
+                    ));
+                }
+                if let Some(e) = self.reference.as_ref().and_then(|r| r.error()) {
+                    ui.colored_label(ui.visuals().error_fg_color, format!("reference: {e}"));
+                }
+            }
             if self.settings.show_timings {
                 ui.separator();
                 if let Some(ms) = self.latency.last_edit_to_frame_ms {
@@ -644,16 +1026,34 @@ impl Studio {
         egui::Panel::bottom("status").show(ui, |ui| self.status(ui));
         let mut requests = Vec::new();
         if let Some(doc) = &self.doc {
-            let mut mode = self.mode;
+            if let Some(e) = &doc.scene.environment {
+                self.last_environment = Some(e.clone());
+            }
+            let state = PanelState {
+                mode: self.mode,
+                switching: self.switch.as_ref().map(|sw| Switching {
+                    target: mode_name(sw.kind, sw.device),
+                    progress: sw.job.progress(),
+                    cancelling: sw.job.cancelled(),
+                }),
+                disabled: &self.disabled,
+                environments: &self.environments,
+                environment_name: doc.scene.environment.as_ref().and_then(|e| {
+                    self.env_source
+                        .as_ref()
+                        .filter(|(_, m)| Arc::ptr_eq(m, &e.map))
+                        .and_then(|(p, _)| p.file_stem())
+                        .map(|n| n.to_string_lossy().into_owned())
+                }),
+            };
             egui::Panel::left("scene")
                 .resizable(true)
                 .default_size(270.0)
                 .show(ui, |ui| {
                     egui::ScrollArea::vertical().show(ui, |ui| {
-                        requests = scene_panel::show(ui, doc, &mut mode);
+                        requests = scene_panel::show(ui, doc, &state);
                     });
                 });
-            self.mode = mode;
             let mut edits = Vec::new();
             egui::Panel::right("material")
                 .resizable(true)
@@ -670,8 +1070,14 @@ impl Studio {
                 Request::Edit(e) => self.edit(e),
                 Request::OpenSceneDialog => self.open_scene_dialog(),
                 Request::Mesh(p) => self.replace_mesh(&p),
+                Request::SwitchMode(kind, device) => self.request_mode(kind, device),
+                Request::CancelSwitch => self.cancel_switch(),
+                Request::EnvironmentOn => self.environment_on(),
+                Request::EnvironmentMap(p) => self.open_environment(&p),
+                Request::EnvironmentFileDialog => self.environment_dialog(),
             }
         }
+        self.update_compare();
         egui::CentralPanel::default().show(ui, |ui| self.viewport_ui(ui));
         // One drag of a slider is one undo step: the group ends when the button is up.
         if !ui.input(|i| i.pointer.any_down())
@@ -694,7 +1100,16 @@ impl Studio {
             ui.centered_and_justified(|ui| ui.label("Open a scene (File > Open scene…)"));
             return;
         };
-        let input = self.viewport.show(ui, &camera, self.settings.exposure);
+        let compare = self.settings.compare.then(|| CompareLabels {
+            live: format!("live: {}", mode_name(self.mode.0, self.mode.1)),
+            reference: match &self.reference_latest {
+                Some(r) => format!("reference: spmm, {} spp", r.spp),
+                None => "reference: spmm, starting".into(),
+            },
+        });
+        let input = self
+            .viewport
+            .show(ui, &camera, self.settings.exposure, compare);
         let scale = f64::from(self.settings.resolution);
         let full = (
             ((f64::from(input.panel_pixels.0) * scale) as u32).clamp(16, 4096),
@@ -738,6 +1153,81 @@ impl Studio {
         }
     }
 
+    /// The compare view: keeps the reference renderer on the document's version and
+    /// render size, shows its newest image, and compares the live frame with it (off
+    /// this thread, at most every `MEASURE_EVERY`) when both show the same version at
+    /// the same size.
+    fn update_compare(&mut self) {
+        if !self.settings.compare {
+            if self.reference.take().is_some() {
+                self.viewport.clear_reference();
+                self.reference_latest = None;
+                self.measured = None;
+                self.measure_job = None;
+                self.measure_key = None;
+            }
+            return;
+        }
+        let Some(doc) = &self.doc else { return };
+        if self.render_size == (0, 0) {
+            return;
+        }
+        let reference = self
+            .reference
+            .get_or_insert_with(|| ReferenceRenderer::spawn(self.repaint.clone()));
+        reference.request(
+            doc.version,
+            &doc.scene,
+            self.render_size,
+            self.settings.reference_spp,
+        );
+        if let Some(r) = reference.latest()
+            && self
+                .reference_latest
+                .as_ref()
+                .is_none_or(|old| old.seq != r.seq)
+        {
+            self.viewport.set_reference(Arc::clone(&r.image));
+            self.reference_latest = Some(r);
+        }
+        if let Some(r) = self.measure_job.as_ref().and_then(|j| j.poll()) {
+            self.measure_job = None;
+            match r {
+                Ok(m) => self.measured = Some(m),
+                Err(e) => self.error = Some(e),
+            }
+        }
+        let (Some(live), Some(r)) = (self.viewport.frame(), &self.reference_latest) else {
+            return;
+        };
+        let key = (live.finished, r.seq);
+        let comparable = live.version == r.version
+            && (live.image.width(), live.image.height()) == (r.image.width(), r.image.height());
+        if comparable
+            && self.measure_job.is_none()
+            && self.measure_key != Some(key)
+            && self.measure_started.elapsed() >= MEASURE_EVERY
+        {
+            self.measure_key = Some(key);
+            self.measure_started = Instant::now();
+            let (reference, live, reference_spp) =
+                (Arc::clone(&r.image), Arc::clone(&live.image), r.spp);
+            self.measure_job = Some(Job::spawn("comparing", self.repaint.clone(), move || {
+                let comparison =
+                    metrics::compare(&reference, &live, 0.0).map_err(|e| e.to_string())?;
+                Ok(Measured {
+                    reference,
+                    live,
+                    reference_spp,
+                    comparison,
+                })
+            }));
+        } else if !comparable || self.measure_key != Some(key) {
+            // Wake up again to compare once the interval has passed.
+            ctx_repaint_after(self.repaint.as_ref(), MEASURE_EVERY);
+        }
+    }
+
     /// Chooses the cluster and texel under a click at (x, y) in [0, 1]^2 of the image.
     pub fn pick_at(&mut self, x: f64, y: f64) {
         let (Some(doc), Some(bvh)) = (&self.doc, &self.bvh) else {
@@ -774,6 +1264,47 @@ impl Studio {
                     if ui.button("OK").clicked() {
                         self.error = None;
                     }
+                });
+        }
+        if let Some(m) = self.mode_message.clone() {
+            egui::Window::new("Render mode")
+                .collapsible(false)
+                .resizable(false)
+                .anchor(egui::Align2::CENTER_TOP, egui::vec2(0.0, 120.0))
+                .show(&ctx, |ui| {
+                    ui.label(m);
+                    if ui.button("OK").clicked() {
+                        self.mode_message = None;
+                    }
+                });
+        }
+        if let Some(u) = self.unsupported_prompt.clone() {
+            let target = mode_name(u.mode, u.device);
+            let current = mode_name(self.mode.0, self.mode.1);
+            let parts: Vec<String> = u.parts.iter().map(|p| p.to_string()).collect();
+            egui::Window::new("Switch render mode?")
+                .collapsible(false)
+                .resizable(false)
+                .anchor(egui::Align2::CENTER_TOP, egui::vec2(0.0, 120.0))
+                .show(&ctx, |ui| {
+                    ui.label(format!(
+                        "The {target} mode cannot render {}.",
+                        parts.join(", ")
+                    ));
+                    ui.horizontal(|ui| {
+                        if ui
+                            .button(format!(
+                                "Switch with these lights disabled for {}",
+                                u.mode.name()
+                            ))
+                            .clicked()
+                        {
+                            self.switch_without_lights(u.mode, u.device);
+                        }
+                        if ui.button(format!("Stay in {current}")).clicked() {
+                            self.unsupported_prompt = None;
+                        }
+                    });
                 });
         }
         // Quitting with unsaved edits asks first.
@@ -821,3 +1352,7 @@ impl Studio {
 #[cfg(test)]
 #[path = "studio_tests.rs"]
 mod tests;
+
+#[cfg(test)]
+#[path = "mode_tests.rs"]
+mod mode_tests;

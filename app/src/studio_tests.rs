@@ -15,7 +15,7 @@ use meso_core::spmm::SpmmMaterial;
 
 use super::*;
 
-fn harness() -> Harness<'static, Studio> {
+pub(super) fn harness() -> Harness<'static, Studio> {
     let mut h = Harness::builder()
         .with_size(egui::vec2(1280.0, 800.0))
         .build_ui_state(
@@ -27,7 +27,7 @@ fn harness() -> Harness<'static, Studio> {
 }
 
 /// Steps until background loads are installed.
-fn loaded(h: &mut Harness<'_, Studio>) {
+pub(super) fn loaded(h: &mut Harness<'_, Studio>) {
     let deadline = Instant::now() + Duration::from_secs(60);
     loop {
         h.step();
@@ -52,7 +52,7 @@ fn material(h: &Harness<'_, Studio>) -> Arc<SpmmMaterial> {
 }
 
 /// Steps the UI until a frame rendered at the document's current version is shown.
-fn wait_for_current_frame(h: &mut Harness<'_, Studio>) {
+pub(super) fn wait_for_current_frame(h: &mut Harness<'_, Studio>) {
     let deadline = Instant::now() + Duration::from_secs(60);
     loop {
         h.step();

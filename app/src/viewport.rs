@@ -3,10 +3,14 @@
 //! shift-drag, zoom with the wheel) and a click into a pick position. While the
 //! camera moves the render runs at a quarter of the resolution with the residual
 //! skipped; the studio sends those edits, this module only reports what happened.
+//! In the compare view a draggable vertical divider splits the image: the live frame
+//! on its left, the reference on its right, each half labelled.
+
+use std::sync::Arc;
 
 use egui::{ColorImage, Sense, TextureHandle, TextureOptions, Ui, Vec2};
 use glam::DVec3;
-use meso_core::image::to_srgb8;
+use meso_core::image::{Image, to_srgb8};
 use meso_core::scene::Camera;
 
 use crate::render_worker::Frame;
@@ -77,14 +81,56 @@ pub struct Input {
     pub panel_pixels: (u32, u32),
 }
 
-#[derive(Default)]
+/// The compare view's labels: (left, live; right, reference).
+pub struct CompareLabels {
+    pub live: String,
+    pub reference: String,
+}
+
 pub struct Viewport {
     texture: Option<TextureHandle>,
     /// The frame on screen and the exposure its texture was made with.
     shown: Option<(Frame, f64)>,
+    reference_texture: Option<TextureHandle>,
+    /// The reference image on screen and the exposure its texture was made with.
+    reference: Option<(Arc<Image>, f64)>,
+    /// Where the compare view's divider is, as a fraction of the width.
+    pub split: f32,
+}
+
+impl Default for Viewport {
+    fn default() -> Self {
+        Self {
+            texture: None,
+            shown: None,
+            reference_texture: None,
+            reference: None,
+            split: 0.5,
+        }
+    }
+}
+
+/// Makes or refreshes `texture` from `img` after `exposure`.
+fn upload(ui: &Ui, texture: &mut Option<TextureHandle>, name: &str, img: &Image, exposure: f64) {
+    let rgb: Vec<u8> = to_srgb8(img, exposure).into_iter().flatten().collect();
+    let color = ColorImage::from_rgb([img.width() as usize, img.height() as usize], &rgb);
+    match texture {
+        Some(t) => t.set(color, TextureOptions::LINEAR),
+        None => *texture = Some(ui.ctx().load_texture(name, color, TextureOptions::LINEAR)),
+    }
 }
 
 impl Viewport {
+    /// Takes a newer reference image for the compare view.
+    pub fn set_reference(&mut self, image: Arc<Image>) {
+        self.reference = Some((image, f64::NAN));
+    }
+
+    pub fn clear_reference(&mut self) {
+        self.reference = None;
+        self.reference_texture = None;
+    }
+
     pub fn frame(&self) -> Option<&Frame> {
         self.shown.as_ref().map(|(f, _)| f)
     }
@@ -94,7 +140,14 @@ impl Viewport {
         self.shown = Some((frame, f64::NAN));
     }
 
-    pub fn show(&mut self, ui: &mut Ui, camera: &Camera, exposure: f64) -> Input {
+    /// Shows the frame (and, with `compare`, the reference right of the divider).
+    pub fn show(
+        &mut self,
+        ui: &mut Ui,
+        camera: &Camera,
+        exposure: f64,
+        compare: Option<CompareLabels>,
+    ) -> Input {
         let size = ui.available_size().max(Vec2::splat(16.0));
         let ppp = ui.ctx().pixels_per_point();
         let mut input = Input {
@@ -107,19 +160,14 @@ impl Viewport {
         if let Some((frame, made_with)) = &mut self.shown
             && (self.texture.is_none() || *made_with != exposure)
         {
-            let img = &frame.image;
-            let rgb: Vec<u8> = to_srgb8(img, exposure).into_iter().flatten().collect();
-            let color = ColorImage::from_rgb([img.width() as usize, img.height() as usize], &rgb);
-            match &mut self.texture {
-                Some(t) => t.set(color, TextureOptions::LINEAR),
-                None => {
-                    self.texture = Some(ui.ctx().load_texture(
-                        "viewport",
-                        color,
-                        TextureOptions::LINEAR,
-                    ))
-                }
-            }
+            upload(ui, &mut self.texture, "viewport", &frame.image, exposure);
+            *made_with = exposure;
+        }
+        if compare.is_some()
+            && let Some((img, made_with)) = &mut self.reference
+            && (self.reference_texture.is_none() || *made_with != exposure)
+        {
+            upload(ui, &mut self.reference_texture, "reference", img, exposure);
             *made_with = exposure;
         }
         let (rect, response) = ui.allocate_exact_size(size, Sense::click_and_drag());
@@ -140,6 +188,9 @@ impl Viewport {
                 egui::FontId::proportional(16.0),
                 ui.visuals().weak_text_color(),
             );
+        }
+        if let Some(labels) = compare {
+            self.split_ui(ui, rect, &labels);
         }
         ui.painter().text(
             rect.left_top() + Vec2::new(8.0, 6.0),
@@ -184,6 +235,81 @@ impl Viewport {
             input.click = Some((f64::from(rel.x), f64::from(rel.y)));
         }
         input
+    }
+}
+
+impl Viewport {
+    /// The reference right of the divider, the divider (dragged on its own: it sits
+    /// above the image's response) and the halves' labels.
+    fn split_ui(&mut self, ui: &mut Ui, rect: egui::Rect, labels: &CompareLabels) {
+        let x = rect.left() + rect.width() * self.split;
+        let right = egui::Rect::from_min_max(egui::pos2(x, rect.top()), rect.max);
+        match &self.reference_texture {
+            Some(t) => {
+                ui.painter().image(
+                    t.id(),
+                    right,
+                    egui::Rect::from_min_max(egui::pos2(self.split, 0.0), egui::pos2(1.0, 1.0)),
+                    egui::Color32::WHITE,
+                );
+            }
+            None => {
+                ui.painter()
+                    .rect_filled(right, 0.0, egui::Color32::from_gray(18));
+                ui.painter().text(
+                    right.center(),
+                    egui::Align2::CENTER_CENTER,
+                    "rendering the reference…",
+                    egui::FontId::proportional(14.0),
+                    ui.visuals().weak_text_color(),
+                );
+            }
+        }
+        let handle = egui::Rect::from_center_size(
+            egui::pos2(x, rect.center().y),
+            egui::vec2(8.0, rect.height()),
+        );
+        let response = ui
+            .interact(
+                handle,
+                egui::Id::unique("meso-compare-divider"),
+                Sense::drag(),
+            )
+            .on_hover_cursor(egui::CursorIcon::ResizeHorizontal);
+        if response.dragged() && rect.width() > 0.0 {
+            self.split = (self.split + response.drag_delta().x / rect.width()).clamp(0.02, 0.98);
+        }
+        let stroke_colour = if response.hovered() || response.dragged() {
+            egui::Color32::WHITE
+        } else {
+            egui::Color32::from_gray(200)
+        };
+        ui.painter().line_segment(
+            [egui::pos2(x, rect.top()), egui::pos2(x, rect.bottom())],
+            egui::Stroke::new(2.0, stroke_colour),
+        );
+        let font = egui::FontId::proportional(13.0);
+        let bg = egui::Color32::from_black_alpha(160);
+        for (text, pos, align) in [
+            (
+                &labels.live,
+                egui::pos2(x - 8.0, rect.bottom() - 8.0),
+                egui::Align2::RIGHT_BOTTOM,
+            ),
+            (
+                &labels.reference,
+                egui::pos2(x + 8.0, rect.bottom() - 8.0),
+                egui::Align2::LEFT_BOTTOM,
+            ),
+        ] {
+            let galley =
+                ui.painter()
+                    .layout_no_wrap(text.clone(), font.clone(), egui::Color32::WHITE);
+            let r = align.anchor_size(pos, galley.size()).expand(3.0);
+            ui.painter().rect_filled(r, 3.0, bg);
+            ui.painter()
+                .galley(r.min + Vec2::splat(3.0), galley, egui::Color32::WHITE);
+        }
     }
 }
 

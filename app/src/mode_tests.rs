@@ -1,0 +1,430 @@
+//! The mode switch, the environment panel and the compare view driven through the
+//! real window with egui_kittest, with injected mode makers: a slow preparation that
+//! waits on its cancel flag (the old mode keeps rendering, Cancel keeps it), a mode
+//! that refuses lights (stay, or switch with them disabled), a mode that is not
+//! built, the compare view's numbers against `metrics::compare`, and environment
+//! edits with undo.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use egui::accesskit::Role;
+use egui_kittest::Harness;
+use egui_kittest::kittest::{NodeT, Queryable};
+use glam::DVec3;
+use meso_core::image::Image;
+use meso_core::render::{
+    Device, EditError, FrameStats, Invalidation, ModeError, ModeKind, PreparationReport, Prepare,
+    Progress, RenderMode, SceneEdit, Unrenderable, Unsupported,
+};
+use meso_core::scene::{Light, Scene};
+
+use super::tests::{loaded, wait_for_current_frame};
+use super::*;
+use crate::mode_maker::{CoreModes, ModeMaker};
+
+/// Light edits a test mode received: (mode index, light).
+type Applied = Arc<Mutex<Vec<(usize, Light)>>>;
+
+/// Core's spmm mode under another kind's name, noting the light edits it gets.
+struct Tagged {
+    kind: ModeKind,
+    inner: Box<dyn RenderMode>,
+    applied: Applied,
+}
+
+impl RenderMode for Tagged {
+    fn kind(&self) -> ModeKind {
+        self.kind
+    }
+    fn device(&self) -> Device {
+        Device::Cpu
+    }
+    fn scene(&self) -> &Scene {
+        self.inner.scene()
+    }
+    fn render_frame(&mut self) -> FrameStats {
+        self.inner.render_frame()
+    }
+    fn image(&self) -> Image {
+        self.inner.image()
+    }
+    fn progress(&self) -> Progress {
+        self.inner.progress()
+    }
+    fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
+        if let SceneEdit::Light { index, light } = &edit {
+            self.applied
+                .lock()
+                .expect("not poisoned")
+                .push((*index, *light));
+        }
+        self.inner.apply(edit)
+    }
+    fn set_samples_per_frame(&mut self, samples: u32) {
+        self.inner.set_samples_per_frame(samples);
+    }
+    fn preparation(&self) -> PreparationReport {
+        self.inner.preparation()
+    }
+}
+
+/// spmm as core has it; biscale prepares until `release` is set (or it is
+/// cancelled); adaptive cannot render any light. Both render with core's spmm.
+struct TestModes {
+    release: Arc<AtomicBool>,
+    applied: Applied,
+}
+
+impl ModeMaker for TestModes {
+    fn supports(&self, kind: ModeKind, device: Device, scene: &Scene) -> Result<(), ModeError> {
+        match (kind, device) {
+            (ModeKind::Spmm, Device::Cpu) => CoreModes.supports(kind, device, scene),
+            (ModeKind::Biscale, Device::Cpu) => Ok(()),
+            (ModeKind::Adaptive, Device::Cpu) => {
+                let parts = scene
+                    .lights
+                    .iter()
+                    .enumerate()
+                    .map(|(index, l)| Unrenderable::Light {
+                        index,
+                        kind: match l {
+                            Light::Point { .. } => "point",
+                            _ => "area",
+                        },
+                    })
+                    .collect();
+                Ok(Unsupported::check(kind, device, parts)?)
+            }
+            _ => Err(ModeError::NotBuilt { mode: kind, device }),
+        }
+    }
+
+    fn create(
+        &self,
+        kind: ModeKind,
+        device: Device,
+        scene: Scene,
+        width: u32,
+        height: u32,
+        prepare: Prepare,
+    ) -> Result<Box<dyn RenderMode>, ModeError> {
+        self.supports(kind, device, &scene)?;
+        if kind == ModeKind::Spmm {
+            return CoreModes.create(kind, device, scene, width, height, prepare);
+        }
+        let mut step = 0u32;
+        while kind == ModeKind::Biscale && !self.release.load(Ordering::Relaxed) {
+            prepare.report("waiting for the test", (step % 100) as f32 / 100.0)?;
+            step += 1;
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        let inner = CoreModes.create(ModeKind::Spmm, Device::Cpu, scene, width, height, prepare)?;
+        Ok(Box::new(Tagged {
+            kind,
+            inner,
+            applied: Arc::clone(&self.applied),
+        }))
+    }
+}
+
+fn small() -> Settings {
+    Settings {
+        resolution: 0.25,
+        max_samples: 1_000_000,
+        show_timings: false,
+        ..Settings::default()
+    }
+}
+
+fn harness_with(maker: Arc<dyn ModeMaker>, settings: Settings) -> Harness<'static, Studio> {
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1280.0, 800.0))
+        .build_ui_state(
+            |ui, s: &mut Studio| s.show(ui),
+            Studio::with_maker(None, None, settings, maker),
+        );
+    loaded(&mut h);
+    h
+}
+
+fn test_modes() -> (Arc<AtomicBool>, Applied, Arc<dyn ModeMaker>) {
+    let release = Arc::new(AtomicBool::new(false));
+    let applied: Applied = Arc::default();
+    let maker = Arc::new(TestModes {
+        release: Arc::clone(&release),
+        applied: Arc::clone(&applied),
+    });
+    (release, applied, maker)
+}
+
+/// Steps until `done`, failing after 60 s with `what`.
+fn step_until(
+    h: &mut Harness<'_, Studio>,
+    what: &str,
+    mut done: impl FnMut(&Harness<'_, Studio>) -> bool,
+) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        h.step();
+        if done(h) {
+            return;
+        }
+        assert!(Instant::now() < deadline, "{what} within 60 s");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// Steps until a frame newer than the one on screen arrives; returns its mode.
+fn next_frame_mode(h: &mut Harness<'_, Studio>) -> ModeKind {
+    let before = h.state().frame().map(|f| f.finished);
+    step_until(h, "a new frame", |h| {
+        h.state().frame().map(|f| f.finished) != before
+    });
+    h.state().frame().expect("a frame").mode
+}
+
+/// Steps until a frame of the document's version rendered by `mode` is shown (the
+/// old mode may still show that version until the new one is installed).
+fn wait_for_mode_frame(h: &mut Harness<'_, Studio>, mode: ModeKind) {
+    step_until(h, "a frame of the new mode", |h| {
+        let version = h.state().doc.as_ref().expect("doc").version;
+        h.state()
+            .frame()
+            .is_some_and(|f| f.mode == mode && f.version >= version)
+    });
+}
+
+/// Picks a render mode in the panel's combo box.
+fn choose_mode(h: &mut Harness<'_, Studio>, name: &str) {
+    h.get_by_role_and_label(Role::ComboBox, "Render mode")
+        .click();
+    h.run_steps(2);
+    h.get_by_label(name).click();
+    h.run_steps(2);
+}
+
+#[test]
+fn a_slow_switch_keeps_the_old_mode_rendering_cancel_keeps_it_and_a_finished_one_installs() {
+    let (release, applied, maker) = test_modes();
+    let mut h = harness_with(maker, small());
+    wait_for_current_frame(&mut h);
+    choose_mode(&mut h, "biscale");
+    assert!(
+        h.state().switching(),
+        "the preparation runs in the background"
+    );
+    step_until(&mut h, "the progress bar", |h| {
+        h.query_all_by_role(Role::ProgressIndicator).any(|n| {
+            n.accesskit_node()
+                .label()
+                .is_some_and(|l| l.contains("waiting for the test"))
+        })
+    });
+    assert!(
+        h.query_by_label_contains("switching to biscale (cpu)")
+            .is_some()
+    );
+    // The old mode keeps rendering meanwhile.
+    for _ in 0..2 {
+        assert_eq!(next_frame_mode(&mut h), ModeKind::Spmm);
+    }
+    assert!(h.state().switching());
+    h.get_by_label("Cancel").click();
+    step_until(&mut h, "the cancelled job to end", |h| {
+        !h.state().switching()
+    });
+    assert_eq!(h.state().mode(), (ModeKind::Spmm, Device::Cpu));
+    assert!(
+        h.query_by_role(Role::ProgressIndicator).is_none(),
+        "no bar, no spinner"
+    );
+    assert!(h.state().mode_message.is_none(), "cancelling is no error");
+    assert_eq!(next_frame_mode(&mut h), ModeKind::Spmm);
+
+    // Again; a light edit made while it prepares reaches the new mode.
+    choose_mode(&mut h, "biscale");
+    assert!(h.state().switching());
+    let mut light = h.state().doc.as_ref().expect("doc").scene.lights[0];
+    if let Light::Area { radiance, .. } = &mut light {
+        *radiance = DVec3::new(3.0, 2.0, 1.0);
+    }
+    h.state_mut().edit(SceneEdit::Light { index: 0, light });
+    release.store(true, Ordering::Relaxed);
+    step_until(&mut h, "the switch", |h| !h.state().switching());
+    assert_eq!(h.state().mode(), (ModeKind::Biscale, Device::Cpu));
+    wait_for_mode_frame(&mut h, ModeKind::Biscale);
+    assert_eq!(next_frame_mode(&mut h), ModeKind::Biscale);
+    assert_eq!(
+        *applied.lock().expect("not poisoned"),
+        vec![(0, light)],
+        "the edit made during the preparation was replayed on the new mode"
+    );
+}
+
+#[test]
+fn a_mode_that_cannot_render_a_light_asks_and_renders_without_it() {
+    let (_release, applied, maker) = test_modes();
+    let mut h = harness_with(maker, small());
+    wait_for_current_frame(&mut h);
+    choose_mode(&mut h, "adaptive");
+    assert!(!h.state().switching(), "nothing starts before the answer");
+    assert!(
+        h.query_by_label_contains("cannot render light[0] (area)")
+            .is_some(),
+        "the message names the light"
+    );
+    h.get_by_label("Stay in spmm (cpu)").click();
+    h.run_steps(2);
+    assert_eq!(h.state().mode(), (ModeKind::Spmm, Device::Cpu));
+    assert!(
+        h.query_by_label_contains("cannot render light[0]")
+            .is_none()
+    );
+    assert_eq!(next_frame_mode(&mut h), ModeKind::Spmm);
+
+    choose_mode(&mut h, "adaptive");
+    h.get_by_label("Switch with these lights disabled for adaptive")
+        .click();
+    step_until(&mut h, "the switch", |h| !h.state().switching());
+    assert_eq!(h.state().mode(), (ModeKind::Adaptive, Device::Cpu));
+    wait_for_mode_frame(&mut h, ModeKind::Adaptive);
+    h.run_steps(2);
+    assert!(
+        h.query_by_label_contains("light 0: area (disabled in adaptive)")
+            .is_some(),
+        "the lights panel marks the light"
+    );
+    // Its edits stay in the document; the mode never gets them, frames still come.
+    let mut light = h.state().doc.as_ref().expect("doc").scene.lights[0];
+    if let Light::Area { radiance, .. } = &mut light {
+        *radiance = DVec3::splat(1.0);
+    }
+    h.state_mut().edit(SceneEdit::Light { index: 0, light });
+    wait_for_current_frame(&mut h);
+    assert_eq!(h.state().doc.as_ref().expect("doc").scene.lights[0], light);
+    assert!(applied.lock().expect("not poisoned").is_empty());
+    // A light added now cannot be rendered either: it is disabled too.
+    h.get_by_label("Add point light").click();
+    wait_for_current_frame(&mut h);
+    assert!(h.state().disabled().light(1));
+    assert_eq!(h.state().frame().expect("frame").mode, ModeKind::Adaptive);
+}
+
+#[test]
+fn a_mode_that_is_not_built_says_so_and_the_old_mode_keeps_rendering() {
+    let mut h = harness_with(Arc::new(CoreModes), small());
+    wait_for_current_frame(&mut h);
+    choose_mode(&mut h, "biscale");
+    assert!(!h.state().switching());
+    let message = h.state().mode_message.clone().expect("a message");
+    assert!(
+        message.contains("not built") && message.contains("staying in spmm (cpu)"),
+        "{message}"
+    );
+    assert!(
+        h.query_by_label_contains("not built").is_some(),
+        "it is shown"
+    );
+    assert_eq!(h.state().mode(), (ModeKind::Spmm, Device::Cpu));
+    assert_eq!(next_frame_mode(&mut h), ModeKind::Spmm);
+    let f = h.state().frame().expect("frame");
+    assert!(
+        f.image.pixels().iter().any(|p| p.iter().any(|&c| c > 0.0)),
+        "not black"
+    );
+}
+
+#[test]
+fn the_compare_view_shows_exactly_what_metrics_compare_says() {
+    let settings = Settings {
+        max_samples: 4,
+        reference_spp: 8,
+        ..small()
+    };
+    let mut h = harness_with(Arc::new(CoreModes), settings);
+    wait_for_current_frame(&mut h);
+    h.get_by_label("View").click();
+    h.run_steps(2);
+    h.get_by_label("Compare with a reference").click();
+    h.run_steps(2);
+    assert!(h.state().settings.compare);
+    step_until(&mut h, "a comparison with the 8-spp reference", |h| {
+        h.state().measured().is_some_and(|m| m.reference_spp >= 8)
+    });
+    let m = h.state().measured().expect("measured").clone();
+    let again = meso_core::metrics::compare(&m.reference, &m.live, 0.0).expect("same size");
+    assert_eq!(again, m.comparison);
+    assert!(
+        m.comparison.rmse > 0.0 && m.comparison.mssim < 1.0,
+        "4 spp is not converged"
+    );
+    h.run_steps(2);
+    assert!(
+        h.query_by_label_contains("reference: spmm, 8 spp")
+            .is_some()
+    );
+    let shown = format!("RMSE {:.4}", m.comparison.rmse);
+    step_until(&mut h, "the numbers in the status bar", |h| {
+        h.query_by_label_contains(&shown).is_some()
+    });
+}
+
+#[test]
+fn environment_edits_are_undoable_and_reach_the_renderer() {
+    let mut h = harness_with(Arc::new(CoreModes), small());
+    wait_for_current_frame(&mut h);
+    assert!(
+        h.state()
+            .doc
+            .as_ref()
+            .expect("doc")
+            .scene
+            .environment
+            .is_none()
+    );
+    h.get_by_label("env_studio").click();
+    h.step();
+    loaded(&mut h);
+    let env = |h: &Harness<'_, Studio>| {
+        h.state()
+            .doc
+            .as_ref()
+            .expect("doc")
+            .scene
+            .environment
+            .clone()
+    };
+    let on = env(&h).expect("the environment is on");
+    assert_eq!((on.strength, on.rotate_y_deg), (1.0, 0.0));
+    wait_for_current_frame(&mut h);
+
+    h.get_by_role_and_label(Role::Slider, "environment strength")
+        .set_value_accesskit(2.5);
+    h.step();
+    let strong = env(&h).expect("on");
+    assert_eq!(strong.strength, 2.5);
+    assert!(Arc::ptr_eq(&strong.map, &on.map), "the same map");
+    wait_for_current_frame(&mut h);
+
+    h.get_by_role_and_label(Role::Slider, "environment rotation (deg)")
+        .set_value_accesskit(-90.0);
+    h.step();
+    assert_eq!(env(&h).expect("on").rotate_y_deg, -90.0);
+    wait_for_current_frame(&mut h);
+
+    h.state_mut().undo();
+    h.step();
+    assert_eq!(env(&h).expect("on").rotate_y_deg, 0.0);
+    h.state_mut().undo();
+    h.step();
+    let back = env(&h).expect("on");
+    assert_eq!(back.strength, 1.0);
+    assert!(Arc::ptr_eq(&back.map, &on.map));
+    wait_for_current_frame(&mut h);
+    h.state_mut().undo();
+    h.step();
+    assert!(env(&h).is_none(), "undo turns it off again");
+    wait_for_current_frame(&mut h);
+}

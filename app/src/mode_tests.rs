@@ -428,3 +428,47 @@ fn environment_edits_are_undoable_and_reach_the_renderer() {
     assert!(env(&h).is_none(), "undo turns it off again");
     wait_for_current_frame(&mut h);
 }
+
+#[test]
+fn a_scene_that_names_a_mode_asks_for_it_once_loaded() {
+    // The default scene with `[render] mode = "biscale"`: it opens in spmm (which
+    // renders everything), then asks for biscale, which is not built: the message
+    // says so and frames keep coming from spmm.
+    let dir = tempfile::tempdir().expect("temp dir");
+    let default = default_scene_path();
+    let folder = default
+        .parent()
+        .expect("scenes folder")
+        .display()
+        .to_string();
+    // Paths in a scene are relative to it: make them absolute for the copy.
+    let text = std::fs::read_to_string(&default)
+        .expect("default scene")
+        .replace("[render]\n", "[render]\nmode = \"biscale\"\n")
+        .replace("path = \"", &format!("path = \"{folder}/"))
+        .replace("pack = \"", &format!("pack = \"{folder}/"));
+    assert!(
+        text.contains("mode = \"biscale\""),
+        "the default scene has [render]"
+    );
+    let copy = dir.path().join("biscale.toml");
+    std::fs::write(&copy, text).expect("write scene");
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1280.0, 800.0))
+        .build_ui_state(
+            |ui, s: &mut Studio| s.show(ui),
+            Studio::with_maker(None, Some(copy.clone()), small(), Arc::new(CoreModes)),
+        );
+    loaded(&mut h);
+    wait_for_current_frame(&mut h);
+    step_until(&mut h, "the scene's mode to be asked for", |h| {
+        h.state().mode_message.is_some()
+    });
+    let message = h.state().mode_message.clone().expect("a message");
+    assert!(
+        message.contains("biscale") && message.contains("not built"),
+        "{message}"
+    );
+    assert_eq!(h.state().mode(), (ModeKind::Spmm, Device::Cpu));
+    assert_eq!(next_frame_mode(&mut h), ModeKind::Spmm);
+}

@@ -44,6 +44,13 @@ pub const OPEN_PACK: KeyboardShortcut = KeyboardShortcut::new(Modifiers::COMMAND
 pub const EXPORT: KeyboardShortcut = KeyboardShortcut::new(Modifiers::COMMAND, Key::E);
 
 /// The scene the README's first command opens.
+/// The mode and device a document's scene file names.
+fn doc_scene_mode(doc: Option<&Document>) -> (ModeKind, Device) {
+    doc.map_or((ModeKind::Spmm, Device::Cpu), |d| {
+        (d.scene.render.mode, d.scene.render.device)
+    })
+}
+
 pub fn default_scene_path() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../tests/scenes/default.toml")
 }
@@ -177,6 +184,9 @@ pub struct Studio {
     switch: Option<Switch>,
     /// A mode that cannot render some lights: switch without them, or stay?
     unsupported_prompt: Option<Unsupported>,
+    /// The mode an opened scene asks for (`[render] mode/device`), requested once the
+    /// scene is loaded into the renderer in the spmm mode.
+    scene_mode: Option<(ModeKind, Device)>,
     /// Why the last switch did not happen, shown until dismissed.
     pub mode_message: Option<String>,
     /// Shipped environment maps, the map read last (file, image), and the last
@@ -245,6 +255,7 @@ impl Studio {
             disabled: Disabled::default(),
             switch: None,
             unsupported_prompt: None,
+            scene_mode: None,
             mode_message: None,
             environments: scene_panel::shipped_environments(),
             env_source: None,
@@ -520,7 +531,10 @@ impl Studio {
                     self.doc = Some(doc);
                     self.in_flight.clear();
                     self.material_panel = MaterialPanel::default();
-                    // A new scene opens in the spmm mode, which renders everything.
+                    // A new scene opens in the spmm mode, which renders everything; the
+                    // mode the scene names is asked for once it is loaded (below).
+                    self.scene_mode = Some(doc_scene_mode(self.doc.as_ref()))
+                        .filter(|m| *m != (ModeKind::Spmm, Device::Cpu));
                     if let Some(sw) = self.switch.take() {
                         sw.job.cancel();
                     }
@@ -563,6 +577,10 @@ impl Studio {
             height: size.1,
         });
         self.in_flight.push_back((doc.version, Instant::now()));
+        // After the first load, so an installed mode always follows the Load.
+        if let Some((kind, device)) = self.scene_mode.take() {
+            self.request_mode(kind, device);
+        }
     }
 
     /// Applies an edit to the document (one undo group while a drag lasts) and sends

@@ -13,12 +13,12 @@ use std::path::Path;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use glam::{DMat3, DVec2, DVec3};
 use meso_core::brdf::warp;
+use meso_core::geometry::SceneBvh;
 use meso_core::modes;
 use meso_core::render::{Device, ModeKind, Prepare, RenderMode, SceneEdit};
 use meso_core::rng::SampleStream;
 use meso_core::scene::mesh::{Placement, load_obj, vertex_normals};
 use meso_core::scene::{TriangleMesh, load_scene};
-use meso_core::geometry::SceneBvh;
 use rayon::prelude::*;
 
 fn root() -> std::path::PathBuf {
@@ -203,8 +203,15 @@ fn bench_rays(c: &mut Criterion) {
 }
 
 fn create(scene: meso_core::scene::Scene, size: u32) -> Box<dyn RenderMode> {
-    modes::create(ModeKind::Spmm, Device::Cpu, scene, size, size, Prepare::quietly())
-        .expect("the spmm mode renders the test scenes")
+    modes::create(
+        ModeKind::Spmm,
+        Device::Cpu,
+        scene,
+        size,
+        size,
+        Prepare::quietly(),
+    )
+    .expect("the spmm mode renders the test scenes")
 }
 
 /// The environment scene at 256^2: map sampling alone against MIS (two rays), and
@@ -214,7 +221,11 @@ fn bench_environment(c: &mut Criterion) {
     let mut group = c.benchmark_group("environment frame 256x256");
     group.sample_size(10);
     group.throughput(Throughput::Elements(256 * 256));
-    for (label, mis, env) in [("MIS", true, true), ("map only", false, true), ("no environment", false, false)] {
+    for (label, mis, env) in [
+        ("MIS", true, true),
+        ("map only", false, true),
+        ("no environment", false, false),
+    ] {
         let mut s = scene.clone();
         match (&mut s.environment, env) {
             (Some(e), true) => e.mis = mis,

@@ -1097,19 +1097,40 @@ fn render_modes_devices_and_unsupported_scenes_exit_2_naming_why() {
     let out_arg = out.to_str().expect("utf-8");
     let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/env.toml");
     let render = |extra: &[&str]| {
-        let mut args = vec!["render", scene, "-o", out_arg, "--width", "16", "--height", "16"];
+        let mut args = vec![
+            "render", scene, "-o", out_arg, "--width", "16", "--height", "16",
+        ];
         args.extend_from_slice(extra);
         meso(&args, "")
     };
     // Modes and devices not built yet say so; unknown names are usage errors.
-    assert_bad_input(&render(&["--mode", "biscale"]), &["biscale", "not built yet"]);
-    assert_bad_input(&render(&["--device", "gpu"]), &["spmm", "gpu", "not built yet"]);
-    assert_bad_input(&render(&["--mode", "fast"]), &["fast", "spmm, biscale, adaptive"]);
+    assert_bad_input(
+        &render(&["--mode", "biscale"]),
+        &["biscale", "not built yet"],
+    );
+    assert_bad_input(
+        &render(&["--device", "gpu"]),
+        &["spmm", "gpu", "not built yet"],
+    );
+    assert_bad_input(
+        &render(&["--mode", "fast"]),
+        &["fast", "spmm, biscale, adaptive"],
+    );
     // The environment scene renders in its own mode, which --json names with its counters.
-    let o = render(&["--frames", "2", "--json", "--mode", "spmm", "--device", "cpu"]);
-    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = render(&[
+        "--frames", "2", "--json", "--mode", "spmm", "--device", "cpu",
+    ]);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
-    assert_eq!((v["mode"].as_str(), v["device"].as_str()), (Some("spmm"), Some("cpu")));
+    assert_eq!(
+        (v["mode"].as_str(), v["device"].as_str()),
+        (Some("spmm"), Some("cpu"))
+    );
     assert_eq!(v["samples"], 2 * 16 * 16);
     assert!(v["rays"]["environment"].as_u64().expect("count") > 0);
     assert!(v["shading_points"].as_u64().expect("count") > 0);

@@ -9,8 +9,8 @@ mod sampler;
 #[cfg(test)]
 mod tests;
 
-use std::f64::consts::{PI, TAU};
 use glam::DVec3;
+use std::f64::consts::{PI, TAU};
 
 use crate::image::Image;
 pub use sampler::{EnvironmentSample, EnvironmentSampler};

@@ -10,13 +10,17 @@ use glam::DVec3;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 use super::*;
-use crate::scene::Environment;
 use crate::image::read_image;
 use crate::rng::SampleStream;
+use crate::scene::Environment;
 
 fn shipped(name: &str) -> Image {
-    read_image(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../materials/env").join(name))
-        .expect("shipped map")
+    read_image(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../materials/env")
+            .join(name),
+    )
+    .expect("shipped map")
 }
 
 /// A dim map with one very bright pixel (a "sun" of one pixel), 64 x 32.
@@ -24,7 +28,11 @@ fn hot_spot() -> Image {
     let mut img = Image::new(64, 32);
     for y in 0..32 {
         for x in 0..64 {
-            img.set(x, y, [0.01 + 0.001 * x as f32, 0.02, 0.015 + 0.002 * y as f32]);
+            img.set(
+                x,
+                y,
+                [0.01 + 0.001 * x as f32, 0.02, 0.015 + 0.002 * y as f32],
+            );
         }
     }
     img.set(40, 9, [5e4, 4e4, 3e4]);
@@ -48,7 +56,9 @@ fn directions_round_trip_and_follow_the_spec_convention() {
     assert!(rotate_y(DVec3::X, 90.0).distance(DVec3::NEG_Z) < 1e-12);
     assert!(rotate_y(DVec3::Z, 90.0).distance(DVec3::X) < 1e-12);
     // Pixel solid angles add up to the sphere.
-    let sum: f64 = (0..256).map(|y| 512.0 * pixel_solid_angle(512, 256, y)).sum();
+    let sum: f64 = (0..256)
+        .map(|y| 512.0 * pixel_solid_angle(512, 256, y))
+        .sum();
     assert!((sum - 4.0 * PI).abs() < 1e-9, "{sum}");
 }
 
@@ -83,7 +93,10 @@ fn the_pdf_integrates_to_one_and_is_positive_wherever_the_map_is() {
         }
         assert!((integral - 1.0).abs() < 1e-9, "{integral}");
     }
-    assert!(EnvironmentSampler::new(&Image::new(8, 4)).is_none(), "black map");
+    assert!(
+        EnvironmentSampler::new(&Image::new(8, 4)).is_none(),
+        "black map"
+    );
 }
 
 /// Chi-square p-value of `n` samples of `s` over a grid of `nu` x `nv` cells in
@@ -121,7 +134,10 @@ fn chi2_p(map: &Image, s: &EnvironmentSampler, claimed: &EnvironmentSampler, n: 
             let (u0, u1) = (x as f64 / w as f64, (x + 1) as f64 / w as f64);
             for iv in 0..nv {
                 // Cell iv spans cos theta from 1 - 2 iv / nv down to 1 - 2 (iv + 1) / nv.
-                let (ca, cb) = (1.0 - 2.0 * iv as f64 / nv as f64, 1.0 - 2.0 * (iv + 1) as f64 / nv as f64);
+                let (ca, cb) = (
+                    1.0 - 2.0 * iv as f64 / nv as f64,
+                    1.0 - 2.0 * (iv + 1) as f64 / nv as f64,
+                );
                 let dc = (cy0.min(ca) - cy1.max(cb)).max(0.0);
                 if dc == 0.0 {
                     continue;
@@ -148,9 +164,14 @@ fn chi2_p(map: &Image, s: &EnvironmentSampler, claimed: &EnvironmentSampler, n: 
         chi2 += (pooled_o - pooled_e) * (pooled_o - pooled_e) / pooled_e;
         dof += 1;
     } else {
-        assert!(pooled_o <= 5.0 + 5.0 * pooled_e, "samples where the pdf is ~0: {pooled_o}");
+        assert!(
+            pooled_o <= 5.0 + 5.0 * pooled_e,
+            "samples where the pdf is ~0: {pooled_o}"
+        );
     }
-    1.0 - ChiSquared::new((dof - 1) as f64).expect("dof > 1").cdf(chi2)
+    1.0 - ChiSquared::new((dof - 1) as f64)
+        .expect("dof > 1")
+        .cdf(chi2)
 }
 
 #[test]

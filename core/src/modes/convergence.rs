@@ -12,9 +12,9 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use crate::render::{Device, ModeError, ModeKind, Prepare, run_frames};
 use crate::image::Image;
 use crate::metrics::{Comparison, MetricsError, compare};
+use crate::render::{Device, ModeError, ModeKind, Prepare, run_frames};
 use crate::scene::{Material, Scene};
 
 /// What the report renders.
@@ -141,7 +141,9 @@ fn variants(scene: &Scene, notes: &mut Vec<String>) -> Vec<(Variant, Scene)> {
             }
             out.push((v("no_mis", "full"), s));
         }
-        Some(_) => notes.push("the environment samples the map alone (mis = false): no MIS variant".into()),
+        Some(_) => {
+            notes.push("the environment samples the map alone (mis = false): no MIS variant".into())
+        }
         None => {}
     }
     match residual_terms(scene) {

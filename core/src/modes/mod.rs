@@ -94,7 +94,12 @@ mod tests {
         .expect("cancelled");
         assert_eq!(err, ModeError::Cancelled(crate::render::Cancelled));
         let stages = std::sync::Mutex::new(Vec::new());
-        let record = |s: &str, f: f32| stages.lock().expect("not poisoned").push((s.to_string(), f));
+        let record = |s: &str, f: f32| {
+            stages
+                .lock()
+                .expect("not poisoned")
+                .push((s.to_string(), f))
+        };
         let cancel = AtomicBool::new(false);
         let mode = create(
             ModeKind::Spmm,
@@ -115,10 +120,20 @@ mod tests {
     #[test]
     fn bad_sizes_are_refused_by_the_one_size_rule() {
         for (w, h) in [(0, 8), (8, 0), (16385, 8)] {
-            let err = create(ModeKind::Spmm, Device::Cpu, edit_test_scene(), w, h, Prepare::quietly())
-                .err()
-                .expect("refused");
-            assert!(matches!(err, ModeError::Size(ref m) if m.contains("16384")), "{err}");
+            let err = create(
+                ModeKind::Spmm,
+                Device::Cpu,
+                edit_test_scene(),
+                w,
+                h,
+                Prepare::quietly(),
+            )
+            .err()
+            .expect("refused");
+            assert!(
+                matches!(err, ModeError::Size(ref m) if m.contains("16384")),
+                "{err}"
+            );
         }
     }
 
@@ -128,7 +143,9 @@ mod tests {
         use crate::render::{EditError, SceneEdit};
         use crate::scene::Material;
         let gold = Material::Merl {
-            brdf: std::sync::Arc::new(MerlBrdf::from_stored(vec![[1500.0; 3]; CELLS]).expect("valid")),
+            brdf: std::sync::Arc::new(
+                MerlBrdf::from_stored(vec![[1500.0; 3]; CELLS]).expect("valid"),
+            ),
             tint: glam::DVec3::ONE,
         };
         let mut scene = edit_test_scene();

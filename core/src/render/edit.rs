@@ -69,7 +69,10 @@ pub enum EditError {
     #[error("{0}")]
     Size(String),
     #[error("{what} {problem}")]
-    Invalid { what: &'static str, problem: Problem },
+    Invalid {
+        what: &'static str,
+        problem: Problem,
+    },
     #[error("uv_scale {0} must be positive and finite")]
     UvScale(String),
     /// The mode cannot render what the edit brings (e.g. a material it cannot shade).

@@ -174,8 +174,8 @@ impl Layers {
                 film.reset_layer(BACKGROUND);
                 // Escaping rays of a scene without a background table sit in the
                 // environment layer: a switch to or from that restarts it too.
-                let involves_environment = before.background_was_environment
-                    || matches!(b, Background::FromEnvironment);
+                let involves_environment =
+                    before.background_was_environment || matches!(b, Background::FromEnvironment);
                 if involves_environment && scene.environment.is_some() {
                     film.reset_layer(ENVIRONMENT);
                     self.environment = scene.environment.clone();

@@ -15,8 +15,8 @@ pub use edit::{EditError, Invalidation, SceneEdit};
 pub use film::Film;
 
 use crate::image::Image;
-pub use crate::scene::{Device, ModeKind};
 use crate::scene::Scene;
+pub use crate::scene::{Device, ModeKind};
 
 /// Rays traced, by kind (zero for modes that trace none of a kind).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]

@@ -55,7 +55,9 @@ impl RenderSettings {
 }
 
 /// The render modes (DESIGN.md, "The three render modes").
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum ModeKind {
     /// Progressive ray tracing of SPMM and analytic materials (Silva & Santos 2013).
@@ -84,7 +86,9 @@ impl ModeKind {
 }
 
 /// Where a mode runs.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum Device {
     #[default]
@@ -293,7 +297,10 @@ impl Light {
             Light::Area { radiance, .. } => ("radiance", *radiance),
         };
         if !(e.is_finite() && e.min_element() >= 0.0) {
-            return Some(Problem::new(key, format!("{e} must be finite and non-negative")));
+            return Some(Problem::new(
+                key,
+                format!("{e} must be finite and non-negative"),
+            ));
         }
         match *self {
             Light::Point { position, .. } => (!position.is_finite())
@@ -383,7 +390,11 @@ impl Ctx<'_> {
         problem: Problem,
         span_of: impl Fn(&str) -> Range<usize>,
     ) -> Result<T, SceneError> {
-        self.err(&span_of(problem.key), format!("{table}.{}", problem.key), problem.message)
+        self.err(
+            &span_of(problem.key),
+            format!("{table}.{}", problem.key),
+            problem.message,
+        )
     }
     fn finite3(&self, v: &Spanned<[f64; 3]>, key: &str) -> Result<DVec3, SceneError> {
         let d = DVec3::from_array(*v.get_ref());
@@ -692,7 +703,11 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
             message: e.to_string(),
         })?;
         if let Some(p) = crate::environment::check_map(&img) {
-            return ctx.err(&path.span(), key, format!("`{}`: {p}", path.get_ref().display()));
+            return ctx.err(
+                &path.span(),
+                key,
+                format!("`{}`: {p}", path.get_ref().display()),
+            );
         }
         Ok(Arc::new(img))
     };

@@ -208,12 +208,22 @@ fn the_spec_example_loads_with_its_values() {
 fn mode_device_environment_and_merl_tables_load_with_their_values() {
     let dir = setup();
     let s = load_scene(&write(dir.path(), &with_mode_tables(EXAMPLE))).expect("valid scene");
-    assert_eq!((s.render.mode, s.render.device), (ModeKind::Biscale, Device::Gpu));
+    assert_eq!(
+        (s.render.mode, s.render.device),
+        (ModeKind::Biscale, Device::Gpu)
+    );
     let env = s.environment.as_ref().expect("an environment");
-    assert_eq!((env.strength, env.rotate_y_deg, env.mis), (2.5, -40.0, true));
+    assert_eq!(
+        (env.strength, env.rotate_y_deg, env.mis),
+        (2.5, -40.0, true)
+    );
     assert_eq!((env.map.width(), env.map.height()), (512, 256));
     assert!(matches!(s.background, Background::FromEnvironment));
-    let paint = s.material_names.iter().position(|n| n == "paint").expect("paint");
+    let paint = s
+        .material_names
+        .iter()
+        .position(|n| n == "paint")
+        .expect("paint");
     match &s.materials[paint] {
         Material::Merl { brdf, tint } => {
             assert_eq!(*tint, DVec3::new(1.0, 0.5, 1.0));
@@ -225,7 +235,10 @@ fn mode_device_environment_and_merl_tables_load_with_their_values() {
     }
     // Defaults: spmm on the CPU, no environment, black background from it.
     let plain = load_scene(&write(dir.path(), EXAMPLE)).expect("valid");
-    assert_eq!((plain.render.mode, plain.render.device), (ModeKind::Spmm, Device::Cpu));
+    assert_eq!(
+        (plain.render.mode, plain.render.device),
+        (ModeKind::Spmm, Device::Cpu)
+    );
     assert!(plain.environment.is_none());
 }
 

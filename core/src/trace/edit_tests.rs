@@ -5,15 +5,14 @@
 use glam::DVec3;
 
 use super::SpmmMode;
-use crate::scene::test_scenes::edit_test_scene as scene;
 use crate::brdf::{AnalyticBrdf, BrdfModel};
 use crate::image::Image;
 use crate::render::layers::{AMBIENT, FIRST_LIGHT};
 use crate::render::{Invalidation, RenderMode, SceneEdit};
+use crate::scene::test_scenes::edit_test_scene as scene;
 use crate::scene::{Ambient, Background, Light, Material, Scene};
 
 const SIZE: u32 = 24;
-
 
 fn rendered(scene: Scene, frames: u32) -> SpmmMode {
     let mut m = SpmmMode::new(scene, SIZE, SIZE).expect("size");

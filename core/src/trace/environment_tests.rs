@@ -18,8 +18,8 @@ use crate::render::layers::ENVIRONMENT;
 use crate::render::{Invalidation, RenderMode, SceneEdit};
 use crate::scene::mesh::quad;
 use crate::scene::{
-    Ambient, Background, Camera, Device, Environment, Light, Material, ModeKind,
-    RenderSettings, Scene, TriangleMesh,
+    Ambient, Background, Camera, Device, Environment, Light, Material, ModeKind, RenderSettings,
+    Scene, TriangleMesh,
 };
 use crate::spmm::{Cluster, SparseWeights, SpmmMaterial};
 
@@ -95,8 +95,8 @@ fn floor_scene(material: Material, wall: bool, size: u32) -> Scene {
 }
 
 fn render(scene: &Scene, frames: u32) -> Image {
-    let mut m = SpmmMode::new(scene.clone(), scene.render.width, scene.render.height)
-        .expect("valid scene");
+    let mut m =
+        SpmmMode::new(scene.clone(), scene.render.width, scene.render.height).expect("valid scene");
     for _ in 0..frames {
         m.render_frame();
     }
@@ -173,7 +173,10 @@ fn a_constant_environment_equals_unbounded_ambient_light() {
         // sigma of their difference.
         assert!((a - e).abs() < 0.03 * a, "ambient {a} vs environment {e}");
         if let Some(x) = expected {
-            assert!((e - x).abs() < 0.03 * x, "environment {e} vs closed form {x}");
+            assert!(
+                (e - x).abs() < 0.03 * x,
+                "environment {e} vs closed form {x}"
+            );
         }
     }
 }
@@ -335,7 +338,11 @@ fn a_strength_edit_keeps_every_sample_and_a_turn_restarts_only_its_layer() {
     m.apply(SceneEdit::Environment(Some(turned.clone())))
         .expect("valid");
     fresh_scene.environment = Some(turned);
-    assert_eq!(m.image(), render(&fresh_scene, 5), "the light's 5 frames kept");
+    assert_eq!(
+        m.image(),
+        render(&fresh_scene, 5),
+        "the light's 5 frames kept"
+    );
     // Off and on again with the same map: nothing to redo.
     assert_eq!(
         m.apply(SceneEdit::Environment(None)),

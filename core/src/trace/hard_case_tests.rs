@@ -5,11 +5,11 @@
 use glam::{DVec2, DVec3};
 
 use super::SpmmMode;
-use crate::render::{RenderMode, SceneEdit};
-use crate::scene::{Background, Light, Material, Scene};
 use crate::brdf::{AnalyticBrdf, BrdfModel};
+use crate::render::{RenderMode, SceneEdit};
 use crate::scene::mesh::quad;
 use crate::scene::{Ambient, Camera, RenderSettings, TriangleMesh};
+use crate::scene::{Background, Light, Material, Scene};
 
 /// Degenerate triangles, normals facing away from the geometry, UVs far outside
 /// [0, 1], a grazing light, a mirror pair, and a camera inside a closed box: the

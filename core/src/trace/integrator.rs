@@ -15,9 +15,9 @@ use crate::image::Image;
 use crate::render::film::material_bit;
 use crate::render::layers::{self, Before, Layers};
 use crate::render::{
-    Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind, Prepare,
-    PreparationReport, PreparationStage, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
-    Unsupported,
+    Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind,
+    PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit,
+    Unrenderable, Unsupported,
 };
 use crate::rng::SampleStream;
 use crate::scene::{Material, RenderSettings, Scene};
@@ -341,7 +341,9 @@ impl RenderMode for SpmmMode {
         }
         let before = Before::of(&self.scene, &edit);
         edit.apply_to(&mut self.scene)?;
-        if let Some(invalidation) = self.layers.apply(&mut self.film, &before, &edit, &self.scene)
+        if let Some(invalidation) = self
+            .layers
+            .apply(&mut self.film, &before, &edit, &self.scene)
         {
             if let SceneEdit::Environment(Some(e)) = &edit
                 && invalidation != Invalidation::Nothing

@@ -8,8 +8,8 @@ mod integrator;
 mod lights;
 mod shading;
 
-pub use integrator::SpmmMode;
 use integrator::Path;
+pub use integrator::SpmmMode;
 
 #[cfg(test)]
 mod edit_tests;

@@ -5,11 +5,11 @@
 use glam::{DVec2, DVec3};
 
 use super::SpmmMode;
-use crate::render::RenderMode;
-use crate::scene::{Background, Light, Material, Scene};
 use crate::brdf::{AnalyticBrdf, BrdfModel};
+use crate::render::RenderMode;
 use crate::scene::mesh::quad;
 use crate::scene::{Ambient, Camera, RenderSettings};
+use crate::scene::{Background, Light, Material, Scene};
 
 const ALBEDO: f64 = 0.6;
 

@@ -89,10 +89,7 @@ impl ModeMaker for TestModes {
                     .enumerate()
                     .map(|(index, l)| Unrenderable::Light {
                         index,
-                        kind: match l {
-                            Light::Point { .. } => "point",
-                            _ => "area",
-                        },
+                        kind: l.kind_name(),
                     })
                     .collect();
                 Ok(Unsupported::check(kind, device, parts)?)

@@ -78,3 +78,54 @@ pub(crate) fn edit_test_scene() -> Scene {
         background: Background::Color(DVec3::new(0.1, 0.1, 0.2)),
     }
 }
+
+/// A large floor (material 0, normal +y) seen straight down through a 0.01-degree
+/// field at 3x3 pixels, so every pixel looks at (almost exactly) one point; with
+/// `wall`, an infinite wall through x = 0 facing +x beside that point. No lights,
+/// no ambient term, no environment, a black background.
+pub(crate) fn floor_scene(material: Material, wall: bool) -> Scene {
+    let mut meshes = vec![quad(
+        DVec3::new(-50.0, 0.0, 50.0),
+        DVec3::new(100.0, 0.0, 0.0),
+        DVec3::new(0.0, 0.0, -100.0),
+        0,
+    )];
+    if wall {
+        meshes.push(quad(
+            DVec3::new(0.0, 0.0, 50.0),
+            DVec3::new(0.0, 0.0, -100.0),
+            DVec3::new(0.0, 100.0, 0.0),
+            0,
+        ));
+    }
+    let look = if wall {
+        DVec3::new(1e-3, 0.0, 0.0)
+    } else {
+        DVec3::ZERO
+    };
+    Scene {
+        render: RenderSettings {
+            width: 3,
+            height: 3,
+            frames: 1,
+            seed: 1,
+            max_specular_depth: 2,
+            mode: crate::scene::ModeKind::Spmm,
+            device: crate::scene::Device::Cpu,
+        },
+        camera: Camera {
+            position: look + DVec3::new(0.0, 1.0, 0.0),
+            look_at: look,
+            up: DVec3::NEG_Z,
+            fov_y_deg: 0.01,
+        },
+        material_names: vec!["floor".into()],
+        material_files: Vec::new(),
+        materials: vec![material],
+        meshes,
+        lights: Vec::new(),
+        ambient: None,
+        environment: None,
+        background: Background::Color(DVec3::ZERO),
+    }
+}

@@ -18,8 +18,7 @@ use crate::render::layers::ENVIRONMENT;
 use crate::render::{Invalidation, RenderMode, SceneEdit};
 use crate::scene::mesh::quad;
 use crate::scene::{
-    Ambient, Background, Camera, Device, Environment, Light, Material, ModeKind, RenderSettings,
-    Scene, TriangleMesh,
+    Ambient, Background, Camera, Environment, Light, Material, Scene, TriangleMesh,
 };
 use crate::spmm::{Cluster, SparseWeights, SpmmMaterial};
 
@@ -45,53 +44,13 @@ fn lambertian(albedo: f64) -> Material {
     }
 }
 
-/// A large floor (material 0, normal +y) seen straight down through a narrow field,
-/// optionally with an infinite wall through x = 0 facing +x beside the looked-at point.
+/// The shared test floor at `size` x `size`, lit by nothing yet; rays that leave
+/// it see the environment.
 fn floor_scene(material: Material, wall: bool, size: u32) -> Scene {
-    let mut meshes = vec![quad(
-        DVec3::new(-50.0, 0.0, 50.0),
-        DVec3::new(100.0, 0.0, 0.0),
-        DVec3::new(0.0, 0.0, -100.0),
-        0,
-    )];
-    if wall {
-        meshes.push(quad(
-            DVec3::new(0.0, 0.0, 50.0),
-            DVec3::new(0.0, 0.0, -100.0),
-            DVec3::new(0.0, 100.0, 0.0),
-            0,
-        ));
-    }
-    let look = if wall {
-        DVec3::new(1e-3, 0.0, 0.0)
-    } else {
-        DVec3::ZERO
-    };
-    Scene {
-        render: RenderSettings {
-            width: size,
-            height: size,
-            frames: 1,
-            seed: 4,
-            max_specular_depth: 2,
-            mode: ModeKind::Spmm,
-            device: Device::Cpu,
-        },
-        camera: Camera {
-            position: look + DVec3::Y,
-            look_at: look,
-            up: DVec3::NEG_Z,
-            fov_y_deg: 0.01,
-        },
-        material_names: vec!["floor".into()],
-        material_files: Vec::new(),
-        materials: vec![material],
-        meshes,
-        lights: Vec::new(),
-        ambient: None,
-        environment: None,
-        background: Background::FromEnvironment,
-    }
+    let mut s = crate::scene::test_scenes::floor_scene(material, wall);
+    (s.render.width, s.render.height, s.render.seed) = (size, size, 4);
+    s.background = Background::FromEnvironment;
+    s
 }
 
 fn render(scene: &Scene, frames: u32) -> Image {

@@ -7,63 +7,24 @@ use glam::{DVec2, DVec3};
 use super::SpmmMode;
 use crate::brdf::{AnalyticBrdf, BrdfModel};
 use crate::render::RenderMode;
-use crate::scene::mesh::quad;
-use crate::scene::{Ambient, Camera, RenderSettings};
-use crate::scene::{Background, Light, Material, Scene};
+use crate::scene::Ambient;
+use crate::scene::{Light, Material, Scene};
 
 const ALBEDO: f64 = 0.6;
 
-/// A large Lambertian floor seen straight down through a narrow field of view, so
-/// every pixel looks at (almost exactly) the origin.
+/// The shared test floor (`scene::test_scenes::floor_scene`) in a Lambertian of
+/// albedo `ALBEDO`, with these lights and ambient term.
 fn floor_scene(lights: Vec<Light>, ambient: Option<Ambient>, wall: bool) -> Scene {
-    let mut meshes = vec![quad(
-        DVec3::new(-50.0, 0.0, 50.0),
-        DVec3::new(100.0, 0.0, 0.0),
-        DVec3::new(0.0, 0.0, -100.0),
-        0,
-    )];
-    if wall {
-        // A wall through x = 0 facing +x; the camera looks at the floor next to it.
-        meshes.push(quad(
-            DVec3::new(0.0, 0.0, 50.0),
-            DVec3::new(0.0, 0.0, -100.0),
-            DVec3::new(0.0, 100.0, 0.0),
-            0,
-        ));
-    }
-    let look = if wall {
-        DVec3::new(1e-3, 0.0, 0.0)
-    } else {
-        DVec3::ZERO
-    };
-    Scene {
-        render: RenderSettings {
-            width: 3,
-            height: 3,
-            frames: 1,
-            seed: 1,
-            max_specular_depth: 2,
-            mode: crate::scene::ModeKind::Spmm,
-            device: crate::scene::Device::Cpu,
-        },
-        camera: Camera {
-            position: look + DVec3::new(0.0, 1.0, 0.0),
-            look_at: look,
-            up: DVec3::NEG_Z,
-            fov_y_deg: 0.01,
-        },
-        material_names: vec!["floor".into()],
-        material_files: Vec::new(),
-        materials: vec![Material::Brdf {
+    let mut s = crate::scene::test_scenes::floor_scene(
+        Material::Brdf {
             brdf: AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
             albedo: DVec3::splat(ALBEDO),
-        }],
-        meshes,
-        lights,
-        ambient,
-        environment: None,
-        background: Background::Color(DVec3::ZERO),
-    }
+        },
+        wall,
+    );
+    s.lights = lights;
+    s.ambient = ambient;
+    s
 }
 
 fn mode(scene: &Scene) -> SpmmMode {

@@ -5,6 +5,8 @@
 #[cfg(test)]
 mod brdf_reference;
 #[cfg(test)]
+mod fuzz;
+#[cfg(test)]
 mod golden;
 #[cfg(test)]
 mod metrics_reference;

@@ -188,15 +188,17 @@ fn collect_triangles(meshes: &[TriangleMesh]) -> (Vec<Triangle>, Vec<(u32, u32)>
     for (m, mesh) in meshes.iter().enumerate() {
         for (t, idx) in mesh.indices.iter().enumerate() {
             let [a, b, c] = idx.map(|i| mesh.positions[i as usize]);
-            if (b - a).cross(c - a).length_squared() <= 0.0 {
+            let (v0, v1, v2) = (v3a(a), v3a(b), v3a(c));
+            // Zero area in f64, or not a proper triangle once in f32 (collapsed, or
+            // non-finite: scenes refuse such input, this keeps obvhs safe regardless).
+            let area2_f32 = (v1 - v0).cross(v2 - v0).length_squared();
+            if (b - a).cross(c - a).length_squared() <= 0.0
+                || !(area2_f32 > 0.0 && area2_f32.is_finite())
+            {
                 degenerate += 1;
                 continue;
             }
-            triangles.push(Triangle {
-                v0: v3a(a),
-                v1: v3a(b),
-                v2: v3a(c),
-            });
+            triangles.push(Triangle { v0, v1, v2 });
             refs.push((m as u32, t as u32));
         }
     }

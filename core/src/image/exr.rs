@@ -16,11 +16,54 @@ use crate::atomic::write_atomic;
 
 const FORMAT: &str = "OpenEXR";
 
+/// How much decompression can expand a file: deflate's limit is about 1032:1 and the
+/// other EXR codecs expand less. A header whose pixels would need more than this many
+/// times the file's size (plus an allowance for tiny files) misstates its size, and is
+/// refused before the decoder allocates what it claims.
+const MAX_EXPANSION: u128 = 1100;
+const EXPANSION_ALLOWANCE: u128 = 64 << 20;
+
+/// Checks every header's claimed pixel size against the per-side limit and the file's
+/// size, reading only the headers.
+fn check_claimed_size(path: &Path, bytes: &[u8]) -> Result<(), ImageError> {
+    let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), true).map_err(|e| {
+        ImageError::Decode {
+            path: path.to_path_buf(),
+            format: FORMAT,
+            reason: e.to_string(),
+        }
+    })?;
+    for header in meta.headers.iter() {
+        let (w, h) = (header.layer_size.0, header.layer_size.1);
+        checked_size(path, w, h)?;
+        let per_pixel: u128 = header
+            .channels
+            .list
+            .iter()
+            .map(|c| c.sample_type.bytes_per_sample() as u128)
+            .sum();
+        let claimed = w as u128 * h as u128 * per_pixel;
+        let limit = bytes.len() as u128 * MAX_EXPANSION + EXPANSION_ALLOWANCE;
+        if claimed > limit {
+            return Err(ImageError::Decode {
+                path: path.to_path_buf(),
+                format: FORMAT,
+                reason: format!(
+                    "the header claims {w}x{h} pixels ({claimed} bytes of samples), more than a {}-byte file can hold",
+                    bytes.len()
+                ),
+            });
+        }
+    }
+    Ok(())
+}
+
 /// Reads an OpenEXR file as linear radiance. Channels named exactly `R`, `G`, `B` become
 /// the colour; failing those, a `Y` channel is replicated to grey. Alpha and any other
 /// channel are ignored. Non-finite samples are kept.
 pub fn read_exr(path: &Path) -> Result<Image, ImageError> {
     let bytes = read_bytes(path)?;
+    check_claimed_size(path, &bytes)?;
     let decode = |e: exr::error::Error| ImageError::Decode {
         path: path.to_path_buf(),
         format: FORMAT,

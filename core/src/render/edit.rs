@@ -68,6 +68,8 @@ pub enum EditError {
     MeshMaterial { material: usize, count: usize },
     #[error("{0}")]
     Size(String),
+    #[error("mesh {index}: {problem}")]
+    Mesh { index: usize, problem: String },
     #[error("{what} {problem}")]
     Invalid {
         what: &'static str,
@@ -110,6 +112,16 @@ impl SceneEdit {
                     return Err(EditError::MeshMaterial {
                         material: m.material,
                         count,
+                    });
+                }
+                if let Some((i, p)) = meshes
+                    .iter()
+                    .enumerate()
+                    .find_map(|(i, m)| m.problem().map(|p| (i, p)))
+                {
+                    return Err(EditError::Mesh {
+                        index: i,
+                        problem: p,
                     });
                 }
                 scene.meshes = meshes.clone();

@@ -5,9 +5,12 @@
 //! centre (u = 0.5 + atan2(z, x) / 2 pi, v = 0.5 + asin(y / r) / pi, object space),
 //! which wraps cleanly with tiling materials.
 
+use std::io::Cursor;
 use std::path::Path;
 
 use glam::{DMat3, DVec2, DVec3};
+
+use super::extent_problem;
 
 /// World-space triangles sharing one material.
 #[derive(Clone, Debug, PartialEq)]
@@ -17,6 +20,35 @@ pub struct TriangleMesh {
     pub uvs: Vec<DVec2>,
     pub indices: Vec<[u32; 3]>,
     pub material: usize,
+}
+
+impl TriangleMesh {
+    /// Why the tracer cannot take this mesh (for meshes made outside a scene file,
+    /// e.g. by an edit): a vertex not finite or outside the scene extent, an index out
+    /// of range, or per-vertex arrays of the wrong length.
+    pub fn problem(&self) -> Option<String> {
+        let n = self.positions.len();
+        if self.normals.len() != n || self.uvs.len() != n {
+            return Some(format!(
+                "{n} positions but {} normals and {} uvs",
+                self.normals.len(),
+                self.uvs.len()
+            ));
+        }
+        if let Some((i, p)) = self
+            .positions
+            .iter()
+            .enumerate()
+            .find_map(|(i, p)| extent_problem(*p).map(|p| (i, p)))
+        {
+            return Some(format!("vertex {i} {p}"));
+        }
+        self.indices
+            .iter()
+            .flatten()
+            .find(|&&i| i as usize >= n)
+            .map(|i| format!("index {i} out of range ({n} vertices)"))
+    }
 }
 
 /// Scale, then rotate, then translate (spec/scene.md).
@@ -54,11 +86,103 @@ pub enum MeshError {
         index: u32,
         count: usize,
     },
-    #[error("OBJ `{}`: vertex {index} is not finite", path.display())]
+    #[error("OBJ `{}` line {line}: vertex {vertex} is not finite in single precision", path.display())]
     NonFinite {
         path: std::path::PathBuf,
-        index: usize,
+        line: usize,
+        /// 1-based, as the file's faces count vertices.
+        vertex: usize,
     },
+    #[error("OBJ `{}` line {line}: vertex {vertex} placed in the scene {problem}", path.display())]
+    Extent {
+        path: std::path::PathBuf,
+        line: usize,
+        vertex: usize,
+        problem: String,
+    },
+}
+
+/// Checks an OBJ's text before tobj reads it, naming the file's line: every `v` line
+/// as the tracer will receive it (each coordinate as tobj reads it, f32, finite; the
+/// placed vertex within the scene's extent; vertices counted from 1 as faces count
+/// them), and every index of `f`, `l` and `p` lines within the elements the file has
+/// (absolute from 1, or relative from -1): tobj's own resolution of a far-out index
+/// overflows.
+fn check_obj_text(text: &str, path: &Path, placement: &Placement) -> Result<(), MeshError> {
+    let count = |kind: &str| {
+        text.lines()
+            .filter(|l| l.split_whitespace().next() == Some(kind))
+            .count() as i64
+    };
+    let totals = [count("v"), count("vt"), count("vn")];
+    let mut seen = [0i64; 3];
+    let index_error = |line: usize, what: &str| MeshError::Obj {
+        path: path.to_path_buf(),
+        message: format!("line {line}: {what}"),
+    };
+    for (i, line) in text.lines().enumerate() {
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("v") => {
+                seen[0] += 1;
+                // Lines tobj cannot parse are its errors to report.
+                let Ok(xyz) = words
+                    .take(3)
+                    .map(|w| w.parse::<f32>())
+                    .collect::<Result<Vec<f32>, _>>()
+                else {
+                    continue;
+                };
+                if xyz.len() < 3 {
+                    continue;
+                }
+                if xyz.iter().any(|c| !c.is_finite()) {
+                    return Err(MeshError::NonFinite {
+                        path: path.to_path_buf(),
+                        line: i + 1,
+                        vertex: seen[0] as usize,
+                    });
+                }
+                let p = DVec3::new(xyz[0] as f64, xyz[1] as f64, xyz[2] as f64);
+                if let Some(problem) = extent_problem(placement.point(p)) {
+                    return Err(MeshError::Extent {
+                        path: path.to_path_buf(),
+                        line: i + 1,
+                        vertex: seen[0] as usize,
+                        problem,
+                    });
+                }
+            }
+            Some("vt") => seen[1] += 1,
+            Some("vn") => seen[2] += 1,
+            Some("f" | "l" | "p") => {
+                for corner in words {
+                    for (k, part) in corner.split('/').enumerate().take(3) {
+                        if part.is_empty() {
+                            continue;
+                        }
+                        let Ok(index) = part.parse::<i64>() else {
+                            return Err(index_error(i + 1, &format!("`{corner}` is not an index")));
+                        };
+                        let ok = match index {
+                            0 => false,
+                            n if n > 0 => n <= totals[k],
+                            n => n >= -seen[k],
+                        };
+                        if !ok {
+                            let kind = ["vertex", "texture coordinate", "normal"][k];
+                            return Err(index_error(
+                                i + 1,
+                                &format!("{kind} index {index} is out of range"),
+                            ));
+                        }
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(())
 }
 
 /// Loads every object of an OBJ file into one mesh, placed in the world.
@@ -72,10 +196,20 @@ pub fn load_obj(
         triangulate: true,
         ..Default::default()
     };
-    let (models, _) = tobj::load_obj(path, &options).map_err(|e| MeshError::Obj {
+    let obj_error = |message: String| MeshError::Obj {
         path: path.to_path_buf(),
-        message: e.to_string(),
-    })?;
+        message,
+    };
+    let text = std::fs::read(path).map_err(|e| obj_error(e.to_string()))?;
+    check_obj_text(&String::from_utf8_lossy(&text), path, placement)?;
+    // Materials (`mtllib`) are not used: the scene assigns one material per mesh.
+    let (models, _) =
+        tobj::load_obj_buf(
+            &mut Cursor::new(&text),
+            &options,
+            |_| Ok(Default::default()),
+        )
+        .map_err(|e| obj_error(e.to_string()))?;
     let mut positions = Vec::new();
     let mut normals = Vec::new();
     let mut uvs = Vec::new();
@@ -86,15 +220,9 @@ pub fn load_obj(
         let mesh = &m.mesh;
         let base = positions.len() as u32;
         let count = mesh.positions.len() / 3;
-        for (i, p) in mesh.positions.chunks_exact(3).enumerate() {
-            let v = DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-            if !v.is_finite() {
-                return Err(MeshError::NonFinite {
-                    path: path.to_path_buf(),
-                    index: positions.len() + i,
-                });
-            }
-            positions.push(v);
+        // Every `v` line was checked above (finite, within the extent once placed).
+        for p in mesh.positions.chunks_exact(3) {
+            positions.push(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
         }
         all_have_normals &= mesh.normals.len() == mesh.positions.len();
         all_have_uvs &= mesh.texcoords.len() / 2 == count;

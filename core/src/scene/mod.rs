@@ -41,6 +41,40 @@ pub struct RenderSettings {
     pub device: Device,
 }
 
+/// The scene's extent: every coordinate the tracer receives (placed vertices, quad
+/// corners, lights, the camera) lies within +-1e7 m. The tracer stores triangles in
+/// f32 (spacing 1 m at 1e7) and lifts secondary rays by 1e-5 of a point's magnitude
+/// (100 m there): beyond it, the geometry it is given is no longer the geometry the
+/// file describes, and far enough out (about 1e19) f32 products overflow to infinity
+/// inside the BVH builder. Refused with the place named rather than rendered wrong.
+pub const MAX_EXTENT_M: f64 = 1e7;
+
+/// Why a point cannot be given to the tracer: not finite, or outside the extent.
+pub fn extent_problem(p: DVec3) -> Option<String> {
+    if !p.is_finite() {
+        Some(format!("at {} is not finite", short(p)))
+    } else if p.abs().max_element() > MAX_EXTENT_M {
+        Some(format!(
+            "at {} is outside the scene extent (every coordinate within +-{MAX_EXTENT_M:e} m, what f32 tracing resolves)",
+            short(p)
+        ))
+    } else {
+        None
+    }
+}
+
+/// A point for messages: plain numbers where short, scientific notation where not.
+fn short(p: DVec3) -> String {
+    let one = |v: f64| {
+        if v == 0.0 || (1e-3..1e7).contains(&v.abs()) {
+            format!("{}", (v * 1e6).round() / 1e6)
+        } else {
+            format!("{v:.3e}")
+        }
+    };
+    format!("[{}, {}, {}]", one(p.x), one(p.y), one(p.z))
+}
+
 /// The largest image side any mode renders.
 pub const MAX_IMAGE_SIDE: u32 = 16384;
 
@@ -242,14 +276,13 @@ impl Camera {
     /// Why this camera cannot render, and the key at fault.
     pub fn problem(&self) -> Option<Problem> {
         let forward = self.look_at - self.position;
-        for (key, v) in [
-            ("position", self.position),
-            ("look_at", self.look_at),
-            ("up", self.up),
-        ] {
-            if !v.is_finite() {
-                return Some(Problem::new(key, format!("{v} is not finite")));
+        for (key, v) in [("position", self.position), ("look_at", self.look_at)] {
+            if let Some(p) = extent_problem(v) {
+                return Some(Problem::new(key, p));
             }
+        }
+        if !self.up.is_finite() {
+            return Some(Problem::new("up", format!("{} is not finite", self.up)));
         }
         if !(self.fov_y_deg > 0.0 && self.fov_y_deg < 180.0) {
             Some(Problem::new(
@@ -303,17 +336,23 @@ impl Light {
             ));
         }
         match *self {
-            Light::Point { position, .. } => (!position.is_finite())
-                .then(|| Problem::new("position", format!("{position} is not finite"))),
+            Light::Point { position, .. } => {
+                extent_problem(position).map(|p| Problem::new("position", p))
+            }
             Light::Area {
                 corner,
                 edge_u,
                 edge_v,
                 ..
             } => {
-                for (key, v) in [("corner", corner), ("edge_u", edge_u), ("edge_v", edge_v)] {
-                    if !v.is_finite() {
-                        return Some(Problem::new(key, format!("{v} is not finite")));
+                for (key, v) in [
+                    ("corner", corner),
+                    ("edge_u", corner + edge_u),
+                    ("edge_v", corner + edge_v),
+                    ("edge_v", corner + edge_u + edge_v),
+                ] {
+                    if let Some(p) = extent_problem(v) {
+                        return Some(Problem::new(key, format!("a corner {p}")));
                     }
                 }
                 (edge_u.cross(edge_v).length() <= 1e-12)
@@ -581,7 +620,11 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
         let loaded = mesh::load_obj(&path, &placement, material).map_err(|e| SceneError {
             file: ctx.file.to_path_buf(),
             line: ctx.line_of(&m.path.span()),
-            key: Some(key("path")),
+            // A vertex outside the extent is the placement's fault as much as the file's.
+            key: Some(match e {
+                mesh::MeshError::Extent { .. } => format!("mesh[{i}] (scale, rotate, translate)"),
+                _ => key("path"),
+            }),
             message: e.to_string(),
         })?;
         meshes.push(loaded);
@@ -600,6 +643,21 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
                 key("edge_v"),
                 "the quad has zero area (edges parallel or zero)",
             );
+        }
+        for (k, p) in [
+            ("corner", corner),
+            ("edge_u", corner + eu),
+            ("edge_v", corner + ev),
+            ("edge_v", corner + eu + ev),
+        ] {
+            if let Some(problem) = extent_problem(p) {
+                let span = if k == "corner" {
+                    q.corner.span()
+                } else {
+                    q.edge_v.span()
+                };
+                return ctx.err(&span, key(k), format!("a corner {problem}"));
+            }
         }
         meshes.push(mesh::quad(corner, eu, ev, material));
     }

@@ -243,6 +243,56 @@ fn mode_device_environment_and_merl_tables_load_with_their_values() {
 }
 
 #[test]
+fn obj_faults_name_the_file_line_and_its_own_vertex_numbers() {
+    // Issue 22: a NaN in the third vertex was "vertex 4" and an overflow in the first
+    // "vertex 0"; the file counts vertices from 1, and its line is named.
+    let dir = setup();
+    let at = |text: &str| {
+        let p = dir.path().join("meshes/odd.obj");
+        std::fs::write(&p, text).expect("write obj");
+        let placement = mesh::Placement {
+            scale: 1.0,
+            rotation: glam::DMat3::IDENTITY,
+            translate: DVec3::ZERO,
+        };
+        mesh::load_obj(&p, &placement, 0)
+            .expect_err("refused")
+            .to_string()
+    };
+    let e = at("# a comment\nv 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n");
+    assert!(e.contains("line 4: vertex 3 is not finite"), "{e}");
+    let e = at("v 1e39 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    assert!(e.contains("line 1: vertex 1 is not finite"), "{e}");
+    let e = at("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//-9223372036854775808\n");
+    assert!(
+        e.contains("line 5: normal index -9223372036854775808 is out of range"),
+        "{e}"
+    );
+    let e = at("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n");
+    assert!(e.contains("line 4: vertex index 4 is out of range"), "{e}");
+    let e = at("v 0 0 0\nv 1 0 0\nv 0 1 3e38\nf 1 2 3\n");
+    assert!(
+        e.contains("line 3: vertex 3") && e.contains("outside the scene extent"),
+        "{e}"
+    );
+    // Relative indices within what came before are fine.
+    let p = dir.path().join("meshes/relative.obj");
+    std::fs::write(&p, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n").expect("write");
+    let placement = mesh::Placement {
+        scale: 1.0,
+        rotation: glam::DMat3::IDENTITY,
+        translate: DVec3::ZERO,
+    };
+    assert_eq!(
+        mesh::load_obj(&p, &placement, 0)
+            .expect("loads")
+            .indices
+            .len(),
+        1
+    );
+}
+
+#[test]
 fn computed_normals_are_area_weighted() {
     // Two triangles sharing vertex 0: one of area 2 facing +z, one of area 0.5 facing +x.
     let positions = [
@@ -356,6 +406,54 @@ fn bad_cases() -> Vec<(String, Option<usize>, Vec<&'static str>)> {
             EXAMPLE.replace("look_at = [0.0, 0.4, 0.0]", "look_at = [0.0, 0.6, 2.5]"),
             line_of("look_at"),
             vec!["camera.look_at"],
+        ),
+        // Issue 22: finite in f64, but the placed vertices overflow f32 (obvhs panicked).
+        (
+            EXAMPLE.replace(
+                "translate = [1.0, 0.0, 0.0]",
+                "translate = [1e308, 0.0, 0.0]",
+            ),
+            line_of("meshes/tetra.obj"),
+            vec![
+                "mesh[0] (scale, rotate, translate)",
+                "tetra.obj",
+                "line 1",
+                "vertex 1",
+                "outside the scene extent",
+            ],
+        ),
+        (
+            EXAMPLE.replace(
+                "translate = [1.0, 0.0, 0.0]",
+                "translate = [0.0, -1e308, 0.0]",
+            ),
+            line_of("meshes/tetra.obj"),
+            vec!["mesh[0]", "outside the scene extent"],
+        ),
+        (
+            EXAMPLE.replace("scale = 2.0", "scale = 1e300"),
+            line_of("meshes/tetra.obj"),
+            vec![
+                "mesh[0]",
+                "vertex 2",
+                "-1.000e300]",
+                "outside the scene extent",
+            ],
+        ),
+        (
+            EXAMPLE.replace("corner = [-2.0, 0.0, 2.0]", "corner = [-2.0, 0.0, 2e7]"),
+            line_of("corner = [-2.0, 0.0, 2.0]"),
+            vec!["quad[0].corner", "outside the scene extent"],
+        ),
+        (
+            EXAMPLE.replace("position = [1.0, 2.0, 1.0]", "position = [1.0, 2.0, 1e8]"),
+            line_of("position = [1.0, 2.0, 1.0]"),
+            vec!["light[0].position", "outside the scene extent"],
+        ),
+        (
+            EXAMPLE.replace("position = [0.0, 0.6, 2.5]", "position = [0.0, 0.6, -3e7]"),
+            line_of("position = [0.0, 0.6, 2.5]"),
+            vec!["camera.position", "outside the scene extent"],
         ),
         (
             with_mode_tables(EXAMPLE).replace("mode = \"biscale\"", "mode = \"fast\""),

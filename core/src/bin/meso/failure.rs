@@ -45,10 +45,27 @@ impl<T, E: Into<anyhow::Error>> ResultExt<T> for Result<T, E> {
     }
 }
 
+/// The error and its causes joined by ": " on one line, leaving out a cause whose
+/// text the line already holds (library errors often quote their source: printing it
+/// again said the cause twice).
+pub fn one_line(error: &anyhow::Error) -> String {
+    let mut line = String::new();
+    for cause in error.chain() {
+        let text = cause.to_string().replace('\n', " ");
+        if line.contains(&text) {
+            continue;
+        }
+        if !line.is_empty() {
+            line.push_str(": ");
+        }
+        line.push_str(&text);
+    }
+    line
+}
+
 /// Prints the error chain on one line and returns the matching exit code.
 pub fn report(err: &CliError) -> ExitCode {
-    // `{:#}` joins anyhow's context chain with ": " on one line.
-    let line = format!("{:#}", err.error).replace('\n', " ");
+    let line = one_line(&err.error);
     eprintln!("error: {line}");
     ExitCode::from(if err.bad_input {
         EXIT_BAD_INPUT
@@ -77,5 +94,27 @@ pub fn report_clap_error(err: clap::Error) -> ExitCode {
             eprintln!("error: {message} (see `meso --help`)");
             ExitCode::from(EXIT_BAD_INPUT)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_cause_the_message_already_quotes_is_said_once() {
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "No such file (os error 2)");
+        let lib = meso_core::atomic::AtomicWriteError::CreateTemp {
+            path: "/missing/x.png".into(),
+            dir: "/missing".into(),
+            source: io,
+        };
+        let e = anyhow::Error::new(lib).context("writing `/missing/x.png`");
+        let line = one_line(&e);
+        assert_eq!(line.matches("No such file").count(), 1, "{line}");
+        assert!(line.starts_with("writing `/missing/x.png`: cannot create a temporary file"));
+        // A cause that adds something is kept.
+        let e = anyhow::anyhow!("inner detail").context("outer");
+        assert_eq!(one_line(&e), "outer: inner detail");
     }
 }

@@ -1,0 +1,572 @@
+//! Every reader survives hostile input: mutated scene files (structure-aware: numbers,
+//! keys, tables and lines of the shipped scenes), OBJ text, EXR, `.spmm`, `.btf` and
+//! MERL bytes. The property for each case: the reader returns a value or an error
+//! whose message is one line; it never panics, never takes longer than a bound, and a
+//! size claimed by a header is checked before anything that large is allocated (an
+//! allocation failure would abort the test process, so it cannot pass unnoticed).
+//! Scenes that load are also prepared and rendered for one 8x8 frame, which is where
+//! the tracer meets what the file said.
+//!
+//! `MESO_FUZZ_CASES=N` sets the cases per reader (default: the CI subset below);
+//! `MESO_FUZZ_SEED=S` another stream of mutations. A long run for releases:
+//! `MESO_FUZZ_CASES=100000 cargo test --release -p meso-tests fuzz -- --nocapture`
+//! (docs/fuzzing.md). Inputs that once failed live in tests/fuzz_corpus/ and are
+//! replayed by `the_corpus_of_past_failures_is_handled`.
+
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use meso_core::modes;
+use meso_core::render::{Prepare, run_frames};
+use meso_core::scene::load_scene;
+
+/// Cases per reader in the test suite (about a minute in all on 2 cores).
+const CI_CASES: u64 = 300;
+/// The slowest a single case may take: far above any real input of these sizes.
+const TIME_BOUND: Duration = Duration::from_secs(10);
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn cases() -> u64 {
+    std::env::var("MESO_FUZZ_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(CI_CASES)
+}
+
+fn seed() -> u64 {
+    std::env::var("MESO_FUZZ_SEED")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0x5eed)
+}
+
+/// SplitMix64: a small, fast, replayable stream for choosing mutations.
+struct Rng(u64);
+
+impl Rng {
+    fn new(seed: u64, case: u64) -> Self {
+        Self(seed ^ case.wrapping_mul(0x9E37_79B9_7F4A_7C15))
+    }
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n.max(1) as u64) as usize
+    }
+    fn pick<'a, T>(&mut self, items: &'a [T]) -> &'a T {
+        &items[self.below(items.len())]
+    }
+}
+
+/// Values that break readers: extremes, non-finite, wrong types, empty containers.
+const HOSTILE_VALUES: &[&str] = &[
+    "1e308",
+    "-1e308",
+    "nan",
+    "inf",
+    "-inf",
+    "0",
+    "-1",
+    "0.0",
+    "-0.0",
+    "1e-308",
+    "1e39",
+    "-1e39",
+    "18446744073709551615",
+    "9223372036854775807",
+    "-9223372036854775808",
+    "4294967296",
+    "65536",
+    "16385",
+    "\"x\"",
+    "[]",
+    "[1.0]",
+    "[0.0, 0.0, 0.0]",
+    "{}",
+    "true",
+    "1e7",
+    "-1e7",
+    "3e38",
+    "1e20",
+];
+
+/// Byte offsets of the numbers in `text` (a number: an optional sign, digits, dots,
+/// exponents), to replace one by a hostile value.
+fn number_spans(text: &str) -> Vec<(usize, usize)> {
+    let b = text.as_bytes();
+    let mut spans = Vec::new();
+    let mut i = 0;
+    while i < b.len() {
+        let starts = b[i].is_ascii_digit()
+            || ((b[i] == b'-' || b[i] == b'+') && b.get(i + 1).is_some_and(u8::is_ascii_digit));
+        let after_word = i > 0 && (b[i - 1].is_ascii_alphanumeric() || b[i - 1] == b'_');
+        if starts && !after_word {
+            let s = i;
+            i += 1;
+            while i < b.len()
+                && (b[i].is_ascii_digit()
+                    || matches!(b[i], b'.' | b'e' | b'E')
+                    || (matches!(b[i], b'-' | b'+') && matches!(b[i - 1], b'e' | b'E')))
+            {
+                i += 1;
+            }
+            spans.push((s, i));
+        } else {
+            i += 1;
+        }
+    }
+    spans
+}
+
+/// One to three textual mutations of `text`: a number replaced by a hostile value, a
+/// line deleted or duplicated, a key misspelt, a table header changed, or the text cut.
+fn mutate_text(text: &str, rng: &mut Rng) -> String {
+    let mut t = text.to_string();
+    for _ in 0..1 + rng.below(3) {
+        match rng.below(10) {
+            0..=4 => {
+                let spans = number_spans(&t);
+                if !spans.is_empty() {
+                    let (a, b) = *rng.pick(&spans);
+                    let v: &str = *rng.pick(HOSTILE_VALUES);
+                    t.replace_range(a..b, v);
+                }
+            }
+            5 => {
+                let mut lines: Vec<&str> = t.lines().collect();
+                if !lines.is_empty() {
+                    lines.remove(rng.below(lines.len()));
+                }
+                t = lines.join("\n");
+            }
+            6 => {
+                let mut lines: Vec<String> = t.lines().map(str::to_string).collect();
+                if !lines.is_empty() {
+                    let i = rng.below(lines.len());
+                    lines.insert(i, lines[i].clone());
+                }
+                t = lines.join("\n");
+            }
+            7 => {
+                if let Some(eq) = t.find(" = ").map(|_| {
+                    let eqs: Vec<usize> = t.match_indices(" = ").map(|(i, _)| i).collect();
+                    *rng.pick(&eqs)
+                }) {
+                    t.insert(eq, 'x');
+                }
+            }
+            8 => {
+                let headers = [
+                    "[render]",
+                    "[camera]",
+                    "[[mesh]]",
+                    "[[quad]]",
+                    "[[light]]",
+                    "[ambient]",
+                    "[environment]",
+                    "[background]",
+                    "f 1 2 3",
+                    "v 0 0 0",
+                    "vt 0 0",
+                    "vn 0 0 1",
+                ];
+                let lines: Vec<&str> = t.lines().collect();
+                let i = rng.below(lines.len() + 1);
+                let mut out: Vec<String> = lines.iter().map(|s| s.to_string()).collect();
+                out.insert(i.min(out.len()), rng.pick(&headers).to_string());
+                t = out.join("\n");
+            }
+            _ => {
+                let cut = rng.below(t.len() + 1);
+                let cut = (0..=cut)
+                    .rev()
+                    .find(|&c| t.is_char_boundary(c))
+                    .unwrap_or(0);
+                t.truncate(cut);
+            }
+        }
+    }
+    t
+}
+
+/// One to four byte-level mutations: bit flips, random or extreme bytes, an
+/// overwritten 4- or 8-byte field (huge, negative, zero), a cut, an insertion.
+fn mutate_bytes(bytes: &[u8], rng: &mut Rng) -> Vec<u8> {
+    let mut b = bytes.to_vec();
+    // Headers hold the claims: aim half of the mutations at the first 512 bytes.
+    let at = |rng: &mut Rng, len: usize| {
+        if rng.below(2) == 0 {
+            rng.below(len.min(512))
+        } else {
+            rng.below(len)
+        }
+    };
+    for _ in 0..1 + rng.below(4) {
+        if b.is_empty() {
+            b.push(0);
+        }
+        let len = b.len();
+        match rng.below(6) {
+            0 => {
+                let i = at(rng, len);
+                b[i] ^= 1 << rng.below(8);
+            }
+            1 => {
+                let i = at(rng, len);
+                let random = rng.next() as u8;
+                b[i] = *rng.pick(&[0u8, 0xff, 0x7f, 0x80, b'{', b'"', random]);
+            }
+            2 => {
+                let i = at(rng, len);
+                let v: u64 = *rng.pick(&[
+                    u64::MAX,
+                    0,
+                    1 << 31,
+                    1 << 40,
+                    u32::MAX as u64,
+                    0x7ff8_0000_0000_0000,
+                ]);
+                for (k, byte) in v
+                    .to_le_bytes()
+                    .iter()
+                    .take(if rng.below(2) == 0 { 4 } else { 8 })
+                    .enumerate()
+                {
+                    if i + k < len {
+                        b[i + k] = *byte;
+                    }
+                }
+            }
+            3 => b.truncate(rng.below(len)),
+            4 => {
+                let i = at(rng, len);
+                let n = 1 + rng.below(16);
+                let insert: Vec<u8> = (0..n).map(|_| rng.next() as u8).collect();
+                b.splice(i..i, insert);
+            }
+            _ => {
+                let i = at(rng, len);
+                let n = rng.below(64).min(len - i);
+                b.drain(i..i + n);
+            }
+        }
+    }
+    b
+}
+
+/// Runs one case: no panic, one-line errors, within the time bound. Returns whether
+/// the input was accepted.
+fn check<T, E: std::fmt::Display>(
+    label: &str,
+    case: &dyn std::fmt::Display,
+    f: impl FnOnce() -> Result<T, E>,
+) -> bool {
+    let start = Instant::now();
+    let outcome = catch_unwind(AssertUnwindSafe(f));
+    let took = start.elapsed();
+    let accepted = match outcome {
+        Ok(Ok(_)) => true,
+        Ok(Err(e)) => {
+            let msg = e.to_string();
+            assert!(
+                !msg.contains('\n'),
+                "{label} {case}: a multi-line error: {msg}"
+            );
+            assert!(!msg.is_empty(), "{label} {case}: an empty error");
+            false
+        }
+        Err(_) => panic!("{label}: the reader panicked (see the message above) on: {case}"),
+    };
+    assert!(took < TIME_BOUND, "{label} {case}: took {took:?}");
+    accepted
+}
+
+/// Scene text with paths made absolute, so a mutated copy can live in a temp folder.
+fn absolute_scene(path: &Path) -> String {
+    let folder = path.parent().expect("scene folder").display().to_string();
+    std::fs::read_to_string(path)
+        .expect("shipped scene")
+        .replace("path = \"", &format!("path = \"{folder}/"))
+        .replace("pack = \"", &format!("pack = \"{folder}/"))
+}
+
+/// Loads a scene and, if it loads, renders one 8x8 frame in its mode.
+fn load_and_render(path: &Path) -> Result<(), String> {
+    let scene = load_scene(path).map_err(|e| e.to_string())?;
+    let (kind, device) = (scene.render.mode, scene.render.device);
+    let mut mode =
+        modes::create(kind, device, scene, 8, 8, Prepare::quietly()).map_err(|e| e.to_string())?;
+    run_frames(mode.as_mut(), 1, |_, _| {});
+    let img = mode.image();
+    assert_eq!((img.width(), img.height()), (8, 8));
+    Ok(())
+}
+
+/// Runs `cases()` mutations of each seed through `read`, reporting counts.
+fn fuzz<S>(
+    label: &str,
+    seeds: &[S],
+    mutate: impl Fn(&S, &mut Rng) -> Vec<u8>,
+    read: impl Fn(&[u8]) -> bool,
+) {
+    let n = cases();
+    let start = Instant::now();
+    let mut accepted = 0;
+    for case in 0..n {
+        let mut rng = Rng::new(seed(), case);
+        let s = rng.pick(seeds);
+        let input = mutate(s, &mut rng);
+        // Kept where a failure can be picked up for the corpus (tests/fuzz_corpus/).
+        let keep = std::env::temp_dir().join(format!("meso-fuzz-last-{label}"));
+        std::fs::write(&keep, &input).expect("write the case");
+        if read(&input) {
+            accepted += 1;
+        }
+    }
+    eprintln!(
+        "fuzz {label}: {n} cases (seed {:#x}) in {:.1} s, {accepted} accepted, {} refused, no panic",
+        seed(),
+        start.elapsed().as_secs_f64(),
+        n - accepted
+    );
+}
+
+#[test]
+fn fuzz_scene_files() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scenes: Vec<String> = ["default.toml", "cornell.toml", "env.toml", "fitted.toml"]
+        .iter()
+        .map(|s| absolute_scene(&root().join("scenes").join(s)))
+        .collect();
+    let path = dir.path().join("case.toml");
+    fuzz(
+        "scene",
+        &scenes,
+        |s, rng| mutate_text(s, rng).into_bytes(),
+        |input| {
+            std::fs::write(&path, input).expect("write case");
+            check("scene", &String::from_utf8_lossy(input), || {
+                load_and_render(&path)
+            })
+        },
+    );
+}
+
+#[test]
+fn fuzz_obj_files() {
+    use glam::{DMat3, DVec3};
+    use meso_core::scene::mesh::{Placement, load_obj};
+    let dir = tempfile::tempdir().expect("temp dir");
+    let teapot = std::fs::read_to_string(root().join("scenes/meshes/teapot.obj")).expect("teapot");
+    // The teapot's first 60 vertices and faces among them, plus a tiny hand-made OBJ
+    // with normals and texture coordinates.
+    let small_teapot: String = {
+        let v: Vec<&str> = teapot
+            .lines()
+            .filter(|l| l.starts_with("v "))
+            .take(60)
+            .collect();
+        let f: Vec<String> = (0..40)
+            .map(|i| format!("f {} {} {}", 1 + i, 2 + i, 3 + i))
+            .collect();
+        format!("{}\n{}\n", v.join("\n"), f.join("\n"))
+    };
+    let quad = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 0 1\nf 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n".to_string();
+    let path = dir.path().join("case.obj");
+    let placement = Placement {
+        scale: 1.0,
+        rotation: DMat3::IDENTITY,
+        translate: DVec3::ZERO,
+    };
+    fuzz(
+        "obj",
+        &[small_teapot, quad],
+        |s, rng| mutate_text(s, rng).into_bytes(),
+        |input| {
+            std::fs::write(&path, input).expect("write case");
+            check("obj", &String::from_utf8_lossy(input), || {
+                load_obj(&path, &placement, 0).map(|m| {
+                    // What the tracer receives: finite and within the scene extent.
+                    assert!(m.positions.iter().all(|p| p.is_finite()));
+                    meso_core::geometry::SceneBvh::build(std::slice::from_ref(&m));
+                })
+            })
+        },
+    );
+}
+
+/// A few small EXRs as Meso writes them, and one as another writer made them.
+fn exr_seeds() -> Vec<Vec<u8>> {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut seeds = Vec::new();
+    for (w, h) in [(8u32, 8u32), (3, 17)] {
+        let mut img = meso_core::image::Image::new(w, h);
+        for (i, p) in img.pixels_mut().iter_mut().enumerate() {
+            *p = [i as f32 * 0.1, 1.0, (i % 3) as f32];
+        }
+        let p = dir.path().join("seed.exr");
+        meso_core::image::write_exr(&p, &img).expect("write seed");
+        seeds.push(std::fs::read(&p).expect("read seed"));
+    }
+    for entry in std::fs::read_dir(root().join("reference/metrics_fixtures")).expect("fixtures") {
+        let p = entry.expect("entry").path();
+        if p.extension().is_some_and(|e| e == "exr") && seeds.len() < 5 {
+            seeds.push(std::fs::read(&p).expect("fixture"));
+        }
+    }
+    seeds
+}
+
+#[test]
+fn fuzz_exr_files() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("case.exr");
+    fuzz(
+        "exr",
+        &exr_seeds(),
+        |s, rng| mutate_bytes(s, rng),
+        |input| {
+            std::fs::write(&path, input).expect("write case");
+            check("exr", &format!("({} bytes)", input.len()), || {
+                meso_core::image::read_image(&path)
+            })
+        },
+    );
+}
+
+#[test]
+fn fuzz_spmm_packs() {
+    let seeds: Vec<Vec<u8>> = ["leather.spmm", "brushed_metal.spmm"]
+        .iter()
+        .map(|p| std::fs::read(root().join("../materials").join(p)).expect("shipped pack"))
+        .collect();
+    fuzz(
+        "spmm",
+        &seeds,
+        |s, rng| mutate_bytes(s, rng),
+        |input| {
+            check("spmm", &format!("({} bytes)", input.len()), || {
+                meso_core::spmm::pack::decode_pack(input)
+            })
+        },
+    );
+}
+
+/// Small BTFs (3x2 texels, 6 light and 4 view directions on rings) as Meso writes
+/// them, in both precisions.
+fn btf_seeds() -> Vec<Vec<u8>> {
+    use meso_core::btf::file::{BtfPrecision, encode_btf};
+    use meso_core::btf::{Btf, directions::rings};
+    let (light, view) = (rings(&[(0.0, 1), (45.0, 5)]), rings(&[(0.0, 1), (60.0, 3)]));
+    let data: Vec<f32> = (0..3 * 2 * light.len() * view.len() * 3)
+        .map(|i| (i % 17) as f32 * 0.05)
+        .collect();
+    let btf = Btf::new("fuzz".into(), "test".into(), 3, 2, light, view, data).expect("valid");
+    [BtfPrecision::F16, BtfPrecision::F32]
+        .iter()
+        .map(|p| encode_btf(&btf, *p).expect("encodes"))
+        .collect()
+}
+
+#[test]
+fn fuzz_btf_files() {
+    fuzz(
+        "btf",
+        &btf_seeds(),
+        |s, rng| mutate_bytes(s, rng),
+        |input| {
+            check("btf", &format!("({} bytes)", input.len()), || {
+                meso_core::btf::file::decode_btf(input)
+            })
+        },
+    );
+}
+
+/// MERL tables are 35 MB each: fewer cases (a fiftieth), mutated where the claims
+/// are (the header) and anywhere in the table.
+#[test]
+fn fuzz_merl_files() {
+    use meso_core::brdf::{AnalyticBrdf, BrdfModel};
+    use meso_core::merl::{MerlBrdf, tabulate};
+    let table = tabulate(
+        &AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
+        glam::DVec3::splat(0.5),
+    )
+    .expect("tabulates");
+    let seed_bytes = table.to_bytes();
+    let n = (cases() / 50).max(10);
+    let start = Instant::now();
+    let mut accepted = 0;
+    let mut input = seed_bytes.clone();
+    for case in 0..n {
+        let mut rng = Rng::new(seed(), case);
+        input.clone_from(&seed_bytes);
+        let mutated = match rng.below(3) {
+            0 => mutate_bytes(&input[..64], &mut rng)
+                .into_iter()
+                .chain(input[64..].iter().copied())
+                .collect(),
+            1 => {
+                for _ in 0..1 + rng.below(8) {
+                    let i = rng.below(input.len());
+                    input[i] = rng.next() as u8;
+                }
+                input.clone()
+            }
+            _ => mutate_bytes(&input, &mut rng),
+        };
+        if check(
+            "merl",
+            &format!("case {case} ({} bytes)", mutated.len()),
+            || MerlBrdf::from_bytes(&mutated),
+        ) {
+            accepted += 1;
+        }
+    }
+    eprintln!(
+        "fuzz merl: {n} cases in {:.1} s, {accepted} accepted, no panic",
+        start.elapsed().as_secs_f64()
+    );
+}
+
+#[test]
+fn the_corpus_of_past_failures_is_handled() {
+    use glam::{DMat3, DVec3};
+    use meso_core::scene::mesh::{Placement, load_obj};
+    let placement = Placement {
+        scale: 1.0,
+        rotation: DMat3::IDENTITY,
+        translate: DVec3::ZERO,
+    };
+    let mut seen = 0;
+    for reader in ["scene", "obj", "exr", "spmm", "btf", "merl"] {
+        let Ok(dir) = std::fs::read_dir(root().join("fuzz_corpus").join(reader)) else {
+            continue;
+        };
+        for entry in dir {
+            let path = entry.expect("corpus entry").path();
+            let bytes = std::fs::read(&path).expect("corpus file");
+            let name = path.display();
+            seen += 1;
+            match reader {
+                "scene" => check(reader, &name, || load_and_render(&path)),
+                "obj" => check(reader, &name, || load_obj(&path, &placement, 0)),
+                "exr" => check(reader, &name, || meso_core::image::read_image(&path)),
+                "spmm" => check(reader, &name, || meso_core::spmm::pack::decode_pack(&bytes)),
+                "btf" => check(reader, &name, || meso_core::btf::file::decode_btf(&bytes)),
+                _ => check(reader, &name, || {
+                    meso_core::merl::MerlBrdf::from_bytes(&bytes)
+                }),
+            };
+        }
+    }
+    assert!(seen >= 7, "the corpus has {seen} files");
+}

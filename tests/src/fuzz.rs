@@ -136,7 +136,7 @@ fn mutate_text(text: &str, rng: &mut Rng) -> String {
                 let spans = number_spans(&t);
                 if !spans.is_empty() {
                     let (a, b) = *rng.pick(&spans);
-                    let v: &str = rng.pick(HOSTILE_VALUES);
+                    let v: &&str = rng.pick(HOSTILE_VALUES);
                     t.replace_range(a..b, v);
                 }
             }

@@ -1,7 +1,6 @@
 //! The spmm mode against closed forms: point and area lights, a light covering the
 //! hemisphere, ambient light on a tilted-basis SPMM plane, a plane seen in a mirror, AO
-//! of an open plane and a
-//! corner, replay of single pixels and independence of the thread count.
+//! of an open plane and a corner, replay of single pixels and independence of the thread count.
 
 use glam::{DVec2, DVec3};
 

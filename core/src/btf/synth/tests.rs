@@ -123,12 +123,26 @@ fn interreflection_adds_light_in_a_weave() {
     let without = run(&text);
     let sum = |b: &Btf| b.data().iter().map(|&x| f64::from(x)).sum::<f64>();
     assert!(sum(&with) > 1.01 * sum(&without));
-    // Replayable: the same recipe gives the same bytes.
-    let again = run(&text.replace(
+}
+
+#[test]
+fn synthesis_is_the_same_bytes_on_1_and_2_threads() {
+    // docs/fitting.md: independent of the thread count. A weave with inter-reflection
+    // (the seeded gather rays) on pools of 1 and 2 threads, encoded as the file holds it.
+    let text = weave(4.0).replace(
         "supersample = 1",
-        "supersample = 1\ninterreflection_samples = 16",
-    ));
-    assert_eq!(with, again);
+        "supersample = 2\ninterreflection_samples = 4",
+    );
+    let on = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("thread pool");
+        let btf = pool.install(|| run(&text));
+        crate::btf::file::encode_btf(&btf, crate::btf::file::BtfPrecision::F32).expect("encode")
+    };
+    let one = on(1);
+    assert!(one == on(2), "1 and 2 threads synthesize different BTFs");
 }
 
 #[test]

@@ -690,6 +690,16 @@ fn procedural(
     })
 }
 
+/// The `count` seeded points of the Voronoi and bump patterns, in [0, 1)^2.
+fn pattern_seeds(count: usize, seed: u64) -> Vec<DVec2> {
+    (0..count)
+        .map(|k| {
+            let s = SampleStream::new(&[seed, 0x7365_6564, k as u64]);
+            DVec2::new(s.at(0), s.at(1))
+        })
+        .collect()
+}
+
 fn build_field(
     m: &Mesostructure,
     width: u32,
@@ -712,12 +722,7 @@ fn build_field(
             (check_depth(*depth)?, check_count("count", *count)? as usize)
         }
     };
-    let seeds: Vec<DVec2> = (0..seed_count)
-        .map(|k| {
-            let s = SampleStream::new(&[seed, 0x7365_6564, k as u64]);
-            DVec2::new(s.at(0), s.at(1))
-        })
-        .collect();
+    let seeds = pattern_seeds(seed_count, seed);
     let mut heights = vec![0.0; gw * gh];
     let mut regions = vec![0u8; gw * gh];
     if let Mesostructure::Image {

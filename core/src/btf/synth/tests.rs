@@ -162,6 +162,38 @@ fn every_procedural_kind_builds_a_tileable_field() {
         let f = &setup.field;
         assert!(f.h_max > f.h_min, "{kind}: not flat");
         assert!(f.heights.iter().all(|h| h.is_finite()));
+        // Tileable: the pattern's height and region at opposite edges of the tile
+        // agree (approached from inside, 1e-9 from each edge), for the continuous
+        // patterns (the Voronoi cells of leather, the bumps).
+        let r: RecipeFile = toml::from_str(&text).expect("recipe");
+        let count = match &r.mesostructure {
+            Mesostructure::Leather { cells, .. } => *cells as usize,
+            Mesostructure::Bumps { count, .. } => *count as usize,
+            _ => 0,
+        };
+        let seeds = pattern_seeds(count, r.seed);
+        let at = |u: f64, v: f64| procedural(&r.mesostructure, u, v, &seeds).expect("valid");
+        if !(kind.contains("leather") || kind.contains("bumps")) {
+            // Knit and ribs are piecewise: ribs' pile is a hash per cell of a 97 x 97
+            // lattice and a knit stitch's legs stop at its column's edge (centre up to
+            // 0.88, half-width 0.2), so their values jump at every cell or column edge
+            // and the tile's edge is one of those; edge limits cannot tell a seam
+            // from the pattern there.
+            continue;
+        }
+        let e = 1e-9;
+        for k in 0..97 {
+            let s = (k as f64 + 0.5) / 97.0;
+            for (a, b, edge) in [
+                (at(e, s), at(1.0 - e, s), "left/right"),
+                (at(s, e), at(s, 1.0 - e), "bottom/top"),
+            ] {
+                assert!(
+                    (a.0 - b.0).abs() < 1e-6 && a.1 == b.1,
+                    "{kind}: {edge} edges differ at {s}: {a:?} vs {b:?}"
+                );
+            }
+        }
     }
 }
 

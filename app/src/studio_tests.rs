@@ -1,8 +1,10 @@
 //! The studio driven through its real UI with egui_kittest: parameter and weight
 //! edits reach the document and a frame of that version arrives from the render
 //! thread; undo restores the exact previous pack; save/reopen is byte-identical; a
-//! failed save shows an error and keeps the edits; clicking the object picks its
-//! cluster.
+//! failed save shows an error and keeps the edits; a real click on the viewport
+//! picks the cluster core's `geometry::pick` sees there, and after a weight, N_PCA or
+//! residual edit the frame is core's render of the edited scene (only the object's
+//! pixels restarted).
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -10,6 +12,7 @@ use std::time::{Duration, Instant};
 use egui::accesskit::Role;
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
+use meso_core::geometry::{SceneBvh, pick};
 use meso_core::scene::Material;
 use meso_core::spmm::SpmmMaterial;
 
@@ -175,10 +178,236 @@ fn save_then_reopen_is_byte_identical_and_a_failed_save_keeps_the_edits() {
     wait_for_current_frame(&mut h);
 }
 
+/// A studio on `scene` (the default scene without one) that rests at `spp` samples.
+fn resting_studio(scene: Option<std::path::PathBuf>, spp: u32) -> Harness<'static, Studio> {
+    let settings = Settings {
+        max_samples: spp,
+        ..Settings::default()
+    };
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1280.0, 800.0))
+        .build_ui_state(
+            |ui, s: &mut Studio| s.show(ui),
+            Studio::new(None, scene, settings),
+        );
+    loaded(&mut h);
+    h
+}
+
+/// Steps until the frame of the current version has `spp` samples in every pixel.
+fn rested_frame(h: &mut Harness<'_, Studio>, spp: u32) -> crate::render_worker::Frame {
+    let deadline = Instant::now() + Duration::from_secs(120);
+    loop {
+        h.step();
+        let s = h.state();
+        let version = s.doc.as_ref().expect("doc").version;
+        if let Some(f) = s.frame()
+            && f.version >= version
+            && f.progress.min_samples >= spp
+        {
+            return f.clone();
+        }
+        assert!(
+            Instant::now() < deadline,
+            "no {spp}-spp frame of version {version}"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// A real click (move, press, release) at `pos`, in points.
+fn click_at(h: &mut Harness<'_, Studio>, pos: egui::Pos2) {
+    h.hover_at(pos);
+    h.step();
+    h.drag_at(pos);
+    h.step();
+    h.drop_at(pos);
+    h.run_steps(2);
+}
+
+/// Per pixel of a `w` x `h` image of the document's scene, what core's
+/// `geometry::pick` sees through the pixel's centre and its 8 neighbours' centres:
+/// `Some(cluster)` if all of them see one cluster of the pack, `None` if none sees the
+/// pack; pixels that mix are left out.
+fn seen_clusters(h: &Harness<'_, Studio>, w: u32, hgt: u32) -> Vec<Option<Option<usize>>> {
+    let doc = h.state().doc.as_ref().expect("doc");
+    let index = doc.pack.as_ref().expect("pack").material;
+    let bvh = SceneBvh::build(&doc.scene.meshes);
+    let at = |x: i64, y: i64| {
+        pick(&doc.scene, &bvh, w, hgt, x as f64 + 0.5, y as f64 + 0.5)
+            .filter(|p| p.material == index)
+            .and_then(|p| p.texel.map(|t| t.1))
+    };
+    let mut out = Vec::new();
+    for y in 0..i64::from(hgt) {
+        for x in 0..i64::from(w) {
+            let c = at(x, y);
+            let same = (-1..=1).all(|dy| (-1..=1).all(|dx| at(x + dx, y + dy) == c));
+            out.push(same.then_some(c));
+        }
+    }
+    out
+}
+
+/// Core's spmm mode on `scene` at `w` x `h` after `frames` frames.
+fn core_render(
+    scene: &meso_core::scene::Scene,
+    w: u32,
+    h: u32,
+    frames: u32,
+) -> meso_core::image::Image {
+    use meso_core::render::{Device, ModeKind, Prepare, run_frames};
+    let mut mode = meso_core::modes::create(
+        ModeKind::Spmm,
+        Device::Cpu,
+        scene.clone(),
+        w,
+        h,
+        Prepare::quietly(),
+    )
+    .expect("the scene renders");
+    run_frames(mode.as_mut(), frames, |_, _| {});
+    mode.image()
+}
+
+/// The mean of frames `m..n` per pixel from renders of `0..n` and `0..m`.
+fn frames_between(
+    scene: &meso_core::scene::Scene,
+    w: u32,
+    h: u32,
+    m: u32,
+    n: u32,
+) -> Vec<[f32; 3]> {
+    let (late, early) = (core_render(scene, w, h, n), core_render(scene, w, h, m));
+    let (a, b) = (n as f32, m as f32);
+    late.pixels()
+        .iter()
+        .zip(early.pixels())
+        .map(|(p, q)| [0, 1, 2].map(|c| (a * p[c] - b * q[c]) / (a - b)))
+        .collect()
+}
+
+/// After a material edit made on a frame of `m` samples, the studio's frame `after`
+/// is what core renders: pixels that see only other surfaces kept their samples and
+/// went on, so they equal a fresh `n`-frame render of the edited scene bit for bit;
+/// pixels that see only the pack restarted with the sample indices going on, so they
+/// equal frames `m..n` of it (to f32 rounding of that difference). Returns how many
+/// object pixels the edit changed, against frames `m..n` of the scene `before` it.
+fn assert_only_the_object_restarted(
+    after: &crate::render_worker::Frame,
+    m: u32,
+    edited: &meso_core::scene::Scene,
+    before: &meso_core::scene::Scene,
+    seen: &[Option<Option<usize>>],
+) -> (usize, usize) {
+    let (w, h, n) = (
+        after.progress.width,
+        after.progress.height,
+        after.progress.frames,
+    );
+    assert_eq!(
+        seen.len(),
+        (w * h) as usize,
+        "the frame has the size the pick used"
+    );
+    assert_eq!(
+        after.progress.min_samples,
+        n - m,
+        "the object restarted at the edit"
+    );
+    let fresh = core_render(edited, w, h, n);
+    let restarted = frames_between(edited, w, h, m, n);
+    let unedited = frames_between(before, w, h, m, n);
+    let (mut edited_px, mut object) = (0, 0);
+    for (i, s) in seen.iter().enumerate() {
+        let got = after.image.pixels()[i];
+        match s {
+            Some(None) => assert_eq!(got, fresh.pixels()[i], "pixel {i} off the object"),
+            Some(Some(_)) => {
+                let want = restarted[i];
+                for c in 0..3 {
+                    assert!(
+                        (got[c] - want[c]).abs() <= 1e-4 * want[c].abs() + 1e-5,
+                        "object pixel {i}: {got:?} vs {want:?}"
+                    );
+                }
+                object += 1;
+                edited_px += usize::from(
+                    (0..3).any(|c| (want[c] - unedited[i][c]).abs() > 1e-3 * want[c].abs() + 1e-5),
+                );
+            }
+            None => {}
+        }
+    }
+    (edited_px, object)
+}
+
 #[test]
-fn clicking_the_object_picks_its_cluster_and_lights_can_be_added() {
-    let mut h = harness();
-    wait_for_current_frame(&mut h);
+fn a_click_on_the_viewport_picks_the_cluster_seen_there_and_an_edit_changes_its_pixels() {
+    let mut h = resting_studio(None, 4);
+    let before = rested_frame(&mut h, 4);
+    let (w, hgt) = (before.progress.width, before.progress.height);
+    let rect = h.state().viewport.rect.expect("the viewport was shown");
+    // Where to click, found with core's pick on the same scene, camera and size and a
+    // BVH of our own: a point inside a patch of one cluster that is not the selected
+    // one (so a click that does nothing fails).
+    let seen = seen_clusters(&h, w, hgt);
+    let selected = h.state().material_panel.cluster;
+    let (px, py, cluster) = (0..hgt)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .find_map(|(x, y)| match seen[(y * w + x) as usize] {
+            Some(Some(c)) if c != selected => Some((x, y, c)),
+            _ => None,
+        })
+        .expect("the object shows a cluster other than the selected one");
+    let pos = rect.min
+        + egui::vec2(
+            (px as f32 + 0.5) / w as f32 * rect.width(),
+            (py as f32 + 0.5) / hgt as f32 * rect.height(),
+        );
+    click_at(&mut h, pos);
+    assert_eq!(
+        h.state().material_panel.cluster,
+        cluster,
+        "clicked at pixel ({px}, {py})"
+    );
+    let texel = h.state().material_panel.texel.expect("a texel was picked");
+    assert_eq!(material(&h).texel_cluster()[texel] as usize, cluster);
+
+    // Halve the picked cluster's red weights: the frame is core's render of the edited
+    // scene, and the edit changes the pixels where that cluster is seen.
+    // (Showing the picked texel can resize the viewport, which restarts the render.)
+    let before = rested_frame(&mut h, 4);
+    let seen = seen_clusters(&h, before.progress.width, before.progress.height);
+    let old_scene = h.state().doc.as_ref().expect("doc").scene.clone();
+    let mean = material(&h).cluster_mean_weight(cluster);
+    h.get_by_role_and_label(Role::SpinButton, "R")
+        .set_value_accesskit(mean[0] * 0.5);
+    h.step();
+    let after = rested_frame(&mut h, 4);
+    assert!(after.version > before.version);
+    let edited = h.state().doc.as_ref().expect("doc").scene.clone();
+    let in_cluster: Vec<Option<Option<usize>>> = seen
+        .iter()
+        .map(|s| s.filter(|c| c.is_none_or(|c| c == cluster)))
+        .collect();
+    let (changed, of) = assert_only_the_object_restarted(
+        &after,
+        before.progress.frames,
+        &edited,
+        &old_scene,
+        &in_cluster,
+    );
+    assert!(
+        of > 0 && changed * 10 >= of * 9,
+        "{changed} of {of} pixels of cluster {cluster} changed"
+    );
+}
+
+#[test]
+fn n_pca_and_the_residual_on_a_fitted_pack_change_the_object_only() {
+    let fitted = default_scene_path().with_file_name("fitted.toml");
+    let mut h = resting_studio(Some(fitted), 2);
     let index = h
         .state()
         .doc
@@ -186,18 +415,49 @@ fn clicking_the_object_picks_its_cluster_and_lights_can_be_added() {
         .and_then(|d| d.pack.as_ref())
         .expect("pack")
         .material;
-    // The bunny fills the middle of the default view.
-    h.state_mut().pick_at(0.5, 0.55);
-    let (texel, cluster) = (
-        h.state().material_panel.texel.expect("a texel was picked"),
-        h.state().material_panel.cluster,
+    let slot = |h: &Harness<'_, Studio>| match &h.state().doc.as_ref().expect("doc").scene.materials
+        [index]
+    {
+        Material::Spmm { residual, npca, .. } => (*residual, *npca),
+        _ => panic!("the pack's slot holds an SPMM"),
+    };
+    let full = slot(&h);
+    assert!(
+        full.0 && full.1 > 1,
+        "fitted.toml uses its residual: {full:?}"
     );
-    assert_eq!(material(&h).texel_cluster()[texel] as usize, cluster);
-    assert!(matches!(
-        h.state().doc.as_ref().expect("doc").scene.materials[index],
-        Material::Spmm { .. }
-    ));
+    let f0 = rested_frame(&mut h, 2);
+    let seen = seen_clusters(&h, f0.progress.width, f0.progress.height);
+    let s0 = h.state().doc.as_ref().expect("doc").scene.clone();
 
+    h.get_by_role_and_label(Role::Slider, "N_PCA")
+        .set_value_accesskit(1.0);
+    h.step();
+    assert_eq!(slot(&h), (true, 1));
+    let f1 = rested_frame(&mut h, 2);
+    let s1 = h.state().doc.as_ref().expect("doc").scene.clone();
+    let (changed, of) = assert_only_the_object_restarted(&f1, f0.progress.frames, &s1, &s0, &seen);
+    assert!(
+        of > 0 && changed * 2 >= of,
+        "N_PCA 1: {changed} of {of} object pixels changed"
+    );
+
+    h.get_by_label("Residual").click();
+    h.run_steps(2);
+    assert_eq!(slot(&h), (false, 1));
+    let f2 = rested_frame(&mut h, 2);
+    let s2 = h.state().doc.as_ref().expect("doc").scene.clone();
+    let (changed, of) = assert_only_the_object_restarted(&f2, f1.progress.frames, &s2, &s1, &seen);
+    assert!(
+        of > 0 && changed * 2 >= of,
+        "residual off: {changed} of {of} object pixels changed"
+    );
+}
+
+#[test]
+fn lights_can_be_added() {
+    let mut h = harness();
+    wait_for_current_frame(&mut h);
     let lights = h.state().doc.as_ref().expect("doc").scene.lights.len();
     h.get_by_label("Add point light").click();
     h.run_steps(2);
@@ -211,8 +471,11 @@ fn clicking_the_object_picks_its_cluster_and_lights_can_be_added() {
 /// The main window at 1280x800 after 8 samples per pixel (deterministic: replayable
 /// sampling, any thread count), rendered by wgpu (lavapipe in CI) and compared with
 /// app/tests/snapshots/studio_main.png. Regenerate knowingly with UPDATE_SNAPSHOTS=1
-/// and look at the image. Threshold: lavapipe and GPU drivers rasterise text with
-/// slightly different anti-aliasing; a moved panel or a changed render exceeds it.
+/// and look at the image. Tolerance: egui_kittest's fallback threshold 0.6 per pixel
+/// and at most 4 pixels over it (kittest advises no more than ~10). Measured with
+/// lavapipe on the 2-core dev machine (three runs, identical): 1 pixel over 0.6 (over
+/// every threshold up to 10), 3510 pixels between 0.4 and 0.6.
+/// The old allowance, 200 pixels at threshold 2.0, could hide a moved separator.
 #[test]
 fn the_main_window_matches_its_snapshot() {
     let settings = Settings {
@@ -245,8 +508,8 @@ fn the_main_window_matches_its_snapshot() {
     h.snapshot_options(
         "studio_main",
         &egui_kittest::SnapshotOptions::new()
-            .threshold(2.0)
-            .max_failed_pixels(200),
+            .threshold(0.6)
+            .max_failed_pixels(4),
     );
 }
 

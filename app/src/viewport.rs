@@ -96,6 +96,8 @@ pub struct Viewport {
     reference: Option<(Arc<Image>, f64)>,
     /// Where the compare view's divider is, as a fraction of the width.
     pub split: f32,
+    /// Where the image was last shown, in points (tests click into it).
+    pub rect: Option<egui::Rect>,
 }
 
 impl Default for Viewport {
@@ -106,6 +108,7 @@ impl Default for Viewport {
             reference_texture: None,
             reference: None,
             split: 0.5,
+            rect: None,
         }
     }
 }
@@ -171,6 +174,7 @@ impl Viewport {
             *made_with = exposure;
         }
         let (rect, response) = ui.allocate_exact_size(size, Sense::click_and_drag());
+        self.rect = Some(rect);
         ui.painter()
             .rect_filled(rect, 0.0, egui::Color32::from_gray(18));
         if let Some(t) = &self.texture {

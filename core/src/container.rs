@@ -10,6 +10,27 @@ use std::collections::{BTreeMap, HashMap};
 use safetensors::{Dtype, SafeTensors};
 use serde_json::json;
 
+/// The Python interpreter the independent format checks run (`MESO_PYTHON`, default
+/// `python3`), if it imports safetensors and numpy. Elsewhere the checks say they are
+/// skipped and pass (tests must not require Python); where the environment variable
+/// `CI` is set they must run (`.ci/run` installs both), so a missing module fails.
+#[cfg(test)]
+pub(crate) fn python_with_safetensors() -> Option<String> {
+    let python = std::env::var("MESO_PYTHON").unwrap_or_else(|_| "python3".into());
+    let probe = std::process::Command::new(&python)
+        .args(["-c", "import safetensors.numpy, numpy"])
+        .output();
+    if probe.is_ok_and(|o| o.status.success()) {
+        return Some(python);
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "CI is set but `{python}` lacks safetensors/numpy (set MESO_PYTHON; .ci/run installs them)"
+    );
+    eprintln!("skipped: `{python}` lacks safetensors/numpy (set MESO_PYTHON)");
+    None
+}
+
 /// One tensor to write: little-endian data of `shape` elements of `dtype`.
 pub struct Tensor {
     pub dtype: Dtype,

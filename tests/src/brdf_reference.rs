@@ -74,7 +74,16 @@ fn every_model_matches_the_independent_reference() {
         rows += 1;
         *per_model.entry(f[0].to_string()).or_default() += usize::from(reference > 0.0);
     }
-    assert!(rows > 1500, "the reference table lost rows: {rows}");
+    // tests/reference/brdf_reference.py writes 1846 rows; every model of the
+    // dictionary must be among them.
+    assert_eq!(rows, 1846, "the reference table lost or gained rows");
+    for model in BrdfModel::ALL {
+        assert!(
+            per_model.contains_key(model.name()),
+            "no reference values for {}",
+            model.name()
+        );
+    }
     println!("{rows} reference values, largest relative error {worst:.2e}");
     // Each model has many non-zero reference values, so the table tests the formulas,
     // not just the horizon rule.
@@ -96,6 +105,7 @@ fn every_model_matches_the_independent_reference() {
 fn basis_functions_match_the_independent_reference() {
     let csv = include_str!("../reference/brdf_basis_values.csv");
     let mut failures = Vec::new();
+    let mut per_model = std::collections::BTreeMap::<String, usize>::new();
     for (i, line) in csv.lines().enumerate().skip(1) {
         let f: Vec<&str> = line.split(',').collect();
         assert_eq!(f.len(), 12, "brdf_basis_values.csv line {}", i + 1);
@@ -105,7 +115,23 @@ fn basis_functions_match_the_independent_reference() {
         let reference: f64 = f[11].parse().expect("a number");
         let what = format!("line {} {} n {:?} wi {wi} wo {wo}", i + 1, f[0], &f[2..5]);
         failures.extend(check(basis.eval(wi, wo), reference, &what));
+        *per_model.entry(f[0].to_string()).or_default() += 1;
     }
+    // The script writes 120 rows for each of five models (600).
+    let expect: std::collections::BTreeMap<String, usize> = [
+        "ashikhmin_shirley",
+        "cook_torrance",
+        "lambertian",
+        "oren_nayar",
+        "ward",
+    ]
+    .into_iter()
+    .map(|m| (m.to_string(), 120))
+    .collect();
+    assert_eq!(
+        per_model, expect,
+        "the basis reference table lost or gained rows"
+    );
     assert!(
         failures.is_empty(),
         "{} mismatches:\n{}",

@@ -408,4 +408,90 @@ mod tests {
         assert!(encode_btf(&b, BtfPrecision::F16).is_err());
         assert_eq!(best_precision(&b), BtfPrecision::F32);
     }
+
+    /// Python (`safetensors.numpy.load_file`, independent of our reader) finds the
+    /// metadata, names, dtypes and shapes of docs/formats/btf.md, and the values at
+    /// `reflectance[row, column, light, view, channel]` with row 0 the top row.
+    /// Skipped without Python's safetensors/numpy, except under `CI`
+    /// (`container::python_with_safetensors`).
+    #[test]
+    fn python_reads_the_documented_tensors() {
+        let Some(python) = crate::container::python_with_safetensors() else {
+            return;
+        };
+        let b = small();
+        let dir = tempfile::tempdir().expect("dir");
+        let script = r#"
+import sys, json
+from safetensors import safe_open
+from safetensors.numpy import load_file
+t = load_file(sys.argv[1])
+with safe_open(sys.argv[1], framework="np") as f:
+    meta = f.metadata()
+r = t["reflectance"]
+print(json.dumps({"meta": meta,
+                  "tensors": {k: [str(v.dtype), list(v.shape)] for k, v in t.items()},
+                  "light_dirs": t["light_dirs"].tolist(), "view_dirs": t["view_dirs"].tolist(),
+                  "values": [[[[[float(r[y, x, l, v, c]) for c in range(3)]
+                                for v in range(r.shape[3])] for l in range(r.shape[2])]
+                              for x in range(r.shape[1])] for y in range(r.shape[0])]}))
+"#;
+        for (p, dtype) in [
+            (BtfPrecision::F16, "float16"),
+            (BtfPrecision::F32, "float32"),
+        ] {
+            let path = dir.path().join(format!("{dtype}.btf"));
+            write_btf(&path, &b, p).expect("write");
+            let out = std::process::Command::new(&python)
+                .args(["-c", script, path.to_str().expect("utf-8")])
+                .output()
+                .expect("python runs");
+            assert!(
+                out.status.success(),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+            let meta = &v["meta"];
+            assert_eq!(meta["format"], "meso-btf");
+            assert_eq!(meta["version"], "1");
+            assert_eq!(meta["name"], "t");
+            assert_eq!(meta["provenance"], "test");
+            assert_eq!(
+                (&meta["width"], &meta["height"]),
+                (&"2".into(), &"3".into())
+            );
+            let (l, vn) = (b.light_dirs().len(), b.view_dirs().len());
+            assert_eq!(
+                v["tensors"],
+                serde_json::json!({
+                    "light_dirs": ["float64", [l, 3]],
+                    "view_dirs": ["float64", [vn, 3]],
+                    "reflectance": [dtype, [3, 2, l, vn, 3]],
+                }),
+                "{dtype}"
+            );
+            let dirs =
+                |d: &[DVec3]| serde_json::json!(d.iter().map(|d| d.to_array()).collect::<Vec<_>>());
+            assert_eq!(v["light_dirs"], dirs(b.light_dirs()));
+            assert_eq!(v["view_dirs"], dirs(b.view_dirs()));
+            // Quarter steps up to 71.75 are exact in f16 too.
+            for y in 0..3 {
+                for x in 0..2 {
+                    for li in 0..l {
+                        for vi in 0..vn {
+                            let want = b.value(y * 2 + x, li, vi);
+                            for (c, w) in want.iter().enumerate() {
+                                assert_eq!(
+                                    v["values"][y][x][li][vi][c].as_f64(),
+                                    Some(*w as f64),
+                                    "{dtype} row {y} column {x} light {li} view {vi} channel {c}"
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
 }

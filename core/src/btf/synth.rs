@@ -340,6 +340,18 @@ impl HeightField {
         self.hit_up(p, d).is_some()
     }
 
+    /// Where a gather ray from surface point `p` towards `d` (in the hemisphere of the
+    /// surface normal) first meets the surface, if it does before leaving the slab.
+    fn gather_hit(&self, p: DVec3, d: DVec3) -> Option<DVec2> {
+        if d.z > 0.0 {
+            return self.hit_up(p, d);
+        }
+        // Downwards: start half a marching step out, clear of the point's own patch.
+        let horizontal = d.truncate().length().max(1e-12);
+        let o = p + d * (0.25 / (self.detail * horizontal));
+        self.intersect_down(o, d).map(|q| q.truncate())
+    }
+
     /// Where the ray from surface point `p` towards `d` (d.z > 0) first goes under the
     /// surface before leaving the slab (for gather rays), if it does.
     fn hit_up(&self, p: DVec3, d: DVec3) -> Option<DVec2> {
@@ -690,6 +702,16 @@ fn procedural(
     })
 }
 
+/// The `count` seeded points of the Voronoi and bump patterns, in [0, 1)^2.
+fn pattern_seeds(count: usize, seed: u64) -> Vec<DVec2> {
+    (0..count)
+        .map(|k| {
+            let s = SampleStream::new(&[seed, 0x7365_6564, k as u64]);
+            DVec2::new(s.at(0), s.at(1))
+        })
+        .collect()
+}
+
 fn build_field(
     m: &Mesostructure,
     width: u32,
@@ -712,12 +734,7 @@ fn build_field(
             (check_depth(*depth)?, check_count("count", *count)? as usize)
         }
     };
-    let seeds: Vec<DVec2> = (0..seed_count)
-        .map(|k| {
-            let s = SampleStream::new(&[seed, 0x7365_6564, k as u64]);
-            DVec2::new(s.at(0), s.at(1))
-        })
-        .collect();
+    let seeds = pattern_seeds(seed_count, seed);
     let mut heights = vec![0.0; gw * gh];
     let mut regions = vec![0u8; gw * gh];
     if let Mesostructure::Image {
@@ -914,10 +931,9 @@ pub fn synthesize(
                                 DVec2::new(stream.at(2 * k as u64), stream.at(2 * k as u64 + 1));
                             let wg_local = warp::cosine_hemisphere(u);
                             let wg = frame.to_world(wg_local);
-                            if wg.z <= 0.0 {
-                                continue;
-                            }
-                            if let Some(qxy) = field.hit_up(p, wg) {
+                            // Rays into the hemisphere that point downwards (on a slope)
+                            // surely meet the surface; upward ones may leave the slab.
+                            if let Some(qxy) = field.gather_hit(p, wg) {
                                 let gi = ((qxy.x * field.detail).floor() as isize)
                                     .rem_euclid(field.grid_w as isize)
                                     as usize;

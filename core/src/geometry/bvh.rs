@@ -340,4 +340,117 @@ mod tests {
         );
         assert!(!empty.occluded(DVec3::ZERO, DVec3::Y, 0.0, 1.0));
     }
+
+    /// Closest hit by testing every triangle (Moller-Trumbore in f64): (t, mesh, triangle).
+    fn brute_force(
+        meshes: &[TriangleMesh],
+        o: DVec3,
+        d: DVec3,
+        tmax: f64,
+    ) -> Option<(f64, usize, usize)> {
+        let mut best: Option<(f64, usize, usize)> = None;
+        for (m, mesh) in meshes.iter().enumerate() {
+            for (t, idx) in mesh.indices.iter().enumerate() {
+                let [a, b, c] = idx.map(|i| mesh.positions[i as usize]);
+                let (e1, e2) = (b - a, c - a);
+                let p = d.cross(e2);
+                let det = e1.dot(p);
+                if det == 0.0 || e1.cross(e2).length_squared() <= 0.0 {
+                    continue;
+                }
+                let s = o - a;
+                let u = s.dot(p) / det;
+                let q = s.cross(e1);
+                let v = d.dot(q) / det;
+                let dist = e2.dot(q) / det;
+                if u >= 0.0 && v >= 0.0 && u + v <= 1.0 && dist > 0.0 && dist < tmax {
+                    if best.is_none_or(|(bt, _, _)| dist < bt) {
+                        best = Some((dist, m, t));
+                    }
+                }
+            }
+        }
+        best
+    }
+
+    /// Every ray's BVH answer against the brute force; returns (rays, hits).
+    fn check_against_brute_force(
+        meshes: &[TriangleMesh],
+        bvh: &SceneBvh,
+        seed: u64,
+    ) -> (usize, usize) {
+        let (lo, hi) = meshes[0].positions.iter().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(lo, hi), &p| (lo.min(p), hi.max(p)),
+        );
+        let (centre, radius) = ((lo + hi) * 0.5, (hi - lo).length());
+        let mut rng = crate::rng::SampleStream::new(&[seed]);
+        let (rays, mut hits, mut ties) = (4000, 0, 0);
+        for _ in 0..rays {
+            // From a sphere around the mesh towards a point in its box: most rays hit,
+            // some graze silhouettes, some miss.
+            let z = 2.0 * rng.next() - 1.0;
+            let phi = std::f64::consts::TAU * rng.next();
+            let r = (1.0 - z * z).sqrt();
+            let o = centre + radius * DVec3::new(r * phi.cos(), r * phi.sin(), z);
+            let target = lo + (hi - lo) * DVec3::new(rng.next(), rng.next(), rng.next());
+            let d = (target - o).normalize();
+            let bvh_hit = bvh.closest_hit(meshes, o, d, 0.0, 1e3);
+            let brute = brute_force(meshes, o, d, 1e3);
+            match (bvh_hit, brute) {
+                (None, None) => {}
+                (Some(h), Some((t, m, tri))) => {
+                    hits += 1;
+                    // f32 traversal: the distance agrees to a relative 1e-5.
+                    assert!(
+                        (h.t - t).abs() <= 1e-5 * t,
+                        "ray {o} {d}: bvh t {} brute {t}",
+                        h.t
+                    );
+                    if (h.mesh, h.triangle) != (m, tri) {
+                        // A tie: two triangles (an edge or vertex) at the same distance.
+                        let [a, b, c] = meshes[h.mesh].indices[h.triangle]
+                            .map(|i| meshes[h.mesh].positions[i as usize]);
+                        let n = (b - a).cross(c - a);
+                        let t_plane = n.dot(a - o) / n.dot(d);
+                        assert!(
+                            (t_plane - t).abs() <= 1e-5 * t,
+                            "ray {o} {d}: other triangle"
+                        );
+                        ties += 1;
+                    }
+                }
+                (a, b) => {
+                    // A miss on one side only can only be a ray grazing an edge.
+                    let edge = a.map(|h| h.t).or(b.map(|b| b.0)).expect("one hit");
+                    panic!("ray {o} {d}: bvh {a:?}, brute force {b:?} (t {edge})");
+                }
+            }
+        }
+        eprintln!("{hits} of {rays} rays hit, {ties} ties");
+        assert!(ties < rays / 100, "{ties} ties");
+        (rays, hits)
+    }
+
+    #[test]
+    fn closest_hits_on_the_bunny_match_brute_force_before_and_after_a_refit() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../tests/scenes/meshes/bunny_lowres.obj");
+        let identity = crate::scene::mesh::Placement {
+            scale: 1.0,
+            rotation: glam::DMat3::IDENTITY,
+            translate: DVec3::ZERO,
+        };
+        let mut meshes = vec![crate::scene::mesh::load_obj(&path, &identity, 0).expect("bunny")];
+        let mut bvh = SceneBvh::build(&meshes);
+        let (rays, hits) = check_against_brute_force(&meshes, &bvh, 1);
+        assert!(hits > rays / 2, "{hits} of {rays} rays hit");
+        // Move it: squash, shear and shift every vertex; same triangles, so a refit.
+        for p in &mut meshes[0].positions {
+            *p = DVec3::new(p.x + 0.3 * p.y, 0.7 * p.y + 0.5, p.z - 0.2);
+        }
+        assert!(bvh.update(&meshes), "same triangles refit");
+        let (rays, hits) = check_against_brute_force(&meshes, &bvh, 2);
+        assert!(hits > rays / 2, "{hits} of {rays} rays hit after the refit");
+    }
 }

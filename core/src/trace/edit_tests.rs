@@ -33,6 +33,47 @@ fn assert_close(a: &Image, b: &Image) {
     }
 }
 
+/// The image of `m` through some emitters only: the lights not in `lights` at zero
+/// emission, the ambient term only if `ambient`, a black background. Each is a
+/// re-weighting (`Invalidation::Nothing`), so no sample changes.
+fn through(m: &mut SpmmMode, lights: &[usize], ambient: bool) -> Image {
+    let scene = m.scene().clone();
+    for (i, l) in scene.lights.iter().enumerate() {
+        let e = if lights.contains(&i) {
+            l.emission()
+        } else {
+            DVec3::ZERO
+        };
+        let edit = SceneEdit::Light {
+            index: i,
+            light: l.with_emission(e),
+        };
+        assert_eq!(m.apply(edit), Ok(Invalidation::Nothing));
+    }
+    if !ambient {
+        assert_eq!(m.apply(SceneEdit::Ambient(None)), Ok(Invalidation::Nothing));
+    }
+    let black = SceneEdit::Background(Background::Color(DVec3::ZERO));
+    assert_eq!(m.apply(black), Ok(Invalidation::Nothing));
+    m.image()
+}
+
+/// The mean of frames `early..late` from the means over `0..late` and `0..early`.
+fn frames_between(late: &Image, late_n: u32, early: &Image, early_n: u32) -> Image {
+    let mut out = late.clone();
+    let (a, b) = (late_n as f32, early_n as f32);
+    for (o, (p, q)) in out
+        .pixels_mut()
+        .iter_mut()
+        .zip(late.pixels().iter().zip(early.pixels()))
+    {
+        for c in 0..3 {
+            o[c] = (a * p[c] - b * q[c]) / (a - b);
+        }
+    }
+    out
+}
+
 #[test]
 fn emission_edits_keep_every_sample_and_equal_a_fresh_render() {
     let mut m = rendered(scene(), 3);
@@ -254,7 +295,16 @@ fn camera_size_and_geometry_edits_restart_everything_and_refit() {
         Ok(Invalidation::All)
     );
     m.render_frame();
+    m.render_frame();
+    // Samples restart with their indices: a fresh 8x6 render of the same scene.
+    let fresh_8x6 = |scene: Scene| {
+        let mut f = SpmmMode::new(scene, 8, 6).expect("size");
+        f.render_frame();
+        f.render_frame();
+        f.image()
+    };
     assert_eq!((m.image().width(), m.image().height()), (8, 6));
+    assert_eq!(m.image(), fresh_8x6(m.scene().clone()));
     assert!(
         m.apply(SceneEdit::Resize {
             width: 0,
@@ -271,6 +321,12 @@ fn camera_size_and_geometry_edits_restart_everything_and_refit() {
         Ok(Invalidation::All)
     );
     assert!(m.bvh().refitted(), "same triangles are refitted");
+    // The refitted BVH renders what a fresh build of the moved scene renders.
+    m.render_frame();
+    m.render_frame();
+    let mut moved_panel = m.scene().clone();
+    moved_panel.meshes = meshes.clone();
+    assert_eq!(m.image(), fresh_8x6(moved_panel));
     meshes[1].material = 7;
     assert!(
         m.apply(SceneEdit::Meshes(meshes)).is_err(),
@@ -314,4 +370,86 @@ fn lights_are_added_and_removed_and_the_ambient_radius_restarts_its_layer() {
         Ok(Invalidation::Nothing)
     );
     assert_eq!(m.progress().min_samples, 1);
+}
+
+#[test]
+fn added_removed_lights_and_a_new_ambient_radius_keep_exactly_the_right_layers() {
+    // What can be asserted exactly: a light added at the end leaves every other
+    // emitter's random numbers where they were (lights draw in order, 2 numbers each),
+    // so the kept lights equal a fresh render of the edited scene through them, and the
+    // new light's layer equals frames 2..4 of it. (The ambient term draws after the
+    // lights, so its numbers move with a new light: its kept samples are valid, but not
+    // those of any one fresh render; it is left out here.)
+    let extra = Light::Point {
+        position: DVec3::new(-1.0, 1.0, 0.5),
+        intensity: DVec3::splat(2.0),
+    };
+    let mut with_extra = scene();
+    with_extra.lights.push(extra);
+    let added = || {
+        let mut m = rendered(scene(), 2);
+        assert_eq!(
+            m.apply(SceneEdit::AddLight(extra)),
+            Ok(Invalidation::Layer(FIRST_LIGHT + 2))
+        );
+        m.render_frame();
+        m.render_frame();
+        m
+    };
+    assert_close(
+        &through(&mut added(), &[0, 1], false),
+        &through(&mut rendered(with_extra.clone(), 4), &[0, 1], false),
+    );
+    let new_light = |frames| through(&mut rendered(with_extra.clone(), frames), &[2], false);
+    assert_close(
+        &through(&mut added(), &[2], false),
+        &frames_between(&new_light(4), 4, &new_light(2), 2),
+    );
+
+    // Removing a light drops its layer: at that moment the image is the same samples
+    // with that light's emission at zero. (Later frames draw the remaining lights'
+    // numbers one light earlier, so they match no single fresh render.)
+    let mut removed = rendered(scene(), 3);
+    assert_eq!(
+        removed.apply(SceneEdit::RemoveLight(0)),
+        Ok(Invalidation::Nothing)
+    );
+    let mut zeroed = rendered(scene(), 3);
+    let dark = scene().lights[0].with_emission(DVec3::ZERO);
+    assert_eq!(
+        zeroed.apply(SceneEdit::Light {
+            index: 0,
+            light: dark
+        }),
+        Ok(Invalidation::Nothing)
+    );
+    assert_eq!(removed.image(), zeroed.image());
+
+    // A new ambient radius restarts the ambient layer with the sample indices going on:
+    // it holds frames 2..4 of the edited scene's ambient term, the lights all 4 frames.
+    let wider = Some(Ambient {
+        radiance: DVec3::splat(0.3),
+        radius: 2.0,
+    });
+    let mut edited = scene();
+    edited.ambient = wider;
+    let widened = || {
+        let mut m = rendered(scene(), 2);
+        assert_eq!(
+            m.apply(SceneEdit::Ambient(wider)),
+            Ok(Invalidation::Layer(AMBIENT))
+        );
+        m.render_frame();
+        m.render_frame();
+        m
+    };
+    assert_close(
+        &through(&mut widened(), &[0, 1], false),
+        &through(&mut rendered(edited.clone(), 4), &[0, 1], false),
+    );
+    let ambient_only = |frames| through(&mut rendered(edited.clone(), frames), &[], true);
+    assert_close(
+        &through(&mut widened(), &[], true),
+        &frames_between(&ambient_only(4), 4, &ambient_only(2), 2),
+    );
 }

@@ -338,6 +338,17 @@ fn rays_that_leave_the_scene_read_the_map_where_the_convention_says() {
     // With a [background] colour, escaping rays see the colour instead.
     scene.background = Background::Color(DVec3::new(0.1, 0.2, 0.3));
     assert_eq!(render(&scene, 1).get(1, 1), [0.1, 0.2, 0.3]);
+    // `[background] environment = ...`: the same convention, never turned and never
+    // scaled by the [environment]'s turn and strength: looking along `seen` reads
+    // pixel (20, 10) as it is.
+    let map = scene.environment.as_ref().expect("set above").map.clone();
+    scene.background = Background::Environment(map.clone());
+    scene.camera.look_at = seen;
+    assert_eq!(render(&scene, 1).get(1, 1), [20.0, 10.0, 1.0]);
+    // ... and seen but not lighting: with no [environment] a floor under it is black.
+    let mut floor = floor_scene(lambertian(0.5), false, 3);
+    floor.background = Background::Environment(map);
+    assert_eq!(render(&floor, 4).get(1, 1), [0.0, 0.0, 0.0]);
 }
 
 /// An analytic sky (brighter towards the zenith, bluish) with a small sun disc of

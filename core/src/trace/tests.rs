@@ -1,6 +1,6 @@
 //! The spmm mode against closed forms: point and area lights, a light covering the
-//! hemisphere, ambient light on a tilted-basis SPMM plane, AO of an open plane and a
-//! corner, replay of single pixels and independence of the thread count.
+//! hemisphere, ambient light on a tilted-basis SPMM plane, a plane seen in a mirror, AO
+//! of an open plane and a corner, replay of single pixels and independence of the thread count.
 
 use glam::{DVec2, DVec3};
 
@@ -300,4 +300,42 @@ fn frames_are_replayable_and_independent_of_thread_count() {
         lit += usize::from(got[0] > 0.0);
     }
     assert!(lit > 100, "most pixels see lit surfaces");
+}
+
+#[test]
+fn a_lambertian_plane_seen_in_a_mirror_is_the_reflectance_times_the_plane() {
+    // The lit point is the origin, under a point light 2 m above it: L = albedo / pi *
+    // I / 4 (closed form; view-independent). Seen directly from (0, 1, 0), and seen in a
+    // vertical mirror of reflectance r at x = 0.5 from the same place, looking at
+    // (0.5, 0.5, 0), whose reflection lands on the origin: r x L per channel.
+    let light = Light::Point {
+        position: DVec3::new(0.0, 2.0, 0.0),
+        intensity: DVec3::splat(4.0),
+    };
+    let expected = ALBEDO / std::f64::consts::PI * 4.0 / 4.0;
+    let reflectance = DVec3::new(0.8, 0.5, 0.25);
+    let mut scene = floor_scene(vec![light], None, false);
+    scene.materials.push(Material::Mirror { reflectance });
+    scene.material_names.push("mirror".into());
+    // Facing -x, from y = 0.2 up: it neither touches the floor nor shadows the origin.
+    scene.meshes.push(crate::scene::mesh::quad(
+        DVec3::new(0.5, 0.2, -5.0),
+        DVec3::new(0.0, 0.0, 10.0),
+        DVec3::new(0.0, 5.0, 0.0),
+        1,
+    ));
+    let direct = converge(&scene, 1);
+    assert!(
+        (direct - DVec3::splat(expected)).abs().max_element() < 1e-5 * expected,
+        "{direct} vs {expected}"
+    );
+    scene.camera.look_at = DVec3::new(0.5, 0.5, 0.0);
+    scene.camera.up = DVec3::Y;
+    let mirrored = converge(&scene, 1);
+    // The pixel's footprint (about 2.5e-4 m wide at 1.4 m) moves cos / r^2 by < 1e-4.
+    let want = reflectance * expected;
+    assert!(
+        (mirrored - want).abs().max_element() < 1e-4 * expected,
+        "{mirrored} vs {want}"
+    );
 }

@@ -1,20 +1,69 @@
-//! Light sampling in the spmm mode (Silva & Santos 2013, eq. 4-7): each point light
-//! with one shadow ray; each area light with one shadow ray to a point drawn uniformly
-//! on its area (in the area measure: L_e f cos_i cos_l / r^2 * A); ambient occlusion
-//! with one ray limited to the ambient radius (pi L_a V f per cosine-distributed
-//! sample). Each adds to its own film layer for unit emission.
+//! Light sampling in the spmm mode (Silva & Santos 2013, eq. 4-7): up to `MANY_LIGHTS`
+//! lights, each point light with one shadow ray and each area light with one shadow ray
+//! to a point drawn uniformly on its area (in the area measure: L_e f cos_i cos_l / r^2
+//! * A); above, `LIGHT_SAMPLES` lights per shading point chosen by resampling
+//! (`light_selection.rs`). Ambient occlusion: one ray limited to the ambient radius
+//! (pi L_a V f per cosine-distributed sample). Each adds to its light's film layer.
 
 use std::f64::consts::PI;
 
 use glam::DVec3;
 
+use super::light_selection::{CANDIDATES, LIGHT_SAMPLES};
 use super::shading::{Shader, Shading};
 use super::{Path, SpmmMode};
-use crate::render::layers::{AMBIENT, FIRST_LIGHT};
+use crate::render::layers::AMBIENT;
 use crate::scene::Light;
 
+/// A point on a light seen from a shading point, unshadowed.
+#[derive(Clone, Copy, Default)]
+struct LightPoint {
+    light: usize,
+    q: DVec3,
+    wi: DVec3,
+    /// `1 / r^2` (point) or `cos_l / r^2` (area, per unit area); zero if the light
+    /// cannot reach the point (behind it, or below the surface).
+    falloff: f64,
+}
+
+/// Point `u` on `light` seen from `p` with normal `n`.
+#[inline]
+fn light_point(light: &Light, k: usize, u: glam::DVec2, p: DVec3, n: DVec3) -> LightPoint {
+    let (q, geometry) = match *light {
+        Light::Point { position, .. } => (position, None),
+        Light::Area {
+            corner,
+            edge_u,
+            edge_v,
+            ..
+        } => (
+            corner + edge_u * u.x + edge_v * u.y,
+            Some(edge_u.cross(edge_v)),
+        ),
+    };
+    let to = q - p;
+    let d2 = to.length_squared();
+    let wi = to / d2.sqrt();
+    let mut falloff = match geometry {
+        None => 1.0 / d2,
+        // One-sided: the light emits towards edge_u x edge_v.
+        Some(cross) => (-wi.dot(cross / cross.length())).max(0.0) / d2,
+    };
+    let cos_i = wi.dot(n);
+    if cos_i.is_nan() || cos_i <= 0.0 || !falloff.is_finite() {
+        falloff = 0.0;
+    }
+    LightPoint {
+        light: k,
+        q,
+        wi,
+        falloff,
+    }
+}
+
 impl SpmmMode {
-    /// One shadow ray to each light; `lift` is the ray origin just off the surface.
+    /// One shadow ray to each light, or `LIGHT_SAMPLES` chosen ones above
+    /// `MANY_LIGHTS`; `lift` is the ray origin just off the surface.
     pub(super) fn sample_lights(
         &self,
         s: &Shading,
@@ -23,6 +72,10 @@ impl SpmmMode {
         throughput: DVec3,
         path: &mut Path,
     ) {
+        if self.stochastic_lights {
+            self.sample_chosen_lights(s, wo, lift, throughput, path);
+            return;
+        }
         for (k, light) in self.scene.lights.iter().enumerate() {
             // Both kinds draw two numbers, so the dimension layout does not depend on
             // which kinds the scene has.
@@ -63,8 +116,86 @@ impl SpmmMode {
                 .bvh
                 .occluded(lift, wi, 0.0, (q - lift).length() * (1.0 - 1e-6))
             {
-                path.out[FIRST_LIGHT + k] += throughput * self.response(s, wi, wo) * falloff;
+                let target = self.light_targets[k];
+                // The factor is exactly one outside a bounded film's shared layer, so
+                // the per-light path keeps its bits.
+                path.out[target.layer] +=
+                    throughput * self.response(s, wi, wo) * falloff * target.factor;
             }
+        }
+    }
+
+    /// `LIGHT_SAMPLES` lights, each kept from `CANDIDATES` drawn by power by
+    /// resampled importance sampling (Talbot et al. 2005) towards the unshadowed
+    /// `emission x falloff` (zero behind a one-sided area light or below the surface,
+    /// where the contribution is zero too, so the estimate stays unbiased):
+    /// `f(y) / target(y) x mean_j(target_j / p_j)` with one shadow ray to `y`.
+    /// Draws `LIGHT_SAMPLES x (3 CANDIDATES + 1)` numbers whatever it finds.
+    fn sample_chosen_lights(
+        &self,
+        s: &Shading,
+        wo: DVec3,
+        lift: DVec3,
+        throughput: DVec3,
+        path: &mut Path,
+    ) {
+        let sel = self
+            .light_selection
+            .as_ref()
+            .expect("a stochastic path has lights");
+        for _ in 0..LIGHT_SAMPLES {
+            // (point, target, resampling weight target / p_src)
+            let mut candidates = [(LightPoint::default(), 0.0, 0.0); CANDIDATES];
+            let mut total = 0.0;
+            for c in &mut candidates {
+                let (k, p_light) = sel.table.sample(path.rng.next());
+                let u = path.rng.next_2d();
+                let light = &self.scene.lights[k];
+                let lp = light_point(light, k, u, s.p, s.n);
+                // The source pdf in the light's measure: per light, or per unit area.
+                let p_src = match light {
+                    Light::Point { .. } => p_light,
+                    Light::Area { edge_u, edge_v, .. } => {
+                        p_light / edge_u.cross(*edge_v).length()
+                    }
+                };
+                let target = sel.target_emission[k] * lp.falloff;
+                let w = target / p_src;
+                total += w;
+                *c = (lp, target, w);
+            }
+            let pick = path.rng.next() * total;
+            if !(total > 0.0 && total.is_finite()) {
+                continue;
+            }
+            let mut acc = 0.0;
+            let mut chosen = None;
+            for c in &candidates {
+                acc += c.2;
+                if c.2 > 0.0 && (pick < acc || chosen.is_none()) {
+                    chosen = Some(*c);
+                    if pick < acc {
+                        break;
+                    }
+                }
+            }
+            let Some((lp, target, _)) = chosen else {
+                continue;
+            };
+            if target <= 0.0 {
+                continue;
+            }
+            path.counts.shadow += 1;
+            if self
+                .bvh
+                .occluded(lift, lp.wi, 0.0, (lp.q - lift).length() * (1.0 - 1e-6))
+            {
+                continue;
+            }
+            let t = self.light_targets[lp.light];
+            let weight = total / (CANDIDATES as f64 * target * LIGHT_SAMPLES as f64);
+            path.out[t.layer] +=
+                throughput * self.response(s, lp.wi, wo) * (lp.falloff * weight) * t.factor;
         }
     }
 

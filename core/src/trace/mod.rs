@@ -5,6 +5,7 @@
 
 mod environment;
 mod integrator;
+pub mod light_selection;
 mod lights;
 mod shading;
 

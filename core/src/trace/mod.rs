@@ -19,4 +19,6 @@ mod environment_tests;
 #[cfg(test)]
 mod hard_case_tests;
 #[cfg(test)]
+mod many_lights_tests;
+#[cfg(test)]
 mod tests;

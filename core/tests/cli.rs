@@ -556,6 +556,12 @@ fn render_writes_an_image_and_reports_json() {
     assert!(v["rays"]["shadow"].as_u64().expect("count") > 0);
     assert!(v["rays_per_second"].as_f64().expect("rate") > 0.0);
     assert_eq!(v["nonfinite_dropped"], 0);
+    let loaded = meso_core::scene::load_scene(std::path::Path::new(scene)).expect("scene");
+    let layers = meso_core::render::layers::layer_count(&loaded);
+    assert_eq!(
+        v["film_bytes"],
+        meso_core::render::Film::bytes_for(24, 16, layers)
+    );
     let img = meso_core::image::read_image(&out).expect("an EXR");
     assert_eq!((img.width(), img.height()), (24, 16));
     assert!(img.pixels().iter().any(|p| p[0] > 0.0), "something is lit");

@@ -83,7 +83,8 @@ fn gib(bytes: u64) -> f64 {
 }
 
 /// How `memory_limit_bytes` is chosen, for the error message and the docs.
-pub const LIMIT_RULE: &str = "3/4 of MemAvailable in /proc/meminfo, or 8 GiB where it cannot be read";
+pub const LIMIT_RULE: &str =
+    "3/4 of MemAvailable in /proc/meminfo, or 8 GiB where it cannot be read";
 
 /// The most bytes a film may take: three quarters of the memory the OS says is
 /// available (`MemAvailable` in /proc/meminfo), or 8 GiB where that cannot be read.
@@ -103,7 +104,12 @@ fn mem_available_bytes(meminfo: &str) -> Option<u64> {
 
 impl Film {
     /// `Film::new` if it fits within `limit` bytes; nothing is allocated otherwise.
-    pub fn try_new(width: u32, height: u32, layers: usize, limit: u64) -> Result<Self, FilmTooLarge> {
+    pub fn try_new(
+        width: u32,
+        height: u32,
+        layers: usize,
+        limit: u64,
+    ) -> Result<Self, FilmTooLarge> {
         Self::check(width, height, layers, limit)?;
         Ok(Self::new(width, height, layers))
     }

@@ -228,9 +228,10 @@ impl Layers {
             .filter(|&l| match l {
                 AMBIENT => scene.ambient.is_some(),
                 ENVIRONMENT => scene.environment.is_some(),
-                l if l >= FIRST_LIGHT && l < SHARED_LIGHTS => {
-                    self.own.as_ref().is_none_or(|o| o[l - FIRST_LIGHT].is_some())
-                }
+                l if l >= FIRST_LIGHT && l < SHARED_LIGHTS => self
+                    .own
+                    .as_ref()
+                    .is_none_or(|o| o[l - FIRST_LIGHT].is_some()),
                 _ => true,
             })
             .collect()

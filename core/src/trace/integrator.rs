@@ -14,7 +14,7 @@ use crate::environment::EnvironmentSampler;
 use crate::geometry::{PinholeCamera, SceneBvh};
 use crate::image::Image;
 use crate::render::film::{material_bit, memory_limit_bytes};
-use crate::render::layers::{self, Before, LightTarget, Layers};
+use crate::render::layers::{self, Before, Layers, LightTarget};
 use crate::render::{
     Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind,
     PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit,

@@ -130,9 +130,7 @@ impl LightSelection {
 fn geometry_factor(light: &Light) -> f64 {
     match light {
         Light::Point { .. } => 4.0 * std::f64::consts::PI,
-        Light::Area { edge_u, edge_v, .. } => {
-            std::f64::consts::PI * edge_u.cross(*edge_v).length()
-        }
+        Light::Area { edge_u, edge_v, .. } => std::f64::consts::PI * edge_u.cross(*edge_v).length(),
     }
 }
 

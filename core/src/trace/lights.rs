@@ -155,9 +155,7 @@ impl SpmmMode {
                 // The source pdf in the light's measure: per light, or per unit area.
                 let p_src = match light {
                     Light::Point { .. } => p_light,
-                    Light::Area { edge_u, edge_v, .. } => {
-                        p_light / edge_u.cross(*edge_v).length()
-                    }
+                    Light::Area { edge_u, edge_v, .. } => p_light / edge_u.cross(*edge_v).length(),
                 };
                 let target = sel.target_emission[k] * lp.falloff;
                 let w = target / p_src;

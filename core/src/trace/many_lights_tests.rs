@@ -53,9 +53,8 @@ fn stochastic_selection_of_a_thousand_lights_converges_to_tracing_every_light() 
     let e = samples(&exact, SIZE, 0..N);
     // Both draw the same jittered pixel positions (the first two dimensions), so the
     // difference carries only the light sampling's noise.
-    let image_diff = (0..N as usize).map(|i| {
-        (s[i].iter().sum::<f64>() - e[i].iter().sum::<f64>()) / (SIZE * SIZE) as f64
-    });
+    let image_diff = (0..N as usize)
+        .map(|i| (s[i].iter().sum::<f64>() - e[i].iter().sum::<f64>()) / (SIZE * SIZE) as f64);
     let (d, sd) = mean_sd(image_diff);
     let (level, _) = mean_sd((0..N as usize).map(|i| e[i].iter().sum::<f64>()));
     let level = level / (SIZE * SIZE) as f64;
@@ -65,7 +64,10 @@ fn stochastic_selection_of_a_thousand_lights_converges_to_tracing_every_light() 
         d.abs() < tolerance,
         "image mean off by {d} (level {level}, 4 sigma {tolerance})"
     );
-    assert!(tolerance < 0.05 * level, "the test is sharp: {tolerance} vs {level}");
+    assert!(
+        tolerance < 0.05 * level,
+        "the test is sharp: {tolerance} vs {level}"
+    );
     // Per pixel: at most 2 of 100 beyond 4.5 standard errors (t with 63 dof: expect
     // about 0.003 beyond 4.5 per pixel if unbiased).
     let outliers = (0..(SIZE * SIZE) as usize)
@@ -249,7 +251,10 @@ fn a_stochastic_edit_among_thousands_keeps_the_same_layers_and_converges_to_the_
     m.render_frame();
     let dim = scene.lights[a].with_emission(DVec3::ZERO);
     assert_eq!(
-        m.apply(SceneEdit::Light { index: a, light: dim }),
+        m.apply(SceneEdit::Light {
+            index: a,
+            light: dim
+        }),
         Ok(Invalidation::Nothing)
     );
     let bright = scene.lights[c].with_emission(DVec3::new(0.5, 0.2, 0.1));
@@ -278,11 +283,13 @@ fn a_stochastic_edit_among_thousands_keeps_the_same_layers_and_converges_to_the_
     let mut exact = SpmmMode::new(edited, SIZE, SIZE).expect("size");
     exact.set_light_sampling(LightSampling::Exact);
     let (s, e) = (samples(&m, SIZE, 0..N), samples(&exact, SIZE, 0..N));
-    let diff = (0..N as usize).map(|i| {
-        (s[i].iter().sum::<f64>() - e[i].iter().sum::<f64>()) / (SIZE * SIZE) as f64
-    });
+    let diff = (0..N as usize)
+        .map(|i| (s[i].iter().sum::<f64>() - e[i].iter().sum::<f64>()) / (SIZE * SIZE) as f64);
     let (d, sd) = mean_sd(diff);
-    assert!(d.abs() < 4.0 * sd / (N as f64).sqrt(), "off by {d} (sd {sd})");
+    assert!(
+        d.abs() < 4.0 * sd / (N as f64).sqrt(),
+        "off by {d} (sd {sd})"
+    );
 }
 
 #[test]

@@ -130,7 +130,8 @@ impl SpmmMode {
     /// `emission x falloff` (zero behind a one-sided area light or below the surface,
     /// where the contribution is zero too, so the estimate stays unbiased):
     /// `f(y) / target(y) x mean_j(target_j / p_j)` with one shadow ray to `y`.
-    /// Draws `LIGHT_SAMPLES x (3 CANDIDATES + 1)` numbers whatever it finds.
+    /// Draws `LIGHT_SAMPLES x (CANDIDATES + 1)` dimensions whatever it finds (a
+    /// candidate's light and point from one: 32, 16 and 16 bits).
     fn sample_chosen_lights(
         &self,
         s: &Shading,
@@ -148,8 +149,9 @@ impl SpmmMode {
             let mut candidates = [(LightPoint::default(), 0.0, 0.0); CANDIDATES];
             let mut total = 0.0;
             for c in &mut candidates {
-                let (k, p_light) = sel.table.sample(path.rng.next());
-                let u = path.rng.next_2d();
+                let [u_light, u_x, u_y] = path.rng.next_32_16_16();
+                let (k, p_light) = sel.table.sample(u_light);
+                let u = glam::DVec2::new(u_x, u_y);
                 let light = &self.scene.lights[k];
                 let lp = light_point(light, k, u, s.p, s.n);
                 // The source pdf in the light's measure: per light, or per unit area.

@@ -4,11 +4,15 @@
 //! al. 2005) towards their unshadowed contribution. No light tree: selection is O(1) per
 //! candidate, but blind to distance until the candidates are weighed.
 
+use std::f64::consts::PI;
+
+use glam::DVec3;
+
 use crate::render::layers::{MANY_LIGHTS, light_power};
 use crate::scene::Light;
 
 /// Light samples (shadow rays) per shading point on the stochastic path.
-pub const LIGHT_SAMPLES: usize = 2;
+pub const LIGHT_SAMPLES: usize = 1;
 /// Candidates drawn from the alias table for each light sample.
 pub const CANDIDATES: usize = 8;
 /// A light's selection power never falls below this fraction of the mean power, so
@@ -98,9 +102,26 @@ impl AliasTable {
 #[derive(Clone, Debug, Default)]
 pub struct LightSelection {
     pub table: AliasTable,
-    /// Per light, the emission used in the resampling target (mean over channels,
-    /// floored like the table's power).
-    pub target_emission: Vec<f64>,
+    pub lights: Vec<PackedLight>,
+}
+
+/// A light as a candidate needs it: a point `origin + edge_u x + edge_v y`, and what
+/// turns its falloff into the resampling weight `target / p_src`.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PackedLight {
+    pub origin: DVec3,
+    pub edge_u: DVec3,
+    pub edge_v: DVec3,
+    /// The unit normal an area light emits along; zero for a point light.
+    pub normal: DVec3,
+    /// `1 / area` (1 for a point light): the source pdf per unit area is
+    /// `pmf x inv_area`.
+    pub inv_area: f64,
+    /// `target / p_src = w_scale x cos_l / r^2`: the target is the floored emission
+    /// (selection weight / (4 pi), or / (pi A)) times the falloff, so the resampling
+    /// weight is the table's total weight over 4 pi (point) or pi (area) times the
+    /// geometry, whatever the light's emission.
+    pub w_scale: f64,
 }
 
 impl LightSelection {
@@ -113,24 +134,39 @@ impl LightSelection {
         let mean = power.iter().sum::<f64>() / power.len() as f64;
         let floor = if mean > 0.0 { POWER_FLOOR * mean } else { 1.0 };
         let weights: Vec<f64> = power.iter().map(|p| p + floor).collect();
-        // The floored power per unit of `power / emission`: the emission floored alike.
-        let target_emission = lights
+        let total: f64 = weights.iter().sum();
+        let packed = lights
             .iter()
-            .zip(&weights)
-            .map(|(l, w)| w / geometry_factor(l))
+            .map(|l| match *l {
+                Light::Point { position, .. } => PackedLight {
+                    origin: position,
+                    inv_area: 1.0,
+                    w_scale: total / (4.0 * PI),
+                    ..Default::default()
+                },
+                Light::Area {
+                    corner,
+                    edge_u,
+                    edge_v,
+                    ..
+                } => {
+                    let cross = edge_u.cross(edge_v);
+                    let area = cross.length();
+                    PackedLight {
+                        origin: corner,
+                        edge_u,
+                        edge_v,
+                        normal: cross / area,
+                        inv_area: 1.0 / area,
+                        w_scale: total / PI,
+                    }
+                }
+            })
             .collect();
         Some(Self {
             table: AliasTable::new(&weights),
-            target_emission,
+            lights: packed,
         })
-    }
-}
-
-/// `power / emission` of a light: 4 pi, or pi A.
-fn geometry_factor(light: &Light) -> f64 {
-    match light {
-        Light::Point { .. } => 4.0 * std::f64::consts::PI,
-        Light::Area { edge_u, edge_v, .. } => std::f64::consts::PI * edge_u.cross(*edge_v).length(),
     }
 }
 
@@ -138,7 +174,6 @@ fn geometry_factor(light: &Light) -> f64 {
 mod tests {
     use super::*;
     use crate::rng::SampleStream;
-    use glam::DVec3;
 
     #[test]
     fn the_selection_pmf_sums_to_one_and_matches_the_draws() {
@@ -186,7 +221,7 @@ mod tests {
             .collect();
         let s = LightSelection::new(&lights).expect("lights");
         assert!(s.table.pmf().iter().all(|&p| p > 0.0));
-        assert!(s.target_emission.iter().all(|&e| e > 0.0));
+        assert!(s.lights.iter().all(|l| l.w_scale > 0.0 && l.inv_area > 0.0));
         let sum: f64 = s.table.pmf().iter().sum();
         assert!((sum - 1.0).abs() < 1e-12);
     }

@@ -26,39 +26,16 @@ struct LightPoint {
     falloff: f64,
 }
 
-/// Point `u` on `light` seen from `p` with normal `n`.
-#[inline]
-fn light_point(light: &Light, k: usize, u: glam::DVec2, p: DVec3, n: DVec3) -> LightPoint {
-    let (q, geometry) = match *light {
-        Light::Point { position, .. } => (position, None),
-        Light::Area {
-            corner,
-            edge_u,
-            edge_v,
-            ..
-        } => (
-            corner + edge_u * u.x + edge_v * u.y,
-            Some(edge_u.cross(edge_v)),
-        ),
-    };
-    let to = q - p;
-    let d2 = to.length_squared();
-    let wi = to / d2.sqrt();
-    let mut falloff = match geometry {
-        None => 1.0 / d2,
-        // One-sided: the light emits towards edge_u x edge_v.
-        Some(cross) => (-wi.dot(cross / cross.length())).max(0.0) / d2,
-    };
-    let cos_i = wi.dot(n);
-    if cos_i.is_nan() || cos_i <= 0.0 || !falloff.is_finite() {
-        falloff = 0.0;
-    }
-    LightPoint {
-        light: k,
-        q,
-        wi,
-        falloff,
-    }
+/// A candidate of the stochastic path (`sample_chosen_lights`).
+#[derive(Clone, Copy, Default)]
+struct Candidate {
+    light: usize,
+    q: DVec3,
+    to: DVec3,
+    d2: f64,
+    falloff: f64,
+    pmf: f64,
+    w: f64,
 }
 
 impl SpmmMode {
@@ -145,24 +122,41 @@ impl SpmmMode {
             .as_ref()
             .expect("a stochastic path has lights");
         for _ in 0..LIGHT_SAMPLES {
-            // (point, target, resampling weight target / p_src)
-            let mut candidates = [(LightPoint::default(), 0.0, 0.0); CANDIDATES];
+            // Per candidate: light, point, to, r^2, falloff, pmf, weight target / p_src.
+            let mut candidates = [Candidate::default(); CANDIDATES];
             let mut total = 0.0;
             for c in &mut candidates {
                 let [u_light, u_x, u_y] = path.rng.next_32_16_16();
-                let (k, p_light) = sel.table.sample(u_light);
-                let u = glam::DVec2::new(u_x, u_y);
-                let light = &self.scene.lights[k];
-                let lp = light_point(light, k, u, s.p, s.n);
-                // The source pdf in the light's measure: per light, or per unit area.
-                let p_src = match light {
-                    Light::Point { .. } => p_light,
-                    Light::Area { edge_u, edge_v, .. } => p_light / edge_u.cross(*edge_v).length(),
+                let (k, pmf) = sel.table.sample(u_light);
+                let l = &sel.lights[k];
+                let q = l.origin + l.edge_u * u_x + l.edge_v * u_y;
+                let to = q - s.p;
+                let d2 = to.length_squared();
+                // Zero below the surface and behind a one-sided area light, where the
+                // contribution is zero too.
+                let cos_l = if l.normal == DVec3::ZERO {
+                    1.0
+                } else {
+                    -to.dot(l.normal) / d2.sqrt()
                 };
-                let target = sel.target_emission[k] * lp.falloff;
-                let w = target / p_src;
-                total += w;
-                *c = (lp, target, w);
+                let falloff = if to.dot(s.n) > 0.0 && cos_l > 0.0 {
+                    cos_l / d2
+                } else {
+                    0.0
+                };
+                let w = l.w_scale * falloff;
+                if w.is_finite() {
+                    total += w;
+                }
+                *c = Candidate {
+                    light: k,
+                    q,
+                    to,
+                    d2,
+                    falloff,
+                    pmf,
+                    w,
+                };
             }
             let pick = path.rng.next() * total;
             if !(total > 0.0 && total.is_finite()) {
@@ -171,20 +165,27 @@ impl SpmmMode {
             let mut acc = 0.0;
             let mut chosen = None;
             for c in &candidates {
-                acc += c.2;
-                if c.2 > 0.0 && (pick < acc || chosen.is_none()) {
-                    chosen = Some(*c);
-                    if pick < acc {
-                        break;
-                    }
+                if !(c.w > 0.0 && c.w.is_finite()) {
+                    continue;
+                }
+                acc += c.w;
+                chosen = Some(*c);
+                if pick < acc {
+                    break;
                 }
             }
-            let Some((lp, target, _)) = chosen else {
+            let Some(c) = chosen else {
                 continue;
             };
-            if target <= 0.0 {
-                continue;
-            }
+            // target(y) = w(y) p_src(y), p_src per light or per unit area; the estimate
+            // is f(y) / target(y) x total / M.
+            let target = c.w * c.pmf * sel.lights[c.light].inv_area;
+            let lp = LightPoint {
+                light: c.light,
+                q: c.q,
+                wi: c.to / c.d2.sqrt(),
+                falloff: c.falloff,
+            };
             path.counts.shadow += 1;
             if self
                 .bvh

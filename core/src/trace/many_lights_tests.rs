@@ -60,6 +60,7 @@ fn stochastic_selection_of_a_thousand_lights_converges_to_tracing_every_light() 
     let level = level / (SIZE * SIZE) as f64;
     // Monte Carlo tolerance: 4 standard errors of the mean difference.
     let tolerance = 4.0 * sd / (N as f64).sqrt();
+    eprintln!("image mean: difference {d:.3e}, 4 sigma {tolerance:.3e}, level {level:.4}");
     assert!(
         d.abs() < tolerance,
         "image mean off by {d} (level {level}, 4 sigma {tolerance})"

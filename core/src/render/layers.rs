@@ -228,7 +228,7 @@ impl Layers {
             .filter(|&l| match l {
                 AMBIENT => scene.ambient.is_some(),
                 ENVIRONMENT => scene.environment.is_some(),
-                l if l >= FIRST_LIGHT && l < SHARED_LIGHTS => self
+                l if (FIRST_LIGHT..SHARED_LIGHTS).contains(&l) => self
                     .own
                     .as_ref()
                     .is_none_or(|o| o[l - FIRST_LIGHT].is_some()),

@@ -1,7 +1,7 @@
 //! Light sampling in the spmm mode (Silva & Santos 2013, eq. 4-7): up to `MANY_LIGHTS`
 //! lights, each point light with one shadow ray and each area light with one shadow ray
-//! to a point drawn uniformly on its area (in the area measure: L_e f cos_i cos_l / r^2
-//! * A); above, `LIGHT_SAMPLES` lights per shading point chosen by resampling
+//! to a point drawn uniformly on its area (in the area measure: A L_e f cos_i cos_l /
+//! r^2); above, `LIGHT_SAMPLES` lights per shading point chosen by resampling
 //! (`light_selection.rs`). Ambient occlusion: one ray limited to the ambient radius
 //! (pi L_a V f per cosine-distributed sample). Each adds to its light's film layer.
 

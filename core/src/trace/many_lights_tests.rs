@@ -234,9 +234,13 @@ fn an_edit_among_thousands_restarts_only_the_promoted_slot_and_the_shared_layer(
     let only_a = resolve_without(&f8, &restarted);
     let (rest8, rest4) = (resolve_without(&f8, &kept), resolve_without(&f4, &kept));
     let mut expected = only_a.clone();
-    for (i, e) in expected.pixels_mut().iter_mut().enumerate() {
-        for ch in 0..3 {
-            e[ch] += 2.0 * rest8.pixels()[i][ch] - rest4.pixels()[i][ch];
+    for (e, (r8, r4)) in expected
+        .pixels_mut()
+        .iter_mut()
+        .zip(rest8.pixels().iter().zip(rest4.pixels()))
+    {
+        for ((e, r8), r4) in e.iter_mut().zip(r8).zip(r4) {
+            *e += 2.0 * r8 - r4;
         }
     }
     assert_close(&m.image(), &expected);

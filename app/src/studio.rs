@@ -962,11 +962,12 @@ impl Studio {
             match self.viewport.frame() {
                 Some(f) => {
                     ui.label(format!(
-                        "{} spp · {}x{} · {} non-finite dropped",
+                        "{} spp · {}x{} · {} non-finite dropped · film {:.1} MB",
                         f.progress.min_samples,
                         f.progress.width,
                         f.progress.height,
-                        f.progress.dropped
+                        f.progress.dropped,
+                        f.progress.film_bytes as f64 / 1e6
                     ));
                     if self.settings.show_timings {
                         ui.label(format!(

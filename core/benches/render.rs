@@ -5,20 +5,28 @@
 //! - BVH build against refit (same triangles moved) for those meshes;
 //! - milliseconds per frame of the default scene at 256^2 and 512^2, AO on and off,
 //!   still and moving (residual skipped), 1 thread and all threads;
-//! - the environment scene per frame: MIS, map sampling alone, no environment.
+//! - the environment scene per frame: MIS, map sampling alone, no environment;
+//! - many lights: the default scene lit by 1 to 10,000 scattered lights at 256^2, the
+//!   automatic path (stochastic above 16 lights) against every light traced (forced),
+//!   with the film's bytes; `MESO_MANY_LIGHTS_REPORT=1` instead prints the frame
+//!   times, film bytes and an equal-time convergence comparison (docs/performance.md).
 
 use std::collections::HashMap;
 use std::path::Path;
 
-use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use criterion::{BenchmarkId, Criterion, Throughput, criterion_group};
 use glam::{DMat3, DVec2, DVec3};
 use meso_core::brdf::warp;
 use meso_core::geometry::SceneBvh;
 use meso_core::modes;
+use meso_core::render::Film;
+use meso_core::render::layers::layer_count;
 use meso_core::render::{Device, ModeKind, Prepare, RenderMode, SceneEdit};
 use meso_core::rng::SampleStream;
 use meso_core::scene::mesh::{Placement, load_obj, vertex_normals};
-use meso_core::scene::{TriangleMesh, load_scene};
+use meso_core::scene::{Light, Scene, TriangleMesh, load_scene};
+use meso_core::trace::SpmmMode;
+use meso_core::trace::light_selection::LightSampling;
 use rayon::prelude::*;
 
 fn root() -> std::path::PathBuf {
@@ -272,5 +280,168 @@ fn bench_frames(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, bench_rays, bench_frames, bench_environment);
-criterion_main!(benches);
+/// The default scene lit by `n` lights scattered over the floor instead of its own:
+/// every tenth a small one-sided area light (alternately facing down and up), the rest
+/// point lights; the total emission does not grow with `n`.
+fn many_lights(n: usize) -> Scene {
+    let mut scene = load_scene(&root().join("tests/scenes/default.toml")).expect("default scene");
+    let rng = SampleStream::new(&[77]);
+    let u = |k: usize, d: u64| rng.at(k as u64 * 8 + d);
+    scene.lights = (0..n)
+        .map(|k| {
+            let p = DVec3::new(
+                -2.0 + 4.0 * u(k, 0),
+                0.4 + 2.0 * u(k, 1),
+                -2.0 + 4.0 * u(k, 2),
+            );
+            let colour = DVec3::new(0.5, 0.5, 0.5) + 0.5 * DVec3::new(u(k, 3), u(k, 4), u(k, 5));
+            if k % 10 == 9 {
+                let (a, b) = (DVec3::new(0.15, 0.0, 0.0), DVec3::new(0.0, 0.0, 0.15));
+                let (edge_u, edge_v) = if k % 20 == 9 { (a, b) } else { (b, a) };
+                Light::Area {
+                    corner: p,
+                    edge_u,
+                    edge_v,
+                    radiance: colour * (80.0 / n as f64),
+                }
+            } else {
+                Light::Point {
+                    position: p,
+                    intensity: colour * (3.0 / n as f64),
+                }
+            }
+        })
+        .collect();
+    scene
+}
+
+fn spmm(scene: Scene, size: u32, sampling: LightSampling) -> SpmmMode {
+    let mut m = SpmmMode::new(scene, size, size).expect("fits");
+    m.set_light_sampling(sampling);
+    m
+}
+
+/// What the film took before the bounded layout: one layer per light.
+fn per_light_bytes(size: u32, lights: usize) -> u64 {
+    Film::bytes_for(size, size, 3 + lights)
+}
+
+fn bench_many_lights(c: &mut Criterion) {
+    let mut group = c.benchmark_group("many lights 256x256");
+    group.sample_size(10);
+    group.warm_up_time(std::time::Duration::from_secs(1));
+    group.measurement_time(std::time::Duration::from_secs(4));
+    group.throughput(Throughput::Elements(256 * 256));
+    for n in [1usize, 10, 100, 1000, 10_000] {
+        let mut auto = spmm(many_lights(n), 256, LightSampling::Auto);
+        eprintln!(
+            "{n} lights: film {} bytes ({} layers), one layer per light would take {}",
+            auto.film().bytes(),
+            layer_count(auto.scene()),
+            per_light_bytes(256, n)
+        );
+        group.bench_function(BenchmarkId::new("automatic", n), |b| {
+            b.iter(|| auto.render_frame())
+        });
+        // Every light traced: what one frame cost before (the film is the bounded one).
+        if n > 16 && n <= 1000 {
+            let mut exact = spmm(many_lights(n), 256, LightSampling::Exact);
+            group.bench_function(BenchmarkId::new("every light", n), |b| {
+                b.iter(|| exact.render_frame())
+            });
+        }
+    }
+    group.finish();
+}
+
+/// Median seconds of `frames` frames.
+fn frame_seconds(m: &mut SpmmMode, frames: u32) -> f64 {
+    let mut t: Vec<f64> = (0..frames).map(|_| m.render_frame().seconds).collect();
+    t.sort_by(f64::total_cmp);
+    t[t.len() / 2]
+}
+
+/// The table of docs/performance.md: frame time and film bytes against the number
+/// of lights, then MSSIM and RMSE after equal time against a converged image.
+fn many_lights_report() {
+    println!(
+        "lights | layers | film bytes | per-light film bytes | ms/frame automatic | ms/frame every light"
+    );
+    for n in [1usize, 10, 100, 1000, 10_000] {
+        let mut auto = spmm(many_lights(n), 256, LightSampling::Auto);
+        let ta = frame_seconds(&mut auto, 9);
+        let te = if n <= 1000 {
+            let mut exact = spmm(many_lights(n), 256, LightSampling::Exact);
+            format!(
+                "{:.1}",
+                frame_seconds(&mut exact, if n > 100 { 3 } else { 9 }) * 1e3
+            )
+        } else {
+            "-".into()
+        };
+        println!(
+            "{n} | {} | {} | {} | {:.1} | {te}",
+            auto.film().layers(),
+            auto.film().bytes(),
+            per_light_bytes(256, n),
+            ta * 1e3
+        );
+    }
+    let size = 128;
+    let n = 1000;
+    // Another seed: the reference shares no random number with the images measured.
+    let mut reference_scene = many_lights(n);
+    reference_scene.render.seed += 1;
+    let mut reference = spmm(reference_scene, size, LightSampling::Auto);
+    let frames = std::env::var("MESO_MANY_LIGHTS_REFERENCE")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(4096);
+    for _ in 0..frames {
+        reference.render_frame();
+    }
+    let reference = reference.image();
+    println!("\n{n} lights at {size}x{size}, reference {frames} stochastic frames");
+    println!("estimator | frames | seconds | RMSE | MSSIM");
+    let mut exact = spmm(many_lights(n), size, LightSampling::Exact);
+    let mut budget = 0.0;
+    for f in 1..=4 {
+        budget += exact.render_frame().seconds;
+        let c = meso_core::metrics::compare(&reference, &exact.image(), 0.0).expect("same size");
+        println!(
+            "every light | {f} | {budget:.2} | {:.4} | {:.4}",
+            c.rmse, c.mssim
+        );
+    }
+    let mut auto = spmm(many_lights(n), size, LightSampling::Auto);
+    let (mut spent, mut frames, mut next) = (0.0, 0, budget / 4.0);
+    while spent < budget {
+        spent += auto.render_frame().seconds;
+        frames += 1;
+        if spent >= next || spent >= budget {
+            let c = meso_core::metrics::compare(&reference, &auto.image(), 0.0).expect("same size");
+            println!(
+                "stochastic | {frames} | {spent:.2} | {:.4} | {:.4}",
+                c.rmse, c.mssim
+            );
+            next += budget / 4.0;
+        }
+    }
+}
+
+criterion_group!(
+    benches,
+    bench_rays,
+    bench_frames,
+    bench_environment,
+    bench_many_lights
+);
+
+fn main() {
+    if std::env::var_os("MESO_MANY_LIGHTS_REPORT").is_some() {
+        many_lights_report();
+        return;
+    }
+    benches();
+    Criterion::default().configure_from_args().final_summary();
+}

@@ -56,6 +56,20 @@ impl SampleStream {
         ))
     }
 
+    /// Three uniform numbers in [0, 1) from one dimension: 32 bits, then 16 and 16,
+    /// for hot loops that need many numbers (a many-light candidate: which light, with
+    /// the alias table's keep test at 2^-32 / lights, and a point on it).
+    #[inline]
+    pub fn next_32_16_16(&mut self) -> [f64; 3] {
+        let bits = mix64(self.key_hash ^ mix64(self.next_dim.wrapping_add(0x632b_e59b_d9b4_e019)));
+        self.next_dim += 1;
+        [
+            (bits >> 32) as f64 * (1.0 / (1u64 << 32) as f64),
+            ((bits >> 16) & 0xffff) as f64 * (1.0 / 65536.0),
+            (bits & 0xffff) as f64 * (1.0 / 65536.0),
+        ]
+    }
+
     /// The next dimension's uniform number.
     #[inline]
     #[allow(clippy::should_implement_trait)]

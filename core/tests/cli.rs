@@ -556,6 +556,12 @@ fn render_writes_an_image_and_reports_json() {
     assert!(v["rays"]["shadow"].as_u64().expect("count") > 0);
     assert!(v["rays_per_second"].as_f64().expect("rate") > 0.0);
     assert_eq!(v["nonfinite_dropped"], 0);
+    let loaded = meso_core::scene::load_scene(std::path::Path::new(scene)).expect("scene");
+    let layers = meso_core::render::layers::layer_count(&loaded);
+    assert_eq!(
+        v["film_bytes"],
+        meso_core::render::Film::bytes_for(24, 16, layers)
+    );
     let img = meso_core::image::read_image(&out).expect("an EXR");
     assert_eq!((img.width(), img.height()), (24, 16));
     assert!(img.pixels().iter().any(|p| p[0] > 0.0), "something is lit");
@@ -1167,4 +1173,44 @@ material = "gold"
     );
     assert_bad_input(&o, &["spmm", "material `gold` (merl)"]);
     assert!(!fresh.exists());
+}
+
+#[test]
+fn render_refuses_a_film_that_cannot_fit_naming_its_bytes() {
+    // The default scene with 15 point lights more: 16 lights, one layer each, 19
+    // layers in all, 145 GB at 16384^2: more than any machine these tests run on.
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scenes = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes");
+    let text = std::fs::read_to_string(format!("{scenes}/default.toml")).expect("scene");
+    // The copy lives elsewhere: its relative paths become absolute.
+    let mut scene = text
+        .replace("pack = \"../../", &format!("pack = \"{scenes}/../../"))
+        .replace("path = \"meshes/", &format!("path = \"{scenes}/meshes/"));
+    for k in 0..15 {
+        scene.push_str(&format!(
+            "\n[[light]]\nkind = \"point\"\nposition = [{}, 1.5, 0.0]\nintensity = [0.1, 0.1, 0.1]\n",
+            k as f64 * 0.1
+        ));
+    }
+    let path = dir.path().join("many.toml");
+    std::fs::write(&path, scene).expect("write scene");
+    let out = dir.path().join("r.exr");
+    let o = meso(
+        &[
+            "render",
+            path.to_str().expect("utf-8"),
+            "-o",
+            out.to_str().expect("utf-8"),
+            "--width",
+            "16384",
+            "--height",
+            "16384",
+            "--frames",
+            "1",
+        ],
+        "",
+    );
+    let bytes = meso_core::render::Film::bytes_for(16384, 16384, 19);
+    assert_bad_input(&o, &[&bytes.to_string(), "bytes", "19 layers"]);
+    assert!(!out.exists());
 }

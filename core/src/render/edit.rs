@@ -80,6 +80,9 @@ pub enum EditError {
     /// The mode cannot render what the edit brings (e.g. a material it cannot shade).
     #[error(transparent)]
     Unsupported(#[from] super::Unsupported),
+    /// A resize whose film would not fit in memory.
+    #[error(transparent)]
+    TooLarge(#[from] super::FilmTooLarge),
 }
 
 impl SceneEdit {

@@ -64,7 +64,73 @@ pub fn material_bit(index: usize) -> u64 {
     1 << (index % 64)
 }
 
+/// A film that would not fit in memory, refused before anything is allocated.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "a {width}x{height} film with {layers} layers needs {bytes} bytes ({:.2} GiB), more than the {limit} bytes ({:.2} GiB) allowed ({})",
+    gib(*.bytes), gib(*.limit), LIMIT_RULE
+)]
+pub struct FilmTooLarge {
+    pub width: u32,
+    pub height: u32,
+    pub layers: usize,
+    pub bytes: u64,
+    pub limit: u64,
+}
+
+fn gib(bytes: u64) -> f64 {
+    bytes as f64 / (1u64 << 30) as f64
+}
+
+/// How `memory_limit_bytes` is chosen, for the error message and the docs.
+pub const LIMIT_RULE: &str =
+    "3/4 of MemAvailable in /proc/meminfo, or 8 GiB where it cannot be read";
+
+/// The most bytes a film may take: three quarters of the memory the OS says is
+/// available (`MemAvailable` in /proc/meminfo), or 8 GiB where that cannot be read.
+pub fn memory_limit_bytes() -> u64 {
+    std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|text| mem_available_bytes(&text))
+        .map_or(8 << 30, |b| b / 4 * 3)
+}
+
+/// `MemAvailable` of a /proc/meminfo text, in bytes.
+fn mem_available_bytes(meminfo: &str) -> Option<u64> {
+    let line = meminfo.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    kib.checked_mul(1024)
+}
+
 impl Film {
+    /// `Film::new` if it fits within `limit` bytes; nothing is allocated otherwise.
+    pub fn try_new(
+        width: u32,
+        height: u32,
+        layers: usize,
+        limit: u64,
+    ) -> Result<Self, FilmTooLarge> {
+        Self::check(width, height, layers, limit)?;
+        Ok(Self::new(width, height, layers))
+    }
+
+    /// `Err` naming the bytes if a `width` x `height` film with `layers` layers would
+    /// take more than `limit` bytes.
+    pub fn check(width: u32, height: u32, layers: usize, limit: u64) -> Result<(), FilmTooLarge> {
+        let bytes = Self::bytes_for(width, height, layers);
+        if bytes > limit {
+            Err(FilmTooLarge {
+                width,
+                height,
+                layers,
+                bytes,
+                limit,
+            })
+        } else {
+            Ok(())
+        }
+    }
+
     pub fn new(width: u32, height: u32, layers: usize) -> Self {
         let n = width as usize * height as usize;
         Self {
@@ -175,6 +241,26 @@ impl Film {
             }
         }
         n
+    }
+
+    /// Keeps layers `0..keep` and makes the rest, up to `layers`, empty (the light
+    /// layers were laid out again).
+    pub fn keep_layers(&mut self, layers: usize, keep: usize) {
+        self.relayer(layers, |l| (l < keep).then_some(l));
+    }
+
+    /// The bytes a `width` x `height` film with `layers` layers holds: per pixel and
+    /// layer three f64 sums and a u32 count, per pixel a u64 material mask.
+    pub fn bytes_for(width: u32, height: u32, layers: usize) -> u64 {
+        let pixels = u64::from(width) * u64::from(height);
+        pixels * (layers as u64 * (3 * 8 + 4) + 8)
+    }
+
+    /// The bytes this film's buffers hold.
+    pub fn bytes(&self) -> u64 {
+        (self.sum.capacity() * std::mem::size_of::<[f64; 3]>()
+            + self.count.capacity() * std::mem::size_of::<u32>()
+            + self.touched.capacity() * std::mem::size_of::<u64>()) as u64
     }
 
     /// Appends an empty layer (a light was added).

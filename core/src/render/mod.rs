@@ -12,7 +12,7 @@ pub mod layers;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 pub use edit::{EditError, Invalidation, SceneEdit};
-pub use film::Film;
+pub use film::{Film, FilmTooLarge};
 
 use crate::image::Image;
 use crate::scene::Scene;
@@ -90,6 +90,8 @@ pub struct Progress {
     pub dropped: u64,
     pub width: u32,
     pub height: u32,
+    /// Bytes the film's buffers hold (`Film::bytes`; 0 for modes without one).
+    pub film_bytes: u64,
 }
 
 /// How a mode's preparation went: each stage and its time.
@@ -236,6 +238,9 @@ pub enum ModeError {
     Unsupported(#[from] Unsupported),
     #[error("{0}")]
     Size(String),
+    /// The film would not fit in memory (refused before it is allocated).
+    #[error(transparent)]
+    TooLarge(#[from] FilmTooLarge),
     #[error(transparent)]
     Cancelled(#[from] Cancelled),
 }

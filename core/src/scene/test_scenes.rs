@@ -129,3 +129,44 @@ pub(crate) fn floor_scene(material: Material, wall: bool) -> Scene {
         background: Background::Color(DVec3::ZERO),
     }
 }
+
+/// `edit_test_scene`'s floor and SPMM panel under `n` lights: every tenth a small
+/// one-sided area light (alternately facing down and up, so orientation matters), the
+/// rest point lights of random colour, some black; no ambient term.
+pub(crate) fn many_lights_scene(n: usize) -> Scene {
+    let mut scene = edit_test_scene();
+    scene.ambient = None;
+    let rng = crate::rng::SampleStream::new(&[77]);
+    let u = |k: usize, d: u64| rng.at(k as u64 * 8 + d);
+    scene.lights = (0..n)
+        .map(|k| {
+            let p = DVec3::new(
+                -2.0 + 4.0 * u(k, 0),
+                0.3 + 2.0 * u(k, 1),
+                -2.0 + 4.0 * u(k, 2),
+            );
+            let colour = DVec3::new(u(k, 3), u(k, 4), u(k, 5));
+            if k % 10 == 9 {
+                let (a, b) = (DVec3::new(0.15, 0.0, 0.0), DVec3::new(0.0, 0.0, 0.15));
+                let (edge_u, edge_v) = if k % 20 == 9 { (a, b) } else { (b, a) };
+                Light::Area {
+                    corner: p,
+                    edge_u,
+                    edge_v,
+                    radiance: colour * (20.0 / n as f64),
+                }
+            } else {
+                let black = k % 37 == 5;
+                Light::Point {
+                    position: p,
+                    intensity: if black {
+                        DVec3::ZERO
+                    } else {
+                        colour * (4.0 / n as f64)
+                    },
+                }
+            }
+        })
+        .collect();
+    scene
+}

@@ -8,12 +8,13 @@ use std::time::Instant;
 
 use glam::DVec3;
 
+use super::light_selection::{LightSampling, LightSelection};
 use super::shading::Shader;
 use crate::environment::EnvironmentSampler;
 use crate::geometry::{PinholeCamera, SceneBvh};
 use crate::image::Image;
-use crate::render::film::material_bit;
-use crate::render::layers::{self, Before, Layers};
+use crate::render::film::{material_bit, memory_limit_bytes};
+use crate::render::layers::{self, Before, Layers, LightTarget};
 use crate::render::{
     Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind,
     PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit,
@@ -36,6 +37,12 @@ pub struct SpmmMode {
     pub(super) env_sampler: Option<EnvironmentSampler>,
     film: Film,
     layers: Layers,
+    /// Per light, the film layer its samples go to and their factor.
+    pub(super) light_targets: Vec<LightTarget>,
+    light_sampling: LightSampling,
+    /// True while lights are chosen stochastically (`light_selection.rs`).
+    pub(super) stochastic_lights: bool,
+    pub(super) light_selection: Option<LightSelection>,
     samples_per_frame: u32,
     /// Index of the next sample (frame-major); random numbers derive from it.
     next_sample: u64,
@@ -95,6 +102,14 @@ impl SpmmMode {
             return Err(ModeError::Size(p));
         }
         Self::supports(&scene)?;
+        let layers = Layers::new(&scene);
+        // Refused before the BVH or the film takes any memory.
+        let film = Film::try_new(
+            width,
+            height,
+            layers.layer_count(&scene),
+            memory_limit_bytes(),
+        )?;
         let mut report = PreparationReport::default();
         let mut stage = |name: &str, start: Instant| {
             report.stages.push(PreparationStage {
@@ -126,8 +141,12 @@ impl SpmmMode {
             camera: PinholeCamera::new(&scene.camera, width, height),
             shaders,
             env_sampler,
-            film: Film::new(width, height, layers::layer_count(&scene)),
-            layers: Layers::new(&scene),
+            film,
+            light_targets: layers.light_targets(&scene),
+            stochastic_lights: LightSampling::Auto.stochastic(scene.lights.len()),
+            light_selection: LightSelection::new(&scene.lights),
+            light_sampling: LightSampling::Auto,
+            layers,
             samples_per_frame: 1,
             next_sample: 0,
             frames: 0,
@@ -148,7 +167,31 @@ impl SpmmMode {
 
     /// The weight of each film layer: the current emissions.
     pub fn layer_weights(&self) -> Vec<DVec3> {
-        Layers::weights(&self.scene)
+        self.layers.weights(&self.scene)
+    }
+
+    /// The film (its layers and bytes).
+    pub fn film(&self) -> &Film {
+        &self.film
+    }
+
+    /// Which layers lights own (`None`: one per light).
+    pub fn light_layers(&self) -> &Layers {
+        &self.layers
+    }
+
+    /// How lights are sampled; a change restarts every sample.
+    pub fn set_light_sampling(&mut self, sampling: LightSampling) {
+        self.light_sampling = sampling;
+        self.refresh_lights();
+        self.restart_all();
+    }
+
+    /// The per-light state read by a frame, after a light edit.
+    fn refresh_lights(&mut self) {
+        self.light_targets = self.layers.light_targets(&self.scene);
+        self.stochastic_lights = self.light_sampling.stochastic(self.scene.lights.len());
+        self.light_selection = LightSelection::new(&self.scene.lights);
     }
 
     /// One sample of pixel (x, y) with sample index `index`, per layer for unit
@@ -263,7 +306,7 @@ impl RenderMode for SpmmMode {
         let first = self.next_sample;
         let k = u64::from(self.samples_per_frame);
         let layers = self.film.layers();
-        let active = Layers::active(&self.scene);
+        let active = self.layers.active(&self.scene);
         let width = self.film.width();
         let dropped_before = self.film.dropped();
         // The film is moved out while rows borrow it mutably and `self` immutably.
@@ -313,10 +356,11 @@ impl RenderMode for SpmmMode {
     fn progress(&self) -> Progress {
         Progress {
             frames: self.frames,
-            min_samples: self.film.min_samples(&Layers::active(&self.scene)),
+            min_samples: self.film.min_samples(&self.layers.active(&self.scene)),
             dropped: self.film.dropped(),
             width: self.film.width(),
             height: self.film.height(),
+            film_bytes: self.film.bytes(),
         }
     }
 
@@ -339,6 +383,15 @@ impl RenderMode for SpmmMode {
             }
             .into());
         }
+        if let SceneEdit::Resize { width, height } = edit {
+            // The current film is freed first, so it counts as available.
+            Film::check(
+                width,
+                height,
+                self.film.layers(),
+                memory_limit_bytes() + self.film.bytes(),
+            )?;
+        }
         let before = Before::of(&self.scene, &edit);
         edit.apply_to(&mut self.scene)?;
         if let Some(invalidation) = self
@@ -349,6 +402,12 @@ impl RenderMode for SpmmMode {
                 && invalidation != Invalidation::Nothing
             {
                 self.env_sampler = EnvironmentSampler::new(&e.map);
+            }
+            if matches!(
+                edit,
+                SceneEdit::Light { .. } | SceneEdit::AddLight(_) | SceneEdit::RemoveLight(_)
+            ) {
+                self.refresh_lights();
             }
             return Ok(invalidation);
         }

@@ -1,20 +1,46 @@
-//! Light sampling in the spmm mode (Silva & Santos 2013, eq. 4-7): each point light
-//! with one shadow ray; each area light with one shadow ray to a point drawn uniformly
-//! on its area (in the area measure: L_e f cos_i cos_l / r^2 * A); ambient occlusion
-//! with one ray limited to the ambient radius (pi L_a V f per cosine-distributed
-//! sample). Each adds to its own film layer for unit emission.
+//! Light sampling in the spmm mode (Silva & Santos 2013, eq. 4-7): up to `MANY_LIGHTS`
+//! lights, each point light with one shadow ray and each area light with one shadow ray
+//! to a point drawn uniformly on its area (in the area measure: A L_e f cos_i cos_l /
+//! r^2); above, `LIGHT_SAMPLES` lights per shading point chosen by resampling
+//! (`light_selection.rs`). Ambient occlusion: one ray limited to the ambient radius
+//! (pi L_a V f per cosine-distributed sample). Each adds to its light's film layer.
 
 use std::f64::consts::PI;
 
 use glam::DVec3;
 
+use super::light_selection::{CANDIDATES, LIGHT_SAMPLES};
 use super::shading::{Shader, Shading};
 use super::{Path, SpmmMode};
-use crate::render::layers::{AMBIENT, FIRST_LIGHT};
+use crate::render::layers::AMBIENT;
 use crate::scene::Light;
 
+/// A point on a light seen from a shading point, unshadowed.
+#[derive(Clone, Copy, Default)]
+struct LightPoint {
+    light: usize,
+    q: DVec3,
+    wi: DVec3,
+    /// `1 / r^2` (point) or `cos_l / r^2` (area, per unit area); zero if the light
+    /// cannot reach the point (behind it, or below the surface).
+    falloff: f64,
+}
+
+/// A candidate of the stochastic path (`sample_chosen_lights`).
+#[derive(Clone, Copy, Default)]
+struct Candidate {
+    light: usize,
+    q: DVec3,
+    to: DVec3,
+    d2: f64,
+    falloff: f64,
+    pmf: f64,
+    w: f64,
+}
+
 impl SpmmMode {
-    /// One shadow ray to each light; `lift` is the ray origin just off the surface.
+    /// One shadow ray to each light, or `LIGHT_SAMPLES` chosen ones above
+    /// `MANY_LIGHTS`; `lift` is the ray origin just off the surface.
     pub(super) fn sample_lights(
         &self,
         s: &Shading,
@@ -23,6 +49,10 @@ impl SpmmMode {
         throughput: DVec3,
         path: &mut Path,
     ) {
+        if self.stochastic_lights {
+            self.sample_chosen_lights(s, wo, lift, throughput, path);
+            return;
+        }
         for (k, light) in self.scene.lights.iter().enumerate() {
             // Both kinds draw two numbers, so the dimension layout does not depend on
             // which kinds the scene has.
@@ -63,8 +93,110 @@ impl SpmmMode {
                 .bvh
                 .occluded(lift, wi, 0.0, (q - lift).length() * (1.0 - 1e-6))
             {
-                path.out[FIRST_LIGHT + k] += throughput * self.response(s, wi, wo) * falloff;
+                let target = self.light_targets[k];
+                // The factor is exactly one outside a bounded film's shared layer, so
+                // the per-light path keeps its bits.
+                path.out[target.layer] +=
+                    throughput * self.response(s, wi, wo) * falloff * target.factor;
             }
+        }
+    }
+
+    /// `LIGHT_SAMPLES` lights, each kept from `CANDIDATES` drawn by power by
+    /// resampled importance sampling (Talbot et al. 2005) towards the unshadowed
+    /// `emission x falloff` (zero behind a one-sided area light or below the surface,
+    /// where the contribution is zero too, so the estimate stays unbiased):
+    /// `f(y) / target(y) x mean_j(target_j / p_j)` with one shadow ray to `y`.
+    /// Draws `LIGHT_SAMPLES x (CANDIDATES + 1)` dimensions whatever it finds (a
+    /// candidate's light and point from one: 32, 16 and 16 bits).
+    fn sample_chosen_lights(
+        &self,
+        s: &Shading,
+        wo: DVec3,
+        lift: DVec3,
+        throughput: DVec3,
+        path: &mut Path,
+    ) {
+        let sel = self
+            .light_selection
+            .as_ref()
+            .expect("a stochastic path has lights");
+        for _ in 0..LIGHT_SAMPLES {
+            // Per candidate: light, point, to, r^2, falloff, pmf, weight target / p_src.
+            let mut candidates = [Candidate::default(); CANDIDATES];
+            let mut total = 0.0;
+            for c in &mut candidates {
+                let [u_light, u_x, u_y] = path.rng.next_32_16_16();
+                let (k, pmf) = sel.table.sample(u_light);
+                let l = &sel.lights[k];
+                let q = l.origin + l.edge_u * u_x + l.edge_v * u_y;
+                let to = q - s.p;
+                let d2 = to.length_squared();
+                // Zero below the surface and behind a one-sided area light, where the
+                // contribution is zero too.
+                let cos_l = if l.normal == DVec3::ZERO {
+                    1.0
+                } else {
+                    -to.dot(l.normal) / d2.sqrt()
+                };
+                let falloff = if to.dot(s.n) > 0.0 && cos_l > 0.0 {
+                    cos_l / d2
+                } else {
+                    0.0
+                };
+                let w = l.w_scale * falloff;
+                if w.is_finite() {
+                    total += w;
+                }
+                *c = Candidate {
+                    light: k,
+                    q,
+                    to,
+                    d2,
+                    falloff,
+                    pmf,
+                    w,
+                };
+            }
+            let pick = path.rng.next() * total;
+            if !(total > 0.0 && total.is_finite()) {
+                continue;
+            }
+            let mut acc = 0.0;
+            let mut chosen = None;
+            for c in &candidates {
+                if !(c.w > 0.0 && c.w.is_finite()) {
+                    continue;
+                }
+                acc += c.w;
+                chosen = Some(*c);
+                if pick < acc {
+                    break;
+                }
+            }
+            let Some(c) = chosen else {
+                continue;
+            };
+            // target(y) = w(y) p_src(y), p_src per light or per unit area; the estimate
+            // is f(y) / target(y) x total / M.
+            let target = c.w * c.pmf * sel.lights[c.light].inv_area;
+            let lp = LightPoint {
+                light: c.light,
+                q: c.q,
+                wi: c.to / c.d2.sqrt(),
+                falloff: c.falloff,
+            };
+            path.counts.shadow += 1;
+            if self
+                .bvh
+                .occluded(lift, lp.wi, 0.0, (lp.q - lift).length() * (1.0 - 1e-6))
+            {
+                continue;
+            }
+            let t = self.light_targets[lp.light];
+            let weight = total / (CANDIDATES as f64 * target * LIGHT_SAMPLES as f64);
+            path.out[t.layer] +=
+                throughput * self.response(s, lp.wi, wo) * (lp.falloff * weight) * t.factor;
         }
     }
 

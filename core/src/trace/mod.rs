@@ -5,6 +5,7 @@
 
 mod environment;
 mod integrator;
+pub mod light_selection;
 mod lights;
 mod shading;
 
@@ -17,5 +18,7 @@ mod edit_tests;
 mod environment_tests;
 #[cfg(test)]
 mod hard_case_tests;
+#[cfg(test)]
+mod many_lights_tests;
 #[cfg(test)]
 mod tests;

@@ -1,7 +1,8 @@
 //! `meso render SCENE -o OUT.exr|OUT.png`: a progressive render of a scene file through
 //! a render mode (spec/cli.md: `--mode`, `--device`); `--json` reports time, frames,
 //! the mode and device, its counters (samples, shading points, rays by kind), rays
-//! per second, the preparation's stages and dropped non-finite samples.
+//! per second, the preparation's stages, the film's bytes and dropped non-finite
+//! samples.
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -127,6 +128,7 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
             "rays_total": rays.total(),
             "rays_per_second": rays_per_s,
             "nonfinite_dropped": dropped,
+            "film_bytes": mode.progress().film_bytes,
         }));
     }
     println!(

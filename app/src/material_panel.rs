@@ -148,7 +148,11 @@ impl MaterialPanel {
             let a = ui
                 .checkbox(&mut on, "Residual")
                 .on_hover_text("the per-cluster PCA residual (skipped while the camera moves)");
-            let b = ui.add(egui::Slider::new(&mut k, 0..=m.npca()).text("N_PCA"));
+            let b = ui.add(
+                egui::Slider::new(&mut k, 0..=m.npca())
+                    .clamping(egui::SliderClamping::Edits)
+                    .text("N_PCA"),
+            );
             if a.changed() || b.changed() {
                 edits.push(SceneEdit::Material {
                     index,
@@ -213,6 +217,7 @@ impl MaterialPanel {
                         .add(
                             egui::DragValue::new(&mut rgb[k])
                                 .range(0.0..=f32::MAX)
+                                .clamp_existing_to_range(false)
                                 .speed(0.002),
                         )
                         .labelled_by(label.id)
@@ -374,6 +379,7 @@ fn basis_editor(
             }
             for (spec, mut value) in brdf.model().param_specs().iter().zip(brdf.param_values()) {
                 let slider = egui::Slider::new(&mut value, spec.min..=spec.max)
+                    .clamping(egui::SliderClamping::Edits)
                     .text(spec.name)
                     .logarithmic(slider_is_logarithmic(spec))
                     .smallest_positive(smallest_positive(spec))
@@ -391,11 +397,16 @@ fn basis_editor(
                     normal_changed |= ui
                         .add(
                             egui::Slider::new(&mut theta, 0.0..=MAX_TILT_DEG)
+                                .clamping(egui::SliderClamping::Edits)
                                 .text("normal θ (deg)"),
                         )
                         .changed();
                     normal_changed |= ui
-                        .add(egui::Slider::new(&mut phi, 0.0..=360.0).text("normal φ (deg)"))
+                        .add(
+                            egui::Slider::new(&mut phi, 0.0..=360.0)
+                                .clamping(egui::SliderClamping::Edits)
+                                .text("normal φ (deg)"),
+                        )
                         .changed();
                 });
             });

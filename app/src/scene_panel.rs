@@ -114,6 +114,7 @@ fn emission_editor(ui: &mut Ui, label: &str, e: &mut DVec3) -> bool {
         changed |= egui::widgets::color_picker::color_edit_button_rgb(ui, &mut colour).changed();
         let drag = egui::DragValue::new(&mut s)
             .range(0.0..=1e6)
+            .clamp_existing_to_range(false)
             .speed(0.05)
             .max_decimals(3);
         changed |= labelled_drag(ui, "strength", drag);
@@ -200,6 +201,7 @@ fn environment_ui(ui: &mut Ui, doc: &Document, state: &PanelState<'_>, out: &mut
     if ui
         .add(
             egui::Slider::new(&mut strength, 0.0..=16.0)
+                .clamping(egui::SliderClamping::Edits)
                 .logarithmic(true)
                 .text("environment strength"),
         )
@@ -212,7 +214,11 @@ fn environment_ui(ui: &mut Ui, doc: &Document, state: &PanelState<'_>, out: &mut
     }
     let mut rotate = e.rotate_y_deg;
     if ui
-        .add(egui::Slider::new(&mut rotate, -180.0..=180.0).text("environment rotation (deg)"))
+        .add(
+            egui::Slider::new(&mut rotate, -180.0..=180.0)
+                .clamping(egui::SliderClamping::Edits)
+                .text("environment rotation (deg)"),
+        )
         .changed()
     {
         out.push(Request::Edit(SceneEdit::Environment(Some(Environment {
@@ -264,6 +270,7 @@ pub fn show(ui: &mut Ui, doc: &Document, state: &PanelState<'_>) -> Vec<Request>
                     "u",
                     egui::DragValue::new(&mut uv.x)
                         .range(0.01..=1000.0)
+                        .clamp_existing_to_range(false)
                         .speed(0.05),
                 );
                 let b = labelled_drag(
@@ -271,6 +278,7 @@ pub fn show(ui: &mut Ui, doc: &Document, state: &PanelState<'_>) -> Vec<Request>
                     "v",
                     egui::DragValue::new(&mut uv.y)
                         .range(0.01..=1000.0)
+                        .clamp_existing_to_range(false)
                         .speed(0.05),
                 );
                 a || b
@@ -331,6 +339,7 @@ pub fn show(ui: &mut Ui, doc: &Document, state: &PanelState<'_>) -> Vec<Request>
                         if ui
                             .add(
                                 egui::Slider::new(&mut s, 0.01..=5.0)
+                                    .clamping(egui::SliderClamping::Edits)
                                     .logarithmic(true)
                                     .text("size (m)"),
                             )
@@ -388,6 +397,7 @@ pub fn show(ui: &mut Ui, doc: &Document, state: &PanelState<'_>) -> Vec<Request>
         if ui
             .add(
                 egui::Slider::new(&mut r, 0.01..=1e3)
+                    .clamping(egui::SliderClamping::Edits)
                     .logarithmic(true)
                     .text("radius (m)"),
             )

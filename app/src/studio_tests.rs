@@ -610,3 +610,33 @@ fn bad_files_show_an_error_naming_them_and_change_nothing() {
     );
     assert!(Arc::ptr_eq(&before, &material(&h)), "the open scene stays");
 }
+
+#[test]
+fn opening_the_shipped_scenes_edits_nothing() {
+    // Showing a pack, its sliders and the environment panel must not change a value:
+    // egui sliders clamp and round what they show unless told to touch edits only,
+    // which edited the fitted woven cloth's Ward `ax` (rounded to 6 decimals) on the
+    // first frame, before the renderer had the scene.
+    for scene in [
+        "env.toml",
+        "fitted.toml",
+        "cloth.toml",
+        "cornell.toml",
+        "default.toml",
+    ] {
+        let path = default_scene_path().with_file_name(scene);
+        let mut h = Harness::builder()
+            .with_size(egui::vec2(1280.0, 800.0))
+            .build_ui_state(
+                |ui, s: &mut Studio| s.show(ui),
+                Studio::new(None, Some(path), Settings::default()),
+            );
+        loaded(&mut h);
+        wait_for_current_frame(&mut h);
+        h.run_steps(5);
+        let s = h.state();
+        let doc = s.doc.as_ref().expect("a document");
+        assert!(!doc.can_undo(), "{scene}: opening made an edit");
+        assert!(s.error.is_none(), "{scene}: {:?}", s.error);
+    }
+}

@@ -363,10 +363,14 @@ mod tests {
                 let q = s.cross(e1);
                 let v = d.dot(q) / det;
                 let dist = e2.dot(q) / det;
-                if u >= 0.0 && v >= 0.0 && u + v <= 1.0 && dist > 0.0 && dist < tmax {
-                    if best.is_none_or(|(bt, _, _)| dist < bt) {
-                        best = Some((dist, m, t));
-                    }
+                if u >= 0.0
+                    && v >= 0.0
+                    && u + v <= 1.0
+                    && dist > 0.0
+                    && dist < tmax
+                    && best.is_none_or(|(bt, _, _)| dist < bt)
+                {
+                    best = Some((dist, m, t));
                 }
             }
         }

@@ -170,3 +170,35 @@ pub(crate) fn many_lights_scene(n: usize) -> Scene {
         .collect();
     scene
 }
+
+/// One texel with one Ward basis tilted 35 degrees: a BTF that does not vanish with
+/// the shading cosine, the case the defensive mixture exists for.
+pub(crate) fn tilted_spmm() -> Material {
+    let normal = DVec3::new(35f64.to_radians().sin(), 0.0, 35f64.to_radians().cos());
+    let basis = crate::brdf::BasisFunction::new(
+        AnalyticBrdf::new(BrdfModel::Ward, &[("ax", 0.3), ("ay", 0.15)]).expect("valid"),
+        normal,
+    )
+    .expect("unit normal");
+    let pack = crate::spmm::SpmmMaterial::new(
+        "tilted".into(),
+        "test".into(),
+        1,
+        1,
+        vec![crate::spmm::Cluster { bases: vec![basis] }],
+        vec![0],
+        crate::spmm::SparseWeights {
+            offsets: vec![0, 1],
+            basis: vec![0],
+            rgb: vec![[0.5, 0.5, 0.5]],
+        },
+        None,
+    )
+    .expect("valid material");
+    Material::Spmm {
+        material: Arc::new(pack),
+        uv_scale: DVec2::ONE,
+        residual: true,
+        npca: 0,
+    }
+}

@@ -8,10 +8,10 @@
 use std::f64::consts::{PI, TAU};
 use std::sync::Arc;
 
-use glam::{DMat3, DVec2, DVec3};
+use glam::{DMat3, DVec3};
 
 use super::SpmmMode;
-use crate::brdf::{AnalyticBrdf, BasisFunction, BrdfModel};
+use crate::brdf::{AnalyticBrdf, BrdfModel};
 use crate::image::Image;
 use crate::metrics::compare;
 use crate::render::layers::ENVIRONMENT;
@@ -20,7 +20,6 @@ use crate::scene::mesh::quad;
 use crate::scene::{
     Ambient, Background, Camera, Environment, Light, Material, Scene, TriangleMesh,
 };
-use crate::spmm::{Cluster, SparseWeights, SpmmMaterial};
 
 fn constant_map(l: f32) -> Arc<Image> {
     let mut img = Image::new(16, 8);
@@ -71,38 +70,6 @@ fn mean(img: &Image) -> DVec3 {
         / img.pixels().len() as f64
 }
 
-/// One texel with one Ward basis tilted 35 degrees: a BTF that does not vanish with
-/// the shading cosine, the case the defensive mixture exists for.
-fn tilted_spmm() -> Material {
-    let normal = DVec3::new(35f64.to_radians().sin(), 0.0, 35f64.to_radians().cos());
-    let basis = BasisFunction::new(
-        AnalyticBrdf::new(BrdfModel::Ward, &[("ax", 0.3), ("ay", 0.15)]).expect("valid"),
-        normal,
-    )
-    .expect("unit normal");
-    let pack = SpmmMaterial::new(
-        "tilted".into(),
-        "test".into(),
-        1,
-        1,
-        vec![Cluster { bases: vec![basis] }],
-        vec![0],
-        SparseWeights {
-            offsets: vec![0, 1],
-            basis: vec![0],
-            rgb: vec![[0.5, 0.5, 0.5]],
-        },
-        None,
-    )
-    .expect("valid material");
-    Material::Spmm {
-        material: Arc::new(pack),
-        uv_scale: DVec2::ONE,
-        residual: true,
-        npca: 0,
-    }
-}
-
 #[test]
 fn a_constant_environment_equals_unbounded_ambient_light() {
     // Same scenes, two estimators: ambient (radius inf, one cosine or defensive ray)
@@ -112,7 +79,7 @@ fn a_constant_environment_equals_unbounded_ambient_light() {
     for (material, wall, expected) in [
         (lambertian(0.6), true, Some(0.6 * l * 0.5)),
         (lambertian(0.6), false, Some(0.6 * l)),
-        (tilted_spmm(), false, None),
+        (crate::scene::test_scenes::tilted_spmm(), false, None),
     ] {
         let mut with_ambient = floor_scene(material, wall, 16);
         with_ambient.ambient = Some(Ambient {

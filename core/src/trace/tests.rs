@@ -2,7 +2,7 @@
 //! hemisphere, ambient light on a tilted-basis SPMM plane, a plane seen in a mirror, AO
 //! of an open plane and a corner, replay of single pixels and independence of the thread count.
 
-use glam::{DVec2, DVec3};
+use glam::DVec3;
 
 use super::SpmmMode;
 use crate::brdf::{AnalyticBrdf, BrdfModel};
@@ -155,31 +155,13 @@ fn a_light_covering_the_hemisphere_matches_the_closed_form() {
 
 #[test]
 fn ambient_light_on_an_spmm_plane_converges_to_the_integral_of_its_btf() {
-    use crate::brdf::BasisFunction;
-    use crate::spmm::{Cluster, SparseWeights, SpmmMaterial};
-    // One texel, one Ward basis whose normal is tilted 35 degrees: its BTF does not
-    // vanish with the shading cosine, the case the defensive mixture exists for.
-    let normal = DVec3::new(35f64.to_radians().sin(), 0.0, 35f64.to_radians().cos());
-    let basis = BasisFunction::new(
-        AnalyticBrdf::new(BrdfModel::Ward, &[("ax", 0.3), ("ay", 0.15)]).expect("valid"),
-        normal,
-    )
-    .expect("unit normal");
-    let pack = SpmmMaterial::new(
-        "tilted".into(),
-        "test".into(),
-        1,
-        1,
-        vec![Cluster { bases: vec![basis] }],
-        vec![0],
-        SparseWeights {
-            offsets: vec![0, 1],
-            basis: vec![0],
-            rgb: vec![[0.5, 0.5, 0.5]],
-        },
-        None,
-    )
-    .expect("valid material");
+    // One texel, one Ward basis whose normal is tilted 35 degrees (the shared test
+    // material): its BTF does not vanish with the shading cosine.
+    let material = crate::scene::test_scenes::tilted_spmm();
+    let Material::Spmm { material: pack, .. } = &material else {
+        unreachable!("an spmm material")
+    };
+    let basis = pack.clusters()[0].bases[0];
     let mut scene = floor_scene(
         vec![],
         Some(Ambient {
@@ -188,12 +170,7 @@ fn ambient_light_on_an_spmm_plane_converges_to_the_integral_of_its_btf() {
         }),
         false,
     );
-    scene.materials[0] = Material::Spmm {
-        material: std::sync::Arc::new(pack),
-        uv_scale: DVec2::ONE,
-        residual: true,
-        npca: 0,
-    };
+    scene.materials[0] = material.clone();
     (scene.render.width, scene.render.height) = (32, 32);
     let mut r = mode(&scene);
     for _ in 0..200 {

@@ -1214,3 +1214,58 @@ fn render_refuses_a_film_that_cannot_fit_naming_its_bytes() {
     assert_bad_input(&o, &[&bytes.to_string(), "bytes", "19 layers"]);
     assert!(!out.exists());
 }
+
+#[test]
+fn bench_rays_reports_both_kinds_on_the_spec_rays() {
+    let mesh = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../tests/scenes/meshes/teapot.obj"
+    );
+    let o = meso(
+        &[
+            "bench",
+            "rays",
+            mesh,
+            "--size",
+            "24",
+            "--threads",
+            "1",
+            "--json",
+        ],
+        "",
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    // The teapot has 992 faces; every one is a proper triangle.
+    assert_eq!(v["triangles"], 992);
+    assert_eq!(
+        (v["threads"].as_u64(), v["rays_per_kind"].as_u64()),
+        (Some(1), Some(576))
+    );
+    for key in ["coherent_mrays", "incoherent_mrays", "build_ms"] {
+        assert!(
+            v[key].as_f64().is_some_and(|x| x > 0.0 && x.is_finite()),
+            "{key}: {v}"
+        );
+    }
+    // The spec's camera sees the teapot; rays leaving its surface hit it sometimes
+    // (the spout and handle) and escape mostly.
+    let coherent = v["coherent_hit_fraction"].as_f64().expect("fraction");
+    let incoherent = v["incoherent_hit_fraction"].as_f64().expect("fraction");
+    assert!(coherent > 0.05 && coherent < 0.9, "{coherent}");
+    assert!(incoherent > 0.0 && incoherent < 0.6, "{incoherent}");
+    assert_bad_input(
+        &meso(&["bench", "rays", mesh, "--threads", "0"], ""),
+        &["--threads"],
+    );
+    assert_bad_input(
+        &meso(&["bench", "rays", mesh, "--size", "0"], ""),
+        &["--size"],
+    );
+    assert_bad_input(&meso(&["bench", "rays", "/no/such.obj"], ""), &["such.obj"]);
+}

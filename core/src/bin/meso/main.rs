@@ -2,6 +2,7 @@
 //! `error:` line on failure and exits 2 for bad input or usage, 1 for anything else;
 //! `--json` prints exactly one JSON object on stdout.
 
+mod bench_cmd;
 mod brdf_cmd;
 mod btf_cmd;
 mod compare_cmd;
@@ -40,6 +41,11 @@ enum Command {
         #[command(subcommand)]
         command: brdf_cmd::BrdfCommand,
     },
+    /// Benchmarks on fixed inputs, comparable with other tools: ray throughput.
+    Bench {
+        #[command(subcommand)]
+        command: bench_cmd::BenchCommand,
+    },
     /// Image error of B against the reference A: RMSE, PSNR, MSSIM, largest pixel error.
     Compare(compare_cmd::CompareArgs),
     /// Bidirectional texture functions (.btf): synthesize, import, summarise, slice.
@@ -75,6 +81,7 @@ fn main() -> ExitCode {
         Err(err) => return failure::report_clap_error(err),
     };
     let result = match cli.command {
+        Command::Bench { command } => bench_cmd::run(command),
         Command::Brdf { command } => brdf_cmd::run(command),
         Command::Btf { command } => btf_cmd::run(command),
         Command::Fit(args) => fit_cmd::run(&args),

@@ -137,7 +137,7 @@ fn rays(args: &RaysArgs) -> Result<(), CliError> {
         |(lo, hi), p| (lo.min(*p), hi.max(*p)),
     );
     let (centre, diagonal) = ((lo + hi) * 0.5, (hi - lo).length());
-    if !(diagonal > 0.0) {
+    if diagonal.is_nan() || diagonal <= 0.0 {
         return Err(CliError::bad_input(anyhow!(
             "`{}`: the mesh has no extent",
             args.mesh.display()

@@ -40,8 +40,8 @@ pub struct SpmmMode {
     /// Per light, the film layer its samples go to and their factor.
     pub(super) light_targets: Vec<LightTarget>,
     light_sampling: LightSampling,
-    /// True while lights are chosen stochastically (`light_selection.rs`).
-    pub(super) stochastic_lights: bool,
+    /// The light selection while lights are chosen stochastically
+    /// (`light_selection.rs`); `None` on the exact per-light path.
     pub(super) light_selection: Option<LightSelection>,
     samples_per_frame: u32,
     /// Index of the next sample (frame-major); random numbers derive from it.
@@ -58,6 +58,15 @@ pub(super) struct Path<'a> {
     pub counts: &'a mut RayCounts,
     pub shading_points: &'a mut u64,
     pub rng: &'a mut SampleStream,
+}
+
+/// The selection table when `sampling` chooses lights stochastically for `lights`.
+fn selection(sampling: LightSampling, lights: &[crate::scene::Light]) -> Option<LightSelection> {
+    if sampling.stochastic(lights.len()) {
+        LightSelection::new(lights)
+    } else {
+        None
+    }
 }
 
 impl SpmmMode {
@@ -143,8 +152,7 @@ impl SpmmMode {
             env_sampler,
             film,
             light_targets: layers.light_targets(&scene),
-            stochastic_lights: LightSampling::Auto.stochastic(scene.lights.len()),
-            light_selection: LightSelection::new(&scene.lights),
+            light_selection: selection(LightSampling::Auto, &scene.lights),
             light_sampling: LightSampling::Auto,
             layers,
             samples_per_frame: 1,
@@ -190,8 +198,7 @@ impl SpmmMode {
     /// The per-light state read by a frame, after a light edit.
     fn refresh_lights(&mut self) {
         self.light_targets = self.layers.light_targets(&self.scene);
-        self.stochastic_lights = self.light_sampling.stochastic(self.scene.lights.len());
-        self.light_selection = LightSelection::new(&self.scene.lights);
+        self.light_selection = selection(self.light_sampling, &self.scene.lights);
     }
 
     /// One sample of pixel (x, y) with sample index `index`, per layer for unit

@@ -130,7 +130,9 @@ impl LightSelection {
         if lights.is_empty() {
             return None;
         }
-        let power: Vec<f64> = lights.iter().map(light_power).collect();
+        // Capped so the sum of many huge (finite) emissions stays finite.
+        let cap = f64::MAX / (2.0 * lights.len() as f64);
+        let power: Vec<f64> = lights.iter().map(|l| light_power(l).min(cap)).collect();
         let mean = power.iter().sum::<f64>() / power.len() as f64;
         let floor = if mean > 0.0 { POWER_FLOOR * mean } else { 1.0 };
         let weights: Vec<f64> = power.iter().map(|p| p + floor).collect();
@@ -174,6 +176,23 @@ impl LightSelection {
 mod tests {
     use super::*;
     use crate::rng::SampleStream;
+
+    #[test]
+    fn huge_finite_emissions_still_give_a_valid_table() {
+        // Each point light's power (4 pi x 1e308) overflows f64; the sum of thirty of
+        // them would be infinite without the cap.
+        let lights: Vec<Light> = (0..30)
+            .map(|i| Light::Point {
+                position: glam::DVec3::new(i as f64, 1.0, 0.0),
+                intensity: glam::DVec3::splat(if i % 2 == 0 { 1e308 } else { 1.0 }),
+            })
+            .collect();
+        let sel = LightSelection::new(&lights).expect("lights");
+        let sum: f64 = sel.table.pmf().iter().sum();
+        assert!((sum - 1.0).abs() < 1e-9, "{sum}");
+        assert!(sel.table.pmf().iter().all(|p| p.is_finite() && *p > 0.0));
+        assert!(sel.lights.iter().all(|l| l.w_scale.is_finite()));
+    }
 
     #[test]
     fn the_selection_pmf_sums_to_one_and_matches_the_draws() {

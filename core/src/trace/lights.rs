@@ -9,7 +9,7 @@ use std::f64::consts::PI;
 
 use glam::DVec3;
 
-use super::light_selection::{CANDIDATES, LIGHT_SAMPLES};
+use super::light_selection::{CANDIDATES, LIGHT_SAMPLES, LightSelection};
 use super::shading::{Shader, Shading};
 use super::{Path, SpmmMode};
 use crate::render::layers::AMBIENT;
@@ -49,8 +49,8 @@ impl SpmmMode {
         throughput: DVec3,
         path: &mut Path,
     ) {
-        if self.stochastic_lights {
-            self.sample_chosen_lights(s, wo, lift, throughput, path);
+        if let Some(selection) = &self.light_selection {
+            self.sample_chosen_lights(selection, s, wo, lift, throughput, path);
             return;
         }
         for (k, light) in self.scene.lights.iter().enumerate() {
@@ -111,16 +111,13 @@ impl SpmmMode {
     /// candidate's light and point from one: 32, 16 and 16 bits).
     fn sample_chosen_lights(
         &self,
+        sel: &LightSelection,
         s: &Shading,
         wo: DVec3,
         lift: DVec3,
         throughput: DVec3,
         path: &mut Path,
     ) {
-        let sel = self
-            .light_selection
-            .as_ref()
-            .expect("a stochastic path has lights");
         for _ in 0..LIGHT_SAMPLES {
             // Per candidate: light, point, to, r^2, falloff, pmf, weight target / p_src.
             let mut candidates = [Candidate::default(); CANDIDATES];

@@ -31,6 +31,23 @@ pub(crate) fn python_with_safetensors() -> Option<String> {
     None
 }
 
+/// Runs the Python `script` (from `python_with_safetensors`) on `path` and parses the
+/// one JSON object it prints: how the independent format checks read a file.
+#[cfg(test)]
+pub(crate) fn python_json(python: &str, script: &str, path: &std::path::Path) -> serde_json::Value {
+    let out = std::process::Command::new(python)
+        .args(["-c", script])
+        .arg(path)
+        .output()
+        .expect("python runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("the script prints one JSON object")
+}
+
 /// One tensor to write: little-endian data of `shape` elements of `dtype`.
 pub struct Tensor {
     pub dtype: Dtype,

@@ -442,16 +442,7 @@ print(json.dumps({"meta": meta,
         ] {
             let path = dir.path().join(format!("{dtype}.btf"));
             write_btf(&path, &b, p).expect("write");
-            let out = std::process::Command::new(&python)
-                .args(["-c", script, path.to_str().expect("utf-8")])
-                .output()
-                .expect("python runs");
-            assert!(
-                out.status.success(),
-                "{}",
-                String::from_utf8_lossy(&out.stderr)
-            );
-            let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+            let v = crate::container::python_json(&python, script, &path);
             let meta = &v["meta"];
             assert_eq!(meta["format"], "meso-btf");
             assert_eq!(meta["version"], "1");

@@ -401,16 +401,7 @@ with safe_open(sys.argv[1], framework="np") as f:
 print(json.dumps({"meta": meta, "tensors": {k: [str(v.dtype), list(v.shape)] for k, v in t.items()},
                   "weight_rgb_sum": float(t["weight_rgb"].astype("float64").sum())}))
 "#;
-    let out = std::process::Command::new(&python)
-        .args(["-c", script, path.to_str().expect("utf-8")])
-        .output()
-        .expect("python runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    let v = crate::container::python_json(&python, script, &path);
     assert_eq!(v["meta"]["format"], "meso-spmm");
     assert_eq!(v["meta"]["version"], "1");
     let nnz = m.weights().basis.len();

@@ -7,7 +7,6 @@ use std::f64::consts::{PI, TAU};
 use std::sync::Arc;
 
 use glam::DVec3;
-use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 use super::*;
 use crate::image::read_image;
@@ -99,12 +98,13 @@ fn the_pdf_integrates_to_one_and_is_positive_wherever_the_map_is() {
     );
 }
 
-/// Chi-square p-value of `n` samples of `s` over a grid of `nu` x `nv` cells in
-/// (u, cos theta) whose edges fall inside pixels; expected counts are exact (the pdf
-/// is constant over a pixel, so a cell's mass is the sum over the pixels it overlaps
-/// of pdf x overlapping solid angle). `claimed` may differ from the sampler, to show
-/// that the test can fail.
-fn chi2_p(map: &Image, s: &EnvironmentSampler, claimed: &EnvironmentSampler, n: u64) -> f64 {
+/// Chi-square p-value (the BRDF samplers' harness: `brdf::chi2_tests`) of `s`'s samples
+/// over a grid of `nu` x `nv` cells in (u, cos theta) whose edges fall inside pixels;
+/// expected probabilities are exact (the pdf is constant over a pixel, so a cell's
+/// mass is the sum over the pixels it overlaps of pdf x overlapping solid angle).
+/// `claimed` may differ from the sampler, to show that the test can fail.
+fn chi2_p(map: &Image, s: &EnvironmentSampler, claimed: &EnvironmentSampler) -> f64 {
+    use crate::brdf::chi2_tests::{histogram, p_value};
     let (nu, nv) = (37usize, 23usize);
     let (w, h) = (map.width() as usize, map.height() as usize);
     let cell = |d: DVec3| {
@@ -114,11 +114,7 @@ fn chi2_p(map: &Image, s: &EnvironmentSampler, claimed: &EnvironmentSampler, n: 
         let iv = (((1.0 - c) / 2.0 * nv as f64) as usize).min(nv - 1);
         iv * nu + iu
     };
-    let mut observed = vec![0.0; nu * nv];
-    for k in 0..n {
-        let smp = s.sample(map, SampleStream::new(&[3, k]).next_2d());
-        observed[cell(smp.dir)] += 1.0;
-    }
+    let (observed, accepted) = histogram(|u| Some(s.sample(map, u).dir), cell, nu * nv, 3);
     let mut expected = vec![0.0; nu * nv];
     for y in 0..h {
         let (cy0, cy1) = (
@@ -145,40 +141,19 @@ fn chi2_p(map: &Image, s: &EnvironmentSampler, claimed: &EnvironmentSampler, n: 
                 for iu in 0..nu {
                     let (a, b) = (iu as f64 / nu as f64, (iu + 1) as f64 / nu as f64);
                     let du = (u1.min(b) - u0.max(a)).max(0.0);
-                    expected[iv * nu + iu] += pdf * TAU * du * dc * n as f64;
+                    expected[iv * nu + iu] += pdf * TAU * du * dc;
                 }
             }
         }
     }
-    let (mut chi2, mut dof, mut pooled_o, mut pooled_e) = (0.0, 0usize, 0.0, 0.0);
-    for (o, e) in observed.iter().zip(&expected) {
-        if *e >= 5.0 {
-            chi2 += (o - e) * (o - e) / e;
-            dof += 1;
-        } else {
-            pooled_o += o;
-            pooled_e += e;
-        }
-    }
-    if pooled_e >= 5.0 {
-        chi2 += (pooled_o - pooled_e) * (pooled_o - pooled_e) / pooled_e;
-        dof += 1;
-    } else {
-        assert!(
-            pooled_o <= 5.0 + 5.0 * pooled_e,
-            "samples where the pdf is ~0: {pooled_o}"
-        );
-    }
-    1.0 - ChiSquared::new((dof - 1) as f64)
-        .expect("dof > 1")
-        .cdf(chi2)
+    p_value(&observed, &expected, accepted, 1e-9).expect("the bins are usable")
 }
 
 #[test]
 fn sampled_directions_follow_the_pdf() {
     for map in [shipped("env_sky.exr"), hot_spot()] {
         let s = EnvironmentSampler::new(&map).expect("not black");
-        let p = chi2_p(&map, &s, &s, 400_000);
+        let p = chi2_p(&map, &s, &s);
         assert!(p > 1e-3, "chi-square p = {p}");
         // Every sample's pdf and radiance are those of the pixel it lies in.
         for k in 0..2000 {
@@ -198,7 +173,7 @@ fn the_chi_square_test_detects_a_wrong_distribution() {
     dimmer.set(40, 9, [2.5e4, 2e4, 1.5e4]);
     let s = EnvironmentSampler::new(&map).expect("not black");
     let wrong = EnvironmentSampler::new(&dimmer).expect("not black");
-    let p = chi2_p(&map, &s, &wrong, 400_000);
+    let p = chi2_p(&map, &s, &wrong);
     assert!(p < 1e-6, "p = {p}");
 }
 

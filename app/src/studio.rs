@@ -418,7 +418,9 @@ impl Studio {
         let Some(r) = self.switch.as_ref().and_then(|s| s.job.poll()) else {
             return;
         };
-        let sw = self.switch.take().expect("polled above");
+        let Some(sw) = self.switch.take() else {
+            return;
+        };
         let target = mode_name(sw.kind, sw.device);
         let staying = mode_name(self.mode.0, self.mode.1);
         match r {

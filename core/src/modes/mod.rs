@@ -33,7 +33,6 @@ pub fn create(
     height: u32,
     prepare: Prepare,
 ) -> Result<Box<dyn RenderMode>, ModeError> {
-    supports(kind, device, &scene)?;
     match (kind, device) {
         (ModeKind::Spmm, Device::Cpu) => {
             Ok(Box::new(SpmmMode::prepare(scene, width, height, prepare)?))

@@ -41,17 +41,6 @@ pub fn create(
     }
 }
 
-/// `create` at the scene's own size and mode, without progress.
-pub fn create_for(scene: Scene) -> Result<Box<dyn RenderMode>, ModeError> {
-    let (kind, device, w, h) = (
-        scene.render.mode,
-        scene.render.device,
-        scene.render.width,
-        scene.render.height,
-    );
-    create(kind, device, scene, w, h, Prepare::quietly())
-}
-
 #[cfg(test)]
 mod tests {
     use std::sync::atomic::AtomicBool;
@@ -165,7 +154,15 @@ mod tests {
         assert!(err.to_string().contains("material `gold` (merl)"), "{err}");
         assert!(create(ModeKind::Spmm, Device::Cpu, scene, 8, 8, Prepare::quietly()).is_err());
         // An edit that brings one is refused and leaves the mode's scene as it was.
-        let mut mode = create_for(edit_test_scene()).expect("renders");
+        let mut mode = create(
+            ModeKind::Spmm,
+            Device::Cpu,
+            edit_test_scene(),
+            8,
+            8,
+            Prepare::quietly(),
+        )
+        .expect("renders");
         let e = mode
             .apply(SceneEdit::Material {
                 index: 0,

@@ -1,0 +1,64 @@
+//! Which texels an edit changed: a renderer restarts only the pixels whose shading
+//! reached one of them (a brush stroke touches a few texels, not the whole material).
+
+use super::SpmmMaterial;
+
+impl SpmmMaterial {
+    /// Per texel (row-major), whether `after` evaluates differently from `self` there:
+    /// its weights, its cluster's dictionary, view flags or residual tables, or its
+    /// residual coefficients differ. `None` when the two do not share a texel grid and
+    /// cluster map (everything changed).
+    pub fn changed_texels(&self, after: &SpmmMaterial) -> Option<Vec<bool>> {
+        if (self.width(), self.height()) != (after.width(), after.height())
+            || self.texel_cluster() != after.texel_cluster()
+            || self.clusters().len() != after.clusters().len()
+        {
+            return None;
+        }
+        let clusters = self.clusters().len();
+        let residual_shape = |m: &SpmmMaterial| {
+            m.residual()
+                .map(|r| (r.light_dirs.clone(), r.view_dirs.clone(), r.npca))
+        };
+        if residual_shape(self) != residual_shape(after) {
+            return None;
+        }
+        let cluster_changed: Vec<bool> = (0..clusters)
+            .map(|c| {
+                self.clusters()[c] != after.clusters()[c]
+                    || self.view().of_cluster(c) != after.view().of_cluster(c)
+                    || self.residual_tables_of(c) != after.residual_tables_of(c)
+            })
+            .collect();
+        let npca = self.npca();
+        let coefficients = |m: &SpmmMaterial, t: usize| -> Option<Vec<f32>> {
+            m.residual()
+                .map(|r| r.coefficients[t * npca..(t + 1) * npca].to_vec())
+        };
+        Some(
+            self.texel_cluster()
+                .iter()
+                .enumerate()
+                .map(|(t, &c)| {
+                    cluster_changed[c as usize]
+                        || !self.texel_weights(t).eq(after.texel_weights(t))
+                        || coefficients(self, t) != coefficients(after, t)
+                })
+                .collect(),
+        )
+    }
+
+    /// The cluster's residual mean and components (empty without a residual).
+    fn residual_tables_of(&self, cluster: usize) -> (&[f32], &[f32]) {
+        match self.residual() {
+            Some(r) => {
+                let table = r.light_dirs.len() * r.view_dirs.len() * 3;
+                (
+                    &r.mean[cluster * table..(cluster + 1) * table],
+                    &r.components[cluster * r.npca * table..(cluster + 1) * r.npca * table],
+                )
+            }
+            None => (&[], &[]),
+        }
+    }
+}

@@ -8,6 +8,7 @@
 pub mod edit;
 pub mod film;
 pub mod layers;
+pub mod reach;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 

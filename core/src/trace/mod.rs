@@ -21,4 +21,6 @@ mod hard_case_tests;
 #[cfg(test)]
 mod many_lights_tests;
 #[cfg(test)]
+mod paint_tests;
+#[cfg(test)]
 mod tests;

@@ -64,16 +64,14 @@ pub fn dab(
         return false;
     }
     match brush.units {
-        BrushUnits::Texels => {
-            match pick(scene, bvh, width, height, at.x, at.y) {
-                Some(p) if p.material == material => {
-                    let centre = pack.texel_position(p.uv, *uv_scale);
-                    mask.stamp(centre, brush.radius, brush.strength, brush.falloff);
-                    true
-                }
-                _ => false,
+        BrushUnits::Texels => match pick(scene, bvh, width, height, at.x, at.y) {
+            Some(p) if p.material == material => {
+                let centre = pack.texel_position(p.uv, *uv_scale);
+                mask.stamp(centre, brush.radius, brush.strength, brush.falloff);
+                true
             }
-        }
+            _ => false,
+        },
         BrushUnits::ScreenPixels => {
             let r = brush.radius;
             let mut landed = false;

@@ -32,7 +32,12 @@ pub struct Film {
 pub type UvBox = [f32; 4];
 
 /// The box that holds nothing.
-pub const EMPTY_UV_BOX: UvBox = [f32::INFINITY, f32::INFINITY, f32::NEG_INFINITY, f32::NEG_INFINITY];
+pub const EMPTY_UV_BOX: UvBox = [
+    f32::INFINITY,
+    f32::INFINITY,
+    f32::NEG_INFINITY,
+    f32::NEG_INFINITY,
+];
 
 /// One row of the film, handed to a worker thread.
 pub struct FilmRow<'a> {
@@ -79,7 +84,12 @@ impl FilmRow<'_> {
     #[inline]
     pub fn reach_box(&mut self, x: u32, b: &UvBox) {
         let r = &mut self.reached[x as usize];
-        *r = [r[0].min(b[0]), r[1].min(b[1]), r[2].max(b[2]), r[3].max(b[3])];
+        *r = [
+            r[0].min(b[0]),
+            r[1].min(b[1]),
+            r[2].max(b[2]),
+            r[3].max(b[3]),
+        ];
     }
 }
 
@@ -458,7 +468,11 @@ mod tests {
             [img.get(0, 0)[0], img.get(1, 0)[0], img.get(2, 0)[0]],
             [1.0, 0.0, 1.0]
         );
-        assert_eq!(f.reset_reaching(material_bit(0), |b| b[0] > b[2]), 0, "boxes stay");
+        assert_eq!(
+            f.reset_reaching(material_bit(0), |b| b[0] > b[2]),
+            0,
+            "boxes stay"
+        );
     }
 
     #[test]

@@ -90,9 +90,11 @@ impl EditedTexels {
         let y1 = (-f64::from(b[1]) * self.uv_scale.y * h).floor() as i64 + 1;
         let xs = wrapped(x0, x1, self.width);
         let ys = wrapped(y0, y1, self.height);
-        ys.iter()
-            .flatten()
-            .any(|&(ya, yb)| xs.iter().flatten().any(|&(xa, xb)| self.count(xa, xb, ya, yb) > 0))
+        ys.iter().flatten().any(|&(ya, yb)| {
+            xs.iter()
+                .flatten()
+                .any(|&(xa, xb)| self.count(xa, xb, ya, yb) > 0)
+        })
     }
 
     /// Changed texels in columns xa..xb, rows ya..yb (half-open, inside the grid).

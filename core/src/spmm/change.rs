@@ -4,9 +4,9 @@
 use super::SpmmMaterial;
 
 impl SpmmMaterial {
-    /// Per texel (row-major), whether `after` evaluates differently from `self` there:
-    /// its weights, its cluster's dictionary, view flags or residual tables, or its
-    /// residual coefficients differ. `None` when the two do not share a texel grid and
+    /// Per texel (row-major), whether `after` may evaluate differently from `self`
+    /// there: its weights, a basis it weighs, its cluster's view flags or residual
+    /// tables, or its residual coefficients differ. `None` when the two do not share a texel grid and
     /// cluster map (everything changed).
     pub fn changed_texels(&self, after: &SpmmMaterial) -> Option<Vec<bool>> {
         if (self.width(), self.height()) != (after.width(), after.height())
@@ -25,9 +25,18 @@ impl SpmmMaterial {
         }
         let cluster_changed: Vec<bool> = (0..clusters)
             .map(|c| {
-                self.clusters()[c] != after.clusters()[c]
-                    || self.view().of_cluster(c) != after.view().of_cluster(c)
+                self.view().of_cluster(c) != after.view().of_cluster(c)
                     || self.residual_tables_of(c) != after.residual_tables_of(c)
+            })
+            .collect();
+        // A dictionary edit changes only the texels that weigh an edited basis: a
+        // basis added with no weights changes nothing yet.
+        let basis_changed: Vec<Vec<bool>> = (0..clusters)
+            .map(|c| {
+                let (old, new) = (&self.clusters()[c].bases, &after.clusters()[c].bases);
+                (0..old.len().max(new.len()))
+                    .map(|j| old.get(j) != new.get(j))
+                    .collect()
             })
             .collect();
         let npca = self.npca();
@@ -42,6 +51,9 @@ impl SpmmMaterial {
                 .map(|(t, &c)| {
                     cluster_changed[c as usize]
                         || !self.texel_weights(t).eq(after.texel_weights(t))
+                        || self
+                            .texel_weights(t)
+                            .any(|(j, _)| basis_changed[c as usize][usize::from(j)])
                         || coefficients(self, t) != coefficients(after, t)
                 })
                 .collect(),

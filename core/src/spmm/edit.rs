@@ -287,7 +287,9 @@ impl SpmmMaterial {
             ));
         };
         if rgb.iter().any(|v| !v.is_finite()) {
-            return Err(SpmmError::Edit(format!("added weight {rgb:?} must be finite")));
+            return Err(SpmmError::Edit(format!(
+                "added weight {rgb:?} must be finite"
+            )));
         }
         let basis = basis as u16;
         let weights = self.rebuilt_weights(|t, entries| {
@@ -399,7 +401,9 @@ impl SpmmMaterial {
                 bases[j] = DVec3::new(w[0] as f64, w[1] as f64, w[2] as f64) * dict[j].eval(wi, wo);
             }
             if residual {
-                let plain = self.with_view(BasisView::default()).unwrap_or_else(|_| self.clone());
+                let plain = self
+                    .with_view(BasisView::default())
+                    .unwrap_or_else(|_| self.clone());
                 let total = plain.eval_texel(t, wi, wo, true, max_npca);
                 let basis_sum = plain.eval_texel(t, wi, wo, false, max_npca);
                 resid = total - basis_sum;
@@ -422,7 +426,10 @@ impl SpmmMaterial {
 
     /// New weights from each texel's entries as changed by `edit` (given the texel
     /// and its (basis, rgb) entries, in stored order).
-    fn rebuilt_weights(&self, mut edit: impl FnMut(usize, &mut Vec<(u16, [f32; 3])>)) -> SparseWeights {
+    fn rebuilt_weights(
+        &self,
+        mut edit: impl FnMut(usize, &mut Vec<(u16, [f32; 3])>),
+    ) -> SparseWeights {
         let old = self.weights();
         let mut weights = SparseWeights {
             offsets: Vec::with_capacity(old.offsets.len()),
@@ -579,7 +586,10 @@ mod tests {
             }
             assert_eq!(m.texel_weights(t).count(), e.texel_weights(t).count());
         }
-        assert!(scaled > 0, "the sample material weighs basis {b} of cluster {c}");
+        assert!(
+            scaled > 0,
+            "the sample material weighs basis {b} of cluster {c}"
+        );
         let back = m
             .with_weight_scale(&WeightTarget::basis(c, b), [2.0; 3])
             .and_then(|x| x.with_weight_scale(&WeightTarget::basis(c, b), [0.5; 3]))
@@ -606,7 +616,12 @@ mod tests {
     fn a_masked_scale_changes_only_covered_texels_and_partial_strength_interpolates() {
         let m = sample_material(8, 8, 2, None);
         let mut mask = TexelMask::empty(8, 8);
-        mask.stamp(glam::DVec2::new(0.5, 0.5), 1.6, 1.0, crate::spmm::Falloff::Linear);
+        mask.stamp(
+            glam::DVec2::new(0.5, 0.5),
+            1.6,
+            1.0,
+            crate::spmm::Falloff::Linear,
+        );
         // The disc wraps: it reaches the last column and row.
         assert!(mask.strength(7) > 0.0 && mask.strength(7 * 8) > 0.0);
         assert_eq!(mask.strength(0), 1.0, "full strength at the centre texel");
@@ -635,6 +650,8 @@ mod tests {
             )
             .expect("cluster 0 exists");
         assert_eq!(m2.weights(), m.weights(), "a new basis has no weight yet");
+        let unchanged = m.changed_texels(&m2).expect("same grid");
+        assert!(unchanged.iter().all(|c| !c), "so no texel looks different");
         let mut mask = TexelMask::empty(6, 6);
         for t in [0, 1, 7, 20] {
             mask.raise(t, 0.5);
@@ -681,7 +698,10 @@ mod tests {
                 let parts = m.contributions(t, wi, wo, true, usize::MAX);
                 let all = m.eval_texel(t, wi, wo, true, usize::MAX);
                 let sum: DVec3 = parts.bases.iter().sum::<DVec3>() + parts.residual;
-                assert!((sum - all).abs().max_element() < 1e-9, "parts sum to the whole");
+                assert!(
+                    (sum - all).abs().max_element() < 1e-9,
+                    "parts sum to the whole"
+                );
                 let in_c = parts.cluster == c;
                 let want_muted = if in_c { all - parts.bases[b] } else { all };
                 let got = muted.eval_texel(t, wi, wo, true, usize::MAX);
@@ -690,7 +710,10 @@ mod tests {
                 let got = solo.eval_texel(t, wi, wo, true, usize::MAX);
                 assert!((got - want_solo).abs().max_element() < 1e-9, "texel {t}");
                 let got = prepared.eval_texel(t, wi, wo);
-                assert!((got - want_solo).abs().max_element() < 1e-6, "prepared texel {t}");
+                assert!(
+                    (got - want_solo).abs().max_element() < 1e-6,
+                    "prepared texel {t}"
+                );
             }
         }
         let mut bad = BasisView::default();
@@ -730,8 +753,14 @@ mod tests {
         // Removing basis 0 drops its weights and renumbers the rest.
         let mut view = BasisView::default();
         view.set_muted(c, 2, true);
-        let r = m.with_view(view).and_then(|x| x.with_basis_removed(c, 0)).expect("valid");
-        assert!(r.view().muted(c, 1) && !r.view().muted(c, 2), "flags follow the renumbering");
+        let r = m
+            .with_view(view)
+            .and_then(|x| x.with_basis_removed(c, 0))
+            .expect("valid");
+        assert!(
+            r.view().muted(c, 1) && !r.view().muted(c, 2),
+            "flags follow the renumbering"
+        );
         for t in 0..25 {
             let before: Vec<_> = m.texel_weights(t).collect();
             let after: Vec<_> = r.texel_weights(t).collect();
@@ -754,7 +783,12 @@ mod tests {
         while lone.clusters()[0].bases.len() > 1 {
             lone = lone.with_basis_removed(0, 0).expect("valid");
         }
-        assert!(lone.with_basis_removed(0, 0).unwrap_err().to_string().contains("only basis"));
+        assert!(
+            lone.with_basis_removed(0, 0)
+                .unwrap_err()
+                .to_string()
+                .contains("only basis")
+        );
     }
 
     #[test]
@@ -762,7 +796,9 @@ mod tests {
         let m = sample_material(4, 4, 3, Some(2));
         assert!((0..3).all(|c| m.cluster_has_residual(c)));
         let e = m.with_cluster_residual_off(1).expect("valid");
-        assert!(e.cluster_has_residual(0) && !e.cluster_has_residual(1) && e.cluster_has_residual(2));
+        assert!(
+            e.cluster_has_residual(0) && !e.cluster_has_residual(1) && e.cluster_has_residual(2)
+        );
         let changed = m.changed_texels(&e).expect("same grid");
         assert_eq!(changed, m.cluster_texels(1));
         assert!(m.with_cluster_residual_off(3).is_err());

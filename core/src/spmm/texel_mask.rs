@@ -86,6 +86,30 @@ impl TexelMask {
         })
     }
 
+    /// A mask image in texel space (one pixel per texel, row 0 the top row of texels):
+    /// its grey level (8 or 16 bits; an RGB image's luma), read as data (no sRGB
+    /// decoding), over the full range is the strength: white 1, black 0. It must be `width` x `height`.
+    pub fn read_image(path: &std::path::Path, width: u32, height: u32) -> Result<Self, SpmmError> {
+        let at = || format!("texel mask `{}`", path.display());
+        let img = image::ImageReader::open(path)
+            .map_err(|e| SpmmError::Edit(format!("{}: {e}", at())))?
+            .with_guessed_format()
+            .map_err(|e| SpmmError::Edit(format!("{}: {e}", at())))?
+            .decode()
+            .map_err(|e| SpmmError::Edit(format!("{}: {e}", at())))?;
+        if (img.width(), img.height()) != (width, height) {
+            return Err(SpmmError::Edit(format!(
+                "{}: {}x{} pixels, but the material has {width}x{height} texels",
+                at(),
+                img.width(),
+                img.height()
+            )));
+        }
+        let grey = img.to_luma16();
+        let strength = grey.pixels().map(|p| f32::from(p.0[0]) / 65535.0).collect();
+        Self::from_strengths(width, height, strength)
+    }
+
     /// Full strength on the texels of `cluster`.
     pub fn of_cluster(m: &SpmmMaterial, cluster: usize) -> Self {
         Self {

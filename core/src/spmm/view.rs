@@ -29,7 +29,10 @@ impl BasisView {
 
     /// Some basis of `cluster` is soloed.
     pub fn cluster_has_solo(&self, cluster: usize) -> bool {
-        self.solo.range((cluster, 0)..=(cluster, usize::MAX)).next().is_some()
+        self.solo
+            .range((cluster, 0)..=(cluster, usize::MAX))
+            .next()
+            .is_some()
     }
 
     /// Whether basis `basis` of `cluster` contributes to the view.

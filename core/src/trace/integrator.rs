@@ -14,8 +14,8 @@ use crate::environment::EnvironmentSampler;
 use crate::geometry::{PinholeCamera, SceneBvh};
 use crate::image::Image;
 use crate::render::film::{EMPTY_UV_BOX, UvBox, extend_uv_box, material_bit, memory_limit_bytes};
-use crate::render::reach::EditedTexels;
 use crate::render::layers::{self, Before, Layers, LightTarget};
+use crate::render::reach::EditedTexels;
 use crate::render::{
     Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind,
     PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit,

@@ -64,7 +64,15 @@ fn a_stroke_changes_only_the_texels_under_the_brush_and_restarts_only_pixels_tha
     // One dab at an image point on the panel.
     let at = DVec2::new(30.3, 28.6);
     let mut mask = TexelMask::empty(4, 4);
-    assert!(brush::dab(&scene, mode.bvh(), (SIZE, SIZE), at, &brush, 1, &mut mask));
+    assert!(brush::dab(
+        &scene,
+        mode.bvh(),
+        (SIZE, SIZE),
+        at,
+        &brush,
+        1,
+        &mut mask
+    ));
     // By hand: texel centres within 0.9 texels of the point under the cursor, wrapping.
     let centre = texel_xy(panel_uv(at.x, at.y).expect("the dab is on the panel"));
     let expected: Vec<usize> = (0..16)
@@ -125,14 +133,22 @@ fn a_stroke_changes_only_the_texels_under_the_brush_and_restarts_only_pixels_tha
             // Nine points over the pixel, corners included: every sample's UV lies in
             // their box (the panel is flat and seen through a pinhole).
             let points: Vec<Option<DVec2>> = (0..9)
-                .map(|k| panel_uv(x as f64 + (k % 3) as f64 * 0.5, y as f64 + (k / 3) as f64 * 0.5))
+                .map(|k| {
+                    panel_uv(
+                        x as f64 + (k % 3) as f64 * 0.5,
+                        y as f64 + (k / 3) as f64 * 0.5,
+                    )
+                })
                 .collect();
             if points.iter().all(Option::is_none) {
                 // Off the panel, and so are the neighbours' centres: kept.
                 let near_panel = (-1..=1).any(|dy: i32| {
                     (-1..=1).any(|dx: i32| {
-                        panel_uv(x as f64 + 0.5 + f64::from(dx), y as f64 + 0.5 + f64::from(dy))
-                            .is_some()
+                        panel_uv(
+                            x as f64 + 0.5 + f64::from(dx),
+                            y as f64 + 0.5 + f64::from(dy),
+                        )
+                        .is_some()
                     })
                 });
                 if !near_panel {
@@ -144,11 +160,17 @@ fn a_stroke_changes_only_the_texels_under_the_brush_and_restarts_only_pixels_tha
                 continue; // on the panel's edge
             }
             panel_pixels += 1;
-            let texels: Vec<DVec2> = points.iter().map(|p| texel_xy(p.expect("on panel"))).collect();
+            let texels: Vec<DVec2> = points
+                .iter()
+                .map(|p| texel_xy(p.expect("on panel")))
+                .collect();
             let first = texel_index(texels[0]);
             if expected.contains(&first) && texels.iter().all(|&t| texel_index(t) == first) {
                 must += 1;
-                assert!(restarted(x, y), "pixel ({x}, {y}) saw only changed texel {first}");
+                assert!(
+                    restarted(x, y),
+                    "pixel ({x}, {y}) saw only changed texel {first}"
+                );
             }
             // Far: no changed texel within the pixel's texel box grown by one texel
             // (a tile seam inside the pixel makes the box span the texture: skipped).
@@ -157,17 +179,25 @@ fn a_stroke_changes_only_the_texels_under_the_brush_and_restarts_only_pixels_tha
             if hi.x - lo.x > 2.0 || hi.y - lo.y > 2.0 {
                 continue;
             }
-            let near_changed = ((lo.y - 1.01).floor() as i64..=(hi.y + 1.01).floor() as i64).any(|ty| {
-                ((lo.x - 1.01).floor() as i64..=(hi.x + 1.01).floor() as i64)
-                    .any(|tx| expected.contains(&((ty.rem_euclid(4) * 4 + tx.rem_euclid(4)) as usize)))
-            });
+            let near_changed =
+                ((lo.y - 1.01).floor() as i64..=(hi.y + 1.01).floor() as i64).any(|ty| {
+                    ((lo.x - 1.01).floor() as i64..=(hi.x + 1.01).floor() as i64).any(|tx| {
+                        expected.contains(&((ty.rem_euclid(4) * 4 + tx.rem_euclid(4)) as usize))
+                    })
+                });
             if !near_changed {
-                assert!(!restarted(x, y), "pixel ({x}, {y}) is far from every changed texel");
+                assert!(
+                    !restarted(x, y),
+                    "pixel ({x}, {y}) is far from every changed texel"
+                );
             }
         }
     }
     assert!(must > 0, "some pixels saw only the changed texels");
-    assert!(n < panel_pixels, "a stroke restarts fewer pixels than the whole panel ({n} of {panel_pixels})");
+    assert!(
+        n < panel_pixels,
+        "a stroke restarts fewer pixels than the whole panel ({n} of {panel_pixels})"
+    );
     // The next frame fills the restarted pixels again.
     mode.render_frame();
     let filled = mode.image();

@@ -11,6 +11,7 @@ mod fit_cmd;
 mod merl_cmd;
 mod mode_args;
 mod pack_cmd;
+mod pack_edit_cmd;
 mod plot;
 mod progress;
 mod render_cmd;
@@ -67,7 +68,7 @@ enum Command {
         #[command(subcommand)]
         command: report_cmd::ReportCommand,
     },
-    /// SPMM material packs (.spmm): summarise and validate.
+    /// SPMM material packs (.spmm): summarise, validate, build, preview, evaluate, edit.
     Pack {
         #[command(subcommand)]
         command: pack_cmd::PackCommand,

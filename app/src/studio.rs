@@ -12,7 +12,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use egui::{Key, KeyboardShortcut, Modifiers, Ui};
-use meso_core::geometry::{SceneBvh, pick};
+use meso_core::geometry::{BrushUnits, SceneBvh, brush, pick};
 use meso_core::image::Image;
 use meso_core::metrics::{self, Comparison};
 use meso_core::render::{
@@ -1128,10 +1128,24 @@ impl Studio {
                 None => "reference: spmm, starting".into(),
             },
         });
-        let input = self
-            .viewport
-            .show(ui, &camera, self.settings.exposure, compare);
         let scale = f64::from(self.settings.resolution);
+        // The brush outline: its radius in points when measured in image pixels.
+        let brush_points = self.material_panel.paint.on.then(|| {
+            let b = &self.material_panel.paint.brush;
+            match b.units {
+                BrushUnits::ScreenPixels => {
+                    (b.radius / (scale * f64::from(ui.ctx().pixels_per_point()))) as f32
+                }
+                BrushUnits::Texels => 4.0,
+            }
+        });
+        let input = self.viewport.show(
+            ui,
+            &camera,
+            self.settings.exposure,
+            compare,
+            brush_points,
+        );
         let full = (
             ((f64::from(input.panel_pixels.0) * scale) as u32).clamp(16, 4096),
             ((f64::from(input.panel_pixels.1) * scale) as u32).clamp(16, 4096),
@@ -1171,6 +1185,33 @@ impl Studio {
         }
         if let Some((x, y)) = input.click {
             self.pick_at(x, y);
+        }
+        if let Some((from, to)) = input.paint {
+            self.paint_stroke(from, to);
+        }
+        if input.paint_end {
+            self.material_panel.end_stroke();
+        }
+    }
+
+    /// Paints the brush from `from` to `to` (in [0, 1]^2 of the image) on the edited
+    /// pack, through the same picking as a click: one edit of the stroke so far, in the
+    /// open undo group (a stroke is one undo step).
+    pub fn paint_stroke(&mut self, from: (f64, f64), to: (f64, f64)) {
+        let (Some(doc), Some(bvh)) = (&self.doc, &self.bvh) else {
+            return;
+        };
+        let Some(index) = doc.pack.as_ref().map(|p| p.material) else {
+            return;
+        };
+        let (w, h) = (self.full_size.0.max(1), self.full_size.1.max(1));
+        let at = |p: (f64, f64)| glam::DVec2::new(p.0 * f64::from(w), p.1 * f64::from(h));
+        let brush = self.material_panel.paint.brush;
+        let edit = self.material_panel.stroke_edit(doc, |mask| {
+            brush::stroke(&doc.scene, bvh, (w, h), at(from), at(to), &brush, index, mask)
+        });
+        if let Some(e) = edit {
+            self.edit(e);
         }
     }
 

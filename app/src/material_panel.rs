@@ -172,10 +172,9 @@ fn with_pack(slot: &Material, material: SpmmMaterial) -> Material {
 impl MaterialPanel {
     /// The selection, when edits are limited to it and it fits `m`.
     fn limit<'a>(&'a self, m: &SpmmMaterial) -> Option<&'a TexelMask> {
-        self.paint
-            .selection
-            .as_ref()
-            .filter(|s| self.paint.limit_to_selection && (s.width(), s.height()) == (m.width(), m.height()))
+        self.paint.selection.as_ref().filter(|s| {
+            self.paint.limit_to_selection && (s.width(), s.height()) == (m.width(), m.height())
+        })
     }
 
     /// Continues (or starts) a brush stroke: `dab` adds the texels it covers to the
@@ -476,78 +475,86 @@ impl MaterialPanel {
         let mut view = m.view().clone();
         let mut view_changed = false;
         let mut scale: Option<(usize, [f64; 3])> = None;
-        egui::Grid::new(("basis-rows", c))
-            .num_columns(4)
-            .spacing([6.0, 3.0])
-            .show(ui, |ui| {
-                for (j, basis) in m.clusters()[c].bases.iter().enumerate() {
-                    let mean = m.basis_mean_weight(c, j);
-                    ui.label(format!("{j} {}", basis.brdf().model().name()));
-                    let mut rgb = mean.map(|v| v as f32);
-                    let mut changed = false;
-                    ui.horizontal(|ui| {
-                        let mut shown = rgb.map(|v| v.clamp(0.0, 1.0));
-                        if egui::widgets::color_picker::color_edit_button_rgb(ui, &mut shown).changed() {
-                            rgb = shown;
-                            changed = true;
-                        }
-                        for (k, name) in ["R", "G", "B"].into_iter().enumerate() {
-                            ui.add_enabled_ui(mean[k] > 0.0, |ui| {
-                                let label = ui.label(format!("{name}{j}"));
-                                changed |= ui
-                                    .add(
-                                        egui::DragValue::new(&mut rgb[k])
-                                            .range(0.0..=f32::MAX)
-                                            .clamp_existing_to_range(false)
-                                            .max_decimals(4)
-                                            .speed(0.002),
-                                    )
-                                    .labelled_by(label.id)
-                                    .changed();
-                            });
-                        }
-                    });
-                    if changed {
-                        scale = Some((
-                            j,
-                            [0, 1, 2].map(|k| if mean[k] > 0.0 { f64::from(rgb[k]) / mean[k] } else { 1.0 }),
-                        ));
-                    }
-                    ui.horizontal(|ui| {
-                        let label = ui.label(format!("×{j}"));
-                        let mut factor = 1.0f64;
-                        if ui
-                            .add(egui::DragValue::new(&mut factor).range(0.0..=100.0).speed(0.01).max_decimals(3))
-                            .labelled_by(label.id)
-                            .on_hover_text("multiply this basis's weights (all channels)")
-                            .changed()
-                        {
-                            scale = Some((j, [factor; 3]));
-                        }
-                    });
-                    ui.horizontal(|ui| {
-                        let mut muted = view.muted(c, j);
-                        if ui
-                            .checkbox(&mut muted, format!("mute {j}"))
-                            .on_hover_text("hide this basis in the view; the pack keeps its weights until applied")
-                            .changed()
-                        {
-                            view.set_muted(c, j, muted);
-                            view_changed = true;
-                        }
-                        let mut solo = view.soloed(c, j);
-                        if ui
-                            .checkbox(&mut solo, format!("solo {j}"))
-                            .on_hover_text("show only the soloed bases of this cluster (no residual)")
-                            .changed()
-                        {
-                            view.set_solo(c, j, solo);
-                            view_changed = true;
-                        }
-                    });
-                    ui.end_row();
+        // Two lines per basis, so the panel keeps its width: name, colour, mute and
+        // solo; then the exact mean weight and the multiplier.
+        for (j, basis) in m.clusters()[c].bases.iter().enumerate() {
+            let mean = m.basis_mean_weight(c, j);
+            let mut rgb = mean.map(|v| v as f32);
+            let mut changed = false;
+            ui.horizontal(|ui| {
+                ui.label(format!("{j} {}", basis.brdf().model().name()));
+                let mut shown = rgb.map(|v| v.clamp(0.0, 1.0));
+                if egui::widgets::color_picker::color_edit_button_rgb(ui, &mut shown).changed() {
+                    rgb = shown;
+                    changed = true;
+                }
+                let mut muted = view.muted(c, j);
+                if ui
+                    .checkbox(&mut muted, format!("mute {j}"))
+                    .on_hover_text(
+                        "hide this basis in the view; the pack keeps its weights until applied",
+                    )
+                    .changed()
+                {
+                    view.set_muted(c, j, muted);
+                    view_changed = true;
+                }
+                let mut solo = view.soloed(c, j);
+                if ui
+                    .checkbox(&mut solo, format!("solo {j}"))
+                    .on_hover_text("show only the soloed bases of this cluster (no residual)")
+                    .changed()
+                {
+                    view.set_solo(c, j, solo);
+                    view_changed = true;
                 }
             });
+            ui.horizontal(|ui| {
+                ui.add_space(12.0);
+                for (k, name) in ["R", "G", "B"].into_iter().enumerate() {
+                    ui.add_enabled_ui(mean[k] > 0.0, |ui| {
+                        let label = ui.label(format!("{name}{j}"));
+                        changed |= ui
+                            .add(
+                                egui::DragValue::new(&mut rgb[k])
+                                    .range(0.0..=f32::MAX)
+                                    .clamp_existing_to_range(false)
+                                    .max_decimals(4)
+                                    .speed(0.002),
+                            )
+                            .labelled_by(label.id)
+                            .changed();
+                    });
+                }
+                let label = ui.label(format!("×{j}"));
+                let mut factor = 1.0f64;
+                if ui
+                    .add(
+                        egui::DragValue::new(&mut factor)
+                            .range(0.0..=100.0)
+                            .speed(0.01)
+                            .max_decimals(3),
+                    )
+                    .labelled_by(label.id)
+                    .on_hover_text("multiply this basis's weights (all channels)")
+                    .changed()
+                {
+                    scale = Some((j, [factor; 3]));
+                }
+            });
+            if changed {
+                scale = Some((
+                    j,
+                    [0, 1, 2].map(|k| {
+                        if mean[k] > 0.0 {
+                            f64::from(rgb[k]) / mean[k]
+                        } else {
+                            1.0
+                        }
+                    }),
+                ));
+            }
+        }
         if let Some((j, s)) = scale {
             let target = WeightTarget {
                 texels: self.limit(m),
@@ -571,7 +578,9 @@ impl MaterialPanel {
                 ui.weak("mute/solo change the view only;");
                 if ui
                     .button("Apply to the pack")
-                    .on_hover_text("remove the hidden bases' weights (and a soloed cluster's residual)")
+                    .on_hover_text(
+                        "remove the hidden bases' weights (and a soloed cluster's residual)",
+                    )
                     .clicked()
                     && let Ok(e) = m.with_view_applied()
                 {
@@ -630,8 +639,9 @@ impl MaterialPanel {
         let c = self.cluster;
         ui.separator();
         let p = &mut self.paint;
-        ui.checkbox(&mut p.on, "Paint weights")
-            .on_hover_text("left-drag on the object (or on the texel map) paints; right-drag still pans");
+        ui.checkbox(&mut p.on, "Paint weights").on_hover_text(
+            "left-drag on the object (or on the texel map) paints; right-drag still pans",
+        );
         if !p.on {
             return;
         }
@@ -656,7 +666,11 @@ impl MaterialPanel {
                         ui.selectable_value(&mut p.basis, None, "whole mixture");
                     }
                     for j in 0..bases {
-                        ui.selectable_value(&mut p.basis, Some(j), format!("cluster {c} basis {j}"));
+                        ui.selectable_value(
+                            &mut p.basis,
+                            Some(j),
+                            format!("cluster {c} basis {j}"),
+                        );
                     }
                 })
                 .response
@@ -665,16 +679,32 @@ impl MaterialPanel {
                 p.basis = None;
             }
             ui.horizontal(|ui| {
-                ui.label(if p.op == PaintOp::Scale { "factor" } else { "weight" });
+                ui.label(if p.op == PaintOp::Scale {
+                    "factor"
+                } else {
+                    "weight"
+                });
                 for (k, name) in ["R", "G", "B"].into_iter().enumerate() {
                     let label = ui.label(format!("brush {name}"));
-                    ui.add(egui::DragValue::new(&mut p.amount[k]).range(if p.op == PaintOp::Scale { 0.0..=100.0 } else { -10.0..=10.0 }).speed(0.01))
-                        .labelled_by(label.id);
+                    ui.add(
+                        egui::DragValue::new(&mut p.amount[k])
+                            .range(if p.op == PaintOp::Scale {
+                                0.0..=100.0
+                            } else {
+                                -10.0..=10.0
+                            })
+                            .speed(0.01),
+                    )
+                    .labelled_by(label.id);
                 }
             });
         }
         ui.horizontal(|ui| {
-            ui.add(egui::Slider::new(&mut p.brush.radius, 0.5..=64.0).logarithmic(true).text("radius"));
+            ui.add(
+                egui::Slider::new(&mut p.brush.radius, 0.5..=64.0)
+                    .logarithmic(true)
+                    .text("radius"),
+            );
             ui.selectable_value(&mut p.brush.units, BrushUnits::Texels, "texels");
             ui.selectable_value(&mut p.brush.units, BrushUnits::ScreenPixels, "pixels");
         });
@@ -698,7 +728,10 @@ impl MaterialPanel {
         if let Some(sel) = &p.selection {
             ui.checkbox(
                 &mut p.limit_to_selection,
-                format!("limit edits to the selection ({} texels)", sel.covered().count()),
+                format!(
+                    "limit edits to the selection ({} texels)",
+                    sel.covered().count()
+                ),
             );
         }
         let _ = (slot, index, edits);

@@ -704,6 +704,37 @@ impl Studio {
         }));
     }
 
+    /// A file dropped on the window: a `.spmm` pack goes on the edited object, a scene
+    /// `.toml` opens; BTFs and MERL tables are named with what to do instead.
+    pub fn open_dropped(&mut self, path: &Path) {
+        let ext = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase());
+        match ext.as_deref() {
+            Some("spmm") => self.open_pack(path),
+            Some("toml") => self.open_scene(path),
+            Some("btf") => {
+                self.error = Some(format!(
+                    "`{}` is a BTF: fit it to a pack first (`meso fit {} -o PACK.spmm`), then drop the pack",
+                    path.display(),
+                    path.display()
+                ))
+            }
+            Some("binary") => {
+                self.error = Some(format!(
+                    "`{}` is a MERL table: name it in a scene file (`kind = \"merl\"`, docs/scenes.md) and drop the scene",
+                    path.display()
+                ))
+            }
+            _ => {
+                self.error = Some(format!(
+                    "`{}`: drop a .spmm pack or a scene .toml",
+                    path.display()
+                ))
+            }
+        }
+    }
+
     /// Writes the frame on screen (EXR: linear; PNG: after the viewport's exposure).
     pub fn export_frame(&mut self, path: &Path) {
         let Some(frame) = self.viewport.frame() else {
@@ -1043,6 +1074,17 @@ impl Studio {
         self.poll_jobs();
         self.receive();
         self.shortcuts(ui);
+        let dropped: Vec<PathBuf> = ui.input(|i| {
+            i.raw
+                .dropped_files
+                .iter()
+                .map(|f| f.path().to_path_buf())
+                .filter(|p| !p.as_os_str().is_empty())
+                .collect()
+        });
+        for path in dropped {
+            self.open_dropped(&path);
+        }
         egui::Panel::top("menu").show(ui, |ui| self.menus(ui));
         egui::Panel::bottom("status").show(ui, |ui| self.status(ui));
         let mut requests = Vec::new();
@@ -1139,13 +1181,9 @@ impl Studio {
                 BrushUnits::Texels => 4.0,
             }
         });
-        let input = self.viewport.show(
-            ui,
-            &camera,
-            self.settings.exposure,
-            compare,
-            brush_points,
-        );
+        let input = self
+            .viewport
+            .show(ui, &camera, self.settings.exposure, compare, brush_points);
         let full = (
             ((f64::from(input.panel_pixels.0) * scale) as u32).clamp(16, 4096),
             ((f64::from(input.panel_pixels.1) * scale) as u32).clamp(16, 4096),
@@ -1208,7 +1246,16 @@ impl Studio {
         let at = |p: (f64, f64)| glam::DVec2::new(p.0 * f64::from(w), p.1 * f64::from(h));
         let brush = self.material_panel.paint.brush;
         let edit = self.material_panel.stroke_edit(doc, |mask| {
-            brush::stroke(&doc.scene, bvh, (w, h), at(from), at(to), &brush, index, mask)
+            brush::stroke(
+                &doc.scene,
+                bvh,
+                (w, h),
+                at(from),
+                at(to),
+                &brush,
+                index,
+                mask,
+            )
         });
         if let Some(e) = edit {
             self.edit(e);

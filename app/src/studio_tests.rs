@@ -650,8 +650,15 @@ fn two_points_on_the_pack(h: &Harness<'_, Studio>, gap: u32) -> ((u32, u32), (u3
     let (w, hgt) = h.state().full_size;
     let bvh = SceneBvh::build(&doc.scene.meshes);
     let on = |x: u32, y: u32| {
-        pick(&doc.scene, &bvh, w, hgt, f64::from(x) + 0.5, f64::from(y) + 0.5)
-            .is_some_and(|p| p.material == index)
+        pick(
+            &doc.scene,
+            &bvh,
+            w,
+            hgt,
+            f64::from(x) + 0.5,
+            f64::from(y) + 0.5,
+        )
+        .is_some_and(|p| p.material == index)
     };
     let y = hgt / 2;
     let x = (0..w.saturating_sub(gap))
@@ -707,11 +714,15 @@ fn a_real_drag_on_the_viewport_paints_only_the_brushed_texels_and_undoes_in_one_
     h.drop_at(to_pos(b));
     h.run_steps(2);
     let painted = material(&h);
-    assert!(!Arc::ptr_eq(&painted, &original), "the stroke edited the pack");
+    assert!(
+        !Arc::ptr_eq(&painted, &original),
+        "the stroke edited the pack"
+    );
     let doc = h.state().doc.as_ref().expect("doc");
     assert!(doc.version > v0);
     let bvh = SceneBvh::build(&doc.scene.meshes);
-    let Material::Spmm { uv_scale, .. } = &doc.scene.materials[doc.pack.as_ref().expect("pack").material]
+    let Material::Spmm { uv_scale, .. } =
+        &doc.scene.materials[doc.pack.as_ref().expect("pack").material]
     else {
         panic!("the pack's slot is SPMM");
     };
@@ -743,15 +754,25 @@ fn a_real_drag_on_the_viewport_paints_only_the_brushed_texels_and_undoes_in_one_
     let changed: Vec<usize> = (0..changed.len()).filter(|&t| changed[t]).collect();
     assert!(!changed.is_empty());
     for t in &changed {
-        assert!(swept.contains(t), "texel {t} changed outside the brushed path");
+        assert!(
+            swept.contains(t),
+            "texel {t} changed outside the brushed path"
+        );
         for ((j0, w0), (j1, w1)) in original.texel_weights(*t).zip(painted.texel_weights(*t)) {
             assert_eq!(j0, j1);
-            assert_eq!(w1, w0.map(|v| v * 2.0), "texel {t}: the whole mixture doubled");
+            assert_eq!(
+                w1,
+                w0.map(|v| v * 2.0),
+                "texel {t}: the whole mixture doubled"
+            );
         }
     }
     for end in [a, b] {
         for t in disc(f64::from(end.0) + 0.5, f64::from(end.1) + 0.5, 1.2) {
-            assert!(changed.contains(&t), "texel {t} under the stroke's end {end:?}");
+            assert!(
+                changed.contains(&t),
+                "texel {t} under the stroke's end {end:?}"
+            );
         }
     }
     // One undo step takes the whole stroke back, to the byte.
@@ -800,4 +821,54 @@ fn per_basis_rows_scale_one_basis_and_solo_changes_the_view_not_the_pack() {
     );
     wait_for_current_frame(&mut h);
     assert!(h.state().frame().expect("frame").version > v);
+}
+
+/// A file dropped on the window, as a native backend hands it over.
+#[derive(Debug)]
+struct Dropped(std::path::PathBuf);
+
+impl egui::DroppedFile for Dropped {
+    fn path(&self) -> &std::path::Path {
+        &self.0
+    }
+    fn bytes(&self) -> Result<Vec<u8>, String> {
+        std::fs::read(&self.0).map_err(|e| e.to_string())
+    }
+}
+
+#[test]
+fn a_pack_dropped_on_the_window_goes_on_the_object_and_other_files_are_named() {
+    let mut h = harness();
+    let original = material(&h);
+    let other = std::path::PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../materials/corduroy.spmm"
+    ));
+    h.input_mut()
+        .dropped_files
+        .push(Arc::new(Dropped(other.clone())));
+    h.step();
+    loaded(&mut h);
+    let now = material(&h);
+    assert!(!Arc::ptr_eq(&now, &original));
+    let expected = meso_core::spmm::pack::read_pack(&other).expect("shipped pack");
+    assert_eq!(now.weights(), expected.weights());
+    assert_eq!(
+        h.state()
+            .doc
+            .as_ref()
+            .and_then(|d| d.pack.as_ref())
+            .and_then(|p| p.path.clone()),
+        Some(other)
+    );
+    h.input_mut()
+        .dropped_files
+        .push(Arc::new(Dropped("/tmp/some.btf".into())));
+    h.step();
+    let e = h
+        .state()
+        .error
+        .clone()
+        .expect("a BTF is refused with a reason");
+    assert!(e.contains("some.btf") && e.contains("meso fit"), "{e}");
 }

@@ -401,11 +401,9 @@ impl SpmmMaterial {
                 bases[j] = DVec3::new(w[0] as f64, w[1] as f64, w[2] as f64) * dict[j].eval(wi, wo);
             }
             if residual {
-                let plain = self
-                    .with_view(BasisView::default())
-                    .unwrap_or_else(|_| self.clone());
-                let total = plain.eval_texel(t, wi, wo, true, max_npca);
-                let basis_sum = plain.eval_texel(t, wi, wo, false, max_npca);
+                let stored = BasisView::default();
+                let total = self.eval_texel_in(&stored, t, wi, wo, true, max_npca);
+                let basis_sum = self.eval_texel_in(&stored, t, wi, wo, false, max_npca);
                 resid = total - basis_sum;
             }
         }

@@ -52,12 +52,24 @@ impl SpmmMaterial {
         residual: bool,
         max_npca: usize,
     ) -> DVec3 {
+        self.eval_texel_in(self.view(), t, wi, wo, residual, max_npca)
+    }
+
+    /// `eval_texel` as `view` shows the material (the default view: as stored).
+    pub(super) fn eval_texel_in(
+        &self,
+        view: &super::BasisView,
+        t: usize,
+        wi: DVec3,
+        wo: DVec3,
+        residual: bool,
+        max_npca: usize,
+    ) -> DVec3 {
         if wi.z <= 0.0 || wo.z <= 0.0 {
             return DVec3::ZERO;
         }
         let c = self.texel_cluster()[t] as usize;
         let bases = &self.clusters()[c].bases;
-        let view = self.view();
         let all_shown = view.is_empty();
         let mut rgb = DVec3::ZERO;
         for (j, w) in self.texel_weights(t) {

@@ -59,7 +59,9 @@ pub fn run(args: &StrokeArgs) -> Result<(), CliError> {
         .materials
         .iter()
         .position(|m| matches!(m, Material::Spmm { .. }))
-        .ok_or_else(|| CliError::bad_input(anyhow!("`{}` has no SPMM material", args.scene.display())))?;
+        .ok_or_else(|| {
+            CliError::bad_input(anyhow!("`{}` has no SPMM material", args.scene.display()))
+        })?;
     let Material::Spmm {
         material: original,
         uv_scale,
@@ -78,20 +80,35 @@ pub fn run(args: &StrokeArgs) -> Result<(), CliError> {
     let on: Vec<(u32, u32)> = (n / 2..n)
         .flat_map(|y| (0..n).map(move |x| (x, y)))
         .filter(|&(x, y)| {
-            pick(&scene, mode.bvh(), n, n, f64::from(x) + 0.5, f64::from(y) + 0.5)
-                .is_some_and(|p| p.material == index)
+            pick(
+                &scene,
+                mode.bvh(),
+                n,
+                n,
+                f64::from(x) + 0.5,
+                f64::from(y) + 0.5,
+            )
+            .is_some_and(|p| p.material == index)
         })
         .collect();
-    let row = on
-        .first()
-        .map(|p| p.1)
-        .ok_or_else(|| CliError::bad_input(anyhow!("the SPMM material is not seen in the lower half of the image")))?;
+    let row = on.first().map(|p| p.1).ok_or_else(|| {
+        CliError::bad_input(anyhow!(
+            "the SPMM material is not seen in the lower half of the image"
+        ))
+    })?;
     let xs: Vec<u32> = on.iter().filter(|p| p.1 == row).map(|p| p.0).collect();
     let shaded = (0..n)
         .flat_map(|y| (0..n).map(move |x| (x, y)))
         .filter(|&(x, y)| {
-            pick(&scene, mode.bvh(), n, n, f64::from(x) + 0.5, f64::from(y) + 0.5)
-                .is_some_and(|p| p.material == index)
+            pick(
+                &scene,
+                mode.bvh(),
+                n,
+                n,
+                f64::from(x) + 0.5,
+                f64::from(y) + 0.5,
+            )
+            .is_some_and(|p| p.material == index)
         })
         .count();
     let brush = Brush {
@@ -109,7 +126,16 @@ pub fn run(args: &StrokeArgs) -> Result<(), CliError> {
         let x = xs[(k * 3) % xs.len()];
         let p = DVec2::new(f64::from(x) + 0.5, f64::from(row) + 0.5);
         let t0 = Instant::now();
-        brush::stroke(&scene, mode.bvh(), (n, n), last, p, &brush, index, &mut mask);
+        brush::stroke(
+            &scene,
+            mode.bvh(),
+            (n, n),
+            last,
+            p,
+            &brush,
+            index,
+            &mut mask,
+        );
         last = p;
         let t1 = Instant::now();
         let edited = original

@@ -60,7 +60,10 @@ pub fn dab(
     else {
         return false;
     };
-    if (pack.width(), pack.height()) != (mask.width(), mask.height()) || !(brush.radius > 0.0) {
+    if (pack.width(), pack.height()) != (mask.width(), mask.height())
+        || brush.radius.is_nan()
+        || brush.radius <= 0.0
+    {
         return false;
     }
     match brush.units {

@@ -4,6 +4,19 @@
 use super::SpmmMaterial;
 
 impl SpmmMaterial {
+    /// Whether `other` would be written as the same pack: everything but the view
+    /// (mute and solo are not stored, so they leave nothing unsaved).
+    pub fn stores_same(&self, other: &SpmmMaterial) -> bool {
+        self.name() == other.name()
+            && self.provenance() == other.provenance()
+            && self.edited() == other.edited()
+            && (self.width(), self.height()) == (other.width(), other.height())
+            && self.texel_cluster() == other.texel_cluster()
+            && self.clusters() == other.clusters()
+            && self.weights() == other.weights()
+            && self.residual() == other.residual()
+    }
+
     /// Per texel (row-major), whether `after` may evaluate differently from `self`
     /// there: its weights, a basis it weighs, its cluster's view flags or residual
     /// tables, or its residual coefficients differ. `None` when the two do not share a texel grid and

@@ -81,9 +81,10 @@ impl SpmmMaterial {
         }
         let w = self.weights();
         for (t, &c) in self.texel_cluster().iter().enumerate() {
-            for i in w.offsets[t] as usize..w.offsets[t + 1] as usize {
-                if !view.shows(c as usize, usize::from(w.basis[i])) {
-                    rgb[i] = [0.0; 3];
+            let range = w.offsets[t] as usize..w.offsets[t + 1] as usize;
+            for (v, &j) in rgb[range.clone()].iter_mut().zip(&w.basis[range]) {
+                if !view.shows(c as usize, usize::from(j)) {
+                    *v = [0.0; 3];
                 }
             }
         }

@@ -53,7 +53,7 @@ pub enum PackCommand {
         exposure: f64,
     },
     /// Scripted edits: scale weights per basis or cluster, mute, remove or add bases, within a texel mask.
-    Edit(crate::pack_edit_cmd::PackEditArgs),
+    Edit(Box<crate::pack_edit_cmd::PackEditArgs>),
     /// Read CSV rows `wix,wiy,wiz,wox,woy,woz` from stdin, print the RGB BTF value of one texel per row.
     Eval {
         file: PathBuf,

@@ -288,7 +288,7 @@ fn edit(
         .enumerate()
         .map(|(i, t)| Ok((pair(&nth("--remove-basis", i), t)?, t)))
         .collect::<Result<Vec<_>, CliError>>()?;
-    removals.sort_by(|a, b| b.0.cmp(&a.0));
+    removals.sort_by_key(|r| std::cmp::Reverse(r.0));
     removals.dedup_by(|a, b| a.0 == b.0);
     for ((c, b), text) in removals {
         m = m

@@ -1551,3 +1551,58 @@ fn bench_rays_reports_both_kinds_on_the_spec_rays() {
     );
     assert_bad_input(&meso(&["bench", "rays", "/no/such.obj"], ""), &["such.obj"]);
 }
+
+#[test]
+fn bench_stroke_times_each_step_and_restarts_fewer_pixels_than_the_material() {
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/default.toml");
+    let o = meso(
+        &[
+            "bench",
+            "stroke",
+            scene,
+            "--size",
+            "48",
+            "--strokes",
+            "3",
+            "--warm-frames",
+            "1",
+            "--json",
+        ],
+        "",
+    );
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    let parts: Vec<&str> = v["ms"]
+        .as_array()
+        .expect("parts")
+        .iter()
+        .map(|p| p["part"].as_str().expect("name"))
+        .collect();
+    assert_eq!(
+        parts,
+        [
+            "dab",
+            "pack edit",
+            "apply",
+            "frame + image",
+            "stroke to frame"
+        ]
+    );
+    for p in v["ms"].as_array().expect("parts") {
+        let (med, max) = (
+            p["median"].as_f64().expect("ms"),
+            p["max"].as_f64().expect("ms"),
+        );
+        assert!(med >= 0.0 && max >= med, "{p}");
+    }
+    let restarted = v["restarted_pixels_median"].as_u64().expect("count");
+    let material = v["pixels_of_material"].as_u64().expect("count");
+    assert!(
+        restarted > 0 && restarted < material,
+        "{restarted} of {material}"
+    );
+    assert_bad_input(
+        &meso(&["bench", "stroke", scene, "--size", "8"], ""),
+        &["--size"],
+    );
+}

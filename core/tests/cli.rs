@@ -530,6 +530,267 @@ fn pack_eval_prints_rgb_per_row() {
     );
 }
 
+/// `meso pack eval --json` at `uv` for one direction pair: (values, per-basis
+/// contributions) of the nearest texel.
+fn eval_parts(pack: &str, uv: &str) -> (Vec<f64>, Vec<Vec<f64>>) {
+    let row = "0.3,0.1,0.9,-0.2,0.1,0.95\n";
+    let o = meso(&["pack", "eval", pack, "--texel", uv, "--json"], row);
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    let nums = |x: &serde_json::Value| -> Vec<f64> {
+        x.as_array()
+            .expect("array")
+            .iter()
+            .map(|n| n.as_f64().expect("number"))
+            .collect()
+    };
+    let values = nums(&v["values"][0]);
+    let bases: Vec<Vec<f64>> = v["contributions"][0]["bases"]
+        .as_array()
+        .expect("bases")
+        .iter()
+        .map(nums)
+        .collect();
+    // The parts add up to the value (no residual in this pack).
+    for k in 0..3 {
+        let sum: f64 = bases.iter().map(|b| b[k]).sum();
+        assert!((sum - values[k]).abs() < 1e-12, "{sum} vs {}", values[k]);
+    }
+    (values, bases)
+}
+
+#[test]
+fn pack_edit_scales_mutes_adds_and_removes_through_the_core_edits() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("small.spmm");
+    write_small_pack(&path);
+    let p = path.to_str().expect("utf-8");
+    let out = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_string();
+    let original = std::fs::read(&path).expect("read");
+
+    // A unit scale writes the same bytes.
+    let same = out("same.spmm");
+    assert_ok(&meso(
+        &[
+            "pack",
+            "edit",
+            p,
+            "-o",
+            &same,
+            "--cluster",
+            "0",
+            "--basis",
+            "1",
+            "--scale",
+            "1,1,1",
+        ],
+        "",
+    ));
+    assert_eq!(std::fs::read(&same).expect("read"), original);
+
+    // Scaling basis 1 of cluster 0 by 2 doubles its contribution at texel 0 (u 0.25,
+    // v 0.75: cluster 0, bases 0 and 1) and leaves basis 0's as it was.
+    let doubled = out("doubled.spmm");
+    let o = meso(
+        &[
+            "pack",
+            "edit",
+            p,
+            "-o",
+            &doubled,
+            "--cluster",
+            "0",
+            "--basis",
+            "1",
+            "--scale",
+            "2",
+            "--json",
+        ],
+        "",
+    );
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    assert_eq!(
+        v["changed_texels"], 2,
+        "the two texels of cluster 0 weigh basis 1"
+    );
+    let (_, before) = eval_parts(p, "0.25,0.75");
+    let (_, after) = eval_parts(&doubled, "0.25,0.75");
+    assert_eq!(after[0], before[0]);
+    for k in 0..3 {
+        assert!((after[1][k] - 2.0 * before[1][k]).abs() < 1e-12 && before[1][k] > 0.0);
+    }
+    // Scales read their --cluster and --basis in order: basis 1 of cluster 0 doubled,
+    // then the whole of cluster 1 (texel (1, 0), u 0.75, v 0.75) halved.
+    let mixed = out("mixed.spmm");
+    assert_ok(&meso(
+        &[
+            "pack",
+            "edit",
+            p,
+            "-o",
+            &mixed,
+            "--cluster",
+            "0",
+            "--basis",
+            "1",
+            "--scale",
+            "2",
+            "--cluster",
+            "1",
+            "--scale",
+            "0.5",
+        ],
+        "",
+    ));
+    assert_eq!(eval_parts(&mixed, "0.25,0.75").1, after);
+    let (v0, _) = eval_parts(p, "0.75,0.75");
+    let (v1, _) = eval_parts(&mixed, "0.75,0.75");
+    for k in 0..3 {
+        assert!((v1[k] - 0.5 * v0[k]).abs() < 1e-12);
+    }
+    // ... and 0.5 brings it back.
+    let back = out("back.spmm");
+    assert_ok(&meso(
+        &[
+            "pack",
+            "edit",
+            &doubled,
+            "-o",
+            &back,
+            "--cluster",
+            "0",
+            "--basis",
+            "1",
+            "--scale",
+            "0.5",
+        ],
+        "",
+    ));
+    assert_eq!(eval_parts(&back, "0.25,0.75").1, before);
+
+    // Mute bakes: basis 1 loses its weights, basis 0 keeps them.
+    let muted = out("muted.spmm");
+    assert_ok(&meso(
+        &["pack", "edit", p, "-o", &muted, "--mute", "0:1"],
+        "",
+    ));
+    let (_, m) = eval_parts(&muted, "0.25,0.75");
+    assert_eq!(m[0], before[0]);
+    assert_eq!(m[1], vec![0.0; 3]);
+
+    // Add a Lambertian basis to cluster 1 weighted only where the mask is white
+    // (texel (1, 0)), then remove it again.
+    let mask = dir.path().join("mask.png");
+    image::GrayImage::from_raw(2, 2, vec![0, 255, 0, 0])
+        .expect("2x2")
+        .save(&mask)
+        .expect("write mask");
+    let added = out("added.spmm");
+    let o = meso(
+        &[
+            "pack",
+            "edit",
+            p,
+            "-o",
+            &added,
+            "--add-basis",
+            "1",
+            "--model",
+            "lambertian",
+            "--normal",
+            "0.2,-1",
+            "--add-weight",
+            "0.1,0.2,0.3",
+            "--texels",
+            mask.to_str().expect("utf-8"),
+            "--json",
+        ],
+        "",
+    );
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    assert_eq!(v["added_basis"]["basis"], 1);
+    assert_eq!(v["changed_texels"], 1);
+    assert_eq!(
+        meso(&["pack", "validate", &added], "").status.code(),
+        Some(0)
+    );
+    let (_, at_painted) = eval_parts(&added, "0.75,0.75");
+    assert!(at_painted[1].iter().all(|&x| x > 0.0), "{at_painted:?}");
+    let (_, elsewhere) = eval_parts(&added, "0.25,0.25");
+    assert_eq!(
+        elsewhere[1],
+        vec![0.0; 3],
+        "cluster 1's other texel is unpainted"
+    );
+    let removed = out("removed.spmm");
+    assert_ok(&meso(
+        &[
+            "pack",
+            "edit",
+            &added,
+            "-o",
+            &removed,
+            "--remove-basis",
+            "1:1",
+        ],
+        "",
+    ));
+    assert_eq!(
+        eval_parts(&removed, "0.75,0.75"),
+        eval_parts(p, "0.75,0.75")
+    );
+
+    // Bad indices and values exit 2 naming the option; nothing is written.
+    let never = out("never.spmm");
+    let bad = |args: &[&str], needles: &[&str]| {
+        let mut all = vec!["pack", "edit", p, "-o", never.as_str()];
+        all.extend_from_slice(args);
+        assert_bad_input(&meso(&all, ""), needles);
+        assert!(!Path::new(&never).exists());
+    };
+    bad(
+        &["--cluster", "0", "--basis", "7", "--scale", "2"],
+        &["--basis 7", "basis 7 of cluster 0"],
+    );
+    bad(
+        &["--cluster", "3", "--scale", "2"],
+        &["--cluster 3", "cluster 3"],
+    );
+    bad(
+        &["--cluster", "0", "--scale", "-1"],
+        &["--cluster 0", "non-negative"],
+    );
+    bad(
+        &["--cluster", "0", "--scale", "1,x,1"],
+        &["--scale #1", "1,x,1"],
+    );
+    bad(&["--scale", "2"], &["--scale #1", "no --cluster before it"]);
+    bad(
+        &["--cluster", "0", "--scale", "2", "--basis", "1"],
+        &["give --scale after them"],
+    );
+    bad(
+        &["--remove-basis", "1:4"],
+        &["--remove-basis 1:4", "basis 4 of cluster 1"],
+    );
+    bad(
+        &["--remove-basis", "1:0"],
+        &["--remove-basis 1:0", "only basis"],
+    );
+    bad(&["--mute", "0:9"], &["--mute 0:9"]);
+    bad(&["--add-basis", "0", "--model", "nope"], &["--model"]);
+    bad(
+        &["--add-basis", "0", "--model", "ward", "--param", "ax"],
+        &["--param #1", "ax"],
+    );
+    bad(
+        &["--cluster", "0", "--scale", "2", "--texels", p],
+        &["--texels"],
+    );
+}
+
 #[test]
 fn render_writes_an_image_and_reports_json() {
     let dir = tempfile::tempdir().expect("temp dir");
@@ -638,8 +899,8 @@ fn report_convergence_writes_csv_json_charts_and_the_reference() {
         .collect();
     assert_eq!(
         variants,
-        ["full", "no_ao"],
-        "the default scene has AO and no residual"
+        ["full", "full_denoised", "independent", "no_ao"],
+        "the default scene has AO and no residual; the denoiser's and the independent sampler's rows come with every scene"
     );
     let csv = std::fs::read_to_string(out.join("convergence.csv")).expect("csv");
     let rows: Vec<&str> = csv.lines().collect();
@@ -1337,5 +1598,60 @@ fn render_denoises_only_when_asked() {
         "{} vs {}",
         variation(&filtered),
         variation(&plain)
+    );
+}
+
+#[test]
+fn bench_stroke_times_each_step_and_restarts_fewer_pixels_than_the_material() {
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/default.toml");
+    let o = meso(
+        &[
+            "bench",
+            "stroke",
+            scene,
+            "--size",
+            "48",
+            "--strokes",
+            "3",
+            "--warm-frames",
+            "1",
+            "--json",
+        ],
+        "",
+    );
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    let parts: Vec<&str> = v["ms"]
+        .as_array()
+        .expect("parts")
+        .iter()
+        .map(|p| p["part"].as_str().expect("name"))
+        .collect();
+    assert_eq!(
+        parts,
+        [
+            "dab",
+            "pack edit",
+            "apply",
+            "frame + image",
+            "stroke to frame"
+        ]
+    );
+    for p in v["ms"].as_array().expect("parts") {
+        let (med, max) = (
+            p["median"].as_f64().expect("ms"),
+            p["max"].as_f64().expect("ms"),
+        );
+        assert!(med >= 0.0 && max >= med, "{p}");
+    }
+    let restarted = v["restarted_pixels_median"].as_u64().expect("count");
+    let material = v["pixels_of_material"].as_u64().expect("count");
+    assert!(
+        restarted > 0 && restarted < material,
+        "{restarted} of {material}"
+    );
+    assert_bad_input(
+        &meso(&["bench", "stroke", scene, "--size", "8"], ""),
+        &["--size"],
     );
 }

@@ -9,6 +9,7 @@ pub mod denoise;
 pub mod edit;
 pub mod film;
 pub mod layers;
+pub mod reach;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 

@@ -24,4 +24,6 @@ mod many_lights_tests;
 #[cfg(test)]
 mod merl_tests;
 #[cfg(test)]
+mod paint_tests;
+#[cfg(test)]
 mod tests;

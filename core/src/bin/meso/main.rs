@@ -3,6 +3,7 @@
 //! `--json` prints exactly one JSON object on stdout.
 
 mod bench_cmd;
+mod bench_stroke;
 mod brdf_cmd;
 mod btf_cmd;
 mod compare_cmd;
@@ -11,6 +12,7 @@ mod fit_cmd;
 mod merl_cmd;
 mod mode_args;
 mod pack_cmd;
+mod pack_edit_cmd;
 mod plot;
 mod progress;
 mod render_cmd;
@@ -67,7 +69,7 @@ enum Command {
         #[command(subcommand)]
         command: report_cmd::ReportCommand,
     },
-    /// SPMM material packs (.spmm): summarise and validate.
+    /// SPMM material packs (.spmm): summarise, validate, build, preview, evaluate, edit.
     Pack {
         #[command(subcommand)]
         command: pack_cmd::PackCommand,

@@ -17,6 +17,7 @@ pub mod image;
 pub mod merl;
 pub mod metrics;
 pub mod modes;
+pub mod regress;
 pub mod render;
 pub mod rng;
 pub mod scene;

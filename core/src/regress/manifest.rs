@@ -621,3 +621,7 @@ impl Settings {
         })
     }
 }
+
+#[cfg(test)]
+#[path = "manifest_tests.rs"]
+mod tests;

@@ -73,9 +73,18 @@ fn shipped_manifest_passes_bit_for_bit_on_any_thread_count_and_shard_split() {
     let one = run(&manifest, None, 1, 1, None, None);
     check(&one, "1 job on 1 thread");
     let passed = one.counts().passed;
-    assert!(passed >= 42, "{passed} cases rendered");
+    assert!(passed >= 68, "{passed} cases rendered");
     // Every scene x every shipped pack is covered.
-    for scene in ["default", "fitted", "cloth", "env", "cornell"] {
+    for scene in [
+        "default",
+        "fitted",
+        "cloth",
+        "env",
+        "cornell",
+        "merl_bunny",
+        "merl_dragon",
+        "merl_teapot",
+    ] {
         for pack in [
             "woven_wool",
             "leather",
@@ -89,12 +98,12 @@ fn shipped_manifest_passes_bit_for_bit_on_any_thread_count_and_shard_split() {
             assert!(one.cases.iter().any(|c| c.name == name), "{name} missing");
         }
     }
-    let two = run(&manifest, None, 2, 2, None, None);
-    check(&two, "2 jobs on 2 threads");
+    // The goldens were rendered on 2 threads; here each shard renders 2 cases at once
+    // with 2 threads each.
     let mut union = Vec::new();
     for index in 1..=3 {
-        let part = run(&manifest, Some(Shard { index, count: 3 }), 1, 2, None, None);
-        check(&part, &format!("shard {index}/3"));
+        let part = run(&manifest, Some(Shard { index, count: 3 }), 2, 4, None, None);
+        check(&part, &format!("shard {index}/3, 2 jobs x 2 threads"));
         union.extend(part.cases.into_iter().map(|c| c.name));
     }
     union.sort();

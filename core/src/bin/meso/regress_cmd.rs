@@ -245,11 +245,19 @@ fn finish(
             .filter(|c| c.status == regress::Status::Fail)
             .map(|c| c.name.as_str())
             .collect();
+        // The first ten by name; the report lists them all.
+        const SHOWN: usize = 10;
+        let more = names.len().saturating_sub(SHOWN);
         return Err(CliError::failure(anyhow!(
-            "{} of {} cases failed: {}",
+            "{} of {} cases failed: {}{}",
             c.failed,
             c.total,
-            names.join(", ")
+            names[..names.len().min(SHOWN)].join(", "),
+            if more > 0 {
+                format!(" and {more} more")
+            } else {
+                String::new()
+            }
         )));
     }
     Ok(())

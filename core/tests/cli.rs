@@ -1312,7 +1312,12 @@ fn regress_exit_codes_json_update_log_and_junit() {
     let ms = m.to_str().expect("utf-8 path");
     // No goldens yet: exit 1, each case says how to create its golden.
     let o = meso(&["regress", ms], "");
-    assert_eq!(o.status.code(), Some(1), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(err.lines().count(), 1, "{err}");
     assert!(err.starts_with("error: 2 of 2 cases failed: "), "{err}");
@@ -1320,13 +1325,22 @@ fn regress_exit_codes_json_update_log_and_junit() {
     // --update needs a reason, and a reason needs --update.
     assert_bad_input(&meso(&["regress", ms, "--update"], ""), &["--reason"]);
     assert_bad_input(&meso(&["regress", ms, "--reason", "x"], ""), &["--update"]);
-    let o = meso(&["regress", ms, "--update", "--reason", "first goldens"], "");
+    let o = meso(
+        &["regress", ms, "--update", "--reason", "first goldens"],
+        "",
+    );
     assert_ok(&o);
     let log = std::fs::read_to_string(dir.path().join("goldens/LOG.md")).expect("log");
     assert!(log.contains("- reason: first goldens"), "{log}");
     assert!(log.contains("--update --reason 'first goldens'"), "{log}");
-    assert!(log.contains("cases: `default.scene.spmm-cpu` `default.wool.spmm-cpu`"), "{log}");
-    assert!(log.contains(&format!("- meso: {}", env!("CARGO_PKG_VERSION"))), "{log}");
+    assert!(
+        log.contains("cases: `default.scene.spmm-cpu` `default.wool.spmm-cpu`"),
+        "{log}"
+    );
+    assert!(
+        log.contains(&format!("- meso: {}", env!("CARGO_PKG_VERSION"))),
+        "{log}"
+    );
     for case in ["default.scene.spmm-cpu", "default.wool.spmm-cpu"] {
         assert!(dir.path().join(format!("goldens/{case}.exr")).is_file());
     }
@@ -1349,8 +1363,15 @@ fn regress_exit_codes_json_update_log_and_junit() {
     );
     assert_ok(&o);
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON object");
-    assert_eq!((v["total"].as_u64(), v["passed"].as_u64()), (Some(2), Some(2)), "{v}");
-    assert_eq!(v["cases"][0]["metrics"]["identical"], serde_json::json!(true));
+    assert_eq!(
+        (v["total"].as_u64(), v["passed"].as_u64()),
+        (Some(2), Some(2)),
+        "{v}"
+    );
+    assert_eq!(
+        v["cases"][0]["metrics"]["identical"],
+        serde_json::json!(true)
+    );
     for f in ["index.html", "summary.md", "report.json"] {
         assert!(report.join(f).is_file(), "{f}");
     }
@@ -1360,10 +1381,16 @@ fn regress_exit_codes_json_update_log_and_junit() {
     // says so too.
     let m = regress_manifest(dir.path(), 24, 2, "seed = 9\n");
     let ms = m.to_str().expect("utf-8 path");
-    let o = meso(&["regress", ms, "--junit", junit.to_str().expect("utf-8")], "");
+    let o = meso(
+        &["regress", ms, "--junit", junit.to_str().expect("utf-8")],
+        "",
+    );
     assert_eq!(o.status.code(), Some(1));
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("default.scene.spmm-cpu") && err.contains("default.wool.spmm-cpu"), "{err}");
+    assert!(
+        err.contains("default.scene.spmm-cpu") && err.contains("default.wool.spmm-cpu"),
+        "{err}"
+    );
     let x = std::fs::read_to_string(&junit).expect("junit");
     assert!(x.contains("tests=\"2\" failures=\"2\""), "{x}");
     // Shards: every case in one of the two.
@@ -1381,7 +1408,10 @@ fn regress_bad_input_exits_2_naming_the_place() {
     let dir = tempfile::tempdir().expect("temp dir");
     let m = regress_manifest(dir.path(), 24, 2, "colour = 3\n");
     let ms = m.to_str().expect("utf-8 path");
-    assert_bad_input(&meso(&["regress", ms], ""), &["manifest.toml` line 22", "colour"]);
+    assert_bad_input(
+        &meso(&["regress", ms], ""),
+        &["manifest.toml` line 22", "colour"],
+    );
     let m = regress_manifest(
         dir.path(),
         24,
@@ -1399,10 +1429,19 @@ fn regress_bad_input_exits_2_naming_the_place() {
     );
     let m = regress_manifest(dir.path(), 24, 2, "");
     let ms = m.to_str().expect("utf-8 path");
-    assert_bad_input(&meso(&["regress", ms, "--only", "nothing*"], ""), &["matches no case"]);
-    assert_bad_input(&meso(&["regress", ms, "--shard", "3/2"], ""), &["--shard", "K/N"]);
+    assert_bad_input(
+        &meso(&["regress", ms, "--only", "nothing*"], ""),
+        &["matches no case"],
+    );
+    assert_bad_input(
+        &meso(&["regress", ms, "--shard", "3/2"], ""),
+        &["--shard", "K/N"],
+    );
     assert_bad_input(&meso(&["regress", ms, "--jobs", "0"], ""), &["--jobs"]);
-    assert_bad_input(&meso(&["regress", "/no/such.toml"], ""), &["/no/such.toml", "cannot read"]);
+    assert_bad_input(
+        &meso(&["regress", "/no/such.toml"], ""),
+        &["/no/such.toml", "cannot read"],
+    );
     // A replaced material the scene does not have names the manifest line and the case.
     let text = std::fs::read_to_string(&m)
         .expect("text")
@@ -1410,11 +1449,25 @@ fn regress_bad_input_exits_2_naming_the_place() {
     std::fs::write(&m, text).expect("edit");
     assert_bad_input(
         &meso(&["regress", ms], ""),
-        &["case `default.wool.spmm-cpu`", "line 12", "no material `suede`", "leather"],
+        &[
+            "case `default.wool.spmm-cpu`",
+            "line 12",
+            "no material `suede`",
+            "leather",
+        ],
     );
     // merge: not a report folder.
     assert_bad_input(
-        &meso(&["regress", "merge", dir.path().to_str().expect("utf-8"), "-o", "x"], ""),
+        &meso(
+            &[
+                "regress",
+                "merge",
+                dir.path().to_str().expect("utf-8"),
+                "-o",
+                "x",
+            ],
+            "",
+        ),
         &["report.json"],
     );
 }
@@ -1445,7 +1498,15 @@ fn regress_update_killed_midway_keeps_the_old_goldens() {
     // machine to kill into.
     regress_manifest(dir.path(), 256, 64, "seed = 3\n");
     let mut child = Command::new(env!("CARGO_BIN_EXE_meso"))
-        .args(["regress", ms, "--update", "--reason", "new", "--threads", "1"])
+        .args([
+            "regress",
+            ms,
+            "--update",
+            "--reason",
+            "new",
+            "--threads",
+            "1",
+        ])
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
@@ -1458,5 +1519,9 @@ fn regress_update_killed_midway_keeps_the_old_goldens() {
         still_running && !status.success(),
         "the update finished before it could be killed ({status}); the test needs a longer render"
     );
-    assert_eq!(snapshot(), before, "goldens or log changed by a killed update");
+    assert_eq!(
+        snapshot(),
+        before,
+        "goldens or log changed by a killed update"
+    );
 }

@@ -60,8 +60,9 @@ fn shipped_manifest_passes_bit_for_bit_on_any_thread_count_and_shard_split() {
                 // Only what the mode cannot render yet may be skipped (and only while
                 // it has no golden: with one it would fail).
                 Status::Skipped => assert!(
-                    c.message.as_deref().is_some_and(|m| m.contains("cannot render")
-                        || m.contains("not built")),
+                    c.message
+                        .as_deref()
+                        .is_some_and(|m| m.contains("cannot render") || m.contains("not built")),
                     "{what}: {} skipped: {:?}",
                     c.name,
                     c.message
@@ -232,13 +233,19 @@ fn a_changed_pack_fails_exactly_the_cases_that_use_it_and_the_report_names_them(
     for c in report.cases.iter().filter(|c| c.status == Status::Fail) {
         let m = c.metrics.expect("compared");
         assert!(m.relative_rmse.expect("finite") > 0.001, "{m:?}");
-        assert!(c.message.as_deref().is_some_and(|t| t.contains("relative RMSE")));
+        assert!(
+            c.message
+                .as_deref()
+                .is_some_and(|t| t.contains("relative RMSE"))
+        );
         assert!(c.diff_scale.expect("heat map") > 0.0);
     }
     let page = std::fs::read_to_string(out.join("index.html")).expect("page");
     let md = std::fs::read_to_string(out.join("summary.md")).expect("summary");
     for name in failed(&report) {
-        assert!(page.contains(&format!("<td class=\"status fail\">FAIL</td><td><code>{name}</code>")));
+        assert!(page.contains(&format!(
+            "<td class=\"status fail\">FAIL</td><td><code>{name}</code>"
+        )));
         assert!(md.contains(&format!("| **FAIL** | `{name}` |")), "{md}");
         for suffix in ["golden", "new", "diff"] {
             assert!(out.join(format!("images/{name}.{suffix}.png")).is_file());
@@ -274,7 +281,14 @@ fn merged_shards_equal_the_unsharded_report() {
     let mut dirs = Vec::new();
     for index in 1..=3 {
         let d = f.path(&format!("shard{index}"));
-        let part = run(&manifest, Some(Shard { index, count: 3 }), 1, 2, None, Some(&d));
+        let part = run(
+            &manifest,
+            Some(Shard { index, count: 3 }),
+            1,
+            2,
+            None,
+            Some(&d),
+        );
         assert_eq!(part.shard, Some(Shard { index, count: 3 }));
         dirs.push(d);
     }
@@ -287,7 +301,10 @@ fn merged_shards_equal_the_unsharded_report() {
     let reread = Report::read(&merged_dir).expect("merged report.json");
     assert_eq!(comparable(&reread), comparable(&whole));
     for c in &whole.cases {
-        for rel in [&c.golden_png, &c.new_png, &c.diff_png].into_iter().flatten() {
+        for rel in [&c.golden_png, &c.new_png, &c.diff_png]
+            .into_iter()
+            .flatten()
+        {
             assert_eq!(
                 std::fs::read(merged_dir.join(rel)).expect("merged picture"),
                 std::fs::read(whole_dir.join(rel)).expect("whole picture"),
@@ -307,7 +324,7 @@ fn merged_shards_equal_the_unsharded_report() {
     let e = regress::merge::merge(&[dirs[0].clone(), dirs[0].clone()], &f.path("m3"), "merge")
         .expect_err("twice");
     assert!(e.to_string().contains("given twice"), "{e}");
-    let e = regress::merge::merge(&[whole_dir.clone()], &f.path("m4"), "merge")
+    let e = regress::merge::merge(std::slice::from_ref(&whole_dir), &f.path("m4"), "merge")
         .expect_err("not a shard");
     assert!(e.to_string().contains("not a shard report"), "{e}");
     std::fs::write(
@@ -316,9 +333,20 @@ fn merged_shards_equal_the_unsharded_report() {
     )
     .expect("edit manifest");
     let other = f.path("other");
-    run(&f.load(), Some(Shard { index: 3, count: 3 }), 1, 2, None, Some(&other));
-    let e = regress::merge::merge(&[dirs[0].clone(), dirs[1].clone(), other], &f.path("m5"), "merge")
-        .expect_err("another manifest");
+    run(
+        &f.load(),
+        Some(Shard { index: 3, count: 3 }),
+        1,
+        2,
+        None,
+        Some(&other),
+    );
+    let e = regress::merge::merge(
+        &[dirs[0].clone(), dirs[1].clone(), other],
+        &f.path("m5"),
+        "merge",
+    )
+    .expect_err("another manifest");
     assert!(e.to_string().contains("another manifest"), "{e}");
     assert!(e.is_bad_input());
 }
@@ -419,7 +447,11 @@ fn the_html_report_opens_in_headless_chromium_with_the_failing_case_first() {
         (0..img.height()).find(|&y| {
             let mut run = 0;
             (0..img.width()).any(|x| {
-                run = if img.get_pixel(x, y).0 == rgb { run + 1 } else { 0 };
+                run = if img.get_pixel(x, y).0 == rgb {
+                    run + 1
+                } else {
+                    0
+                };
                 run >= 40
             })
         })
@@ -431,7 +463,10 @@ fn the_html_report_opens_in_headless_chromium_with_the_failing_case_first() {
     // at 0) fills most of each map, scaled up without smoothing.
     let dark = meso_core::regress::report::images::VIRIDIS[0];
     let dark_pixels = img.pixels().filter(|p| p.0 == dark).count();
-    assert!(dark_pixels > 2000, "{dark_pixels} heat-map pixels on screen");
+    assert!(
+        dark_pixels > 2000,
+        "{dark_pixels} heat-map pixels on screen"
+    );
 }
 
 #[test]
@@ -456,7 +491,11 @@ fn only_selects_by_pattern() {
     let names: Vec<&str> = r.cases.iter().map(|c| c.name.as_str()).collect();
     assert_eq!(
         names,
-        ["cloth.leather.spmm-cpu", "cloth.scene.spmm-cpu", "cloth.wool.spmm-cpu"]
+        [
+            "cloth.leather.spmm-cpu",
+            "cloth.scene.spmm-cpu",
+            "cloth.wool.spmm-cpu"
+        ]
     );
     let none = Pattern::parse("nothing*").expect("valid");
     let e = regress::run_manifest(
@@ -473,5 +512,8 @@ fn only_selects_by_pattern() {
         },
     )
     .expect_err("matches nothing");
-    assert!(e.to_string().contains("--only `nothing*` matches no case"), "{e}");
+    assert!(
+        e.to_string().contains("--only `nothing*` matches no case"),
+        "{e}"
+    );
 }

@@ -26,12 +26,12 @@ impl Tolerance {
     pub fn violations(&self, relative_rmse: f64, mssim: f64) -> Vec<String> {
         let mut out = Vec::new();
         if let Some(max) = self.max_relative_rmse
-            && !(relative_rmse <= max)
+            && (relative_rmse.is_nan() || relative_rmse > max)
         {
             out.push(format!("relative RMSE {relative_rmse:.4e} > {max}"));
         }
         if let Some(min) = self.min_mssim
-            && !(mssim >= min)
+            && (mssim.is_nan() || mssim < min)
         {
             out.push(format!("MSSIM {mssim:.6} < {min}"));
         }
@@ -148,4 +148,74 @@ pub fn substitute(
         *file = None;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::DVec2;
+
+    use super::*;
+    use crate::scene::test_scenes::{edit_test_scene, tilted_spmm};
+
+    #[test]
+    fn a_pack_keeps_the_tiling_it_replaces_unless_it_sets_its_own() {
+        let mut scene = edit_test_scene();
+        substitute(&mut scene, "panel", tilted_spmm(), false).expect("panel exists");
+        let Material::Spmm { uv_scale, .. } = &scene.materials[1] else {
+            panic!("an spmm material")
+        };
+        assert_eq!(*uv_scale, DVec2::splat(2.0), "the replaced panel's tiling");
+        assert_eq!(scene.material_files.get(1).cloned().flatten(), None);
+        let mut scene = edit_test_scene();
+        substitute(&mut scene, "panel", tilted_spmm(), true).expect("panel exists");
+        let Material::Spmm { uv_scale, .. } = &scene.materials[1] else {
+            panic!("an spmm material")
+        };
+        assert_eq!(*uv_scale, DVec2::ONE, "its own tiling");
+        // Over a non-spmm material there is no tiling to keep.
+        let mut scene = edit_test_scene();
+        substitute(&mut scene, "floor", tilted_spmm(), false).expect("floor exists");
+        assert!(
+            matches!(scene.materials[0], Material::Spmm { uv_scale, .. } if uv_scale == DVec2::ONE)
+        );
+        let e = substitute(&mut scene, "wall", tilted_spmm(), false).expect_err("no wall");
+        assert_eq!(e, "the scene has no material `wall` (it has: floor, panel)");
+    }
+
+    #[test]
+    fn tolerances_check_only_their_bounds_and_reject_nan() {
+        let both = Tolerance {
+            max_relative_rmse: Some(0.05),
+            min_mssim: Some(0.98),
+        };
+        assert!(
+            both.violations(0.05, 0.98).is_empty(),
+            "bounds are inclusive"
+        );
+        assert_eq!(both.violations(0.06, 0.99).len(), 1);
+        assert_eq!(both.violations(0.01, 0.97).len(), 1);
+        assert_eq!(both.violations(f64::NAN, f64::NAN).len(), 2);
+        assert_eq!(both.violations(f64::INFINITY, 1.0).len(), 1);
+        let rmse_only = Tolerance {
+            max_relative_rmse: Some(0.05),
+            min_mssim: None,
+        };
+        assert!(rmse_only.violations(0.0, -1.0).is_empty());
+    }
+
+    #[test]
+    fn names_are_checked_for_file_use() {
+        assert_eq!(
+            case_name("bunny", None, ModeKind::Spmm, Device::Gpu),
+            "bunny.scene.spmm-gpu"
+        );
+        assert!(check_key("woven_wool-2").is_none());
+        for bad in ["", "Wool", "a.b", "a/b", &"x".repeat(65)] {
+            assert!(check_key(bad).is_some(), "{bad}");
+        }
+        assert!(check_case_name("Cornell-96.seed_7").is_none());
+        for bad in ["", ".hidden", "a/b", "a b", "../x"] {
+            assert!(check_case_name(bad).is_some(), "{bad}");
+        }
+    }
 }

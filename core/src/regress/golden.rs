@@ -180,6 +180,9 @@ mod tests {
         assert_eq!(std::fs::read(&a).expect("a"), before);
         let log = std::fs::read_to_string(goldens.join(LOG_FILE)).expect("log");
         assert_eq!(log.matches("## ").count(), 2, "{log}");
-        assert!(log.contains("reason: second") && log.contains("`c` `b`"), "{log}");
+        assert!(
+            log.contains("reason: second") && log.contains("`c` `b`"),
+            "{log}"
+        );
     }
 }

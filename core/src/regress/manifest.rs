@@ -166,8 +166,7 @@ impl Manifest {
 }
 
 fn line_of(text: &str, span: &Range<usize>) -> Option<usize> {
-    (span.end > 0 && span.start <= text.len())
-        .then(|| text[..span.start].matches('\n').count() + 1)
+    (span.end > 0 && span.start <= text.len()).then(|| text[..span.start].matches('\n').count() + 1)
 }
 
 struct Ctx<'a> {
@@ -223,7 +222,10 @@ pub fn parse_manifest(path: &Path, text: String) -> Result<Manifest, ManifestErr
             message: e.message().trim().to_string(),
         }
     })?;
-    let ctx = Ctx { file: path, text: &text };
+    let ctx = Ctx {
+        file: path,
+        text: &text,
+    };
     if *parsed.version.get_ref() != 1 {
         return ctx.err(
             &parsed.version.span(),
@@ -266,7 +268,13 @@ pub fn parse_manifest(path: &Path, text: String) -> Result<Manifest, ManifestErr
         materials.insert(name.into_inner(), m);
     }
 
-    let defaults = Settings::read(&ctx, "defaults", &parsed.defaults.as_fields(), None, &(0..0))?;
+    let defaults = Settings::read(
+        &ctx,
+        "defaults",
+        &parsed.defaults.as_fields(),
+        None,
+        &(0..0),
+    )?;
     let mut cases: Vec<Case> = Vec::new();
     let mut origin_of: BTreeMap<String, String> = BTreeMap::new();
     let mut push = |case: Case, span: &Range<usize>| -> Result<(), ManifestError> {
@@ -274,7 +282,10 @@ pub fn parse_manifest(path: &Path, text: String) -> Result<Manifest, ManifestErr
             return ctx.err(
                 span,
                 case.origin.clone(),
-                format!("case `{}` is also made by {first}: case names must be unique", case.name),
+                format!(
+                    "case `{}` is also made by {first}: case names must be unique",
+                    case.name
+                ),
             );
         }
         origin_of.insert(case.name.clone(), case.origin.clone());

@@ -88,12 +88,22 @@ width = 128
     let wool = &m.cases[4];
     assert_eq!(wool.material.as_deref(), Some("wool"));
     assert_eq!(wool.replace.as_deref(), Some("leather"));
-    assert_eq!((wool.width, wool.height, wool.frames), (Some(32), Some(24), Some(5)));
+    assert_eq!(
+        (wool.width, wool.height, wool.frames),
+        (Some(32), Some(24), Some(5))
+    );
     assert_eq!(wool.tolerance.max_relative_rmse, Some(0.05));
     assert_eq!(wool.tolerance.min_mssim, None);
-    assert!(wool.origin.starts_with("matrix[0] (line "), "{}", wool.origin);
+    assert!(
+        wool.origin.starts_with("matrix[0] (line "),
+        "{}",
+        wool.origin
+    );
     let own = &m.cases[0];
-    assert_eq!((own.material.as_deref(), own.replace.as_deref()), (None, None));
+    assert_eq!(
+        (own.material.as_deref(), own.replace.as_deref()),
+        (None, None)
+    );
     let explicit = &m.cases[12];
     assert_eq!(explicit.seed, Some(3));
     assert_eq!(explicit.frames, Some(2), "the default");
@@ -115,7 +125,12 @@ width = 128
 fn every_error_names_the_file_the_line_and_the_key() {
     // (extra text, key expected, a word of the message, text on the line at fault)
     let cases: &[(&str, &str, &str, &str)] = &[
-        ("\nfrobnicate = 1\n", "frobnicate", "unknown field", "frobnicate"),
+        (
+            "\nfrobnicate = 1\n",
+            "frobnicate",
+            "unknown field",
+            "frobnicate",
+        ),
         (
             "\n[scenes.cube]\npath = \"c.toml\"\ncolour = 1\n",
             "colour",
@@ -274,9 +289,10 @@ fn every_error_names_the_file_the_line_and_the_key() {
         let expected = line_of_text(extra, line_text);
         // A repeated line text (e.g. `[[case]]`) is found in `extra` after the base.
         let expected = if line_text.starts_with("[[") {
-            BASE.matches('\n').count() + extra[..extra.rfind(line_text).expect("in extra")]
-                .matches('\n')
-                .count()
+            BASE.matches('\n').count()
+                + extra[..extra.rfind(line_text).expect("in extra")]
+                    .matches('\n')
+                    .count()
                 + 1
         } else {
             expected
@@ -292,18 +308,28 @@ fn every_error_names_the_file_the_line_and_the_key() {
 
 #[test]
 fn file_level_errors() {
-    let no_version = parse_manifest(Path::new("m.toml"), "goldens = \"g\"\n".into())
-        .expect_err("refused");
-    assert!(no_version.message.contains("missing field `version`"), "{no_version}");
+    let no_version =
+        parse_manifest(Path::new("m.toml"), "goldens = \"g\"\n".into()).expect_err("refused");
+    assert!(
+        no_version.message.contains("missing field `version`"),
+        "{no_version}"
+    );
     let v2 = parse_manifest(
         Path::new("m.toml"),
         "version = 2\ngoldens = \"g\"\n[[case]]\n".into(),
     )
     .expect_err("refused");
-    assert!(v2.message.contains("missing field"), "a case without scene: {v2}");
+    assert!(
+        v2.message.contains("missing field"),
+        "a case without scene: {v2}"
+    );
     let v2 = parse_manifest(Path::new("m.toml"), "version = 2\ngoldens = \"g\"\n".into())
         .expect_err("refused");
-    assert_eq!((v2.line, v2.key.as_deref()), (Some(1), Some("version")), "{v2}");
+    assert_eq!(
+        (v2.line, v2.key.as_deref()),
+        (Some(1), Some("version")),
+        "{v2}"
+    );
     let no_goldens =
         parse_manifest(Path::new("m.toml"), "version = 1\n".into()).expect_err("refused");
     assert!(no_goldens.message.contains("`goldens`"), "{no_goldens}");
@@ -317,9 +343,16 @@ fn file_level_errors() {
     .expect_err("no tolerance");
     assert_eq!(no_tolerance.key.as_deref(), Some("case[0]"));
     assert_eq!(no_tolerance.line, Some(6));
-    assert!(no_tolerance.message.contains("has no tolerance"), "{no_tolerance}");
+    assert!(
+        no_tolerance.message.contains("has no tolerance"),
+        "{no_tolerance}"
+    );
     let unreadable = load_manifest(Path::new("/no/such/manifest.toml")).expect_err("missing");
-    assert!(unreadable.to_string().starts_with("`/no/such/manifest.toml`: cannot read"));
+    assert!(
+        unreadable
+            .to_string()
+            .starts_with("`/no/such/manifest.toml`: cannot read")
+    );
 }
 
 #[test]
@@ -343,7 +376,14 @@ fn substituted_materials_build_like_scene_materials_and_btf_is_refused_by_name()
     assert!(e.message.contains("ax"), "{e}");
     let e = m.material("velvet").expect_err("no btf material yet");
     assert_eq!(e.key.as_deref(), Some("materials.velvet.kind"));
-    assert!(e.message.contains("BTF materials cannot be substituted yet"), "{e}");
+    assert!(
+        e.message
+            .contains("BTF materials cannot be substituted yet"),
+        "{e}"
+    );
     assert!(e.message.contains("issue 17"), "{e}");
-    assert_eq!(m.material_line("velvet"), Some(line_of_text(&text[BASE.len()..], "[materials.velvet]")));
+    assert_eq!(
+        m.material_line("velvet"),
+        Some(line_of_text(&text[BASE.len()..], "[materials.velvet]"))
+    );
 }

@@ -15,7 +15,9 @@ use crate::atomic::write_bytes_atomic;
 /// pictures into `out` and writes the merged report there. `command` is recorded.
 pub fn merge(dirs: &[PathBuf], out: &Path, command: &str) -> Result<Report, RegressError> {
     if dirs.is_empty() {
-        return Err(RegressError::Usage("merge needs at least one report folder".into()));
+        return Err(RegressError::Usage(
+            "merge needs at least one report folder".into(),
+        ));
     }
     let bad = |message: String| RegressError::Merge(message);
     let mut reports = Vec::new();
@@ -51,14 +53,20 @@ pub fn merge(dirs: &[PathBuf], out: &Path, command: &str) -> Result<Report, Regr
                 dir.display()
             )));
         };
-        if let Some(other) = shards.iter().find(|o: &&super::shard::Shard| o.count != s.count) {
+        if let Some(other) = shards
+            .iter()
+            .find(|o: &&super::shard::Shard| o.count != s.count)
+        {
             return Err(bad(format!(
                 "`{}` is shard {s} but another folder is shard {other}: one split N per merge",
                 dir.display()
             )));
         }
         if shards.contains(&s) {
-            return Err(bad(format!("shard {s} is given twice (again in `{}`)", dir.display())));
+            return Err(bad(format!(
+                "shard {s} is given twice (again in `{}`)",
+                dir.display()
+            )));
         }
         shards.push(s);
     }
@@ -95,12 +103,14 @@ pub fn merge(dirs: &[PathBuf], out: &Path, command: &str) -> Result<Report, Regr
     })?;
     for (dir, r) in dirs.iter().zip(&reports) {
         for c in &r.cases {
-            for rel in [&c.golden_png, &c.new_png, &c.diff_png].into_iter().flatten() {
+            for rel in [&c.golden_png, &c.new_png, &c.diff_png]
+                .into_iter()
+                .flatten()
+            {
                 // Read whole, then write atomically: safe even when `out` is `dir`.
                 let src = dir.join(rel);
-                let bytes = std::fs::read(&src).map_err(|e| {
-                    bad(format!("`{}` of case `{}`: {e}", src.display(), c.name))
-                })?;
+                let bytes = std::fs::read(&src)
+                    .map_err(|e| bad(format!("`{}` of case `{}`: {e}", src.display(), c.name)))?;
                 write_bytes_atomic(&out.join(rel), &bytes).map_err(|e| RegressError::Output {
                     what: format!("`{}`", out.join(rel).display()),
                     message: e.to_string(),

@@ -10,11 +10,11 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
+use super::RegressError;
 use super::case::{Case, substitute};
 use super::golden::{UpdateRequest, write_goldens};
 use super::manifest::Manifest;
 use super::report::{CaseMetrics, CaseReport, IMAGES_DIR, Status, images};
-use super::RegressError;
 use crate::atomic::write_bytes_atomic;
 use crate::image::{Image, read_exr};
 use crate::metrics::compare;
@@ -42,6 +42,9 @@ enum Plan {
     /// Not rendered, and why.
     Skip(String),
 }
+
+/// A judged case, with its new image when `--update` will write it.
+type Judged = (CaseReport, Option<Image>);
 
 /// The result of one render.
 struct Rendered {
@@ -74,8 +77,7 @@ pub fn run(
     let threads_per_job = (options.threads.max(1) / jobs).max(1);
     let next = AtomicUsize::new(0);
     let done = AtomicUsize::new(0);
-    let rows: Mutex<Vec<Option<(CaseReport, Option<Image>)>>> =
-        Mutex::new((0..cases.len()).map(|_| None).collect());
+    let rows: Mutex<Vec<Option<Judged>>> = Mutex::new((0..cases.len()).map(|_| None).collect());
     let failure: Mutex<Option<RegressError>> = Mutex::new(None);
     std::thread::scope(|scope| {
         for _ in 0..jobs {
@@ -127,7 +129,7 @@ pub fn run(
     if let Some(e) = failure.into_inner().expect("not poisoned") {
         return Err(e);
     }
-    let rows: Vec<(CaseReport, Option<Image>)> = rows
+    let rows: Vec<Judged> = rows
         .into_inner()
         .expect("not poisoned")
         .into_iter()
@@ -177,7 +179,9 @@ fn plan(manifest: &Manifest, cases: &[&Case]) -> Result<Vec<Plan>, RegressError>
         let mut scene = scenes[case.scene.as_str()].clone();
         if let (Some(material), Some(replace)) = (&case.material, &case.replace) {
             if !materials.contains_key(material) {
-                let built = manifest.material(material).map_err(|e| bad(e.to_string()))?;
+                let built = manifest
+                    .material(material)
+                    .map_err(|e| bad(e.to_string()))?;
                 materials.insert(material.clone(), built);
             }
             let (m, sets_uv_scale) = materials[material].clone();
@@ -254,7 +258,7 @@ fn judge(
     skip: Option<&str>,
     rendered: Option<Result<Rendered, String>>,
     options: &RunOptions,
-) -> Result<(CaseReport, Option<Image>), RegressError> {
+) -> Result<Judged, RegressError> {
     let golden_path = case.golden_path(&manifest.goldens);
     let mut row = CaseReport {
         name: case.name.clone(),

@@ -24,7 +24,9 @@ impl Pattern {
     }
 
     pub fn matches(&self, name: &str) -> bool {
-        self.globs.iter().any(|g| glob(g.as_bytes(), name.as_bytes()))
+        self.globs
+            .iter()
+            .any(|g| glob(g.as_bytes(), name.as_bytes()))
     }
 }
 
@@ -58,7 +60,11 @@ fn glob(pattern: &[u8], text: &[u8]) -> bool {
 }
 
 /// The cases of `cases` that `only` and `shard` select, in manifest order.
-pub fn select<'a>(cases: &'a [Case], only: Option<&Pattern>, shard: Option<Shard>) -> Vec<&'a Case> {
+pub fn select<'a>(
+    cases: &'a [Case],
+    only: Option<&Pattern>,
+    shard: Option<Shard>,
+) -> Vec<&'a Case> {
     cases
         .iter()
         .filter(|c| only.is_none_or(|p| p.matches(&c.name)))

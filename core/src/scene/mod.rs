@@ -570,7 +570,12 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
     for (name, m) in &f.materials {
         index_of.insert(name.clone(), materials.len());
         material_names.push(name.clone());
-        materials.push(build_material(ctx, &format!("materials.{name}"), m, folder)?);
+        materials.push(build_material(
+            ctx,
+            &format!("materials.{name}"),
+            m,
+            folder,
+        )?);
     }
     let material_ref = |s: &Spanned<String>, key: &str| -> Result<usize, SceneError> {
         match index_of.get(s.get_ref()) {

@@ -153,7 +153,9 @@ pub fn run(args: &RegressArgs) -> Result<(), CliError> {
                 "[{done}/{total}] {:7} {}{}",
                 c.status.name().to_uppercase(),
                 c.name,
-                c.seconds.map(|s| format!(" ({s:.2} s)")).unwrap_or_default()
+                c.seconds
+                    .map(|s| format!(" ({s:.2} s)"))
+                    .unwrap_or_default()
             );
         }
     };
@@ -174,7 +176,12 @@ pub fn run(args: &RegressArgs) -> Result<(), CliError> {
     if let Some(path) = &args.junit {
         write_junit(path, &report)?;
     }
-    finish(&report, args.report_dir.as_deref(), args.junit.as_deref(), args.json)
+    finish(
+        &report,
+        args.report_dir.as_deref(),
+        args.junit.as_deref(),
+        args.json,
+    )
 }
 
 fn merge(args: &MergeArgs) -> Result<(), CliError> {
@@ -183,7 +190,12 @@ fn merge(args: &MergeArgs) -> Result<(), CliError> {
     if let Some(path) = &args.junit {
         write_junit(path, &report)?;
     }
-    finish(&report, Some(&args.output), args.junit.as_deref(), args.json)
+    finish(
+        &report,
+        Some(&args.output),
+        args.junit.as_deref(),
+        args.json,
+    )
 }
 
 fn write_junit(path: &Path, report: &Report) -> Result<(), CliError> {
@@ -216,7 +228,10 @@ fn finish(
         }))?;
     } else {
         for case in &report.cases {
-            if matches!(case.status, regress::Status::Fail | regress::Status::Skipped) {
+            if matches!(
+                case.status,
+                regress::Status::Fail | regress::Status::Skipped
+            ) {
                 println!(
                     "{:7} {}: {}",
                     case.status.name().to_uppercase(),
@@ -234,7 +249,10 @@ fn finish(
             c.passed,
             report.wall_seconds,
             report_dir
-                .map(|d| format!("; report {}", d.join(regress::report::REPORT_HTML).display()))
+                .map(|d| format!(
+                    "; report {}",
+                    d.join(regress::report::REPORT_HTML).display()
+                ))
                 .unwrap_or_default()
         );
     }

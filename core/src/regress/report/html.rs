@@ -151,7 +151,8 @@ fn row(c: &CaseReport) -> String {
         c.width,
         c.height,
         c.frames,
-        c.seconds.map_or("&ndash;".to_string(), |s| format!("{s:.3}")),
+        c.seconds
+            .map_or("&ndash;".to_string(), |s| format!("{s:.3}")),
         img(&c.golden_png, "golden"),
         img(&c.new_png, "new"),
         c.message.as_deref().map(esc).unwrap_or_default(),

@@ -1393,14 +1393,66 @@ fn regress_exit_codes_json_update_log_and_junit() {
     );
     let x = std::fs::read_to_string(&junit).expect("junit");
     assert!(x.contains("tests=\"2\" failures=\"2\""), "{x}");
-    // Shards: every case in one of the two.
+    // Shards: every case in one of the two; merged, one report and one JUnit file
+    // with both failures, and exit 1.
     let mut total = 0;
-    for k in ["1/2", "2/2"] {
-        let o = meso(&["regress", ms, "--shard", k, "--json"], "");
+    let mut dirs = Vec::new();
+    for (i, k) in ["1/2", "2/2"].into_iter().enumerate() {
+        let d = dir.path().join(format!("shard{i}"));
+        let o = meso(
+            &[
+                "regress",
+                ms,
+                "--shard",
+                k,
+                "--json",
+                "-o",
+                d.to_str().expect("utf-8"),
+            ],
+            "",
+        );
         let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON");
         total += v["total"].as_u64().expect("total");
+        dirs.push(d.to_str().expect("utf-8").to_string());
     }
     assert_eq!(total, 2);
+    let merged = dir.path().join("merged");
+    let merged_junit = dir.path().join("merged.xml");
+    let o = meso(
+        &[
+            "regress",
+            "merge",
+            &dirs[0],
+            &dirs[1],
+            "-o",
+            merged.to_str().expect("utf-8"),
+            "--junit",
+            merged_junit.to_str().expect("utf-8"),
+        ],
+        "",
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(merged.join("index.html").is_file());
+    let x = std::fs::read_to_string(&merged_junit).expect("merged junit");
+    assert!(x.contains("tests=\"2\" failures=\"2\""), "{x}");
+    assert_bad_input(
+        &meso(
+            &[
+                "regress",
+                "merge",
+                &dirs[0],
+                "-o",
+                merged.to_str().expect("utf-8"),
+            ],
+            "",
+        ),
+        &["shard(s) 2/2 missing"],
+    );
 }
 
 #[test]

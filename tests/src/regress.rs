@@ -517,3 +517,74 @@ fn only_selects_by_pattern() {
         "{e}"
     );
 }
+
+/// A MERL file substitution renders exactly as the table tabulated at load from the
+/// same BRDF (the file holds the same f64 cells), and an analytic substitution differs
+/// from both: each kind of substitution reaches the render.
+#[test]
+fn merl_file_and_analytic_substitutions_reach_the_render() {
+    use meso_core::brdf::{AnalyticBrdf, BrdfModel};
+    let dir = tempfile::tempdir().expect("temp dir");
+    let brdf =
+        AnalyticBrdf::new(BrdfModel::CookTorrance, &[("m", 0.25), ("f0", 0.8)]).expect("valid");
+    meso_core::merl::tabulate(&brdf, glam::DVec3::new(0.9, 0.6, 0.3))
+        .expect("tabulated")
+        .write(&dir.path().join("ct.binary"))
+        .expect("written");
+    let text = format!(
+        r#"version = 1
+goldens = "goldens"
+
+[defaults]
+width = 32
+height = 32
+frames = 2
+min_mssim = 0.99
+
+[scenes.default]
+path = "{}"
+replace = "leather"
+
+[materials.file]
+kind = "merl"
+path = "ct.binary"
+
+[materials.table]
+kind = "merl"
+tabulate = {{ model = "cook_torrance", params = {{ m = 0.25, f0 = 0.8 }}, albedo = [0.9, 0.6, 0.3] }}
+
+[materials.analytic]
+kind = "brdf"
+model = "cook_torrance"
+params = {{ m = 0.25, f0 = 0.8 }}
+albedo = [0.3, 0.6, 0.9]
+
+[[matrix]]
+scenes = ["default"]
+materials = ["scene", "file", "table", "analytic"]
+modes = ["spmm"]
+"#,
+        root().join("scenes/default.toml").display()
+    );
+    let path = dir.path().join("manifest.toml");
+    std::fs::write(&path, text).expect("manifest");
+    let manifest = regress::load_manifest(&path).expect("valid");
+    let update = UpdateRequest {
+        reason: "test".into(),
+        command: "test".into(),
+    };
+    let r = run(&manifest, None, 1, 2, Some(&update), None);
+    assert_eq!(r.counts().updated, 4, "{:?}", r.cases);
+    let golden = |case: &str| {
+        meso_core::image::read_exr(
+            &dir.path()
+                .join(format!("goldens/default.{case}.spmm-cpu.exr")),
+        )
+        .expect("golden")
+    };
+    let (file, table, analytic) = (golden("file"), golden("table"), golden("analytic"));
+    assert_eq!(file, table, "the MERL file and the tabulated table");
+    assert_ne!(file, analytic);
+    // The leather was replaced: the scene as written renders otherwise.
+    assert_ne!(golden("scene"), file);
+}

@@ -1,10 +1,11 @@
 //! The speed-against-error report of a render mode (DESIGN.md: "every fast path
 //! reports its speed against its error"): a converged reference, then the error of the
 //! progressive image after 1, 2, 4, ... frames with the render time spent, for the
-//! scene as written and for its variants (AO off; environment light without MIS; the
+//! scene as written and for its variants (independent random numbers instead of the
+//! scene's Sobol points; AO off; environment light without MIS; the
 //! SPMM residual skipped as while the camera moves; N_PCA limited). A variant that changes what is computed
 //! (AO off) is measured against its own reference; other estimators of the same image
-//! (no MIS) and approximations of it (residual off, fewer PCA terms) against the full
+//! (independent numbers, no MIS) and approximations of it (residual off, fewer PCA terms) against the full
 //! one, so their noise or bias shows. Any mode can be reported; its reference is
 //! rendered by the same mode.
 
@@ -15,6 +16,7 @@ use serde::Serialize;
 use crate::image::Image;
 use crate::metrics::{Comparison, MetricsError, compare};
 use crate::render::{Device, ModeError, ModeKind, Prepare, run_frames};
+use crate::rng::Sampler;
 use crate::scene::{Material, Scene};
 
 /// What the report renders.
@@ -125,6 +127,12 @@ fn variants(scene: &Scene, notes: &mut Vec<String>) -> Vec<(Variant, Scene)> {
         reference: reference.into(),
     };
     let mut out = vec![(v("full", "full"), scene.clone())];
+    if scene.render.sampler != Sampler::Independent {
+        // The same image from independent random numbers: what the sampler gains.
+        let mut s = scene.clone();
+        s.render.sampler = Sampler::Independent;
+        out.push((v("independent", "full"), s));
+    }
     if scene.ambient.is_some() {
         let mut s = scene.clone();
         s.ambient = None;
@@ -305,6 +313,7 @@ mod tests {
             names,
             [
                 "full",
+                "independent",
                 "no_ao",
                 "residual_off",
                 "npca_0",

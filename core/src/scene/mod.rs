@@ -25,6 +25,7 @@ use toml::Spanned;
 use crate::brdf::{AnalyticBrdf, BrdfModel};
 use crate::image::{self, Image};
 use crate::merl::{self, MerlBrdf};
+use crate::rng::Sampler;
 use crate::spmm::SpmmMaterial;
 use crate::spmm::pack;
 pub use environment::Environment;
@@ -39,6 +40,8 @@ pub struct RenderSettings {
     pub max_specular_depth: u32,
     pub mode: ModeKind,
     pub device: Device,
+    /// How samples draw their numbers (`[render] sampler`, default Sobol).
+    pub sampler: Sampler,
 }
 
 /// The scene's extent: every coordinate the tracer receives (placed vertices, quad
@@ -538,6 +541,19 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
             Ok,
         )?,
     };
+    let sampler = match &r.sampler {
+        None => Sampler::default(),
+        Some(s) => Sampler::from_name(s.get_ref()).map_or_else(
+            || {
+                ctx.err(
+                    &s.span(),
+                    "render.sampler",
+                    format!("`{}`: samplers are sobol, independent", s.get_ref()),
+                )
+            },
+            Ok,
+        )?,
+    };
     let render = RenderSettings {
         width: *r.width.get_ref(),
         height: *r.height.get_ref(),
@@ -546,6 +562,7 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
         max_specular_depth: *r.max_specular_depth.get_ref(),
         mode,
         device,
+        sampler,
     };
 
     let c = &f.camera;

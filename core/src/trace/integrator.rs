@@ -235,7 +235,8 @@ impl SpmmMode {
         shading_points: &mut u64,
     ) {
         let pixel = u64::from(y) * u64::from(width) + u64::from(x);
-        let mut rng = SampleStream::new(&[self.scene.render.seed, index, pixel]);
+        let render = &self.scene.render;
+        let mut rng = SampleStream::for_sample(render.sampler, render.seed, index, pixel);
         let ray = self.camera.ray(x, y, rng.next_2d());
         counts.primary += 1;
         let mut path = Path {

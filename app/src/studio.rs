@@ -72,6 +72,9 @@ pub struct Settings {
     pub compare: bool,
     /// Samples per pixel the compare view's reference is refined to.
     pub reference_spp: u32,
+    /// The first frames through the viewport denoiser (saved images and the compare
+    /// view's figures are always the unfiltered estimate).
+    pub denoise: bool,
 }
 
 impl Default for Settings {
@@ -85,6 +88,7 @@ impl Default for Settings {
             show_timings: true,
             compare: false,
             reference_spp: 256,
+            denoise: true,
         }
     }
 }
@@ -285,6 +289,7 @@ impl Studio {
             pack_job: None,
         };
         s.set_max_samples(s.settings.max_samples);
+        s.worker.send(Command::Denoise(s.settings.denoise));
         s.open_scene(&scene.unwrap_or_else(default_scene_path));
         s
     }
@@ -924,6 +929,16 @@ impl Studio {
                     .changed()
                 {
                     self.set_max_samples(self.settings.max_samples);
+                }
+                if ui
+                    .checkbox(&mut self.settings.denoise, "Denoise the first frames")
+                    .on_hover_text(
+                        "An edge-aware filter guided by normal, depth and albedo, fading \
+                         out by 32 samples per pixel; saved images are never filtered",
+                    )
+                    .changed()
+                {
+                    self.worker.send(Command::Denoise(self.settings.denoise));
                 }
                 ui.checkbox(&mut self.settings.show_timings, "timings in the status bar");
                 ui.checkbox(&mut self.settings.compare, "Compare with a reference");

@@ -89,8 +89,8 @@ pub struct CompareLabels {
 
 pub struct Viewport {
     texture: Option<TextureHandle>,
-    /// The frame on screen and the exposure its texture was made with.
-    shown: Option<(Frame, f64)>,
+    /// The newest frame and what its texture was made with (exposure, estimate only).
+    shown: Option<(Frame, Option<(f64, bool)>)>,
     reference_texture: Option<TextureHandle>,
     /// The reference image on screen and the exposure its texture was made with.
     reference: Option<(Arc<Image>, f64)>,
@@ -140,7 +140,7 @@ impl Viewport {
 
     /// Takes a newer frame for display.
     pub fn set_frame(&mut self, frame: Frame) {
-        self.shown = Some((frame, f64::NAN));
+        self.shown = Some((frame, None));
     }
 
     /// Shows the frame (and, with `compare`, the reference right of the divider).
@@ -160,11 +160,19 @@ impl Viewport {
             ),
             ..Default::default()
         };
+        // The compare view measures the estimate, so it shows the estimate; otherwise
+        // the first frames come through the denoiser (`Frame::shown`).
+        let key = Some((exposure, compare.is_some()));
         if let Some((frame, made_with)) = &mut self.shown
-            && (self.texture.is_none() || *made_with != exposure)
+            && (self.texture.is_none() || *made_with != key)
         {
-            upload(ui, &mut self.texture, "viewport", &frame.image, exposure);
-            *made_with = exposure;
+            let image = if compare.is_some() {
+                &frame.image
+            } else {
+                &frame.shown
+            };
+            upload(ui, &mut self.texture, "viewport", image, exposure);
+            *made_with = key;
         }
         if compare.is_some()
             && let Some((img, made_with)) = &mut self.reference

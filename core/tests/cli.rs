@@ -1577,3 +1577,52 @@ fn regress_update_killed_midway_keeps_the_old_goldens() {
         "goldens or log changed by a killed update"
     );
 }
+
+#[test]
+fn render_denoises_only_when_asked() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/default.toml");
+    let render = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let out_arg = out.to_str().expect("utf-8").to_owned();
+        let mut args = vec![
+            "render", scene, "-o", &out_arg, "--width", "32", "--height", "32", "--frames", "1",
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        let o = meso(&args, "");
+        assert_eq!(
+            o.status.code(),
+            Some(0),
+            "{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+        (
+            meso_core::image::read_image(&out).expect("written"),
+            v["denoised"].clone(),
+        )
+    };
+    let (plain, flag) = render("a.exr", &[]);
+    let (again, _) = render("b.exr", &[]);
+    let (filtered, flag_on) = render("c.exr", &["--denoise"]);
+    assert_eq!(
+        (flag, flag_on),
+        (serde_json::json!(false), serde_json::json!(true))
+    );
+    // Without the flag the image is the estimate, bit for bit.
+    assert_eq!(plain, again);
+    // With it, the one-sample noise is smoothed: less variation between neighbours.
+    let variation = |img: &meso_core::image::Image| -> f64 {
+        (1..32u32)
+            .flat_map(|y| (1..32u32).map(move |x| (x, y)))
+            .map(|(x, y)| f64::from((img.get(x, y)[1] - img.get(x - 1, y)[1]).abs()))
+            .sum()
+    };
+    assert!(
+        variation(&filtered) < 0.8 * variation(&plain),
+        "{} vs {}",
+        variation(&filtered),
+        variation(&plain)
+    );
+}

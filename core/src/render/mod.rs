@@ -5,12 +5,14 @@
 //! statistics. It knows no mode: the registry above the modes makes them by kind
 //! (`modes`). `meso render`, the reports and the studio drive modes through it.
 
+pub mod denoise;
 pub mod edit;
 pub mod film;
 pub mod layers;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
+pub use denoise::{Denoiser, Guides};
 pub use edit::{EditError, Invalidation, SceneEdit};
 pub use film::{Film, FilmTooLarge};
 
@@ -264,6 +266,11 @@ pub trait RenderMode: Send {
     /// The stages of the last preparation (first build, or the last rebuild an edit
     /// caused) and their times.
     fn preparation(&self) -> PreparationReport;
+    /// What each pixel's centre ray first sees, for the viewport denoiser
+    /// (`denoise`); `None` where the mode has no such pass (the image is shown as is).
+    fn guides(&self) -> Option<Guides> {
+        None
+    }
 }
 
 /// Totals of a run of frames.

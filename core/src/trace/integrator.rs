@@ -31,11 +31,11 @@ const EPSILON_REL: f64 = 1e-5;
 pub struct SpmmMode {
     pub(super) scene: Scene,
     pub(super) bvh: SceneBvh,
-    camera: PinholeCamera,
+    pub(super) camera: PinholeCamera,
     pub(super) shaders: Vec<Shader>,
     /// The environment map's importance sampler (`None`: no environment, or black).
     pub(super) env_sampler: Option<EnvironmentSampler>,
-    film: Film,
+    pub(super) film: Film,
     layers: Layers,
     /// Per light, the film layer its samples go to and their factor.
     pub(super) light_targets: Vec<LightTarget>,
@@ -381,6 +381,10 @@ impl RenderMode for SpmmMode {
 
     fn preparation(&self) -> PreparationReport {
         self.preparation.clone()
+    }
+
+    fn guides(&self) -> Option<crate::render::Guides> {
+        Some(self.compute_guides())
     }
 
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {

@@ -4,6 +4,7 @@
 //! (the mode itself), shading, light sampling, environment sampling.
 
 mod environment;
+mod guides;
 mod integrator;
 pub mod light_selection;
 mod lights;

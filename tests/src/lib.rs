@@ -11,6 +11,8 @@ mod golden;
 #[cfg(test)]
 mod metrics_reference;
 #[cfg(test)]
+mod regress;
+#[cfg(test)]
 mod scenes;
 #[cfg(test)]
 mod shipped_packs;

@@ -15,6 +15,7 @@ mod pack_cmd;
 mod pack_edit_cmd;
 mod plot;
 mod progress;
+mod regress_cmd;
 mod render_cmd;
 mod report_cmd;
 mod svg_chart;
@@ -64,6 +65,8 @@ enum Command {
     },
     /// Progressive render of a scene file in a render mode to EXR or PNG.
     Render(render_cmd::RenderArgs),
+    /// Regression renders over a manifest, compared with goldens; `merge` joins shards.
+    Regress(regress_cmd::RegressArgs),
     /// Reports: speed against error of the render modes.
     Report {
         #[command(subcommand)]
@@ -91,6 +94,7 @@ fn main() -> ExitCode {
         Command::Merl { command } => merl_cmd::run(command),
         Command::Pack { command } => pack_cmd::run(command),
         Command::Render(args) => render_cmd::run(&args),
+        Command::Regress(args) => regress_cmd::run(&args),
         Command::Report { command } => report_cmd::run(command),
     };
     match result {

@@ -310,7 +310,7 @@ impl SpmmMaterial {
     pub fn residual(&self) -> Option<&Residual> {
         self.residual.as_ref()
     }
-    pub(super) fn residual_tables(&self) -> Option<&(DirectionTable, DirectionTable)> {
+    pub(crate) fn residual_tables(&self) -> Option<&(DirectionTable, DirectionTable)> {
         self.residual_tables.as_ref()
     }
     /// PCA terms stored per cluster (0 without a residual).

@@ -7,7 +7,7 @@ mod environment;
 mod integrator;
 pub mod light_selection;
 mod lights;
-mod shading;
+pub(crate) mod shading;
 
 use integrator::Path;
 pub use integrator::SpmmMode;

@@ -12,6 +12,7 @@ mod merl_cmd;
 mod mode_args;
 mod pack_cmd;
 mod plot;
+mod precompute_cmd;
 mod progress;
 mod render_cmd;
 mod report_cmd;
@@ -60,6 +61,8 @@ enum Command {
         #[command(subcommand)]
         command: merl_cmd::MerlCommand,
     },
+    /// A render mode's precomputation (biscale: transfer matrices and biclusters).
+    Precompute(precompute_cmd::PrecomputeArgs),
     /// Progressive render of a scene file in a render mode to EXR or PNG.
     Render(render_cmd::RenderArgs),
     /// Reports: speed against error of the render modes.
@@ -88,6 +91,7 @@ fn main() -> ExitCode {
         Command::Compare(args) => compare_cmd::run(&args),
         Command::Merl { command } => merl_cmd::run(command),
         Command::Pack { command } => pack_cmd::run(command),
+        Command::Precompute(args) => precompute_cmd::run(&args),
         Command::Render(args) => render_cmd::run(&args),
         Command::Report { command } => report_cmd::run(command),
     };

@@ -626,7 +626,7 @@ pub fn layout(m: &LevelMatrix, found: &[Found]) -> Biclustering {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     fn matrix(rows: usize, cols: usize, dense: &[i32]) -> LevelMatrix {

@@ -18,6 +18,8 @@ mod mode;
 pub mod precompute;
 pub mod report;
 pub mod sh;
+#[cfg(test)]
+mod tests;
 pub mod transfer;
 
 use std::path::PathBuf;

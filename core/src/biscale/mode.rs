@@ -242,6 +242,21 @@ impl BiscaleMode {
         self.light_change_ms = start.elapsed().as_secs_f64() * 1e3;
     }
 
+    /// Replaces the lighting vector directly (tests of the binning rule).
+    #[cfg(test)]
+    pub(crate) fn relight_with(&mut self, light: Vec<[f32; 3]>) {
+        let rows = self.pre.biclusters.apply(&light);
+        let mc = self.tab.local.len();
+        for (j, v) in rows.iter().enumerate() {
+            let (p, m) = (j / mc, j % mc);
+            for c in 0..3 {
+                self.local[(p * 3 + c) * mc + m] = v[c];
+            }
+        }
+        self.light = light;
+        self.restart_all();
+    }
+
     fn restart_all(&mut self) -> Invalidation {
         self.film.reset();
         self.frames = 0;

@@ -429,8 +429,9 @@ fn environment_edits_are_undoable_and_reach_the_renderer() {
 #[test]
 fn a_scene_that_names_a_mode_asks_for_it_once_loaded() {
     // The default scene with `[render] mode = "biscale"`: it opens in spmm (which
-    // renders everything), then asks for biscale, which is not built: the message
-    // says so and frames keep coming from spmm.
+    // renders everything), then asks for biscale, which cannot render it (an area
+    // light, AO, no environment): the message says why and frames keep coming from
+    // spmm.
     let dir = tempfile::tempdir().expect("temp dir");
     let default = default_scene_path();
     let folder = default
@@ -463,7 +464,7 @@ fn a_scene_that_names_a_mode_asks_for_it_once_loaded() {
     });
     let message = h.state().mode_message.clone().expect("a message");
     assert!(
-        message.contains("biscale") && message.contains("not built"),
+        message.contains("biscale") && message.contains("without [environment]"),
         "{message}"
     );
     assert_eq!(h.state().mode(), (ModeKind::Spmm, Device::Cpu));

@@ -60,8 +60,15 @@ fn with_material(scene: &Scene, name: &str) -> Material {
 fn reference(scene: &Scene, t: &Tolerance) -> Image {
     let mut scene = scene.clone();
     scene.render.seed ^= 0x5245_4645;
-    let mut mode = modes::create(ModeKind::Spmm, Device::Cpu, scene, t.width, t.height, Prepare::quietly())
-        .expect("spmm renders the scene");
+    let mut mode = modes::create(
+        ModeKind::Spmm,
+        Device::Cpu,
+        scene,
+        t.width,
+        t.height,
+        Prepare::quietly(),
+    )
+    .expect("spmm renders the scene");
     run_frames(mode.as_mut(), t.reference_frames, |_, _| {});
     mode.image()
 }
@@ -92,13 +99,20 @@ fn biscale_agrees_with_the_converged_spmm_image_and_is_lossless_on_the_bunny() {
                 cache_dir: None,
                 ..BiscaleSettings::default()
             };
-            let mode = BiscaleMode::prepare(s.clone(), t.width, t.height, settings, Prepare::quietly())
-                .expect("biscale renders the scene");
+            let mode =
+                BiscaleMode::prepare(s.clone(), t.width, t.height, settings, Prepare::quietly())
+                    .expect("biscale renders the scene");
             // Lossless: the biclustered product is the dense one for random lighting.
             let pre = mode.precomputed();
             let rng = SampleStream::new(&[t.cube_n as u64]);
             let light: Vec<[f32; 3]> = (0..pre.transfer.cols as u64)
-                .map(|k| [rng.at(3 * k) as f32, rng.at(3 * k + 1) as f32, rng.at(3 * k + 2) as f32])
+                .map(|k| {
+                    [
+                        rng.at(3 * k) as f32,
+                        rng.at(3 * k + 1) as f32,
+                        rng.at(3 * k + 2) as f32,
+                    ]
+                })
                 .collect();
             let dense = pre.transfer.apply_f64(&light);
             let got = pre.biclusters.apply(&light);
@@ -123,11 +137,8 @@ fn biscale_agrees_with_the_converged_spmm_image_and_is_lossless_on_the_bunny() {
             modes_by_res.insert(key, mode);
         }
         let mode = modes_by_res.get_mut(&key).expect("made above");
-        mode.apply(SceneEdit::Material {
-            index: 0,
-            material,
-        })
-        .expect("a material the mode renders");
+        mode.apply(SceneEdit::Material { index: 0, material })
+            .expect("a material the mode renders");
         mode.apply(SceneEdit::Resize {
             width: t.width,
             height: t.height,
@@ -150,7 +161,10 @@ fn biscale_agrees_with_the_converged_spmm_image_and_is_lossless_on_the_bunny() {
             || c.mssim < t.min_mssim
             || (brightness - 1.0).abs() > t.max_mean_deviation
         {
-            failures.push(format!("{name}: relative rmse {relative}, mssim {}", c.mssim));
+            failures.push(format!(
+                "{name}: relative rmse {relative}, mssim {}",
+                c.mssim
+            ));
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");

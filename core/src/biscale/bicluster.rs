@@ -320,7 +320,12 @@ impl Search {
     }
 
     /// The best valid entry of a heap (stale entries dropped), without removing it.
-    fn top(heap: &mut BinaryHeap<Entry>, version: &[u32], member: &[bool], want: bool) -> Option<Entry> {
+    fn top(
+        heap: &mut BinaryHeap<Entry>,
+        version: &[u32],
+        member: &[bool],
+        want: bool,
+    ) -> Option<Entry> {
         while let Some(&e) = heap.peek() {
             if version[e.1 as usize] == e.2 && member[e.1 as usize] == want {
                 return Some(e);
@@ -653,7 +658,8 @@ pub(crate) mod tests {
                 let mut acc = [0.0; 3];
                 for &(k, v) in r {
                     for c in 0..3 {
-                        acc[c] += v as f64 * m.scale[k as usize] as f64 * light[k as usize][c] as f64;
+                        acc[c] +=
+                            v as f64 * m.scale[k as usize] as f64 * light[k as usize][c] as f64;
                     }
                 }
                 acc
@@ -666,7 +672,11 @@ pub(crate) mod tests {
         (0..n)
             .map(|k| {
                 let k = k as u64 * 3;
-                [rng.at(k) as f32, rng.at(k + 1) as f32, 10.0 * rng.at(k + 2) as f32]
+                [
+                    rng.at(k) as f32,
+                    rng.at(k + 1) as f32,
+                    10.0 * rng.at(k + 2) as f32,
+                ]
             })
             .collect()
     }
@@ -711,8 +721,10 @@ pub(crate) mod tests {
             let b = layout(&m, &found);
             assert_eq!(b.len(), 3, "seed {seed}: {found:?}");
             assert_eq!(b.flops(), 23 + 15 + 2, "seed {seed}");
-            let mut shapes: Vec<(usize, usize)> =
-                found.iter().map(|f| (f.rows.len(), f.columns.len())).collect();
+            let mut shapes: Vec<(usize, usize)> = found
+                .iter()
+                .map(|f| (f.rows.len(), f.columns.len()))
+                .collect();
             shapes.sort();
             assert_eq!(shapes, [(1, 1), (8, 4), (12, 6)]);
         }
@@ -758,7 +770,11 @@ pub(crate) mod tests {
         let dense: Vec<i32> = (0..rows * cols)
             .map(|i| {
                 let u = rng.at(i as u64);
-                if u < 0.8 { 0 } else { 1 + ((u - 0.8) * 20.0) as i32 }
+                if u < 0.8 {
+                    0
+                } else {
+                    1 + ((u - 0.8) * 20.0) as i32
+                }
             })
             .collect();
         let m = matrix(rows, cols, &dense);

@@ -85,9 +85,9 @@ impl Tabulation {
                 uv_scale,
                 residual,
                 npca,
-            } => Some(BtfTable::Spmm(Box::new(self.spmm_table(
-                material, *uv_scale, *residual, *npca,
-            )))),
+            } => Some(BtfTable::Spmm(Box::new(
+                self.spmm_table(material, *uv_scale, *residual, *npca),
+            ))),
             Material::Mirror { .. } | Material::Merl { .. } => None,
         }
     }
@@ -131,17 +131,26 @@ impl Tabulation {
                 out
             })
             .collect();
-        let (residual, k) = match (use_residual, material.residual(), material.residual_tables())
-        {
+        let (residual, k) = match (
+            use_residual,
+            material.residual(),
+            material.residual_tables(),
+        ) {
             (true, Some(r), Some((lights, views))) => {
                 let k = r.npca.min(npca);
                 let (nl, nv) = (r.light_dirs.len(), r.view_dirs.len());
                 // Interpolation weights of every stratum and every view centre.
                 let strata: Vec<Vec<[(u32, f64); 3]>> = (0..mc)
-                    .map(|m| self.local.strata(m, STRATA).map(|d| lights.weights(d)).collect())
+                    .map(|m| {
+                        self.local
+                            .strata(m, STRATA)
+                            .map(|d| lights.weights(d))
+                            .collect()
+                    })
                     .collect();
-                let view_w: Vec<[(u32, f64); 3]> =
-                    (0..vc).map(|v| views.weights(self.views.centre(v))).collect();
+                let view_w: Vec<[(u32, f64); 3]> = (0..vc)
+                    .map(|v| views.weights(self.views.centre(v)))
+                    .collect();
                 let table_at = |c: usize, term: usize, l: usize, v: usize| -> [f64; 3] {
                     let i = if term == 0 {
                         ((c * nl + l) * nv + v) * 3

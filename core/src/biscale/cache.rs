@@ -169,7 +169,11 @@ pub fn decode(
         container::OpenError::Container(m) => format!("not a readable container: {m}"),
         container::OpenError::Metadata { key, problem } => format!("metadata `{key}`: {problem}"),
     })?;
-    let text = |k: &'static str| opened.text(k).map_err(|_| format!("metadata `{k}` is missing"));
+    let text = |k: &'static str| {
+        opened
+            .text(k)
+            .map_err(|_| format!("metadata `{k}` is missing"))
+    };
     let found = text("key")?;
     if found != format!("{key:016x}") {
         return Err(format!(

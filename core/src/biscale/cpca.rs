@@ -32,7 +32,10 @@ fn orthonormalise(q: &mut [Vec<f64>]) {
         for j in 0..i {
             let d: f64 = q[i].iter().zip(&q[j]).map(|(a, b)| a * b).sum();
             let (head, tail) = q.split_at_mut(i);
-            tail[0].iter_mut().zip(&head[j]).for_each(|(a, b)| *a -= d * b);
+            tail[0]
+                .iter_mut()
+                .zip(&head[j])
+                .for_each(|(a, b)| *a -= d * b);
         }
         let n: f64 = q[i].iter().map(|a| a * a).sum::<f64>().sqrt();
         if n > 1e-30 {
@@ -59,13 +62,17 @@ impl Cpca {
             .collect();
         let mut assign = vec![0usize; t.rows];
         for _ in 0..10 {
-            let norms: Vec<f64> = centres.iter().map(|c| c.iter().map(|x| x * x).sum()).collect();
+            let norms: Vec<f64> = centres
+                .iter()
+                .map(|c| c.iter().map(|x| x * x).sum())
+                .collect();
             let chosen: Vec<usize> = live
                 .par_iter()
                 .map(|&j| {
                     (0..kc)
                         .map(|c| {
-                            let d: f64 = rows[j].iter().map(|&(k, x)| x as f64 * centres[c][k]).sum();
+                            let d: f64 =
+                                rows[j].iter().map(|&(k, x)| x as f64 * centres[c][k]).sum();
                             (norms[c] - 2.0 * d, c)
                         })
                         .min_by(|a, b| a.0.total_cmp(&b.0))
@@ -99,18 +106,28 @@ impl Cpca {
                 let mean = &centres[c];
                 // Subspace iteration for the leading components of the centred rows.
                 let mut q: Vec<Vec<f64>> = (0..components)
-                    .map(|i| (0..n).map(|k| rng.at(((c * components + i) * n + k) as u64) - 0.5).collect())
+                    .map(|i| {
+                        (0..n)
+                            .map(|k| rng.at(((c * components + i) * n + k) as u64) - 0.5)
+                            .collect()
+                    })
                     .collect();
                 orthonormalise(&mut q);
                 for _ in 0..8 {
-                    let mean_q: Vec<f64> =
-                        q.iter().map(|v| v.iter().zip(mean).map(|(a, b)| a * b).sum()).collect();
+                    let mean_q: Vec<f64> = q
+                        .iter()
+                        .map(|v| v.iter().zip(mean).map(|(a, b)| a * b).sum())
+                        .collect();
                     let mut z = vec![vec![0.0f64; n]; components];
                     let mut ysum = vec![0.0f64; components];
                     for &j in &members[c] {
                         let y: Vec<f64> = (0..components)
                             .map(|i| {
-                                rows[j].iter().map(|&(k, x)| x as f64 * q[i][k]).sum::<f64>() - mean_q[i]
+                                rows[j]
+                                    .iter()
+                                    .map(|&(k, x)| x as f64 * q[i][k])
+                                    .sum::<f64>()
+                                    - mean_q[i]
                             })
                             .collect();
                         for i in 0..components {
@@ -121,7 +138,9 @@ impl Cpca {
                         }
                     }
                     for i in 0..components {
-                        z[i].iter_mut().zip(mean).for_each(|(a, m)| *a -= m * ysum[i]);
+                        z[i].iter_mut()
+                            .zip(mean)
+                            .for_each(|(a, m)| *a -= m * ysum[i]);
                     }
                     q = z;
                     orthonormalise(&mut q);
@@ -148,7 +167,12 @@ impl Cpca {
             clusters: kc,
             components,
             cols: n,
-            bases: per_cluster.into_iter().flatten().flatten().map(|x| x as f32).collect(),
+            bases: per_cluster
+                .into_iter()
+                .flatten()
+                .flatten()
+                .map(|x| x as f32)
+                .collect(),
             assignment,
             coefficients,
         }

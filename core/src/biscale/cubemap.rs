@@ -195,7 +195,9 @@ mod tests {
         }
         // A constant map resamples to the constant.
         let mut flat = Image::new(8, 4);
-        flat.pixels_mut().iter_mut().for_each(|p| *p = [0.25, 0.5, 2.0]);
+        flat.pixels_mut()
+            .iter_mut()
+            .for_each(|p| *p = [0.25, 0.5, 2.0]);
         for p in CubeLayout::new(4).lighting(&env_of(flat, 10.0)) {
             assert!((p[0] - 0.25).abs() < 1e-6 && (p[2] - 2.0).abs() < 1e-6);
         }

@@ -97,10 +97,7 @@ impl HemisphereGrid {
     pub fn at(&self, m: usize, f: DVec2) -> DVec3 {
         let (ix, iy) = (m as u32 % self.res, m as u32 / self.res);
         let n = self.res as f64;
-        square_to_hemisphere(DVec2::new(
-            (ix as f64 + f.x) / n,
-            (iy as f64 + f.y) / n,
-        ))
+        square_to_hemisphere(DVec2::new((ix as f64 + f.x) / n, (iy as f64 + f.y) / n))
     }
 
     /// `k` x `k` stratified directions (sub-cell centres) of cell `m`, for cell averages.

@@ -64,11 +64,20 @@ impl BiscaleSettings {
         if !(1..=256).contains(&self.cube_n) {
             Some(format!("cube map side {} is outside 1..=256", self.cube_n))
         } else if !(1..=32).contains(&self.local_res) {
-            Some(format!("local directions per side {} is outside 1..=32", self.local_res))
+            Some(format!(
+                "local directions per side {} is outside 1..=32",
+                self.local_res
+            ))
         } else if !(1..=64).contains(&self.view_res) {
-            Some(format!("view directions per side {} is outside 1..=64", self.view_res))
+            Some(format!(
+                "view directions per side {} is outside 1..=64",
+                self.view_res
+            ))
         } else if !(1..=15).contains(&self.rays_per_side) {
-            Some(format!("rays per side {} is outside 1..=15", self.rays_per_side))
+            Some(format!(
+                "rays per side {} is outside 1..=15",
+                self.rays_per_side
+            ))
         } else {
             None
         }

@@ -62,6 +62,8 @@ pub struct BiscaleMode {
     frames: u32,
     preparation: PreparationReport,
     light_change_ms: f64,
+    /// Milliseconds of the last frame (a view change re-renders every pixel).
+    frame_ms: f64,
 }
 
 fn name_of(scene: &Scene, index: usize) -> String {
@@ -70,6 +72,19 @@ fn name_of(scene: &Scene, index: usize) -> String {
         .get(index)
         .cloned()
         .unwrap_or_else(|| format!("#{index}"))
+}
+
+/// L* rows (j = p M + m, RGB) laid out per vertex as [channel][M], the layout a
+/// pixel interpolates.
+fn per_vertex(rows: &[[f32; 3]], mc: usize) -> Vec<f32> {
+    let mut local = vec![0.0f32; rows.len() * 3];
+    for (j, v) in rows.iter().enumerate() {
+        let (p, m) = (j / mc, j % mc);
+        for (c, x) in v.iter().enumerate() {
+            local[(p * 3 + c) * mc + m] = *x;
+        }
+    }
+    local
 }
 
 impl BiscaleMode {
@@ -82,13 +97,19 @@ impl BiscaleMode {
             .enumerate()
             .filter_map(|(i, m)| Self::unrenderable(scene, i, m))
             .collect();
-        parts.extend(scene.lights.iter().enumerate().map(|(index, l)| Unrenderable::Light {
-            index,
-            kind: match l {
-                Light::Point { .. } => "point",
-                Light::Area { .. } => "area",
-            },
-        }));
+        parts.extend(
+            scene
+                .lights
+                .iter()
+                .enumerate()
+                .map(|(index, l)| Unrenderable::Light {
+                    index,
+                    kind: match l {
+                        Light::Point { .. } => "point",
+                        Light::Area { .. } => "area",
+                    },
+                }),
+        );
         if scene.ambient.is_some() {
             parts.push(Unrenderable::Ambient);
         }
@@ -128,7 +149,12 @@ impl BiscaleMode {
         }
         Self::supports(&scene)?;
         let layers = Layers::new(&scene);
-        let film = Film::try_new(width, height, layers.layer_count(&scene), memory_limit_bytes())?;
+        let film = Film::try_new(
+            width,
+            height,
+            layers.layer_count(&scene),
+            memory_limit_bytes(),
+        )?;
         let mut report = PreparationReport::default();
         let mut stage = |name: &str, seconds: f64| {
             report.stages.push(PreparationStage {
@@ -177,6 +203,7 @@ impl BiscaleMode {
             frames: 0,
             preparation: PreparationReport::default(),
             light_change_ms: 0.0,
+            frame_ms: 0.0,
             scene,
         };
         prepare.report("lighting", 0.0)?;
@@ -230,29 +257,14 @@ impl BiscaleMode {
             TransferSource::Sh(sh) => sh.apply(&self.light),
             TransferSource::Cpca(c) => c.apply(&self.light),
         };
-        let mc = self.tab.local.len();
-        let mut local = vec![0.0f32; rows.len() * 3];
-        for (j, v) in rows.iter().enumerate() {
-            let (p, m) = (j / mc, j % mc);
-            for c in 0..3 {
-                local[(p * 3 + c) * mc + m] = v[c];
-            }
-        }
-        self.local = local;
+        self.local = per_vertex(&rows, self.tab.local.len());
         self.light_change_ms = start.elapsed().as_secs_f64() * 1e3;
     }
 
     /// Replaces the lighting vector directly (tests of the binning rule).
     #[cfg(test)]
     pub(crate) fn relight_with(&mut self, light: Vec<[f32; 3]>) {
-        let rows = self.pre.biclusters.apply(&light);
-        let mc = self.tab.local.len();
-        for (j, v) in rows.iter().enumerate() {
-            let (p, m) = (j / mc, j % mc);
-            for c in 0..3 {
-                self.local[(p * 3 + c) * mc + m] = v[c];
-            }
-        }
+        self.local = per_vertex(&self.pre.biclusters.apply(&light), self.tab.local.len());
         self.light = light;
         self.restart_all();
     }
@@ -266,7 +278,13 @@ impl BiscaleMode {
 
     /// One sample of pixel (x, y): its environment-layer radiance (unit strength) or
     /// what an escaping ray sees, and the material it shaded.
-    fn sample(&self, x: u32, y: u32, index: u64, lstar: &mut [f32]) -> (Option<(usize, DVec3)>, u64) {
+    fn sample(
+        &self,
+        x: u32,
+        y: u32,
+        index: u64,
+        lstar: &mut [f32],
+    ) -> (Option<(usize, DVec3)>, u64) {
         let pixel = u64::from(y) * u64::from(self.film.width()) + u64::from(x);
         let mut rng = SampleStream::new(&[self.scene.render.seed, index, pixel]);
         let ray = self.camera.ray(x, y, rng.next_2d());
@@ -279,9 +297,15 @@ impl BiscaleMode {
         let mesh = &self.scene.meshes[hit.mesh];
         let idx = mesh.indices[hit.triangle].map(|i| i as usize);
         let w = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
-        let n = (mesh.normals[idx[0]] * w[0] + mesh.normals[idx[1]] * w[1] + mesh.normals[idx[2]] * w[2])
+        let n = (mesh.normals[idx[0]] * w[0]
+            + mesh.normals[idx[1]] * w[1]
+            + mesh.normals[idx[2]] * w[2])
             .normalize_or(DVec3::Y);
-        let (p0, p1, p2) = (mesh.positions[idx[0]], mesh.positions[idx[1]], mesh.positions[idx[2]]);
+        let (p0, p1, p2) = (
+            mesh.positions[idx[0]],
+            mesh.positions[idx[1]],
+            mesh.positions[idx[2]],
+        );
         let (u0, u1, u2) = (mesh.uvs[idx[0]], mesh.uvs[idx[1]], mesh.uvs[idx[2]]);
         let uv = u0 * w[0] + u1 * w[1] + u2 * w[2];
         let (t, b) = tangent_frame(n, dpdu(p1 - p0, p2 - p0, u1 - u0, u2 - u0));
@@ -302,7 +326,10 @@ impl BiscaleMode {
             None => [0.0; 3],
         };
         (
-            Some((ENVIRONMENT, DVec3::new(rgb[0] as f64, rgb[1] as f64, rgb[2] as f64))),
+            Some((
+                ENVIRONMENT,
+                DVec3::new(rgb[0] as f64, rgb[1] as f64, rgb[2] as f64),
+            )),
             material_bit(mesh.material),
         )
     }
@@ -330,7 +357,6 @@ impl RenderMode for BiscaleMode {
         let stride = 3 * self.tab.local.len();
         let dropped_before = self.film.dropped();
         let mut film = std::mem::replace(&mut self.film, Film::new(0, 0, 0));
-        let layer_count = film.layers();
         let rows = film.par_rows(|row| {
             let mut lstar = vec![0.0f32; stride];
             let mut shaded = 0u64;
@@ -338,14 +364,12 @@ impl RenderMode for BiscaleMode {
                 for index in first..first + k {
                     let (value, mask) = self.sample(x, row.y, index, &mut lstar);
                     shaded += u64::from(mask != 0);
-                    let mut out = [DVec3::ZERO; 8];
-                    if let Some((l, v)) = value
-                        && l < layer_count
-                    {
-                        out[l.min(7)] = v;
-                    }
+                    // Every active layer gets a sample (zero where this one saw nothing).
                     for &l in &active {
-                        row.add(x, l, out[l.min(7)]);
+                        let v = value
+                            .filter(|(at, _)| *at == l)
+                            .map_or(DVec3::ZERO, |(_, v)| v);
+                        row.add(x, l, v);
                     }
                     row.touch(x, mask);
                 }
@@ -362,6 +386,7 @@ impl RenderMode for BiscaleMode {
         self.film = film;
         self.next_sample += k;
         self.frames += 1;
+        self.frame_ms = start.elapsed().as_secs_f64() * 1e3;
         FrameStats {
             counters: rows.into_iter().fold(Counters::default(), |a, c| a + c),
             seconds: start.elapsed().as_secs_f64(),
@@ -392,6 +417,33 @@ impl RenderMode for BiscaleMode {
         self.preparation.clone()
     }
 
+    fn summary(&self) -> Option<String> {
+        let pre = &self.pre;
+        let source = match self.source {
+            TransferSource::Biclustered => "",
+            TransferSource::Dense => " (dense product)",
+            TransferSource::Sh(_) => " (SH baseline)",
+            TransferSource::Cpca(_) => " (CPCA baseline)",
+        };
+        let origin = if pre.stats.from_cache {
+            "precomputed: from cache".to_string()
+        } else {
+            format!(
+                "precomputed in {:.1} s",
+                pre.stats.visibility_seconds
+                    + pre.stats.binning_seconds
+                    + pre.stats.biclustering_seconds
+            )
+        };
+        Some(format!(
+            "{origin} · {} biclusters · FLOP ratio {:.3}{source} · view change {:.1} ms · light change {:.1} ms",
+            pre.biclusters.len(),
+            pre.flop_ratio(),
+            self.frame_ms,
+            self.light_change_ms
+        ))
+    }
+
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
         let refuse = |parts: Vec<Unrenderable>| -> Result<Invalidation, EditError> {
             Err(Unsupported {
@@ -412,7 +464,10 @@ impl RenderMode for BiscaleMode {
                     Light::Point { .. } => "point",
                     Light::Area { .. } => "area",
                 };
-                return refuse(vec![Unrenderable::Light { index: *index, kind }]);
+                return refuse(vec![Unrenderable::Light {
+                    index: *index,
+                    kind,
+                }]);
             }
             SceneEdit::AddLight(light) => {
                 let kind = match light {
@@ -464,10 +519,18 @@ impl RenderMode for BiscaleMode {
             SceneEdit::Meshes(_) => {
                 // New geometry: new visibility, so the precomputation runs again.
                 self.bvh = SceneBvh::build(&self.scene.meshes);
-                let pre = precompute(&self.scene.meshes, &self.bvh, &self.settings, &Prepare::quietly())
-                    .expect("an uncancellable preparation is never cancelled");
+                let pre = precompute(
+                    &self.scene.meshes,
+                    &self.bvh,
+                    &self.settings,
+                    &Prepare::quietly(),
+                )
+                .expect("an uncancellable preparation is never cancelled");
                 self.pre = Arc::new(pre);
-                if !matches!(self.source, TransferSource::Biclustered | TransferSource::Dense) {
+                if !matches!(
+                    self.source,
+                    TransferSource::Biclustered | TransferSource::Dense
+                ) {
                     self.source = TransferSource::Biclustered;
                 }
                 self.relight();

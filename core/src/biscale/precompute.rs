@@ -7,12 +7,12 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use super::BiscaleSettings;
 use super::bicluster::{self, Biclustering, LevelMatrix};
 use super::cache;
 use super::cubemap::CubeLayout;
 use super::hemisphere::HemisphereGrid;
 use super::transfer::{self, TransferMatrix, VertexFrames};
-use super::BiscaleSettings;
 use crate::geometry::SceneBvh;
 use crate::render::{Cancelled, Prepare};
 use crate::scene::TriangleMesh;

@@ -7,12 +7,12 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use super::BiscaleSettings;
 use super::cpca::Cpca;
 use super::cubemap::CubeLayout;
 use super::hemisphere::HemisphereGrid;
 use super::precompute::{PrecomputeStats, Precomputed, precompute};
 use super::sh::ShTransfer;
-use super::BiscaleSettings;
 use crate::geometry::SceneBvh;
 use crate::render::{Cancelled, Prepare};
 use crate::rng::SampleStream;
@@ -107,7 +107,13 @@ pub fn precompute_report(
     // Losslessness on a random lighting vector.
     let rng = SampleStream::new(&[settings.seed, 0x4c]);
     let random: Vec<[f32; 3]> = (0..cube.len() as u64)
-        .map(|k| [rng.at(3 * k) as f32, rng.at(3 * k + 1) as f32, rng.at(3 * k + 2) as f32])
+        .map(|k| {
+            [
+                rng.at(3 * k) as f32,
+                rng.at(3 * k + 1) as f32,
+                rng.at(3 * k + 2) as f32,
+            ]
+        })
         .collect();
     let exact_random = t.apply_f64(&random);
     let bic_random = pre.biclusters.apply(&random);

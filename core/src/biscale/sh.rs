@@ -107,7 +107,10 @@ impl ShTransfer {
         let projection = (0..cube.len())
             .flat_map(|k| {
                 let w = cube.solid_angle(k);
-                global[k].iter().map(move |y| (y * w) as f32).collect::<Vec<_>>()
+                global[k]
+                    .iter()
+                    .map(move |y| (y * w) as f32)
+                    .collect::<Vec<_>>()
             })
             .collect();
         let strata = 8;
@@ -136,11 +139,10 @@ impl ShTransfer {
     pub fn project(&self, light: &[[f32; 3]]) -> Vec<[f32; 3]> {
         let nb = self.order * self.order;
         let mut c = vec![[0.0f32; 3]; nb];
-        for (k, l) in light.iter().enumerate() {
-            for b in 0..nb {
-                let y = self.projection[k * nb + b];
+        for (l, ys) in light.iter().zip(self.projection.chunks_exact(nb)) {
+            for (cb, &y) in c.iter_mut().zip(ys) {
                 for ch in 0..3 {
-                    c[b][ch] += y * l[ch];
+                    cb[ch] += y * l[ch];
                 }
             }
         }
@@ -249,7 +251,12 @@ mod tests {
             }
         }
         for a in 0..nb {
-            assert!((projected[a] - c[a]).abs() < 1e-12, "{a}: {} vs {}", projected[a], c[a]);
+            assert!(
+                (projected[a] - c[a]).abs() < 1e-12,
+                "{a}: {} vs {}",
+                projected[a],
+                c[a]
+            );
         }
         for i in 0..100 {
             let d = crate::biscale::hemisphere::square_to_hemisphere(glam::DVec2::new(

@@ -128,8 +128,8 @@ fn one_bright_cube_pixel_lands_in_the_cell_of_its_centre() {
         let local = DVec3::new(centre.x, -centre.z, centre.y);
         let m = nearest_cell_by_forward_map(grid, local);
         let strata = 40;
-        let mean_cos: f64 = grid.strata(m, strata).map(|w| w.z).sum::<f64>()
-            / (strata * strata) as f64;
+        let mean_cos: f64 =
+            grid.strata(m, strata).map(|w| w.z).sum::<f64>() / (strata * strata) as f64;
         let expected = e as f64 * cube.solid_angle(k) * ALBEDO / PI * mean_cos;
         let mut light = vec![[0.0f32; 3]; cube.len()];
         light[k] = [e; 3];
@@ -151,7 +151,10 @@ fn the_sh_baseline_agrees_on_a_low_frequency_environment() {
     // is within 0.5% of the closed form.
     let (w, h) = (64, 32);
     let map = map_of(w, h, |x, y| {
-        let d = crate::environment::direction_at((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64);
+        let d = crate::environment::direction_at(
+            (x as f64 + 0.5) / w as f64,
+            (y as f64 + 0.5) / h as f64,
+        );
         let v = (1.0 + 0.5 * d.y + 0.3 * d.x) as f32;
         [v, v, v]
     });
@@ -173,7 +176,10 @@ fn the_sh_baseline_agrees_on_a_low_frequency_environment() {
     let exact = ALBEDO * (1.0 + 0.5 * 2.0 / 3.0);
     eprintln!("pixel basis {pixel}, SH {sh_pixel}, exact {exact}");
     assert!((pixel / exact - 1.0).abs() < 0.01);
-    assert!((sh_pixel / pixel - 1.0).abs() < 0.03, "{sh_pixel} vs {pixel}");
+    assert!(
+        (sh_pixel / pixel - 1.0).abs() < 0.03,
+        "{sh_pixel} vs {pixel}"
+    );
 }
 
 #[test]
@@ -196,15 +202,23 @@ fn a_turned_environment_is_a_light_change_and_strength_keeps_the_samples() {
     let doubled = DVec3::from(mode.image().get(1, 1).map(|c| c as f64));
     assert!((doubled / before - 2.0).abs().max_element() < 1e-5);
     env.rotate_y_deg = 90.0;
-    mode.apply(SceneEdit::Environment(Some(env.clone()))).expect("turn");
+    mode.apply(SceneEdit::Environment(Some(env.clone())))
+        .expect("turn");
     assert_eq!(mode.precomputed().key, key, "no recomputation of T");
     let turned = centre_pixel(&mut mode, 1);
     // The same as a mode prepared with the turned environment from the start.
     scene.environment = Some(env);
-    let mut fresh = BiscaleMode::prepare(scene, 3, 3, settings(), Prepare::quietly()).expect("mode");
+    let mut fresh =
+        BiscaleMode::prepare(scene, 3, 3, settings(), Prepare::quietly()).expect("mode");
     let direct = centre_pixel(&mut fresh, 1);
-    assert!((turned - direct).abs().max_element() < 1e-6, "{turned} vs {direct}");
-    assert!((turned - doubled).abs().max_element() > 1e-3, "the turn changed nothing");
+    assert!(
+        (turned - direct).abs().max_element() < 1e-6,
+        "{turned} vs {direct}"
+    );
+    assert!(
+        (turned - doubled).abs().max_element() > 1e-3,
+        "the turn changed nothing"
+    );
 }
 
 #[test]
@@ -245,7 +259,10 @@ fn what_the_mode_cannot_render_is_refused_by_name() {
             Unrenderable::NoEnvironment,
         ]
     );
-    assert!(err.to_string().contains("material `chrome` (mirror)"), "{err}");
+    assert!(
+        err.to_string().contains("material `chrome` (mirror)"),
+        "{err}"
+    );
     assert!(err.to_string().contains("without [environment]"), "{err}");
 }
 
@@ -258,14 +275,19 @@ fn the_cache_round_trips_and_refuses_stale_or_damaged_files() {
         cache_dir: Some(dir.path().to_path_buf()),
         ..BiscaleSettings::default()
     };
-    let first = BiscaleMode::prepare(scene.clone(), 3, 3, s.clone(), Prepare::quietly()).expect("mode");
+    let first =
+        BiscaleMode::prepare(scene.clone(), 3, 3, s.clone(), Prepare::quietly()).expect("mode");
     assert!(!first.precomputed().stats.from_cache);
     let path = cache::path_in(dir.path(), first.precomputed().key);
     assert!(path.exists());
-    let second = BiscaleMode::prepare(scene.clone(), 3, 3, s.clone(), Prepare::quietly()).expect("mode");
+    let second =
+        BiscaleMode::prepare(scene.clone(), 3, 3, s.clone(), Prepare::quietly()).expect("mode");
     assert!(second.precomputed().stats.from_cache);
     assert_eq!(second.precomputed().transfer, first.precomputed().transfer);
-    assert_eq!(second.precomputed().biclusters, first.precomputed().biclusters);
+    assert_eq!(
+        second.precomputed().biclusters,
+        first.precomputed().biclusters
+    );
     let vertices = first.precomputed().frames.len();
     let key = first.precomputed().key;
     // Stale: another key.
@@ -279,11 +301,18 @@ fn the_cache_round_trips_and_refuses_stale_or_damaged_files() {
     std::fs::write(&path, &flipped).expect("write");
     let err = cache::read(&path, key, &s, vertices).expect_err("damaged");
     assert!(err.to_string().contains("checksum"), "{err}");
-    assert!(err.to_string().contains(&path.display().to_string()), "{err}");
+    assert!(
+        err.to_string().contains(&path.display().to_string()),
+        "{err}"
+    );
     // A damaged cache is rebuilt, never trusted, and rewritten whole.
-    let third = BiscaleMode::prepare(scene.clone(), 3, 3, s.clone(), Prepare::quietly()).expect("mode");
+    let third =
+        BiscaleMode::prepare(scene.clone(), 3, 3, s.clone(), Prepare::quietly()).expect("mode");
     let stats = &third.precomputed().stats;
-    assert!(!stats.from_cache && stats.cache_rejected.is_some(), "{stats:?}");
+    assert!(
+        !stats.from_cache && stats.cache_rejected.is_some(),
+        "{stats:?}"
+    );
     assert_eq!(std::fs::read(&path).expect("read"), bytes);
     std::fs::write(&path, &bytes[..bytes.len() / 2]).expect("write");
     assert!(cache::read(&path, key, &s, vertices).is_err());
@@ -311,7 +340,13 @@ fn the_biclustered_product_equals_the_dense_one_on_a_mesh() {
     let rng = crate::rng::SampleStream::new(&[8]);
     for round in 0..3u64 {
         let light: Vec<[f32; 3]> = (0..pre.transfer.cols as u64)
-            .map(|k| [rng.at(round * 100_000 + 3 * k) as f32, rng.at(round * 100_000 + 3 * k + 1) as f32, 1.0])
+            .map(|k| {
+                [
+                    rng.at(round * 100_000 + 3 * k) as f32,
+                    rng.at(round * 100_000 + 3 * k + 1) as f32,
+                    1.0,
+                ]
+            })
             .collect();
         let dense = pre.transfer.apply_f64(&light);
         let got = pre.biclusters.apply(&light);
@@ -331,7 +366,11 @@ fn uv_sphere(rings: u32, segments: u32) -> crate::scene::TriangleMesh {
         for j in 0..=segments {
             let u = j as f64 / segments as f64;
             let phi = 2.0 * PI * u;
-            let n = DVec3::new(theta.sin() * phi.cos(), theta.cos(), -theta.sin() * phi.sin());
+            let n = DVec3::new(
+                theta.sin() * phi.cos(),
+                theta.cos(),
+                -theta.sin() * phi.sin(),
+            );
             positions.push(n * 0.5);
             normals.push(n);
             uvs.push(DVec2::new(u, 1.0 - v));
@@ -340,7 +379,12 @@ fn uv_sphere(rings: u32, segments: u32) -> crate::scene::TriangleMesh {
     let w = segments + 1;
     for i in 0..rings {
         for j in 0..segments {
-            let (a, b, c, d) = (i * w + j, i * w + j + 1, (i + 1) * w + j + 1, (i + 1) * w + j);
+            let (a, b, c, d) = (
+                i * w + j,
+                i * w + j + 1,
+                (i + 1) * w + j + 1,
+                (i + 1) * w + j,
+            );
             indices.push([a, d, c]);
             indices.push([a, c, b]);
         }
@@ -360,9 +404,16 @@ fn a_lambertian_sphere_under_a_map_agrees_with_the_spmm_mode() {
     // cells' discretisation and the per-vertex interpolation of L*.
     let (w, h) = (64, 32);
     let map = map_of(w, h, |x, y| {
-        let d = crate::environment::direction_at((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64);
+        let d = crate::environment::direction_at(
+            (x as f64 + 0.5) / w as f64,
+            (y as f64 + 0.5) / h as f64,
+        );
         let bright = d.dot(DVec3::new(0.6, 0.7, 0.4).normalize()) > 0.9;
-        [if bright { 20.0 } else { 0.3 }, 0.5, 0.4 + 0.3 * d.y.max(0.0) as f32]
+        [
+            if bright { 20.0 } else { 0.3 },
+            0.5,
+            0.4 + 0.3 * d.y.max(0.0) as f32,
+        ]
     });
     let mut scene = plane_scene(map);
     scene.meshes = vec![uv_sphere(24, 48)];
@@ -376,13 +427,22 @@ fn a_lambertian_sphere_under_a_map_agrees_with_the_spmm_mode() {
     let mut spmm = crate::trace::SpmmMode::new(scene.clone(), iw, ih).expect("spmm");
     run_frames(&mut spmm, 1024, |_, _| {});
     let reference = spmm.image();
-    let mut mode = BiscaleMode::prepare(scene, iw, ih, settings(), Prepare::quietly()).expect("mode");
+    let mut mode =
+        BiscaleMode::prepare(scene, iw, ih, settings(), Prepare::quietly()).expect("mode");
     run_frames(&mut mode, 64, |_, _| {});
     let image = mode.image();
-    let mean = |img: &Image| img.pixels().iter().map(|p| p[0] as f64 + p[1] as f64 + p[2] as f64).sum::<f64>();
+    let mean = |img: &Image| {
+        img.pixels()
+            .iter()
+            .map(|p| p[0] as f64 + p[1] as f64 + p[2] as f64)
+            .sum::<f64>()
+    };
     let ratio = mean(&image) / mean(&reference);
     let c = crate::metrics::compare(&reference, &image, 0.0).expect("same size");
-    eprintln!("sphere: mean ratio {ratio}, rmse {}, mssim {}", c.rmse, c.mssim);
+    eprintln!(
+        "sphere: mean ratio {ratio}, rmse {}, mssim {}",
+        c.rmse, c.mssim
+    );
     assert!((ratio - 1.0).abs() < 0.02, "mean ratio {ratio}");
     assert!(c.mssim > 0.95, "{c:?}");
 }

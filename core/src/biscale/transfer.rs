@@ -190,7 +190,9 @@ pub fn visibility(
                 for k in 0..cube.len() {
                     let visible = sub[k * per..(k + 1) * per]
                         .iter()
-                        .filter(|d| d.dot(n) > 0.0 && !bvh.occluded(origin, **d, 0.0, f64::INFINITY))
+                        .filter(|d| {
+                            d.dot(n) > 0.0 && !bvh.occluded(origin, **d, 0.0, f64::INFINITY)
+                        })
                         .count();
                     if visible > 0 {
                         row.push((k as u32, visible as u8));
@@ -258,7 +260,11 @@ impl TransferMatrix {
     /// Why these arrays cannot be the transfer of `rows` x `cols` with `s^2` rays.
     pub fn problem(&self, max_count: u8) -> Option<String> {
         if self.row_offsets.len() != self.rows + 1 {
-            return Some(format!("{} row offsets for {} rows", self.row_offsets.len(), self.rows));
+            return Some(format!(
+                "{} row offsets for {} rows",
+                self.row_offsets.len(),
+                self.rows
+            ));
         }
         if self.row_offsets[0] != 0
             || self.row_offsets.windows(2).any(|w| w[0] > w[1])

@@ -12,9 +12,16 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use std::sync::Arc;
+
+use crate::biscale::cpca::Cpca;
+use crate::biscale::cubemap::CubeLayout;
+use crate::biscale::hemisphere::HemisphereGrid;
+use crate::biscale::sh::ShTransfer;
+use crate::biscale::{BiscaleMode, TransferSource, report};
 use crate::image::Image;
 use crate::metrics::{Comparison, MetricsError, compare};
-use crate::render::{Device, ModeError, ModeKind, Prepare, run_frames};
+use crate::render::{Device, ModeError, ModeKind, Prepare, RenderMode, run_frames};
 use crate::scene::{Material, Scene};
 
 /// What the report renders.
@@ -76,6 +83,8 @@ pub struct ConvergenceReport {
     pub summaries: Vec<VariantSummary>,
     /// Why residual / N_PCA variants are absent, when they are.
     pub notes: Vec<String>,
+    /// Biscale: milliseconds of one light change (new lighting vector and L*).
+    pub light_change_ms: Option<f64>,
     /// The converged image of the scene as written.
     #[serde(skip)]
     pub reference: Image,
@@ -87,6 +96,8 @@ pub enum ConvergenceError {
     Mode(#[from] ModeError),
     #[error(transparent)]
     Metrics(#[from] MetricsError),
+    #[error("{0}")]
+    Edit(String),
     #[error("--max-frames and --reference-frames must be at least 1 and max <= reference")]
     Frames,
 }
@@ -188,6 +199,52 @@ fn converged(scene: &Scene, r: &ConvergenceRequest) -> Result<(Image, f64), Conv
     Ok((mode.image(), run.seconds))
 }
 
+/// The error of `mode` against `reference` after 1, 2, 4, ... frames.
+fn measure(
+    mode: &mut dyn RenderMode,
+    v: &Variant,
+    reference: &Image,
+    request: &ConvergenceRequest,
+    checkpoints: &mut Vec<Checkpoint>,
+    summaries: &mut Vec<VariantSummary>,
+) -> Result<(), ConvergenceError> {
+    let (mut frames, mut seconds, mut next) = (0u32, 0.0, 1u32);
+    let mut reached = None;
+    let mut last: Option<Comparison> = None;
+    while frames < request.max_frames {
+        let start = Instant::now();
+        run_frames(mode, next - frames, |_, _| {});
+        seconds += start.elapsed().as_secs_f64();
+        frames = next;
+        let c = compare(reference, &mode.image(), 0.0)?;
+        if reached.is_none() && c.mssim >= 0.98 {
+            reached = Some((frames, seconds));
+        }
+        checkpoints.push(Checkpoint {
+            variant: v.name.clone(),
+            reference: v.reference.clone(),
+            frames,
+            seconds,
+            rmse: c.rmse,
+            psnr_db: c.psnr_db,
+            mssim: c.mssim,
+        });
+        last = Some(c);
+        next = (next * 2).min(request.max_frames.next_power_of_two());
+    }
+    let last = last.expect("at least one checkpoint");
+    summaries.push(VariantSummary {
+        variant: v.name.clone(),
+        reference: v.reference.clone(),
+        ms_per_frame: seconds * 1e3 / frames as f64,
+        frames_to_mssim_098: reached.map(|r| r.0),
+        seconds_to_mssim_098: reached.map(|r| r.1),
+        final_rmse: last.rmse,
+        final_mssim: last.mssim,
+    });
+    Ok(())
+}
+
 /// Runs the report; `progress(message)` is called as each part starts.
 pub fn convergence_report(
     scene: &Scene,
@@ -214,6 +271,7 @@ pub fn convergence_report(
     }
     let mut checkpoints = Vec::new();
     let mut summaries = Vec::new();
+    let mut light_change_ms = None;
     for (v, s) in &variants {
         progress(&format!("variant `{}`", v.name));
         let reference = &references
@@ -229,40 +287,77 @@ pub fn convergence_report(
             request.height,
             Prepare::quietly(),
         )?;
-        let (mut frames, mut seconds, mut next) = (0u32, 0.0, 1u32);
-        let mut reached = None;
-        let mut last: Option<Comparison> = None;
-        while frames < request.max_frames {
-            let start = Instant::now();
-            run_frames(mode.as_mut(), next - frames, |_, _| {});
-            seconds += start.elapsed().as_secs_f64();
-            frames = next;
-            let c = compare(reference, &mode.image(), 0.0)?;
-            if reached.is_none() && c.mssim >= 0.98 {
-                reached = Some((frames, seconds));
+        measure(
+            mode.as_mut(),
+            v,
+            reference,
+            request,
+            &mut checkpoints,
+            &mut summaries,
+        )?;
+    }
+    if request.mode == ModeKind::Biscale {
+        // The other representations of the same transfer, on the same precomputation:
+        // the dense matrix (the exact product), Sloan et al.'s SH and CPCA.
+        let reference = &references[0].1;
+        let mut mode = BiscaleMode::new(
+            scene.clone(),
+            request.width,
+            request.height,
+            Prepare::quietly(),
+        )?;
+        if let Some(env) = scene.environment.clone() {
+            // A light change: turn the map and back; the second turn is timed.
+            let mut turned = env.clone();
+            turned.rotate_y_deg += 45.0;
+            for e in [turned, env] {
+                mode.apply(crate::render::SceneEdit::Environment(Some(e)))
+                    .map_err(|e| ConvergenceError::Edit(e.to_string()))?;
             }
-            checkpoints.push(Checkpoint {
-                variant: v.name.clone(),
-                reference: v.reference.clone(),
-                frames,
-                seconds,
-                rmse: c.rmse,
-                psnr_db: c.psnr_db,
-                mssim: c.mssim,
-            });
-            last = Some(c);
-            next = (next * 2).min(request.max_frames.next_power_of_two());
+            light_change_ms = Some(mode.light_change_ms());
         }
-        let last = last.expect("at least one checkpoint");
-        summaries.push(VariantSummary {
-            variant: v.name.clone(),
-            reference: v.reference.clone(),
-            ms_per_frame: seconds * 1e3 / frames as f64,
-            frames_to_mssim_098: reached.map(|r| r.0),
-            seconds_to_mssim_098: reached.map(|r| r.1),
-            final_rmse: last.rmse,
-            final_mssim: last.mssim,
-        });
+        let pre = mode.precomputed().clone();
+        let s = mode.settings().clone();
+        let cube = CubeLayout::new(s.cube_n);
+        let local = HemisphereGrid::new(s.local_res);
+        progress("transfer variants: dense, sh, cpca");
+        let sources = [
+            ("dense", TransferSource::Dense),
+            (
+                "sh",
+                TransferSource::Sh(Arc::new(ShTransfer::build(
+                    &pre.transfer,
+                    &pre.frames,
+                    cube,
+                    local,
+                    report::SH_ORDER,
+                ))),
+            ),
+            (
+                "cpca",
+                TransferSource::Cpca(Arc::new(Cpca::build(
+                    &pre.transfer,
+                    report::CPCA_CLUSTERS,
+                    report::CPCA_COMPONENTS,
+                    s.seed,
+                ))),
+            ),
+        ];
+        for (name, source) in sources {
+            mode.set_transfer_source(source);
+            let v = Variant {
+                name: name.into(),
+                reference: "full".into(),
+            };
+            measure(
+                &mut mode,
+                &v,
+                reference,
+                request,
+                &mut checkpoints,
+                &mut summaries,
+            )?;
+        }
     }
     let reference = references.swap_remove(0).1;
     Ok(ConvergenceReport {
@@ -276,6 +371,7 @@ pub fn convergence_report(
         checkpoints,
         summaries,
         notes,
+        light_change_ms,
     })
 }
 

@@ -5,9 +5,9 @@
 
 pub mod convergence;
 
+use crate::biscale::BiscaleMode;
 use crate::render::{Device, ModeError, ModeKind, Prepare, RenderMode};
 use crate::scene::Scene;
-use crate::biscale::BiscaleMode;
 use crate::trace::SpmmMode;
 
 /// True if the mode exists in this build on that device.

@@ -264,6 +264,11 @@ pub trait RenderMode: Send {
     /// The stages of the last preparation (first build, or the last rebuild an edit
     /// caused) and their times.
     fn preparation(&self) -> PreparationReport;
+    /// A mode's own state in one line for status bars (e.g. the biscale mode's
+    /// biclusters and light-change time); `None` where a mode has nothing to add.
+    fn summary(&self) -> Option<String> {
+        None
+    }
 }
 
 /// Totals of a run of frames.

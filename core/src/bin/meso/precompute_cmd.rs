@@ -62,8 +62,13 @@ pub fn run(args: &PrecomputeArgs) -> Result<(), CliError> {
         }
     };
     let cancel = crate::progress::cancel_flag();
-    let (pre, report) = precompute_report(&scene, &settings, !args.no_baselines, &Prepare::new(&show, cancel))
-        .map_err(|e| CliError::failure(anyhow!(e)))?;
+    let (pre, report) = precompute_report(
+        &scene,
+        &settings,
+        !args.no_baselines,
+        &Prepare::new(&show, cancel),
+    )
+    .map_err(|e| CliError::failure(anyhow!(e)))?;
     if verbose {
         eprintln!();
     }

@@ -209,14 +209,31 @@ impl Tabulation {
 
 impl BtfTable {
     /// Outgoing radiance towards local `wo` at surface UV `uv`, for local incident
-    /// radiance `lstar` laid out [channel][M] (eq. 3).
-    pub fn shade(&self, tab: &Tabulation, uv: DVec2, wo: DVec3, lstar: &[f32]) -> [f32; 3] {
+    /// radiance `lstar` laid out [channel][M] (eq. 3). `moving`: the nearest tabulated
+    /// view instead of four interpolated ones, and no SPMM residual (the seed's trick
+    /// for a camera being dragged: a quarter of the dot products or fewer).
+    pub fn shade(
+        &self,
+        tab: &Tabulation,
+        uv: DVec2,
+        wo: DVec3,
+        lstar: &[f32],
+        moving: bool,
+    ) -> [f32; 3] {
         if wo.z <= 0.0 {
             return [0.0; 3];
         }
         let mc = tab.local.len();
         let (lr, lg, lb) = (&lstar[..mc], &lstar[mc..2 * mc], &lstar[2 * mc..3 * mc]);
-        let views = tab.views.bilinear(wo);
+        let mut views = tab.views.bilinear(wo);
+        if moving {
+            let nearest = views
+                .iter()
+                .copied()
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .map_or(0, |v| v.0);
+            views = [(nearest, 1.0), (0, 0.0), (0, 0.0), (0, 0.0)];
+        }
         let mut out = [0.0f32; 3];
         match self {
             BtfTable::Brdf { rows, albedo } => {
@@ -248,7 +265,7 @@ impl BtfTable {
                         out[1] += w * a[1] * dot(row, lg);
                         out[2] += w * a[2] * dot(row, lb);
                     }
-                    if let Some(res) = t.residual.get(c) {
+                    if let Some(res) = t.residual.get(c).filter(|_| !moving) {
                         let npca = t.material.npca();
                         let coef = t
                             .material

@@ -64,6 +64,8 @@ pub struct BiscaleMode {
     light_change_ms: f64,
     /// Milliseconds of the last frame (a view change re-renders every pixel).
     frame_ms: f64,
+    /// The camera is being dragged: nearest view, no residual (`BtfTable::shade`).
+    moving: bool,
 }
 
 fn name_of(scene: &Scene, index: usize) -> String {
@@ -204,6 +206,7 @@ impl BiscaleMode {
             preparation: PreparationReport::default(),
             light_change_ms: 0.0,
             frame_ms: 0.0,
+            moving: false,
             scene,
         };
         prepare.report("lighting", 0.0)?;
@@ -322,7 +325,7 @@ impl BiscaleMode {
             }
         }
         let rgb = match &self.tables[mesh.material] {
-            Some(table) => table.shade(&self.tab, uv, wo_local, lstar),
+            Some(table) => table.shade(&self.tab, uv, wo_local, lstar, self.moving),
             None => [0.0; 3],
         };
         (
@@ -540,9 +543,12 @@ impl RenderMode for BiscaleMode {
                 self.tables[index] = self.tab.table(&self.scene.materials[index]);
                 Invalidation::Pixels(self.film.reset_touching(material_bit(index)))
             }
-            // The tables hold the residual; skipping it while moving would not be
-            // faster here, so nothing changes.
-            SceneEdit::Moving(_) => Invalidation::Nothing,
+            SceneEdit::Moving(moving) if moving == self.moving => Invalidation::Nothing,
+            SceneEdit::Moving(moving) => {
+                // Samples shaded the fast way and the full way must not mix.
+                self.moving = moving;
+                self.restart_all()
+            }
             _ => Invalidation::Nothing,
         })
     }

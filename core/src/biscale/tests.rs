@@ -446,3 +446,30 @@ fn a_lambertian_sphere_under_a_map_agrees_with_the_spmm_mode() {
     assert!((ratio - 1.0).abs() < 0.02, "mean ratio {ratio}");
     assert!(c.mssim > 0.95, "{c:?}");
 }
+
+#[test]
+fn moving_frames_take_the_nearest_view_and_still_frames_restart() {
+    // A Lambertian table does not depend on the view: the fast frames equal the full
+    // ones; the switch each way restarts the image (samples must not mix).
+    let scene = plane_scene(map_of(16, 8, |x, _| [0.2 + x as f32 * 0.1; 3]));
+    let mut mode = BiscaleMode::prepare(scene, 3, 3, settings(), Prepare::quietly()).expect("mode");
+    let still = centre_pixel(&mut mode, 2);
+    assert_eq!(
+        mode.apply(SceneEdit::Moving(true)),
+        Ok(crate::render::Invalidation::All)
+    );
+    assert_eq!(mode.progress().frames, 0);
+    let moving = centre_pixel(&mut mode, 2);
+    assert!(
+        (moving - still).abs().max_element() < 1e-6,
+        "{moving} vs {still}"
+    );
+    assert_eq!(
+        mode.apply(SceneEdit::Moving(true)),
+        Ok(crate::render::Invalidation::Nothing)
+    );
+    assert_eq!(
+        mode.apply(SceneEdit::Moving(false)),
+        Ok(crate::render::Invalidation::All)
+    );
+}

@@ -358,6 +358,22 @@ pub fn convergence_report(
                 &mut summaries,
             )?;
         }
+        // Frames while the camera is dragged: the nearest tabulated view, no residual.
+        mode.set_transfer_source(TransferSource::Biclustered);
+        mode.apply(crate::render::SceneEdit::Moving(true))
+            .map_err(|e| ConvergenceError::Edit(e.to_string()))?;
+        let v = Variant {
+            name: "moving".into(),
+            reference: "full".into(),
+        };
+        measure(
+            &mut mode,
+            &v,
+            reference,
+            request,
+            &mut checkpoints,
+            &mut summaries,
+        )?;
     }
     let reference = references.swap_remove(0).1;
     Ok(ConvergenceReport {

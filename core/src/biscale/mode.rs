@@ -309,7 +309,8 @@ impl BiscaleMode {
             mesh.positions[idx[1]],
             mesh.positions[idx[2]],
         );
-        let (u0, u1, u2) = (mesh.uvs[idx[0]], mesh.uvs[idx[1]], mesh.uvs[idx[2]]);
+        let uv_at = |i: usize| mesh.uvs.get(i).copied().unwrap_or_default();
+        let (u0, u1, u2) = (uv_at(idx[0]), uv_at(idx[1]), uv_at(idx[2]));
         let uv = u0 * w[0] + u1 * w[1] + u2 * w[2];
         let (t, b) = tangent_frame(n, dpdu(p1 - p0, p2 - p0, u1 - u0, u2 - u0));
         let wo = -ray.dir;

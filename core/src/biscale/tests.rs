@@ -473,3 +473,68 @@ fn moving_frames_take_the_nearest_view_and_still_frames_restart() {
         Ok(crate::render::Invalidation::All)
     );
 }
+
+#[test]
+fn meshes_without_uvs_and_cancelled_preparations_fail_cleanly() {
+    // An OBJ without texture coordinates gets the documented spherical UVs and renders
+    // an SPMM material; an edit bringing a mesh without UVs is refused naming it.
+    let dir = tempfile::tempdir().expect("temp dir");
+    let obj = dir.path().join("tetra.obj");
+    std::fs::write(
+        &obj,
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n",
+    )
+    .expect("write");
+    let placement = crate::scene::mesh::Placement {
+        scale: 1.0,
+        rotation: glam::DMat3::IDENTITY,
+        translate: DVec3::ZERO,
+    };
+    let mesh = crate::scene::mesh::load_obj(&obj, &placement, 0).expect("loads");
+    assert_eq!(mesh.uvs.len(), mesh.positions.len(), "default UVs");
+    let mut scene = plane_scene(map_of(8, 4, |_, _| [1.0; 3]));
+    scene.materials[0] = crate::scene::test_scenes::tilted_spmm();
+    scene.meshes = vec![mesh.clone()];
+    scene.camera.position = DVec3::new(2.0, 2.0, 2.0);
+    scene.camera.look_at = DVec3::splat(0.2);
+    scene.camera.up = DVec3::Y;
+    scene.camera.fov_y_deg = 40.0;
+    let s = BiscaleSettings {
+        cube_n: 8,
+        ..settings()
+    };
+    let mut mode = BiscaleMode::prepare(scene.clone(), 8, 8, s.clone(), Prepare::quietly())
+        .expect("renders with default UVs");
+    run_frames(&mut mode, 1, |_, _| {});
+    let mut bare = mesh;
+    bare.uvs.clear();
+    let err = mode
+        .apply(SceneEdit::Meshes(vec![bare]))
+        .expect_err("refused");
+    assert!(
+        err.to_string().contains("mesh 0") && err.to_string().contains("uvs"),
+        "{err}"
+    );
+    // Cancelled before and during the precomputation.
+    let cancel = std::sync::atomic::AtomicBool::new(true);
+    let err = BiscaleMode::prepare(
+        scene.clone(),
+        8,
+        8,
+        s.clone(),
+        Prepare::new(&|_, _| {}, &cancel),
+    )
+    .err()
+    .expect("cancelled");
+    assert_eq!(err, ModeError::Cancelled(crate::render::Cancelled));
+    let cancel = std::sync::atomic::AtomicBool::new(false);
+    let stop_in_biclustering = |stage: &str, _: f32| {
+        if stage == "biclustering" {
+            cancel.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+    };
+    let err = BiscaleMode::prepare(scene, 8, 8, s, Prepare::new(&stop_in_biclustering, &cancel))
+        .err()
+        .expect("cancelled");
+    assert_eq!(err, ModeError::Cancelled(crate::render::Cancelled));
+}

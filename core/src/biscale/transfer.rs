@@ -47,7 +47,10 @@ impl VertexFrames {
             for tri in &mesh.indices {
                 let [i0, i1, i2] = tri.map(|i| i as usize);
                 let (p0, p1, p2) = (mesh.positions[i0], mesh.positions[i1], mesh.positions[i2]);
-                let (u0, u1, u2) = (mesh.uvs[i0], mesh.uvs[i1], mesh.uvs[i2]);
+                // A mesh made in code may lack UVs: its tangents fall back to any
+                // perpendicular (`tangent_frame`) instead of reading out of range.
+                let uv = |i: usize| mesh.uvs.get(i).copied().unwrap_or_default();
+                let (u0, u1, u2) = (uv(i0), uv(i1), uv(i2));
                 let d = dpdu(p1 - p0, p2 - p0, u1 - u0, u2 - u0).normalize_or_zero();
                 for i in [i0, i1, i2] {
                     tangent_sum[i] += d;

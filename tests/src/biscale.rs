@@ -4,6 +4,7 @@
 //! losslessness on the bunny's transfer matrix.
 
 use std::collections::BTreeMap;
+use std::collections::btree_map::Entry;
 use std::path::PathBuf;
 
 use meso_core::biscale::{BiscaleMode, BiscaleSettings};
@@ -92,7 +93,7 @@ fn biscale_agrees_with_the_converged_spmm_image_and_is_lossless_on_the_bunny() {
         let mut s = scene.clone();
         s.materials[0] = material.clone();
         let key = (t.cube_n, t.local_res);
-        if !modes_by_res.contains_key(&key) {
+        if let Entry::Vacant(slot) = modes_by_res.entry(key) {
             let settings = BiscaleSettings {
                 cube_n: t.cube_n,
                 local_res: t.local_res,
@@ -134,7 +135,7 @@ fn biscale_agrees_with_the_converged_spmm_image_and_is_lossless_on_the_bunny() {
             );
             assert!(err <= 1e-6 * largest, "not lossless: {err} of {largest}");
             assert!(pre.flop_ratio() < 0.5, "FLOP ratio {}", pre.flop_ratio());
-            modes_by_res.insert(key, mode);
+            slot.insert(mode);
         }
         let mode = modes_by_res.get_mut(&key).expect("made above");
         mode.apply(SceneEdit::Material { index: 0, material })

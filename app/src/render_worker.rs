@@ -67,6 +67,8 @@ pub struct Frame {
     pub frame_ms: f64,
     pub rays_per_second: f64,
     pub finished: Instant,
+    /// The mode's own one-line state (`RenderMode::summary`).
+    pub summary: Option<String>,
 }
 
 /// A rejected command: the version it carried and why.
@@ -273,6 +275,7 @@ fn run(
             frame_ms: stats.seconds * 1e3,
             rays_per_second: stats.counters.rays.total() as f64 / stats.seconds.max(1e-9),
             finished: Instant::now(),
+            summary: m.summary(),
         };
         if let Ok(mut s) = shared.lock() {
             s.frame = Some(frame);

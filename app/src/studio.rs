@@ -1024,6 +1024,10 @@ impl Studio {
                             f.rays_per_second / 1e6
                         ));
                     }
+                    if let Some(summary) = &f.summary {
+                        ui.separator();
+                        ui.label(summary);
+                    }
                 }
                 None => {
                     ui.label("waiting for the first frame");

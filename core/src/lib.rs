@@ -8,6 +8,7 @@
 //! crate through its public API only.
 
 pub mod atomic;
+pub mod biscale;
 pub mod brdf;
 pub mod btf;
 pub mod container;

@@ -1372,8 +1372,19 @@ fn render_modes_devices_and_unsupported_scenes_exit_2_naming_why() {
     };
     // Modes and devices not built yet say so; unknown names are usage errors.
     assert_bad_input(
-        &render(&["--mode", "biscale"]),
-        &["biscale", "not built yet"],
+        &render(&["--mode", "adaptive"]),
+        &["adaptive", "not built yet"],
+    );
+    // The biscale mode names what it cannot render: lights, AO, no environment.
+    let default = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/default.toml");
+    assert_bad_input(
+        &meso(&["render", default, "-o", out_arg, "--mode", "biscale"], ""),
+        &[
+            "biscale",
+            "light[0] (area)",
+            "[ambient]",
+            "without [environment]",
+        ],
     );
     assert_bad_input(
         &render(&["--device", "gpu"]),
@@ -1940,5 +1951,102 @@ fn bench_stroke_times_each_step_and_restarts_fewer_pixels_than_the_material() {
     assert_bad_input(
         &meso(&["bench", "stroke", scene, "--size", "8"], ""),
         &["--size"],
+    );
+}
+
+#[test]
+fn precompute_biscale_reports_json_and_writes_a_cache() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+    // A floor and a wall beside it (occlusion) under the studio map: 8 vertices.
+    let scene = dir.path().join("plane.toml");
+    std::fs::write(
+        &scene,
+        format!(
+            r#"version = 1
+[render]
+width = 16
+height = 16
+[camera]
+position = [0.0, 2.0, 3.0]
+look_at = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov_y_deg = 40.0
+[materials.white]
+kind = "brdf"
+model = "lambertian"
+albedo = [0.6, 0.6, 0.6]
+[[quad]]
+corner = [-1.0, 0.0, 1.0]
+edge_u = [2.0, 0.0, 0.0]
+edge_v = [0.0, 0.0, -2.0]
+material = "white"
+[[quad]]
+corner = [0.0, 0.0, 1.0]
+edge_u = [0.0, 0.0, -2.0]
+edge_v = [0.0, 1.0, 0.0]
+material = "white"
+[environment]
+path = "{root}/materials/env/env_studio.exr"
+strength = 1.0
+"#
+        ),
+    )
+    .expect("write scene");
+    let cache = dir.path().join("plane.biscale");
+    let scene_arg = scene.to_str().expect("utf-8");
+    let cache_arg = cache.to_str().expect("utf-8");
+    let o = meso(
+        &[
+            "precompute",
+            scene_arg,
+            "--mode",
+            "biscale",
+            "-o",
+            cache_arg,
+            "--cube-n",
+            "8",
+            "--json",
+        ],
+        "",
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("one JSON object");
+    for key in [
+        "seconds",
+        "vertices",
+        "local_dirs",
+        "env_pixels",
+        "dense_nonzeros",
+        "biclusters",
+        "flop_ratio",
+        "bytes_dense",
+        "bytes_biclustered",
+        "bytes_cpca",
+        "bytes_sh",
+        "max_abs_error",
+    ] {
+        assert!(v.get(key).is_some(), "missing `{key}` in {v}");
+    }
+    assert_eq!(v["vertices"], 8);
+    assert_eq!(v["local_dirs"], 64);
+    assert_eq!(v["env_pixels"], 6 * 8 * 8);
+    assert!(v["flop_ratio"].as_f64().expect("number") <= 1.0);
+    assert!(v["max_rel_error"].as_f64().expect("number") < 1e-6);
+    assert!(cache.exists(), "the cache was written");
+    // Bad input: another mode, a scene without an environment.
+    assert_bad_input(
+        &meso(&["precompute", scene_arg, "--mode", "spmm"], ""),
+        &["spmm", "only the biscale mode"],
+    );
+    let default = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/default.toml");
+    assert_bad_input(
+        &meso(&["precompute", default, "--mode", "biscale"], ""),
+        &["biscale", "without [environment]"],
     );
 }

@@ -5,18 +5,25 @@
 //! scene's Sobol points; AO off; environment light without MIS; the
 //! SPMM residual skipped as while the camera moves; N_PCA limited). A variant that changes what is computed
 //! (AO off) is measured against its own reference; other estimators of the same image
-//! (independent numbers, no MIS) and approximations of it (residual off, fewer PCA terms) against the full
-//! one, so their noise or bias shows. The viewport denoiser's rows (`full_denoised`,
-//! up to 16 frames) show what it does to the first frames' error. Any mode can be
-//! reported; its reference is the spmm mode's.
+//! (independent numbers, no MIS) and approximations of it (residual off, fewer PCA
+//! terms) against the full one, so their noise or bias shows. The viewport denoiser's
+//! rows (`full_denoised`, up to 16 frames) show what it does to the first frames'
+//! error. Any mode can be reported; its reference is the spmm mode's.
 
 use std::time::Instant;
 
 use serde::Serialize;
 
+use std::sync::Arc;
+
+use crate::biscale::cpca::Cpca;
+use crate::biscale::cubemap::CubeLayout;
+use crate::biscale::hemisphere::HemisphereGrid;
+use crate::biscale::sh::ShTransfer;
+use crate::biscale::{BiscaleMode, TransferSource, report};
 use crate::image::Image;
 use crate::metrics::{Comparison, MetricsError, compare};
-use crate::render::{Device, ModeError, ModeKind, Prepare, run_frames};
+use crate::render::{Device, ModeError, ModeKind, Prepare, RenderMode, run_frames};
 use crate::rng::Sampler;
 use crate::scene::{Material, Scene};
 
@@ -79,6 +86,8 @@ pub struct ConvergenceReport {
     pub summaries: Vec<VariantSummary>,
     /// Why residual / N_PCA variants are absent, when they are.
     pub notes: Vec<String>,
+    /// Biscale: milliseconds of one light change (new lighting vector and L*).
+    pub light_change_ms: Option<f64>,
     /// The converged image of the scene as written.
     #[serde(skip)]
     pub reference: Image,
@@ -90,6 +99,8 @@ pub enum ConvergenceError {
     Mode(#[from] ModeError),
     #[error(transparent)]
     Metrics(#[from] MetricsError),
+    #[error("{0}")]
+    Edit(String),
     #[error("--max-frames and --reference-frames must be at least 1 and max <= reference")]
     Frames,
 }
@@ -205,7 +216,7 @@ pub const DENOISED_FRAMES: u32 = 16;
 
 /// The mode's image through the denoiser and the filter's time; `None` where the
 /// mode gives no guides.
-fn denoise(mode: &dyn crate::render::RenderMode, image: &Image) -> Option<(Image, f64)> {
+fn denoise(mode: &dyn RenderMode, image: &Image) -> Option<(Image, f64)> {
     let start = Instant::now();
     let guides = mode.guides()?;
     let samples = mode.progress().min_samples;
@@ -226,6 +237,74 @@ fn summary_of(rows: &[Checkpoint]) -> VariantSummary {
         final_rmse: last.rmse,
         final_mssim: last.mssim,
     }
+}
+
+/// The error of `mode` against `reference` after 1, 2, 4, ... frames; for the scene
+/// as written (`full`) also the denoiser's rows up to `DENOISED_FRAMES`.
+fn measure(
+    mode: &mut dyn RenderMode,
+    v: &Variant,
+    reference: &Image,
+    request: &ConvergenceRequest,
+    checkpoints: &mut Vec<Checkpoint>,
+    summaries: &mut Vec<VariantSummary>,
+) -> Result<(), ConvergenceError> {
+    let (mut frames, mut seconds, mut next) = (0u32, 0.0, 1u32);
+    let mut reached = None;
+    let mut last: Option<Comparison> = None;
+    let mut denoised = (v.name == "full").then(Vec::new);
+    while frames < request.max_frames {
+        let start = Instant::now();
+        run_frames(mode, next - frames, |_, _| {});
+        seconds += start.elapsed().as_secs_f64();
+        frames = next;
+        let image = mode.image();
+        if let Some(rows) = &mut denoised
+            && frames <= DENOISED_FRAMES
+            && let Some((img, secs)) = denoise(mode, &image)
+        {
+            let c = compare(reference, &img, 0.0)?;
+            rows.push(Checkpoint {
+                variant: DENOISED.into(),
+                reference: v.reference.clone(),
+                frames,
+                seconds: seconds + secs,
+                rmse: c.rmse,
+                psnr_db: c.psnr_db,
+                mssim: c.mssim,
+            });
+        }
+        let c = compare(reference, &image, 0.0)?;
+        if reached.is_none() && c.mssim >= 0.98 {
+            reached = Some((frames, seconds));
+        }
+        checkpoints.push(Checkpoint {
+            variant: v.name.clone(),
+            reference: v.reference.clone(),
+            frames,
+            seconds,
+            rmse: c.rmse,
+            psnr_db: c.psnr_db,
+            mssim: c.mssim,
+        });
+        last = Some(c);
+        next = (next * 2).min(request.max_frames.next_power_of_two());
+    }
+    let last = last.expect("at least one checkpoint");
+    summaries.push(VariantSummary {
+        variant: v.name.clone(),
+        reference: v.reference.clone(),
+        ms_per_frame: seconds * 1e3 / frames as f64,
+        frames_to_mssim_098: reached.map(|r| r.0),
+        seconds_to_mssim_098: reached.map(|r| r.1),
+        final_rmse: last.rmse,
+        final_mssim: last.mssim,
+    });
+    if let Some(rows) = denoised.filter(|r| !r.is_empty()) {
+        summaries.push(summary_of(&rows));
+        checkpoints.extend(rows);
+    }
+    Ok(())
 }
 
 /// Runs the report; `progress(message)` is called as each part starts.
@@ -254,6 +333,7 @@ pub fn convergence_report(
     }
     let mut checkpoints = Vec::new();
     let mut summaries = Vec::new();
+    let mut light_change_ms = None;
     for (v, s) in &variants {
         progress(&format!("variant `{}`", v.name));
         let reference = &references
@@ -269,63 +349,93 @@ pub fn convergence_report(
             request.height,
             Prepare::quietly(),
         )?;
-        let (mut frames, mut seconds, mut next) = (0u32, 0.0, 1u32);
-        let mut reached = None;
-        let mut last: Option<Comparison> = None;
-        // The viewport denoiser's rows: the scene as written, up to DENOISED_FRAMES.
-        let mut denoised = (v.name == "full").then(Vec::new);
-        while frames < request.max_frames {
-            let start = Instant::now();
-            run_frames(mode.as_mut(), next - frames, |_, _| {});
-            seconds += start.elapsed().as_secs_f64();
-            frames = next;
-            let image = mode.image();
-            if let Some(rows) = &mut denoised
-                && frames <= DENOISED_FRAMES
-                && let Some(filtered) = denoise(mode.as_ref(), &image)
-            {
-                let (img, secs) = filtered;
-                let c = compare(reference, &img, 0.0)?;
-                rows.push(Checkpoint {
-                    variant: DENOISED.into(),
-                    reference: v.reference.clone(),
-                    frames,
-                    seconds: seconds + secs,
-                    rmse: c.rmse,
-                    psnr_db: c.psnr_db,
-                    mssim: c.mssim,
-                });
+        measure(
+            mode.as_mut(),
+            v,
+            reference,
+            request,
+            &mut checkpoints,
+            &mut summaries,
+        )?;
+    }
+    if request.mode == ModeKind::Biscale {
+        // The other representations of the same transfer, on the same precomputation:
+        // the dense matrix (the exact product), Sloan et al.'s SH and CPCA.
+        let reference = &references[0].1;
+        let mut mode = BiscaleMode::new(
+            scene.clone(),
+            request.width,
+            request.height,
+            Prepare::quietly(),
+        )?;
+        if let Some(env) = scene.environment.clone() {
+            // A light change: turn the map and back; the second turn is timed.
+            let mut turned = env.clone();
+            turned.rotate_y_deg += 45.0;
+            for e in [turned, env] {
+                mode.apply(crate::render::SceneEdit::Environment(Some(e)))
+                    .map_err(|e| ConvergenceError::Edit(e.to_string()))?;
             }
-            let c = compare(reference, &image, 0.0)?;
-            if reached.is_none() && c.mssim >= 0.98 {
-                reached = Some((frames, seconds));
-            }
-            checkpoints.push(Checkpoint {
-                variant: v.name.clone(),
-                reference: v.reference.clone(),
-                frames,
-                seconds,
-                rmse: c.rmse,
-                psnr_db: c.psnr_db,
-                mssim: c.mssim,
-            });
-            last = Some(c);
-            next = (next * 2).min(request.max_frames.next_power_of_two());
+            light_change_ms = Some(mode.light_change_ms());
         }
-        let last = last.expect("at least one checkpoint");
-        summaries.push(VariantSummary {
-            variant: v.name.clone(),
-            reference: v.reference.clone(),
-            ms_per_frame: seconds * 1e3 / frames as f64,
-            frames_to_mssim_098: reached.map(|r| r.0),
-            seconds_to_mssim_098: reached.map(|r| r.1),
-            final_rmse: last.rmse,
-            final_mssim: last.mssim,
-        });
-        if let Some(rows) = denoised.filter(|r| !r.is_empty()) {
-            summaries.push(summary_of(&rows));
-            checkpoints.extend(rows);
+        let pre = mode.precomputed().clone();
+        let s = mode.settings().clone();
+        let cube = CubeLayout::new(s.cube_n);
+        let local = HemisphereGrid::new(s.local_res);
+        progress("transfer variants: dense, sh, cpca");
+        let sources = [
+            ("dense", TransferSource::Dense),
+            (
+                "sh",
+                TransferSource::Sh(Arc::new(ShTransfer::build(
+                    &pre.transfer,
+                    &pre.frames,
+                    cube,
+                    local,
+                    report::SH_ORDER,
+                ))),
+            ),
+            (
+                "cpca",
+                TransferSource::Cpca(Arc::new(Cpca::build(
+                    &pre.transfer,
+                    report::CPCA_CLUSTERS,
+                    report::CPCA_COMPONENTS,
+                    s.seed,
+                ))),
+            ),
+        ];
+        for (name, source) in sources {
+            mode.set_transfer_source(source);
+            let v = Variant {
+                name: name.into(),
+                reference: "full".into(),
+            };
+            measure(
+                &mut mode,
+                &v,
+                reference,
+                request,
+                &mut checkpoints,
+                &mut summaries,
+            )?;
         }
+        // Frames while the camera is dragged: the nearest tabulated view, no residual.
+        mode.set_transfer_source(TransferSource::Biclustered);
+        mode.apply(crate::render::SceneEdit::Moving(true))
+            .map_err(|e| ConvergenceError::Edit(e.to_string()))?;
+        let v = Variant {
+            name: "moving".into(),
+            reference: "full".into(),
+        };
+        measure(
+            &mut mode,
+            &v,
+            reference,
+            request,
+            &mut checkpoints,
+            &mut summaries,
+        )?;
     }
     let reference = references.swap_remove(0).1;
     Ok(ConvergenceReport {
@@ -339,6 +449,7 @@ pub fn convergence_report(
         checkpoints,
         summaries,
         notes,
+        light_change_ms,
     })
 }
 

@@ -272,6 +272,11 @@ pub trait RenderMode: Send {
     fn guides(&self) -> Option<Guides> {
         None
     }
+    /// A mode's own state in one line for status bars (e.g. the biscale mode's
+    /// biclusters and light-change time); `None` where a mode has nothing to add.
+    fn summary(&self) -> Option<String> {
+        None
+    }
 }
 
 /// Totals of a run of frames.

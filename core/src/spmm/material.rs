@@ -314,7 +314,7 @@ impl SpmmMaterial {
     pub fn residual(&self) -> Option<&Residual> {
         self.residual.as_ref()
     }
-    pub(super) fn residual_tables(&self) -> Option<&(DirectionTable, DirectionTable)> {
+    pub(crate) fn residual_tables(&self) -> Option<&(DirectionTable, DirectionTable)> {
         self.residual_tables.as_ref()
     }
     /// Which bases the view shows; a pack file never holds it.

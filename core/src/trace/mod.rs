@@ -8,7 +8,7 @@ mod guides;
 mod integrator;
 pub mod light_selection;
 mod lights;
-mod shading;
+pub(crate) mod shading;
 
 use integrator::Path;
 pub use integrator::SpmmMode;

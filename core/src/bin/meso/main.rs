@@ -14,6 +14,7 @@ mod mode_args;
 mod pack_cmd;
 mod pack_edit_cmd;
 mod plot;
+mod precompute_cmd;
 mod progress;
 mod regress_cmd;
 mod render_cmd;
@@ -63,6 +64,8 @@ enum Command {
         #[command(subcommand)]
         command: merl_cmd::MerlCommand,
     },
+    /// A render mode's precomputation (biscale: transfer matrices and biclusters).
+    Precompute(precompute_cmd::PrecomputeArgs),
     /// Progressive render of a scene file in a render mode to EXR or PNG.
     Render(render_cmd::RenderArgs),
     /// Regression renders over a manifest, compared with goldens; `merge` joins shards.
@@ -93,6 +96,7 @@ fn main() -> ExitCode {
         Command::Compare(args) => compare_cmd::run(&args),
         Command::Merl { command } => merl_cmd::run(command),
         Command::Pack { command } => pack_cmd::run(command),
+        Command::Precompute(args) => precompute_cmd::run(&args),
         Command::Render(args) => render_cmd::run(&args),
         Command::Regress(args) => regress_cmd::run(&args),
         Command::Report { command } => report_cmd::run(command),

@@ -908,7 +908,11 @@ fn report_convergence_writes_csv_json_charts_and_the_reference() {
         rows[0],
         "variant,reference,frames,seconds,rmse,psnr_db,mssim"
     );
-    assert_eq!(rows.len(), 1 + 2 * 4, "frames 1, 2, 4, 8 for two variants");
+    assert_eq!(
+        rows.len(),
+        1 + 4 * 4,
+        "frames 1, 2, 4, 8 for the four variants (the denoiser's rows too)"
+    );
     for name in [
         "convergence_rmse.svg",
         "convergence_mssim.svg",

@@ -5,13 +5,17 @@
 
 pub mod convergence;
 
+use crate::adaptive::AdaptiveMode;
 use crate::render::{Device, ModeError, ModeKind, Prepare, RenderMode};
 use crate::scene::Scene;
 use crate::trace::SpmmMode;
 
 /// True if the mode exists in this build on that device.
 pub fn is_built(kind: ModeKind, device: Device) -> bool {
-    matches!((kind, device), (ModeKind::Spmm, Device::Cpu))
+    matches!(
+        (kind, device),
+        (ModeKind::Spmm, Device::Cpu) | (ModeKind::Adaptive, Device::Cpu)
+    )
 }
 
 /// `Ok` if the mode exists and can render everything in `scene`; otherwise what stops
@@ -19,6 +23,7 @@ pub fn is_built(kind: ModeKind, device: Device) -> bool {
 pub fn supports(kind: ModeKind, device: Device, scene: &Scene) -> Result<(), ModeError> {
     match (kind, device) {
         (ModeKind::Spmm, Device::Cpu) => Ok(SpmmMode::supports(scene)?),
+        (ModeKind::Adaptive, Device::Cpu) => Ok(AdaptiveMode::supports(scene)?),
         _ => Err(ModeError::NotBuilt { mode: kind, device }),
     }
 }
@@ -37,6 +42,9 @@ pub fn create(
         (ModeKind::Spmm, Device::Cpu) => {
             Ok(Box::new(SpmmMode::prepare(scene, width, height, prepare)?))
         }
+        (ModeKind::Adaptive, Device::Cpu) => Ok(Box::new(AdaptiveMode::prepare(
+            scene, width, height, prepare,
+        )?)),
         _ => Err(ModeError::NotBuilt { mode: kind, device }),
     }
 }
@@ -54,7 +62,7 @@ mod tests {
         let scene = edit_test_scene();
         for (kind, device) in [
             (ModeKind::Biscale, Device::Cpu),
-            (ModeKind::Adaptive, Device::Cpu),
+            (ModeKind::Adaptive, Device::Gpu),
             (ModeKind::Spmm, Device::Gpu),
         ] {
             let err = create(kind, device, scene.clone(), 8, 8, Prepare::quietly())

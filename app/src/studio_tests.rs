@@ -623,6 +623,7 @@ fn opening_the_shipped_scenes_edits_nothing() {
         "cloth.toml",
         "cornell.toml",
         "default.toml",
+        "merl_bunny.toml",
     ] {
         let path = default_scene_path().with_file_name(scene);
         let mut h = Harness::builder()

@@ -1140,7 +1140,8 @@ fn render_modes_devices_and_unsupported_scenes_exit_2_naming_why() {
     assert_eq!(v["samples"], 2 * 16 * 16);
     assert!(v["rays"]["environment"].as_u64().expect("count") > 0);
     assert!(v["shading_points"].as_u64().expect("count") > 0);
-    // A material the mode cannot shade: exit 2 naming it, and no image written.
+    // A MERL table (here tabulated at load) renders in the spmm mode; the modes that
+    // are not built yet refuse it before writing anything.
     let merl_scene = dir.path().join("merl.toml");
     std::fs::write(
         &merl_scene,
@@ -1153,6 +1154,10 @@ fov_y_deg = 40.0
 [materials.gold]
 kind = "merl"
 tabulate = { model = "lambertian", albedo = [0.9, 0.7, 0.2] }
+[[light]]
+kind = "point"
+position = [0.0, 1.0, 0.5]
+intensity = [2.0, 2.0, 2.0]
 [[quad]]
 corner = [-1.0, 0.0, 1.0]
 edge_u = [2.0, 0.0, 0.0]
@@ -1161,18 +1166,34 @@ material = "gold"
 "#,
     )
     .expect("write scene");
-    let fresh = dir.path().join("never.exr");
+    let merl_arg = merl_scene.to_str().expect("utf-8");
+    let shaded = dir.path().join("merl.exr");
     let o = meso(
         &[
             "render",
-            merl_scene.to_str().expect("utf-8"),
+            merl_arg,
             "-o",
-            fresh.to_str().expect("utf-8"),
+            shaded.to_str().expect("utf-8"),
+            "--width",
+            "8",
+            "--height",
+            "8",
         ],
         "",
     );
-    assert_bad_input(&o, &["spmm", "material `gold` (merl)"]);
-    assert!(!fresh.exists());
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let img = meso_core::image::read_image(&shaded).expect("written");
+    // Lambertian gold under a point light above: red > green > blue where lit.
+    let centre = img.get(4, 4);
+    assert!(
+        centre[0] > centre[1] && centre[1] > centre[2] && centre[2] > 0.0,
+        "{centre:?}"
+    );
 }
 
 #[test]

@@ -51,3 +51,43 @@ fn the_cornell_box_and_cloth_scenes_load() {
         );
     }
 }
+
+#[test]
+fn the_merl_scenes_load_with_their_tables_and_lights() {
+    // (scene, triangles of its object, MERL materials, environment strength)
+    for (name, triangles, merl, strength) in [
+        ("merl_bunny.toml", 3674, 2, 1.0),
+        ("merl_dragon.toml", 46_540, 1, 0.8),
+        ("merl_teapot.toml", 992, 2, 0.35),
+    ] {
+        let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("scenes")
+            .join(name);
+        let s = load_scene(&path).expect("the scene is valid");
+        assert_eq!(s.meshes[0].indices.len(), triangles, "{name}");
+        let tables: Vec<_> = s
+            .materials
+            .iter()
+            .filter_map(|m| match m {
+                Material::Merl { brdf, .. } => Some(brdf),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(tables.len(), merl, "{name}");
+        // Tabulated at load: every table holds data and reflects less than it receives.
+        for t in tables {
+            let albedo = t.albedo_at_normal();
+            assert!(
+                albedo.min_element() > 0.0 && albedo.max_element() < 1.0,
+                "{name}: albedo {albedo}"
+            );
+        }
+        assert!(matches!(s.lights[0], Light::Area { .. }), "{name}");
+        let env = s.environment.as_ref().expect("an environment");
+        assert_eq!(env.strength, strength, "{name}");
+        assert!(
+            matches!(s.background, Background::FromEnvironment),
+            "{name}"
+        );
+    }
+}

@@ -134,52 +134,30 @@ mod tests {
     }
 
     #[test]
-    fn a_merl_material_is_refused_by_name_and_by_edit() {
-        use crate::merl::{CELLS, MerlBrdf};
-        use crate::render::{EditError, SceneEdit};
+    fn the_spmm_mode_shades_every_material_kind() {
+        use crate::brdf::{AnalyticBrdf, BrdfModel};
+        use crate::merl::tabulate;
         use crate::scene::Material;
         let gold = Material::Merl {
             brdf: std::sync::Arc::new(
-                MerlBrdf::from_stored(vec![[1500.0; 3]; CELLS]).expect("valid"),
+                tabulate(
+                    &AnalyticBrdf::with_defaults(BrdfModel::CookTorrance),
+                    glam::DVec3::new(0.9, 0.7, 0.2),
+                )
+                .expect("tabulates"),
             ),
             tint: glam::DVec3::ONE,
         };
         let mut scene = edit_test_scene();
-        scene.materials.push(gold.clone());
+        scene.materials.push(gold);
         scene.material_names.push("gold".into());
-        let err = supports(ModeKind::Spmm, Device::Cpu, &scene).expect_err("refused");
-        let ModeError::Unsupported(u) = &err else {
-            panic!("{err:?}")
-        };
-        assert_eq!(
-            u.parts,
-            [Unrenderable::Material {
-                index: 2,
-                name: "gold".into(),
-                kind: "merl"
-            }]
-        );
-        assert!(err.to_string().contains("material `gold` (merl)"), "{err}");
-        assert!(create(ModeKind::Spmm, Device::Cpu, scene, 8, 8, Prepare::quietly()).is_err());
-        // An edit that brings one is refused and leaves the mode's scene as it was.
-        let mut mode = create(
-            ModeKind::Spmm,
-            Device::Cpu,
-            edit_test_scene(),
-            8,
-            8,
-            Prepare::quietly(),
-        )
-        .expect("renders");
-        let e = mode
-            .apply(SceneEdit::Material {
-                index: 0,
-                material: gold,
-            })
-            .expect_err("refused");
-        assert!(matches!(e, EditError::Unsupported(_)), "{e:?}");
-        assert!(e.to_string().contains("`floor` (merl)"), "{e}");
-        assert!(matches!(mode.scene().materials[0], Material::Brdf { .. }));
+        scene.materials.push(Material::Mirror {
+            reflectance: glam::DVec3::splat(0.9),
+        });
+        scene.material_names.push("chrome".into());
+        // brdf, spmm, merl and mirror.
+        supports(ModeKind::Spmm, Device::Cpu, &scene).expect("all shaded");
+        assert!(create(ModeKind::Spmm, Device::Cpu, scene, 8, 8, Prepare::quietly()).is_ok());
     }
 
     #[test]

@@ -1,6 +1,6 @@
 //! Environment lighting in the spmm mode: per shading point one direction drawn from
 //! the map's importance sampler and one from the material (its BRDF sampler for
-//! analytic BRDFs; the defensive cosine/uniform mixture for SPMM packs, whose pdf never
+//! analytic BRDFs and MERL tables; the defensive cosine/uniform mixture for SPMM packs, whose pdf never
 //! vanishes where the BTF does not), combined by multiple importance sampling with the
 //! power heuristic (Veach 1997, ch. 9), each with a shadow ray through the whole
 //! scene. With `mis = false` the map's sampler alone is used (still unbiased: its pdf
@@ -8,43 +8,12 @@
 
 use glam::DVec3;
 
-use super::shading::{Shader, Shading};
+use super::shading::{Shading, power_heuristic};
 use super::{Path, SpmmMode};
 use crate::environment::rotate_y;
 use crate::render::layers::ENVIRONMENT;
-use crate::scene::Material;
-
-/// The power heuristic's weight of a strategy with pdf `a` against one with pdf `b`.
-fn power_heuristic(a: f64, b: f64) -> f64 {
-    let (a2, b2) = (a * a, b * b);
-    if a2 + b2 > 0.0 { a2 / (a2 + b2) } else { 0.0 }
-}
 
 impl SpmmMode {
-    /// The material's sampling pdf of world direction `wi` (0 where it never samples).
-    fn material_pdf(&self, s: &Shading, wi: DVec3, wo: DVec3) -> f64 {
-        let (li, lo) = (s.to_local(wi), s.to_local(wo));
-        match (&self.scene.materials[s.material], &self.shaders[s.material]) {
-            (Material::Brdf { brdf, .. }, _) => brdf.pdf(lo, li),
-            (_, Shader::Spmm { .. }) => Shader::defensive_pdf(li),
-            _ => 0.0,
-        }
-    }
-
-    /// A direction drawn from the material for `wo`, with its pdf.
-    fn material_sample(&self, s: &Shading, wo: DVec3, u: glam::DVec2) -> Option<(DVec3, f64)> {
-        match (&self.scene.materials[s.material], &self.shaders[s.material]) {
-            (Material::Brdf { brdf, .. }, _) => brdf
-                .sample(s.to_local(wo), u)
-                .map(|b| (s.to_world(b.wi), b.pdf)),
-            (_, shader @ Shader::Spmm { .. }) => {
-                let (local, pdf) = shader.hemisphere_sample(u);
-                Some((s.to_world(local), pdf))
-            }
-            _ => None,
-        }
-    }
-
     /// Both environment samples of one shading point. Always draws four numbers, so
     /// a scene's other dimensions do not depend on whether it has an environment.
     pub(super) fn sample_environment(

@@ -71,7 +71,7 @@ fn selection(sampling: LightSampling, lights: &[crate::scene::Light]) -> Option<
 
 impl SpmmMode {
     /// What this mode cannot render in `scene`: every material other than analytic
-    /// BRDFs, SPMM packs and mirrors.
+    /// BRDFs, MERL tables, SPMM packs and mirrors.
     pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
         let parts = scene
             .materials
@@ -86,7 +86,10 @@ impl SpmmMode {
     fn unrenderable(scene: &Scene, index: usize, m: &Material) -> Option<Unrenderable> {
         let shaded = matches!(
             m,
-            Material::Brdf { .. } | Material::Spmm { .. } | Material::Mirror { .. }
+            Material::Brdf { .. }
+                | Material::Merl { .. }
+                | Material::Spmm { .. }
+                | Material::Mirror { .. }
         );
         (!shaded).then(|| Unrenderable::Material {
             index,

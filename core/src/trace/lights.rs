@@ -4,16 +4,50 @@
 //! r^2); above, `LIGHT_SAMPLES` lights per shading point chosen by resampling
 //! (`light_selection.rs`). Ambient occlusion: one ray limited to the ambient radius
 //! (pi L_a V f per cosine-distributed sample). Each adds to its light's film layer.
+//! On MERL materials each area light also gets a material sample, and the two are
+//! combined by MIS (power heuristic) on the per-light path; the many-light path keeps
+//! light samples alone.
 
 use std::f64::consts::PI;
 
 use glam::DVec3;
 
 use super::light_selection::{CANDIDATES, LIGHT_SAMPLES, LightSelection};
-use super::shading::{Shader, Shading};
+use super::shading::{Shader, Shading, power_heuristic};
 use super::{Path, SpmmMode};
 use crate::render::layers::AMBIENT;
-use crate::scene::Light;
+use crate::scene::{Light, Material};
+
+/// Where the ray from `origin` along unit `dir` meets the front face of the
+/// parallelogram `corner + a edge_u + b edge_v` (a, b in [0, 1], emitting towards
+/// edge_u x edge_v): its distance and `cos_l area / r^2`, the reciprocal of the
+/// solid-angle pdf of a uniform point on it.
+fn hit_parallelogram(
+    origin: DVec3,
+    dir: DVec3,
+    corner: DVec3,
+    edge_u: DVec3,
+    edge_v: DVec3,
+) -> Option<(f64, f64)> {
+    let normal = edge_u.cross(edge_v);
+    let facing = -dir.dot(normal);
+    if facing.is_nan() || facing <= 0.0 {
+        return None;
+    }
+    let t = (origin - corner).dot(normal) / facing;
+    if !(t > 0.0 && t.is_finite()) {
+        return None;
+    }
+    let rel = origin + dir * t - corner;
+    let n2 = normal.length_squared();
+    let a = rel.cross(edge_v).dot(normal) / n2;
+    let b = edge_u.cross(rel).dot(normal) / n2;
+    if !((0.0..=1.0).contains(&a) && (0.0..=1.0).contains(&b)) {
+        return None;
+    }
+    // cos_l |N| / t^2 with cos_l = facing / |N|.
+    Some((t, facing / (t * t)))
+}
 
 /// A point on a light seen from a shading point, unshadowed.
 #[derive(Clone, Copy, Default)]
@@ -57,6 +91,12 @@ impl SpmmMode {
             // Both kinds draw two numbers, so the dimension layout does not depend on
             // which kinds the scene has.
             let u = path.rng.next_2d();
+            // Light samples of an area light meet a material sample by MIS where the
+            // material's lobe can be narrower than the light (`area_light_mis`).
+            let mis = matches!(light, Light::Area { .. }) && self.area_light_mis(s);
+            if mis {
+                self.sample_area_light_by_material(k, s, wo, lift, throughput, path);
+            }
             let (q, geometry) = match *light {
                 Light::Point { position, .. } => (position, None),
                 Light::Area {
@@ -94,12 +134,67 @@ impl SpmmMode {
                 .occluded(lift, wi, 0.0, (q - lift).length() * (1.0 - 1e-6))
             {
                 let target = self.light_targets[k];
+                // Solid-angle pdf of this point: 1 / falloff.
+                let weight = if mis {
+                    power_heuristic(1.0 / falloff, self.material_pdf(s, wi, wo))
+                } else {
+                    1.0
+                };
                 // The factor is exactly one outside a bounded film's shared layer, so
                 // the per-light path keeps its bits.
                 path.out[target.layer] +=
-                    throughput * self.response(s, wi, wo) * falloff * target.factor;
+                    throughput * self.response(s, wi, wo) * (falloff * weight) * target.factor;
             }
         }
+    }
+
+    /// True where area lights are sampled by MIS of light and material samples: MERL
+    /// tables, whose measured lobes can be far narrower than a light. Analytic BRDFs
+    /// and SPMM packs keep the light samples alone (and their images' bits).
+    fn area_light_mis(&self, s: &Shading) -> bool {
+        matches!(self.scene.materials[s.material], Material::Merl { .. })
+    }
+
+    /// The material's strategy for area light `k`: a direction drawn from the BRDF,
+    /// kept if it meets the light's front face unshadowed, weighted by the power
+    /// heuristic against the light's solid-angle pdf (Veach 1997, ch. 9). Always draws
+    /// two numbers.
+    fn sample_area_light_by_material(
+        &self,
+        k: usize,
+        s: &Shading,
+        wo: DVec3,
+        lift: DVec3,
+        throughput: DVec3,
+        path: &mut Path,
+    ) {
+        let u = path.rng.next_2d();
+        let Light::Area {
+            corner,
+            edge_u,
+            edge_v,
+            ..
+        } = self.scene.lights[k]
+        else {
+            return;
+        };
+        let Some((wi, pdf)) = self.material_sample(s, wo, u) else {
+            return;
+        };
+        if wi.dot(s.n) <= 0.0 || pdf <= 0.0 {
+            return;
+        }
+        let Some((distance, falloff)) = hit_parallelogram(s.p, wi, corner, edge_u, edge_v) else {
+            return;
+        };
+        path.counts.shadow += 1;
+        if self.bvh.occluded(lift, wi, 0.0, distance * (1.0 - 1e-6)) {
+            return;
+        }
+        let weight = power_heuristic(pdf, 1.0 / falloff);
+        let target = self.light_targets[k];
+        path.out[target.layer] +=
+            throughput * self.response(s, wi, wo) * (weight / pdf) * target.factor;
     }
 
     /// `LIGHT_SAMPLES` lights, each kept from `CANDIDATES` drawn by power by

@@ -1,5 +1,5 @@
 //! The `spmm` render mode on the CPU: progressive ray tracing of SPMM packs, analytic
-//! BRDFs and mirrors (Silva & Santos 2013, section 4) under point and area lights,
+//! BRDFs, MERL tables and mirrors (Silva & Santos 2013, section 4) under point and area lights,
 //! ambient occlusion and environment lighting. One file per concept: the integrator
 //! (the mode itself), shading, light sampling, environment sampling.
 
@@ -20,5 +20,7 @@ mod environment_tests;
 mod hard_case_tests;
 #[cfg(test)]
 mod many_lights_tests;
+#[cfg(test)]
+mod merl_tests;
 #[cfg(test)]
 mod tests;

@@ -1,7 +1,8 @@
 //! Shading in the spmm mode: the surface frame at a hit (interpolated normal, tangent
 //! along +u as the SPMM convention needs), each material's response to light (albedo
-//! f cos_i for analytic BRDFs, the BTF for SPMM packs, with the residual skipped while
-//! the camera moves), and the hemisphere sampling that suits each material.
+//! f cos_i for analytic BRDFs, tint f cos_i for MERL tables (nearest cell, as the
+//! reference reader looks them up), the BTF for SPMM packs, with the residual skipped
+//! while the camera moves), and the sampling that suits each material.
 
 use std::f64::consts::PI;
 
@@ -15,7 +16,7 @@ use crate::spmm::{EvalSettings, PrepareRequest, PreparedSpmm, TexelFilter};
 
 /// What shading a material needs at render time.
 pub(super) enum Shader {
-    /// Analytic BRDFs and mirrors read the scene's material directly.
+    /// Analytic BRDFs, MERL tables and mirrors read the scene's material directly.
     Scene,
     /// An SPMM pack prepared for this render, with its settings when still and moving.
     Spmm {
@@ -52,6 +53,12 @@ impl Shader {
                         ..still
                     },
                 }
+            }
+            Material::Merl { brdf, .. } => {
+                // The sampling tables (1.5 million lookups) are built while preparing,
+                // not in the middle of the first frame.
+                brdf.sampler();
+                Shader::Scene
             }
             _ => Shader::Scene,
         }
@@ -161,11 +168,13 @@ impl SpmmMode {
     }
 
     /// The material's response to light from `wi` seen from `wo`, cosine included:
-    /// albedo f cos_i for BRDFs, the BTF for SPMM packs (world-space unit vectors).
+    /// albedo f cos_i for BRDFs, tint f cos_i for MERL tables, the BTF for SPMM packs
+    /// (world-space unit vectors).
     pub(super) fn response(&self, s: &Shading, wi: DVec3, wo: DVec3) -> DVec3 {
         let (li, lo) = (s.to_local(wi), s.to_local(wo));
         match (&self.scene.materials[s.material], &self.shaders[s.material]) {
             (Material::Brdf { brdf, albedo }, _) => *albedo * (brdf.eval(li, lo) * li.z.max(0.0)),
+            (Material::Merl { brdf, tint }, _) => *tint * brdf.eval(li, lo) * li.z.max(0.0),
             (
                 Material::Spmm { .. },
                 Shader::Spmm {
@@ -176,6 +185,47 @@ impl SpmmMode {
             ) => prepared.eval_uv(s.uv, li, lo, if self.moving { moving } else { still }),
             // `supports` refused every other material before the mode was made.
             _ => DVec3::ZERO,
+        }
+    }
+}
+
+/// The power heuristic's weight of a strategy with pdf `a` against one with pdf `b`.
+pub(super) fn power_heuristic(a: f64, b: f64) -> f64 {
+    let (a2, b2) = (a * a, b * b);
+    if a2 + b2 > 0.0 { a2 / (a2 + b2) } else { 0.0 }
+}
+
+impl SpmmMode {
+    /// The material's sampling pdf of world direction `wi` (0 where it never samples).
+    pub(super) fn material_pdf(&self, s: &Shading, wi: DVec3, wo: DVec3) -> f64 {
+        let (li, lo) = (s.to_local(wi), s.to_local(wo));
+        match (&self.scene.materials[s.material], &self.shaders[s.material]) {
+            (Material::Brdf { brdf, .. }, _) => brdf.pdf(lo, li),
+            (Material::Merl { brdf, .. }, _) => brdf.pdf(lo, li),
+            (_, Shader::Spmm { .. }) => Shader::defensive_pdf(li),
+            _ => 0.0,
+        }
+    }
+
+    /// A direction drawn from the material for `wo`, with its pdf.
+    pub(super) fn material_sample(
+        &self,
+        s: &Shading,
+        wo: DVec3,
+        u: glam::DVec2,
+    ) -> Option<(DVec3, f64)> {
+        match (&self.scene.materials[s.material], &self.shaders[s.material]) {
+            (Material::Brdf { brdf, .. }, _) => brdf
+                .sample(s.to_local(wo), u)
+                .map(|b| (s.to_world(b.wi), b.pdf)),
+            (Material::Merl { brdf, .. }, _) => brdf
+                .sample(s.to_local(wo), u)
+                .map(|b| (s.to_world(b.wi), b.pdf)),
+            (_, shader @ Shader::Spmm { .. }) => {
+                let (local, pdf) = shader.hemisphere_sample(u);
+                Some((s.to_world(local), pdf))
+            }
+            _ => None,
         }
     }
 }

@@ -12,6 +12,7 @@ pub mod gbuffer;
 pub mod mode;
 pub mod operators;
 pub mod preconvolved;
+pub mod report;
 pub mod surface;
 pub mod upsample;
 pub mod wavelet;

@@ -136,6 +136,31 @@ fn mip(values: &[f64], w: u32, h: u32, top: u32, f: impl Fn(f64, f64) -> f64) ->
     out
 }
 
+/// The visibility guard, our addition to the paper (which ignores visibility): the
+/// bandwidth pass traces a shadow ray along the first `GUARD_RAYS` of its n_b
+/// directions per emitter (one stratum pattern for every pixel), and a pixel whose
+/// visible share of the lambda weights differs from a neighbour's by more than
+/// this is on a shadow or occluder edge that no bandwidth predicts; it is shaded at
+/// level 0.
+pub const VISIBILITY_STEP: f64 = 0.1;
+/// Shadow rays per emitter and pixel of the visibility guard.
+pub const GUARD_RAYS: u32 = 4;
+
+/// True if pixel (x, y)'s visible share differs from a 4-neighbour's by more than
+/// `VISIBILITY_STEP`.
+fn visibility_edge(visible: &[f64], w: u32, h: u32, x: u32, y: u32) -> bool {
+    let v = visible[(y * w + x) as usize];
+    [
+        (x + 1, y),
+        (x, y + 1),
+        (x.wrapping_sub(1), y),
+        (x, y.wrapping_sub(1)),
+    ]
+    .into_iter()
+    .filter(|&(nx, ny)| nx < w && ny < h)
+    .any(|(nx, ny)| (visible[(ny * w + nx) as usize] - v).abs() > VISIBILITY_STEP)
+}
+
 /// Which pixels a frame shades: per pixel, 0 (up-sampled) or its sample count.
 #[derive(Clone, Debug)]
 pub struct Plan {
@@ -360,7 +385,10 @@ impl AdaptiveMode {
     }
 
     /// The bandwidth pass: G-buffer, then per pixel eq. 3-6 and 9 over n_b directions
-    /// per emitter (visibility ignored, as in the paper), and eq. 11.
+    /// per emitter (visibility ignored, as in the paper), and eq. 11. The environment's
+    /// directions are drawn by the material's importance sampling and the lights' by
+    /// area, each weighted by 1 / pdf so that eq. 5's lambda and eq. 9's sum are
+    /// estimates of integrals over the hemisphere.
     pub fn bandwidth_pass(&self) -> Buffers {
         use rayon::prelude::*;
         let start = Instant::now();
@@ -369,16 +397,28 @@ impl AdaptiveMode {
         let (right, down) = self.screen_axes();
         let guide = g.guide(right, down);
         let (fx, fy) = self.fov();
-        let per_pixel: Vec<(f64, f64)> = (0..w * h)
+        let per_pixel: Vec<(f64, f64, f64)> = (0..w * h)
             .into_par_iter()
             .map(|i| {
                 let nu = self.pixel_bandwidth(&g, i);
-                (operators::screen_rate(nu.0.y, fx, fy, w, h), nu.1)
+                (operators::screen_rate(nu.0.y, fx, fy, w, h), nu.1, nu.2)
             })
             .collect();
         let rate: Vec<f64> = per_pixel.iter().map(|p| p.0).collect();
         let variance: Vec<f64> = per_pixel.iter().map(|p| p.1).collect();
-        let level = rate.iter().map(|&b| operators::level(b, w, h)).collect();
+        let visible: Vec<f64> = per_pixel.iter().map(|p| p.2).collect();
+        let level = rate
+            .iter()
+            .enumerate()
+            .map(|(i, &b)| {
+                let (x, y) = (i as u32 % w, i as u32 / w);
+                if visibility_edge(&visible, w, h, x, y) {
+                    0
+                } else {
+                    operators::level(b, w, h)
+                }
+            })
+            .collect();
         let top = self.top_level();
         let variance_mip = mip(&variance, w, h, top, f64::max);
         Buffers {
@@ -392,8 +432,9 @@ impl AdaptiveMode {
         }
     }
 
-    /// Eq. 5's bandwidth at the eye and eq. 9's sum for pixel `i`.
-    fn pixel_bandwidth(&self, g: &GBuffer, i: u32) -> (Bandwidth, f64) {
+    /// Eq. 5's bandwidth at the eye, eq. 9's sum and the visible share of the lambda
+    /// weights (our visibility guard, `bandwidth_pass`) for pixel `i`.
+    fn pixel_bandwidth(&self, g: &GBuffer, i: u32) -> (Bandwidth, f64, f64) {
         let px = &g.pixels[i as usize];
         let Some(s) = &px.surface else {
             // A ray that leaves the scene sees the environment directly (no bounce).
@@ -405,20 +446,23 @@ impl AdaptiveMode {
                 (crate::scene::Background::FromEnvironment, Some(e), Some(b)) => b.rate(e, px.dir),
                 _ => 0.0,
             };
-            return (DVec2::new(0.0, nu), 0.0);
+            return (DVec2::new(0.0, nu), 0.0, 1.0);
         };
         let material = &self.scene.materials[s.material];
         let Some(mat_bw) = &self.materials[s.material] else {
-            return (DVec2::ZERO, 0.0);
+            return (DVec2::ZERO, 0.0, 1.0);
         };
         let wo = -px.dir;
         let lo = s.to_local(wo);
         if lo.z <= 0.0 {
-            return (DVec2::ZERO, 0.0);
+            return (DVec2::ZERO, 0.0, 1.0);
         }
+        let lift = s.p + s.n * (EPSILON_REL * s.p.abs().max_element().max(1.0));
         let n_b = self.options.n_b;
         let side = (n_b as f64).sqrt().ceil() as u32;
-        let rng = SampleStream::new(&[self.scene.render.seed, STREAM, u64::from(i), 0xBA4D]);
+        // One shift for every pixel: neighbours see the same strata, so a change of
+        // visibility between them is the scene's, not the sampling's.
+        let rng = SampleStream::new(&[self.scene.render.seed, STREAM, 0xBA4D]);
         let shift = DVec2::new(rng.at(0), rng.at(1));
         let stratum = |k: u32| {
             let u = DVec2::new(
@@ -430,8 +474,14 @@ impl AdaptiveMode {
         let mut paths: Vec<(f64, Bandwidth)> =
             Vec::with_capacity(n_b as usize * (1 + self.scene.lights.len()));
         let mut variance = 0.0;
+        let (mut visible, mut guarded) = (0.0, 0.0);
         let preconvolved = self.options.preconvolved;
-        let mut bounce = |li: DVec3, l_in: Bandwidth, d_light: f64, radiance: f64, weight: f64| {
+        let mut bounce = |li: DVec3,
+                          l_in: Bandwidth,
+                          d_light: f64,
+                          radiance: f64,
+                          weight: f64,
+                          seen: Option<bool>| {
             let f = surface::brdf(material, li, lo).dot(LUMINANCE);
             let b = Bounce {
                 cos_i: li.z,
@@ -442,6 +492,12 @@ impl AdaptiveMode {
             let nu = operators::one_bounce(l_in, d_light, &b, px.depth);
             let lambda = radiance * f * li.z * weight;
             paths.push((lambda, nu));
+            if let Some(seen) = seen {
+                guarded += lambda;
+                if seen {
+                    visible += lambda;
+                }
+            }
             let incident = operators::transport(l_in, d_light).y.abs();
             let chi = radiance * f;
             variance +=
@@ -449,20 +505,28 @@ impl AdaptiveMode {
         };
         if let (Some(env), Some(env_bw)) = (&self.scene.environment, &self.env_bandwidth) {
             for k in 0..n_b {
-                let li = warp::cosine_hemisphere(stratum(k));
-                let pdf = li.z / std::f64::consts::PI;
-                if pdf <= 0.0 {
+                // BRDF-importance-sampled directions (cosine where the material draws
+                // none), so a sharp lobe is seen by a few of the n_b directions.
+                let u = stratum(k);
+                let (li, pdf) = surface::sample(material, lo, u).unwrap_or_else(|| {
+                    let li = warp::cosine_hemisphere(u);
+                    (li, li.z / std::f64::consts::PI)
+                });
+                if pdf <= 0.0 || li.z <= 0.0 {
                     continue;
                 }
                 let wi = s.to_world(li);
                 let radiance = env.radiance_unit(wi).dot(LUMINANCE) * env.strength;
                 let nu_a = env_bw.rate(env, wi);
+                let seen =
+                    (k < GUARD_RAYS).then(|| !self.bvh.occluded(lift, wi, 0.0, f64::INFINITY));
                 bounce(
                     li,
                     DVec2::new(0.0, nu_a),
                     0.0,
                     radiance,
                     1.0 / (pdf * n_b as f64),
+                    seen,
                 );
             }
         }
@@ -494,16 +558,27 @@ impl AdaptiveMode {
                     continue;
                 }
                 let weight = cos_l * area / d2 / n_b as f64;
+                let seen = (k < GUARD_RAYS).then(|| {
+                    !self
+                        .bvh
+                        .occluded(lift, wi, 0.0, (q - lift).length() * (1.0 - 1e-6))
+                });
                 bounce(
                     li,
                     DVec2::new(bw.rate(u.x, u.y), 0.0),
                     d,
                     radiance.dot(LUMINANCE),
                     weight,
+                    seen,
                 );
             }
         }
-        (operators::weighted(&paths), variance)
+        let share = if guarded > 0.0 {
+            visible / guarded
+        } else {
+            1.0
+        };
+        (operators::weighted(&paths), variance, share)
     }
 
     /// Which pixels frame `frame` shades and with how many samples.

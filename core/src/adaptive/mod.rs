@@ -11,6 +11,7 @@ pub mod bandwidth;
 pub mod gbuffer;
 pub mod mode;
 pub mod operators;
+pub mod overlay;
 pub mod preconvolved;
 pub mod report;
 pub mod surface;

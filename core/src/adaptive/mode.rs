@@ -41,6 +41,13 @@ const LUMINANCE: DVec3 = DVec3::new(0.2126, 0.7152, 0.0722);
 /// Keeps this mode's random numbers apart from other modes' with the same seed.
 const STREAM: u64 = 0x4144_4150_5449_5645; // "ADAPTIVE"
 
+/// The power heuristic's weight of a strategy with pdf `a` against one with pdf `b`
+/// (Veach 1997, ch. 9).
+fn power(a: f64, b: f64) -> f64 {
+    let (a2, b2) = (a * a, b * b);
+    if a2 + b2 > 0.0 { a2 / (a2 + b2) } else { 0.0 }
+}
+
 /// The mode's knobs.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AdaptiveOptions {
@@ -105,6 +112,9 @@ pub struct Buffers {
     pub rate: Vec<f64>,
     /// Max-filtered `variance`, per level (level 0 = `variance`).
     variance_mip: Vec<Vec<f64>>,
+    /// The same of eq. 9's sum where `variance` is eq. 10's (pre-convolved): the
+    /// variance target is set by eq. 9, so eq. 10's smaller sums take fewer samples.
+    full_mip: Vec<Vec<f64>>,
     /// Seconds the pass took.
     pub seconds: f64,
 }
@@ -357,15 +367,16 @@ impl AdaptiveMode {
         &self.own
     }
 
-    fn width(&self) -> u32 {
+    pub fn width(&self) -> u32 {
         self.film.width()
     }
 
-    fn height(&self) -> u32 {
+    pub fn height(&self) -> u32 {
         self.film.height()
     }
 
-    fn top_level(&self) -> u32 {
+    /// The coarsest pyramid level: min(floor(log2 W), floor(log2 H)).
+    pub fn top_level(&self) -> u32 {
         self.width().min(self.height()).max(1).ilog2()
     }
 
@@ -397,7 +408,7 @@ impl AdaptiveMode {
         let (right, down) = self.screen_axes();
         let guide = g.guide(right, down);
         let (fx, fy) = self.fov();
-        let per_pixel: Vec<(f64, f64, f64)> = (0..w * h)
+        let per_pixel: Vec<(f64, [f64; 2], f64)> = (0..w * h)
             .into_par_iter()
             .map(|i| {
                 let nu = self.pixel_bandwidth(&g, i);
@@ -405,7 +416,8 @@ impl AdaptiveMode {
             })
             .collect();
         let rate: Vec<f64> = per_pixel.iter().map(|p| p.0).collect();
-        let variance: Vec<f64> = per_pixel.iter().map(|p| p.1).collect();
+        let variance: Vec<f64> = per_pixel.iter().map(|p| p.1[0]).collect();
+        let full: Vec<f64> = per_pixel.iter().map(|p| p.1[1]).collect();
         let visible: Vec<f64> = per_pixel.iter().map(|p| p.2).collect();
         let level = rate
             .iter()
@@ -421,6 +433,7 @@ impl AdaptiveMode {
             .collect();
         let top = self.top_level();
         let variance_mip = mip(&variance, w, h, top, f64::max);
+        let full_mip = mip(&full, w, h, top, f64::max);
         Buffers {
             g,
             guide,
@@ -428,13 +441,15 @@ impl AdaptiveMode {
             variance,
             rate,
             variance_mip,
+            full_mip,
             seconds: start.elapsed().as_secs_f64(),
         }
     }
 
     /// Eq. 5's bandwidth at the eye, eq. 9's sum and the visible share of the lambda
     /// weights (our visibility guard, `bandwidth_pass`) for pixel `i`.
-    fn pixel_bandwidth(&self, g: &GBuffer, i: u32) -> (Bandwidth, f64, f64) {
+    /// The sums are eq. 9's (or eq. 10's for the pre-convolved variant) and eq. 9's.
+    fn pixel_bandwidth(&self, g: &GBuffer, i: u32) -> (Bandwidth, [f64; 2], f64) {
         let px = &g.pixels[i as usize];
         let Some(s) = &px.surface else {
             // A ray that leaves the scene sees the environment directly (no bounce).
@@ -446,16 +461,16 @@ impl AdaptiveMode {
                 (crate::scene::Background::FromEnvironment, Some(e), Some(b)) => b.rate(e, px.dir),
                 _ => 0.0,
             };
-            return (DVec2::new(0.0, nu), 0.0, 1.0);
+            return (DVec2::new(0.0, nu), [0.0; 2], 1.0);
         };
         let material = &self.scene.materials[s.material];
         let Some(mat_bw) = &self.materials[s.material] else {
-            return (DVec2::ZERO, 0.0, 1.0);
+            return (DVec2::ZERO, [0.0; 2], 1.0);
         };
         let wo = -px.dir;
         let lo = s.to_local(wo);
         if lo.z <= 0.0 {
-            return (DVec2::ZERO, 0.0, 1.0);
+            return (DVec2::ZERO, [0.0; 2], 1.0);
         }
         let lift = s.p + s.n * (EPSILON_REL * s.p.abs().max_element().max(1.0));
         let n_b = self.options.n_b;
@@ -474,6 +489,7 @@ impl AdaptiveMode {
         let mut paths: Vec<(f64, Bandwidth)> =
             Vec::with_capacity(n_b as usize * (1 + self.scene.lights.len()));
         let mut variance = 0.0;
+        let mut variance_full = 0.0;
         let (mut visible, mut guarded) = (0.0, 0.0);
         let preconvolved = self.options.preconvolved;
         let mut bounce = |li: DVec3,
@@ -502,6 +518,8 @@ impl AdaptiveMode {
             let chi = radiance * f;
             variance +=
                 operators::variance_term(incident, mat_bw.rate(lo, li), chi, preconvolved) * weight;
+            variance_full +=
+                operators::variance_term(incident, mat_bw.rate(lo, li), chi, false) * weight;
         };
         if let (Some(env), Some(env_bw)) = (&self.scene.environment, &self.env_bandwidth) {
             for k in 0..n_b {
@@ -578,7 +596,11 @@ impl AdaptiveMode {
         } else {
             1.0
         };
-        (operators::weighted(&paths), variance, share)
+        (
+            operators::weighted(&paths),
+            [variance, variance_full],
+            share,
+        )
     }
 
     /// Which pixels frame `frame` shades and with how many samples.
@@ -618,15 +640,17 @@ impl AdaptiveMode {
             }
         }
         // Eq. 9: N_p proportional to the block's largest variance bound.
-        let block_var = |i: usize, k: u32| {
+        let block = |m: &[Vec<f64>], i: usize, k: u32| {
             let (x, y) = (i as u32 % w, i as u32 / w);
             let bw = w.div_ceil(1 << k);
-            b.variance_mip[k as usize][((y >> k) * bw + (x >> k)) as usize]
+            m[k as usize][((y >> k) * bw + (x >> k)) as usize]
         };
+        let block_var = |i: usize, k: u32| block(&b.variance_mip, i, k);
+        // The target variance: eq. 9's sums with `mean_samples` samples on average.
         let (mut sum, mut count) = (0.0, 0usize);
         for (i, s) in site_level.iter().enumerate() {
             if let Some(k) = s {
-                sum += block_var(i, *k);
+                sum += block(&b.full_mip, i, *k);
                 count += 1;
             }
         }
@@ -678,6 +702,9 @@ impl AdaptiveMode {
         let wo = -ray.dir;
         let lo = s.to_local(wo);
         let lift = s.p + s.n * (EPSILON_REL * s.p.abs().max_element().max(1.0));
+        // MERL lobes can be far narrower than a light: their area lights are sampled by
+        // light and table samples with MIS, as the spmm mode does.
+        let mis = matches!(material, Material::Merl { .. });
         for (k, light) in self.scene.lights.iter().enumerate() {
             let u = rng.next_2d();
             let Light::Area {
@@ -700,14 +727,56 @@ impl AdaptiveMode {
             if cos_l <= 0.0 || cos_i.is_nan() || cos_i <= 0.0 {
                 continue;
             }
+            let falloff = cos_l * area / d2;
             counts.shadow += 1;
             if !self
                 .bvh
                 .occluded(lift, wi, 0.0, (q - lift).length() * (1.0 - 1e-6))
             {
                 let target = self.light_targets[k];
-                let f = surface::brdf(material, s.to_local(wi), lo);
-                out[target.layer] += f * cos_i * (cos_l * area / d2) * target.factor;
+                let li = s.to_local(wi);
+                let weight = if mis {
+                    power(1.0 / falloff, surface::pdf(material, lo, li))
+                } else {
+                    1.0
+                };
+                let f = surface::brdf(material, li, lo);
+                out[target.layer] += f * cos_i * falloff * weight * target.factor;
+            }
+        }
+        if mis {
+            // The table's strategy for each area light, as the spmm mode draws it.
+            for (k, light) in self.scene.lights.iter().enumerate() {
+                let u = rng.next_2d();
+                let Light::Area {
+                    corner,
+                    edge_u,
+                    edge_v,
+                    ..
+                } = *light
+                else {
+                    continue;
+                };
+                let Some((li, pdf)) = surface::sample(material, lo, u) else {
+                    continue;
+                };
+                let wi = s.to_world(li);
+                if wi.dot(s.n) <= 0.0 {
+                    continue;
+                }
+                let Some((distance, falloff)) =
+                    surface::hit_parallelogram(s.p, wi, corner, edge_u, edge_v)
+                else {
+                    continue;
+                };
+                counts.shadow += 1;
+                if self.bvh.occluded(lift, wi, 0.0, distance * (1.0 - 1e-6)) {
+                    continue;
+                }
+                let weight = power(pdf, 1.0 / falloff);
+                let target = self.light_targets[k];
+                out[target.layer] +=
+                    surface::brdf(material, li, lo) * li.z * (weight / pdf) * target.factor;
             }
         }
         self.sample_environment(&s, material, lo, lift, &mut rng, out, counts);
@@ -715,7 +784,7 @@ impl AdaptiveMode {
     }
 
     /// The environment's share: map and BRDF samples with MIS (the spmm mode's
-    /// estimator), or, pre-convolved, one BRDF sample of the filtered map.
+    /// estimator); pre-convolved, of the filtered map (`env_radiance`).
     #[allow(clippy::too_many_arguments)]
     fn sample_environment(
         &self,
@@ -731,29 +800,6 @@ impl AdaptiveMode {
         let (Some(env), Some(sampler)) = (&self.scene.environment, &self.env_sampler) else {
             return;
         };
-        let power = |a: f64, b: f64| {
-            let (a2, b2) = (a * a, b * b);
-            if a2 + b2 > 0.0 { a2 / (a2 + b2) } else { 0.0 }
-        };
-        if let Some(pre) = &self.prefiltered {
-            let Some((li, pdf)) = surface::sample(material, lo, u_material) else {
-                return;
-            };
-            let wi = s.to_world(li);
-            if wi.dot(s.n) <= 0.0 {
-                return;
-            }
-            counts.environment += 1;
-            if self.bvh.occluded(lift, wi, 0.0, f64::INFINITY) {
-                return;
-            }
-            let rate = self.materials[s.material]
-                .as_ref()
-                .map_or(0.0, |b| b.rate(lo, li));
-            let radiance = pre.radiance(env, wi, pre.level_for(rate));
-            out[ENVIRONMENT] += surface::brdf(material, li, lo) * li.z * radiance / pdf;
-            return;
-        }
         let e = sampler.sample(&env.map, u_map);
         let wi = rotate_y(e.dir, env.rotate_y_deg);
         if wi.dot(s.n) > 0.0 {
@@ -765,8 +811,9 @@ impl AdaptiveMode {
                 } else {
                     1.0
                 };
+                let radiance = self.env_radiance(env, wi, e.radiance, s.material, lo, li);
                 out[ENVIRONMENT] +=
-                    surface::brdf(material, li, lo) * li.z.max(0.0) * e.radiance * (weight / e.pdf);
+                    surface::brdf(material, li, lo) * li.z.max(0.0) * radiance * (weight / e.pdf);
             }
         }
         if !env.mis {
@@ -785,10 +832,33 @@ impl AdaptiveMode {
         }
         let map_pdf = sampler.pdf(rotate_y(wi, -env.rotate_y_deg));
         let weight = power(pdf, map_pdf);
-        out[ENVIRONMENT] += surface::brdf(material, li, lo)
-            * li.z.max(0.0)
-            * env.radiance_unit(wi)
-            * (weight / pdf);
+        let radiance = self.env_radiance(env, wi, env.radiance_unit(wi), s.material, lo, li);
+        out[ENVIRONMENT] +=
+            surface::brdf(material, li, lo) * li.z.max(0.0) * radiance * (weight / pdf);
+    }
+
+    /// The environment's radiance towards `wi` as this variant shades it: the map's
+    /// (`map`), or pre-convolved, the level of the filtered map that matches the
+    /// material's bandwidth for the pair (section 2.5). Both strategies of the MIS
+    /// pair read it, so the estimate is unbiased for the filtered integral.
+    fn env_radiance(
+        &self,
+        env: &crate::scene::Environment,
+        wi: DVec3,
+        map: DVec3,
+        material: usize,
+        lo: DVec3,
+        li: DVec3,
+    ) -> DVec3 {
+        match &self.prefiltered {
+            None => map,
+            Some(pre) => {
+                let rate = self.materials[material]
+                    .as_ref()
+                    .map_or(0.0, |b| b.rate(lo, li));
+                pre.radiance(env, wi, pre.level_for(rate))
+            }
+        }
     }
 
     /// Forgets every sample and the bandwidth buffer.
@@ -978,5 +1048,9 @@ impl RenderMode for AdaptiveMode {
 
     fn preparation(&self) -> PreparationReport {
         self.preparation.clone()
+    }
+
+    fn debug_overlays(&self) -> Vec<(&'static str, Image)> {
+        super::overlay::overlays(self)
     }
 }

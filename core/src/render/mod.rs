@@ -264,6 +264,11 @@ pub trait RenderMode: Send {
     /// The stages of the last preparation (first build, or the last rebuild an edit
     /// caused) and their times.
     fn preparation(&self) -> PreparationReport;
+    /// Debug images of the mode's own decisions, by name (the adaptive mode's
+    /// bandwidth-buffer level and samples per pixel, as colour maps); none by default.
+    fn debug_overlays(&self) -> Vec<(&'static str, Image)> {
+        Vec::new()
+    }
 }
 
 /// Totals of a run of frames.

@@ -54,6 +54,9 @@ pub struct Frame {
     pub mode: ModeKind,
     pub device: Device,
     pub image: Arc<Image>,
+    /// The mode's debug images by name (`RenderMode::debug_overlays`; the adaptive
+    /// mode's bandwidth level and samples per pixel), empty for other modes.
+    pub overlays: Vec<(&'static str, Arc<Image>)>,
     pub progress: Progress,
     pub frame_ms: f64,
     pub rays_per_second: f64,
@@ -232,6 +235,11 @@ fn run(
             mode: m.kind(),
             device: m.device(),
             image: Arc::new(m.image()),
+            overlays: m
+                .debug_overlays()
+                .into_iter()
+                .map(|(name, img)| (name, Arc::new(img)))
+                .collect(),
             progress: m.progress(),
             frame_ms: stats.seconds * 1e3,
             rays_per_second: stats.counters.rays.total() as f64 / stats.seconds.max(1e-9),

@@ -89,6 +89,9 @@ pub struct CompareLabels {
 
 pub struct Viewport {
     texture: Option<TextureHandle>,
+    /// The debug overlay shown instead of the image, by name, and the one uploaded.
+    overlay: Option<&'static str>,
+    uploaded_overlay: Option<&'static str>,
     /// The frame on screen and the exposure its texture was made with.
     shown: Option<(Frame, f64)>,
     reference_texture: Option<TextureHandle>,
@@ -104,6 +107,8 @@ impl Default for Viewport {
     fn default() -> Self {
         Self {
             texture: None,
+            overlay: None,
+            uploaded_overlay: None,
             shown: None,
             reference_texture: None,
             reference: None,
@@ -138,6 +143,16 @@ impl Viewport {
         self.shown.as_ref().map(|(f, _)| f)
     }
 
+    /// Shows the frame's debug overlay of this name instead of the image (where the
+    /// frame has one), or the image with `None`.
+    pub fn set_overlay(&mut self, overlay: Option<&'static str>) {
+        self.overlay = overlay;
+    }
+
+    pub fn overlay(&self) -> Option<&'static str> {
+        self.overlay
+    }
+
     /// Takes a newer frame for display.
     pub fn set_frame(&mut self, frame: Frame) {
         self.shown = Some((frame, f64::NAN));
@@ -161,10 +176,20 @@ impl Viewport {
             ..Default::default()
         };
         if let Some((frame, made_with)) = &mut self.shown
-            && (self.texture.is_none() || *made_with != exposure)
+            && (self.texture.is_none()
+                || *made_with != exposure
+                || self.uploaded_overlay != self.overlay)
         {
-            upload(ui, &mut self.texture, "viewport", &frame.image, exposure);
+            // A debug overlay is a colour map: shown as it is, without exposure.
+            match self
+                .overlay
+                .and_then(|name| frame.overlays.iter().find(|o| o.0 == name))
+            {
+                Some((_, img)) => upload(ui, &mut self.texture, "viewport", img, 0.0),
+                None => upload(ui, &mut self.texture, "viewport", &frame.image, exposure),
+            }
             *made_with = exposure;
+            self.uploaded_overlay = self.overlay;
         }
         if compare.is_some()
             && let Some((img, made_with)) = &mut self.reference

@@ -116,6 +116,17 @@ impl MaterialBandwidth {
         f64::from(self.rates[grid_cell(fixed) * GRID * GRID + y * GRID + x])
     }
 
+    /// The highest rate of the lobe of `fixed` (local, upper hemisphere).
+    pub fn peak(&self, fixed: DVec3) -> f64 {
+        let c = grid_cell(fixed);
+        f64::from(
+            self.rates[c * GRID * GRID..(c + 1) * GRID * GRID]
+                .iter()
+                .copied()
+                .fold(0.0f32, f32::max),
+        )
+    }
+
     /// The mean over fixed directions of the lobe's highest rate: one number to
     /// compare materials by (a lobe's peak region sets how finely it must be sampled).
     pub fn mean_peak(&self) -> f64 {

@@ -784,7 +784,7 @@ impl AdaptiveMode {
     }
 
     /// The environment's share: map and BRDF samples with MIS (the spmm mode's
-    /// estimator); pre-convolved, of the filtered map (`env_radiance`).
+    /// estimator); pre-convolved, the same on a filtered level of the map.
     #[allow(clippy::too_many_arguments)]
     fn sample_environment(
         &self,
@@ -800,7 +800,27 @@ impl AdaptiveMode {
         let (Some(env), Some(sampler)) = (&self.scene.environment, &self.env_sampler) else {
             return;
         };
-        let e = sampler.sample(&env.map, u_map);
+        // Pre-convolved: the level of the filtered map that the lobe's highest rate for
+        // this view needs, with that level's own sampler (section 2.5).
+        let (map, sampler) = match &self.prefiltered {
+            None => (&*env.map, sampler),
+            Some(pre) => {
+                let rate = self.materials[s.material]
+                    .as_ref()
+                    .map_or(0.0, |b| b.peak(lo));
+                match pre.map(pre.level_for(rate)) {
+                    (map, Some(sampler)) => (map, sampler),
+                    (_, None) => return,
+                }
+            }
+        };
+        let radiance_of = |wi: DVec3| {
+            let d = rotate_y(wi, -env.rotate_y_deg);
+            let (x, y) = crate::environment::pixel_of(map.width(), map.height(), d);
+            let p = map.get(x, y);
+            DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+        };
+        let e = sampler.sample(map, u_map);
         let wi = rotate_y(e.dir, env.rotate_y_deg);
         if wi.dot(s.n) > 0.0 {
             counts.environment += 1;
@@ -811,9 +831,8 @@ impl AdaptiveMode {
                 } else {
                     1.0
                 };
-                let radiance = self.env_radiance(env, wi, e.radiance, s.material, lo, li);
                 out[ENVIRONMENT] +=
-                    surface::brdf(material, li, lo) * li.z.max(0.0) * radiance * (weight / e.pdf);
+                    surface::brdf(material, li, lo) * li.z.max(0.0) * e.radiance * (weight / e.pdf);
             }
         }
         if !env.mis {
@@ -832,33 +851,8 @@ impl AdaptiveMode {
         }
         let map_pdf = sampler.pdf(rotate_y(wi, -env.rotate_y_deg));
         let weight = power(pdf, map_pdf);
-        let radiance = self.env_radiance(env, wi, env.radiance_unit(wi), s.material, lo, li);
         out[ENVIRONMENT] +=
-            surface::brdf(material, li, lo) * li.z.max(0.0) * radiance * (weight / pdf);
-    }
-
-    /// The environment's radiance towards `wi` as this variant shades it: the map's
-    /// (`map`), or pre-convolved, the level of the filtered map that matches the
-    /// material's bandwidth for the pair (section 2.5). Both strategies of the MIS
-    /// pair read it, so the estimate is unbiased for the filtered integral.
-    fn env_radiance(
-        &self,
-        env: &crate::scene::Environment,
-        wi: DVec3,
-        map: DVec3,
-        material: usize,
-        lo: DVec3,
-        li: DVec3,
-    ) -> DVec3 {
-        match &self.prefiltered {
-            None => map,
-            Some(pre) => {
-                let rate = self.materials[material]
-                    .as_ref()
-                    .map_or(0.0, |b| b.rate(lo, li));
-                pre.radiance(env, wi, pre.level_for(rate))
-            }
-        }
+            surface::brdf(material, li, lo) * li.z.max(0.0) * radiance_of(wi) * (weight / pdf);
     }
 
     /// Forgets every sample and the bandwidth buffer.

@@ -9,7 +9,7 @@ use std::f64::consts::PI;
 
 use glam::DVec3;
 
-use crate::environment::{pixel_of, rotate_y};
+use crate::environment::{EnvironmentSampler, pixel_of, rotate_y};
 use crate::image::Image;
 use crate::scene::Environment;
 
@@ -22,6 +22,9 @@ pub const MIN_RATE: f64 = 2.0;
 pub struct Prefiltered {
     /// Level 0 is the map itself.
     levels: Vec<(u32, u32, Vec<DVec3>)>,
+    /// Each level as a map with its importance sampler (`None`: black), so a
+    /// shading point samples the level it reads.
+    maps: Vec<(Image, Option<EnvironmentSampler>)>,
 }
 
 impl Prefiltered {
@@ -52,7 +55,24 @@ impl Prefiltered {
             }
             levels.push((nw, nh, next));
         }
-        Self { levels }
+        let maps = levels
+            .iter()
+            .map(|(w, h, px)| {
+                let mut img = Image::new(*w, *h);
+                for (p, v) in img.pixels_mut().iter_mut().zip(px) {
+                    *p = [v.x as f32, v.y as f32, v.z as f32];
+                }
+                let sampler = EnvironmentSampler::new(&img);
+                (img, sampler)
+            })
+            .collect();
+        Self { levels, maps }
+    }
+
+    /// Level `level`'s map and its sampler.
+    pub fn map(&self, level: usize) -> (&Image, Option<&EnvironmentSampler>) {
+        let (img, sampler) = &self.maps[level.min(self.maps.len() - 1)];
+        (img, sampler.as_ref())
     }
 
     pub fn levels(&self) -> usize {

@@ -83,7 +83,8 @@ pub fn screen_rate(nu_a: f64, fov_x: f64, fov_y: f64, width: u32, height: u32) -
 /// min(floor(log2(1 / b_p)), min(log2 W, log2 H)), never below 0 (no sub-pixel level).
 pub fn level(b_p: f64, width: u32, height: u32) -> u32 {
     let top = width.min(height).max(1).ilog2();
-    if !(b_p > 0.0) {
+    // NaN and non-positive rates alike: nothing varies, the coarsest level.
+    if b_p.is_nan() || b_p <= 0.0 {
         return top;
     }
     let l = (1.0 / b_p).log2().floor();

@@ -1048,3 +1048,27 @@ impl RenderMode for AdaptiveMode {
         super::overlay::overlays(self)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_visibility_step_between_neighbours_marks_both_sides_and_noise_below_it_does_not() {
+        // A shadow edge between columns 1 and 2 of a 4 x 2 map; a 0.05 wobble elsewhere.
+        let visible = [1.0, 0.95, 0.2, 0.25, 1.0, 0.95, 0.2, 0.25];
+        let edge: Vec<bool> = (0..8)
+            .map(|i| visibility_edge(&visible, 4, 2, i % 4, i / 4))
+            .collect();
+        assert_eq!(edge, [false, true, true, false, false, true, true, false]);
+    }
+
+    #[test]
+    fn mip_reduces_blocks_of_odd_images_by_min_and_max() {
+        let v = [3.0, 1.0, 4.0, 1.0, 5.0, 9.0, 2.0, 6.0, 5.0];
+        let min = mip(&v, 3, 3, 1, f64::min);
+        assert_eq!(min[1], vec![1.0, 4.0, 2.0, 5.0]);
+        let max = mip(&v, 3, 3, 1, f64::max);
+        assert_eq!(max[1], vec![5.0, 9.0, 6.0, 5.0]);
+    }
+}

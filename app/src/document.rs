@@ -242,10 +242,11 @@ impl Document {
     }
 
     /// Whether the edited pack differs from its file (a full comparison unless both
-    /// are the same object: callers that ask every frame cache it by `dirty_key`).
+    /// are the same object: callers that ask every frame cache it by `dirty_key`);
+    /// a mute or solo alone is not an unsaved change.
     pub fn dirty(&self) -> bool {
         match (&self.pack, self.material()) {
-            (Some(p), Some(m)) => !Arc::ptr_eq(&p.saved, &m) && *p.saved != *m,
+            (Some(p), Some(m)) => !Arc::ptr_eq(&p.saved, &m) && !p.saved.stores_same(&m),
             _ => false,
         }
     }

@@ -1,18 +1,23 @@
 //! The material panel (right): the edited pack's clusters (pick one in the list, on
 //! the texel map, or by clicking the object in the viewport), the chosen cluster's
 //! dictionary (per basis: model, parameters within the spec ranges, normal as two
-//! angles), a weight scale for all its texels shown as the cluster's mean weight
-//! (colour picker and exact RGB entry), residual on/off and N_PCA, and the chosen
-//! texel's lobe in the plane of incidence: all bases summed, and each basis.
+//! angles; add, duplicate, remove), a weight scale for all its texels shown as the
+//! cluster's mean weight (colour picker and exact RGB entry), one row per basis (its
+//! mean weight as a colour and exact RGB, a multiplier, mute and solo), the weight
+//! brush's settings and the selection mask (`PaintState`; strokes are painted in the
+//! viewport or on the texel map), residual on/off and N_PCA (and, for an edited
+//! cluster with a fitted residual, the choice to keep it or turn it off), and the
+//! chosen texel's lobe in the plane of incidence: all bases summed, and each basis.
 
 use std::sync::Arc;
 
 use egui::{Color32, ColorImage, TextureHandle, TextureOptions, Ui};
 use glam::DVec3;
 use meso_core::brdf::{AnalyticBrdf, BasisFunction, BrdfModel, LobePoint};
+use meso_core::geometry::{Brush, BrushUnits};
 use meso_core::render::SceneEdit;
 use meso_core::scene::Material;
-use meso_core::spmm::SpmmMaterial;
+use meso_core::spmm::{Falloff, SpmmMaterial, TexelMask, WeightTarget};
 
 use crate::document::Document;
 use crate::explorer::{slider_is_logarithmic, smallest_positive};
@@ -33,8 +38,15 @@ pub struct MaterialPanel {
     /// The texel whose lobe is shown (row-major); follows picks.
     pub texel: Option<usize>,
     pub theta_i_deg: f64,
-    /// The texel map texture and the (material, cluster) it shows.
-    map: Option<(TextureHandle, *const SpmmMaterial, usize)>,
+    /// The texel map texture and the (material, cluster, selection shown) it shows.
+    map: Option<(TextureHandle, *const SpmmMaterial, usize, bool)>,
+    pub paint: PaintState,
+    /// A basis removal waiting for confirmation: (cluster, basis).
+    confirm_remove: Option<(usize, usize)>,
+    /// Clusters whose fitted residual the designer chose to keep after editing.
+    residual_kept: Vec<usize>,
+    /// Why the last removal was refused (the cluster's only basis).
+    remove_error: Option<String>,
 }
 
 impl Default for MaterialPanel {
@@ -44,6 +56,56 @@ impl Default for MaterialPanel {
             texel: None,
             theta_i_deg: 40.0,
             map: None,
+            paint: PaintState::default(),
+            confirm_remove: None,
+            residual_kept: Vec::new(),
+            remove_error: None,
+        }
+    }
+}
+
+/// What a brush stroke does to the weights under it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PaintOp {
+    /// Multiplies the target's weights by the factor (no new weights).
+    Scale,
+    /// Adds the amount to the target basis's weight (paints a basis in).
+    Add,
+    /// Paints the selection mask instead of weights.
+    Select,
+}
+
+/// The weight brush and the selection mask.
+pub struct PaintState {
+    /// Left-drag in the viewport paints instead of orbiting.
+    pub on: bool,
+    pub brush: Brush,
+    pub op: PaintOp,
+    /// `None`: every basis (the whole mixture) of any cluster under the brush;
+    /// `Some(j)`: basis j of the chosen cluster.
+    pub basis: Option<usize>,
+    /// Scale factor or added weight, per channel.
+    pub amount: [f32; 3],
+    /// Limit strokes and per-basis scales to the selection.
+    pub limit_to_selection: bool,
+    pub selection: Option<TexelMask>,
+    /// The stroke in progress: the pack it started from and the texels it covered, so
+    /// that overlapping dabs never compound and the whole stroke is one edit of the
+    /// starting pack.
+    stroke: Option<(Arc<SpmmMaterial>, TexelMask)>,
+}
+
+impl Default for PaintState {
+    fn default() -> Self {
+        Self {
+            on: false,
+            brush: Brush::default(),
+            op: PaintOp::Scale,
+            basis: None,
+            amount: [1.5; 3],
+            limit_to_selection: false,
+            selection: None,
+            stroke: None,
         }
     }
 }
@@ -108,6 +170,69 @@ fn with_pack(slot: &Material, material: SpmmMaterial) -> Material {
 }
 
 impl MaterialPanel {
+    /// The selection, when edits are limited to it and it fits `m`.
+    fn limit<'a>(&'a self, m: &SpmmMaterial) -> Option<&'a TexelMask> {
+        self.paint.selection.as_ref().filter(|s| {
+            self.paint.limit_to_selection && (s.width(), s.height()) == (m.width(), m.height())
+        })
+    }
+
+    /// Continues (or starts) a brush stroke: `dab` adds the texels it covers to the
+    /// stroke's mask (and says whether it landed on the pack); returns the edit that
+    /// applies the whole stroke so far to the pack it started from. With the `Select`
+    /// operation the stroke paints the selection and returns no edit.
+    pub fn stroke_edit(
+        &mut self,
+        doc: &crate::document::Document,
+        dab: impl FnOnce(&mut TexelMask) -> bool,
+    ) -> Option<SceneEdit> {
+        let (Some(pack), Some(m)) = (&doc.pack, doc.material()) else {
+            return None;
+        };
+        let slot = &doc.scene.materials[pack.material];
+        if self.paint.op == PaintOp::Select {
+            let sel = self
+                .paint
+                .selection
+                .get_or_insert_with(|| TexelMask::empty(m.width(), m.height()));
+            dab(sel);
+            self.map = None;
+            return None;
+        }
+        let (base, mask) = self
+            .paint
+            .stroke
+            .get_or_insert_with(|| (Arc::clone(&m), TexelMask::empty(m.width(), m.height())));
+        if !dab(mask) {
+            return None;
+        }
+        let (base, mask) = (Arc::clone(base), mask.clone());
+        let covered = match self.limit(&base) {
+            Some(sel) => mask.intersected(sel).ok()?,
+            None => mask,
+        };
+        let target = WeightTarget {
+            cluster: self.paint.basis.map(|_| self.cluster),
+            basis: self.paint.basis,
+            texels: Some(&covered),
+        };
+        let amount = self.paint.amount.map(f64::from);
+        let edited = match self.paint.op {
+            PaintOp::Scale => base.with_weight_scale(&target, amount),
+            PaintOp::Add | PaintOp::Select => base.with_weight_added(&target, amount),
+        }
+        .ok()?;
+        Some(SceneEdit::Material {
+            index: pack.material,
+            material: with_pack(slot, edited),
+        })
+    }
+
+    /// Ends the stroke in progress (the pointer was released).
+    pub fn end_stroke(&mut self) {
+        self.paint.stroke = None;
+    }
+
     /// Shows the panel; returns the edits the user made this frame.
     pub fn show(&mut self, ui: &mut Ui, doc: &Document) -> Vec<SceneEdit> {
         let mut edits = Vec::new();
@@ -195,7 +320,7 @@ impl MaterialPanel {
                         }
                     });
             });
-            self.texel_map(ui, &m);
+            self.texel_map(ui, &m, doc, &mut edits);
         });
 
         let c = self.cluster;
@@ -241,6 +366,10 @@ impl MaterialPanel {
             }
         }
 
+        self.basis_rows(ui, &m, slot, index, &mut edits);
+        self.residual_notice(ui, &m, slot, index, &mut edits);
+        self.paint_ui(ui, &m, slot, index, &mut edits);
+
         ui.separator();
         let texel = self
             .texel
@@ -274,38 +403,366 @@ impl MaterialPanel {
         }
         ui.separator();
         ui.strong(format!("Cluster {c}: dictionary"));
+        let mut pending = None;
         for (j, basis) in m.clusters()[c].bases.iter().enumerate() {
-            if let Some(b) = basis_editor(ui, c, j, basis)
+            let (edited, action) = basis_editor(ui, c, j, basis);
+            if let Some(b) = edited
                 && let Ok(e) = m.with_basis(c, j, b)
             {
+                pending = Some(e);
+            }
+            match action {
+                Some(DictionaryAction::Duplicate) => {
+                    pending = m.with_basis_duplicated(c, j).ok().map(|(e, _)| e);
+                }
+                Some(DictionaryAction::Remove) => self.confirm_remove = Some((c, j)),
+                None => {}
+            }
+        }
+        if let Some((rc, rj)) = self.confirm_remove {
+            ui.horizontal_wrapped(|ui| {
+                ui.colored_label(
+                    ui.visuals().warn_fg_color,
+                    format!("Remove basis {rj} of cluster {rc} and all its weights?"),
+                );
+                if ui.button("Remove").clicked() {
+                    match m.with_basis_removed(rc, rj) {
+                        Ok(e) => pending = Some(e),
+                        Err(e) => self.remove_error = Some(e.to_string()),
+                    }
+                    self.paint.basis = None;
+                    self.confirm_remove = None;
+                }
+                if ui.button("Cancel").clicked() {
+                    self.confirm_remove = None;
+                }
+            });
+        }
+        if let Some(e) = &self.remove_error {
+            ui.colored_label(ui.visuals().error_fg_color, e);
+        }
+        if ui
+            .button("Add basis")
+            .on_hover_text("a Lambertian basis along the macro normal with no weight yet: paint it in (brush: Add) or edit it above")
+            .clicked()
+        {
+            let b = BasisFunction::new(AnalyticBrdf::with_defaults(BrdfModel::Lambertian), DVec3::Z)
+                .expect("+z is a unit normal");
+            pending = m.with_basis_added(c, b).ok().map(|(e, _)| e);
+        }
+        if let Some(e) = pending {
+            edits.push(SceneEdit::Material {
+                index,
+                material: with_pack(slot, e),
+            });
+        }
+
+        edits
+    }
+
+    /// One row per basis of the chosen cluster: its mean weight as a colour and exact
+    /// RGB (editing them scales the basis's weights), a multiplier, mute and solo.
+    fn basis_rows(
+        &mut self,
+        ui: &mut Ui,
+        m: &Arc<SpmmMaterial>,
+        slot: &Material,
+        index: usize,
+        edits: &mut Vec<SceneEdit>,
+    ) {
+        let c = self.cluster;
+        ui.strong(format!("Cluster {c}: weights per basis"));
+        let mut view = m.view().clone();
+        let mut view_changed = false;
+        let mut scale: Option<(usize, [f64; 3])> = None;
+        // Two lines per basis, so the panel keeps its width: name, colour, mute and
+        // solo; then the exact mean weight and the multiplier.
+        for (j, basis) in m.clusters()[c].bases.iter().enumerate() {
+            let mean = m.basis_mean_weight(c, j);
+            let mut rgb = mean.map(|v| v as f32);
+            let mut changed = false;
+            ui.horizontal(|ui| {
+                ui.label(format!("{j} {}", basis.brdf().model().name()));
+                let mut shown = rgb.map(|v| v.clamp(0.0, 1.0));
+                if egui::widgets::color_picker::color_edit_button_rgb(ui, &mut shown).changed() {
+                    rgb = shown;
+                    changed = true;
+                }
+                let mut muted = view.muted(c, j);
+                if ui
+                    .checkbox(&mut muted, format!("mute {j}"))
+                    .on_hover_text(
+                        "hide this basis in the view; the pack keeps its weights until applied",
+                    )
+                    .changed()
+                {
+                    view.set_muted(c, j, muted);
+                    view_changed = true;
+                }
+                let mut solo = view.soloed(c, j);
+                if ui
+                    .checkbox(&mut solo, format!("solo {j}"))
+                    .on_hover_text("show only the soloed bases of this cluster (no residual)")
+                    .changed()
+                {
+                    view.set_solo(c, j, solo);
+                    view_changed = true;
+                }
+            });
+            ui.horizontal(|ui| {
+                ui.add_space(12.0);
+                for (k, name) in ["R", "G", "B"].into_iter().enumerate() {
+                    ui.add_enabled_ui(mean[k] > 0.0, |ui| {
+                        let label = ui.label(format!("{name}{j}"));
+                        changed |= ui
+                            .add(
+                                egui::DragValue::new(&mut rgb[k])
+                                    .range(0.0..=f32::MAX)
+                                    .clamp_existing_to_range(false)
+                                    .max_decimals(4)
+                                    .speed(0.002),
+                            )
+                            .labelled_by(label.id)
+                            .changed();
+                    });
+                }
+                let label = ui.label(format!("×{j}"));
+                let mut factor = 1.0f64;
+                if ui
+                    .add(
+                        egui::DragValue::new(&mut factor)
+                            .range(0.0..=100.0)
+                            .speed(0.01)
+                            .max_decimals(3),
+                    )
+                    .labelled_by(label.id)
+                    .on_hover_text("multiply this basis's weights (all channels)")
+                    .changed()
+                {
+                    scale = Some((j, [factor; 3]));
+                }
+            });
+            if changed {
+                scale = Some((
+                    j,
+                    [0, 1, 2].map(|k| {
+                        if mean[k] > 0.0 {
+                            f64::from(rgb[k]) / mean[k]
+                        } else {
+                            1.0
+                        }
+                    }),
+                ));
+            }
+        }
+        if let Some((j, s)) = scale {
+            let target = WeightTarget {
+                texels: self.limit(m),
+                ..WeightTarget::basis(c, j)
+            };
+            if let Ok(e) = m.with_weight_scale(&target, s) {
                 edits.push(SceneEdit::Material {
                     index,
                     material: with_pack(slot, e),
                 });
             }
         }
+        if view_changed && let Ok(e) = m.with_view(view) {
+            edits.push(SceneEdit::Material {
+                index,
+                material: with_pack(slot, e),
+            });
+        }
+        if !m.view().is_empty() {
+            ui.horizontal_wrapped(|ui| {
+                ui.weak("mute/solo change the view only;");
+                if ui
+                    .button("Apply to the pack")
+                    .on_hover_text(
+                        "remove the hidden bases' weights (and a soloed cluster's residual)",
+                    )
+                    .clicked()
+                    && let Ok(e) = m.with_view_applied()
+                {
+                    edits.push(SceneEdit::Material {
+                        index,
+                        material: with_pack(slot, e),
+                    });
+                }
+            });
+        }
+    }
 
-        edits
+    /// After an edit, a cluster whose fitted residual adds something: it was fitted
+    /// for the original mixture, so ask whether to keep it (never dropped silently).
+    fn residual_notice(
+        &mut self,
+        ui: &mut Ui,
+        m: &Arc<SpmmMaterial>,
+        slot: &Material,
+        index: usize,
+        edits: &mut Vec<SceneEdit>,
+    ) {
+        let c = self.cluster;
+        if !(m.edited() && m.cluster_has_residual(c)) || self.residual_kept.contains(&c) {
+            return;
+        }
+        ui.horizontal_wrapped(|ui| {
+            ui.colored_label(
+                ui.visuals().warn_fg_color,
+                format!("Cluster {c}'s residual was fitted for the original mixture."),
+            );
+            if ui.button("Keep residual").clicked() {
+                self.residual_kept.push(c);
+            }
+            if ui.button("Turn residual off for this cluster").clicked()
+                && let Ok(e) = m.with_cluster_residual_off(c)
+            {
+                edits.push(SceneEdit::Material {
+                    index,
+                    material: with_pack(slot, e),
+                });
+            }
+        });
+    }
+
+    /// The brush (radius and its units, strength, falloff, what it does, to which
+    /// bases) and the selection mask.
+    fn paint_ui(
+        &mut self,
+        ui: &mut Ui,
+        m: &Arc<SpmmMaterial>,
+        slot: &Material,
+        index: usize,
+        edits: &mut Vec<SceneEdit>,
+    ) {
+        let c = self.cluster;
+        ui.separator();
+        let p = &mut self.paint;
+        ui.checkbox(&mut p.on, "Paint weights").on_hover_text(
+            "left-drag on the object (or on the texel map) paints; right-drag still pans",
+        );
+        if !p.on {
+            return;
+        }
+        ui.horizontal(|ui| {
+            ui.selectable_value(&mut p.op, PaintOp::Scale, "Scale");
+            ui.selectable_value(&mut p.op, PaintOp::Add, "Add");
+            ui.selectable_value(&mut p.op, PaintOp::Select, "Select");
+        });
+        if p.op == PaintOp::Add && p.basis.is_none() {
+            p.basis = Some(0);
+        }
+        if p.op != PaintOp::Select {
+            let bases = m.clusters()[c].bases.len();
+            let label = ui.label("bases");
+            egui::ComboBox::from_id_salt("paint-bases")
+                .selected_text(match p.basis {
+                    Some(j) => format!("cluster {c} basis {j}"),
+                    None => "whole mixture".into(),
+                })
+                .show_ui(ui, |ui| {
+                    if p.op == PaintOp::Scale {
+                        ui.selectable_value(&mut p.basis, None, "whole mixture");
+                    }
+                    for j in 0..bases {
+                        ui.selectable_value(
+                            &mut p.basis,
+                            Some(j),
+                            format!("cluster {c} basis {j}"),
+                        );
+                    }
+                })
+                .response
+                .labelled_by(label.id);
+            if p.basis.is_some_and(|j| j >= bases) {
+                p.basis = None;
+            }
+            ui.horizontal(|ui| {
+                ui.label(if p.op == PaintOp::Scale {
+                    "factor"
+                } else {
+                    "weight"
+                });
+                for (k, name) in ["R", "G", "B"].into_iter().enumerate() {
+                    let label = ui.label(format!("brush {name}"));
+                    ui.add(
+                        egui::DragValue::new(&mut p.amount[k])
+                            .range(if p.op == PaintOp::Scale {
+                                0.0..=100.0
+                            } else {
+                                -10.0..=10.0
+                            })
+                            .speed(0.01),
+                    )
+                    .labelled_by(label.id);
+                }
+            });
+        }
+        ui.horizontal(|ui| {
+            ui.add(
+                egui::Slider::new(&mut p.brush.radius, 0.5..=64.0)
+                    .logarithmic(true)
+                    .text("radius"),
+            );
+            ui.selectable_value(&mut p.brush.units, BrushUnits::Texels, "texels");
+            ui.selectable_value(&mut p.brush.units, BrushUnits::ScreenPixels, "pixels");
+        });
+        ui.add(egui::Slider::new(&mut p.brush.strength, 0.0..=1.0).text("strength"));
+        ui.horizontal(|ui| {
+            ui.label("falloff");
+            for f in Falloff::ALL {
+                ui.selectable_value(&mut p.brush.falloff, f, f.name());
+            }
+        });
+        ui.horizontal_wrapped(|ui| {
+            if ui.button(format!("Select cluster {c}")).clicked() {
+                p.selection = Some(TexelMask::of_cluster(m, c));
+                self.map = None;
+            }
+            if p.selection.is_some() && ui.button("Clear selection").clicked() {
+                p.selection = None;
+                self.map = None;
+            }
+        });
+        if let Some(sel) = &p.selection {
+            ui.checkbox(
+                &mut p.limit_to_selection,
+                format!(
+                    "limit edits to the selection ({} texels)",
+                    sel.covered().count()
+                ),
+            );
+        }
+        let _ = (slot, index, edits);
     }
 
     /// The texel grid coloured by each texel's summed weights, the chosen cluster at
     /// full strength and the rest dimmed; a click chooses the texel and its cluster.
-    fn texel_map(&mut self, ui: &mut Ui, m: &Arc<SpmmMaterial>) {
+    fn texel_map(
+        &mut self,
+        ui: &mut Ui,
+        m: &Arc<SpmmMaterial>,
+        doc: &Document,
+        map_edits: &mut Vec<SceneEdit>,
+    ) {
         let key = Arc::as_ptr(m);
+        let show_selection = self.paint.on && self.paint.selection.is_some();
         if self
             .map
             .as_ref()
-            .is_none_or(|(_, k, c)| *k != key || *c != self.cluster)
+            .is_none_or(|(_, k, c, s)| *k != key || *c != self.cluster || *s != show_selection)
         {
+            let selection = self.paint.selection.as_ref().filter(|_| show_selection);
             let pixels: Vec<Color32> = (0..m.texel_cluster().len())
                 .map(|t| {
                     let w = m.texel_weights(t).fold([0.0f32; 3], |a, (_, w)| {
                         [a[0] + w[0], a[1] + w[1], a[2] + w[2]]
                     });
-                    let dim = if m.texel_cluster()[t] as usize == self.cluster {
-                        1.0
-                    } else {
-                        0.25
+                    let dim = match selection {
+                        Some(s) => 0.25 + 0.75 * s.strengths().get(t).copied().unwrap_or(0.0),
+                        None if m.texel_cluster()[t] as usize == self.cluster => 1.0,
+                        None => 0.25,
                     };
                     let g = |v: f32| ((v * dim).clamp(0.0, 1.0).powf(1.0 / 2.2) * 255.0) as u8;
                     Color32::from_rgb(g(w[0]), g(w[1]), g(w[2]))
@@ -319,14 +776,37 @@ impl MaterialPanel {
             let texture = ui
                 .ctx()
                 .load_texture("texel-map", image, TextureOptions::NEAREST);
-            self.map = Some((texture, key, self.cluster));
+            self.map = Some((texture, key, self.cluster, show_selection));
         }
-        if let Some((texture, _, _)) = &self.map {
+        if let Some((texture, _, _, _)) = &self.map {
             let side = ui.available_width().min(120.0);
             let response = ui.add(
                 egui::Image::new((texture.id(), egui::vec2(side, side)))
-                    .sense(egui::Sense::click()),
+                    .sense(egui::Sense::click_and_drag()),
             );
+            if self.paint.on
+                && (response.dragged() || response.clicked())
+                && let Some(p) = response.interact_pointer_pos()
+            {
+                let rel = (p - response.rect.min) / response.rect.size();
+                let centre = glam::DVec2::new(
+                    f64::from(rel.x) * f64::from(m.width()),
+                    f64::from(rel.y) * f64::from(m.height()),
+                );
+                let brush = self.paint.brush;
+                let edit = self.stroke_edit(doc, |mask| {
+                    mask.stamp(centre, brush.radius, brush.strength, brush.falloff);
+                    true
+                });
+                map_edits.extend(edit);
+                if response.drag_stopped() || response.clicked() {
+                    self.end_stroke();
+                }
+                return;
+            }
+            if response.drag_stopped() {
+                self.end_stroke();
+            }
             if response.clicked()
                 && let Some(p) = response.interact_pointer_pos()
             {
@@ -343,13 +823,21 @@ impl MaterialPanel {
     }
 }
 
-/// The editor of one basis function; returns the edited basis when it changed.
+/// A dictionary edit asked for from a basis's editor.
+enum DictionaryAction {
+    Duplicate,
+    Remove,
+}
+
+/// The editor of one basis function; returns the edited basis when it changed, and
+/// a duplicate or remove request.
 fn basis_editor(
     ui: &mut Ui,
     cluster: usize,
     j: usize,
     basis: &BasisFunction,
-) -> Option<BasisFunction> {
+) -> (Option<BasisFunction>, Option<DictionaryAction>) {
+    let mut action = None;
     let mut brdf = *basis.brdf();
     let n = basis.normal();
     let mut theta = n.z.clamp(-1.0, 1.0).acos().to_degrees();
@@ -410,9 +898,21 @@ fn basis_editor(
                         .changed();
                 });
             });
+            ui.horizontal(|ui| {
+                if ui
+                    .button(format!("Duplicate basis {j}"))
+                    .on_hover_text("append a copy with no weights: edit one, keep the other")
+                    .clicked()
+                {
+                    action = Some(DictionaryAction::Duplicate);
+                }
+                if ui.button(format!("Remove basis {j}…")).clicked() {
+                    action = Some(DictionaryAction::Remove);
+                }
+            });
         });
     if !(changed || normal_changed) {
-        return None;
+        return (None, action);
     }
     // The normal is rebuilt from the angles only when they moved, so a parameter edit
     // keeps it bit for bit.
@@ -422,7 +922,7 @@ fn basis_editor(
     } else {
         n
     };
-    BasisFunction::new(brdf, normal).ok()
+    (BasisFunction::new(brdf, normal).ok(), action)
 }
 
 /// Largest tilt of a basis normal the editor offers (the spec needs z > 0).

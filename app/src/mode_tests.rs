@@ -311,9 +311,10 @@ fn a_mode_that_cannot_render_a_light_asks_and_renders_without_it() {
 
 #[test]
 fn a_mode_that_is_not_built_says_so_and_the_old_mode_keeps_rendering() {
+    // (The adaptive mode is the one core does not build yet.)
     let mut h = harness_with(Arc::new(CoreModes), small());
     wait_for_current_frame(&mut h);
-    choose_mode(&mut h, "biscale");
+    choose_mode(&mut h, "adaptive");
     assert!(!h.state().switching());
     let message = h.state().mode_message.clone().expect("a message");
     assert!(
@@ -429,8 +430,9 @@ fn environment_edits_are_undoable_and_reach_the_renderer() {
 #[test]
 fn a_scene_that_names_a_mode_asks_for_it_once_loaded() {
     // The default scene with `[render] mode = "biscale"`: it opens in spmm (which
-    // renders everything), then asks for biscale, which is not built: the message
-    // says so and frames keep coming from spmm.
+    // renders everything), then asks for biscale, which cannot render it (an area
+    // light, AO, no environment): the message says why and frames keep coming from
+    // spmm.
     let dir = tempfile::tempdir().expect("temp dir");
     let default = default_scene_path();
     let folder = default
@@ -463,7 +465,7 @@ fn a_scene_that_names_a_mode_asks_for_it_once_loaded() {
     });
     let message = h.state().mode_message.clone().expect("a message");
     assert!(
-        message.contains("biscale") && message.contains("not built"),
+        message.contains("biscale") && message.contains("without [environment]"),
         "{message}"
     );
     assert_eq!(h.state().mode(), (ModeKind::Spmm, Device::Cpu));

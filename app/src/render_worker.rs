@@ -12,7 +12,9 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use meso_core::image::Image;
-use meso_core::render::{Device, ModeKind, Prepare, Progress, RenderMode, SceneEdit};
+use meso_core::render::{
+    Denoiser, Device, ModeKind, Prepare, Progress, RenderMode, SceneEdit, denoise,
+};
 use meso_core::scene::Scene;
 
 use crate::mode_maker::{ModeMaker, core_modes};
@@ -43,6 +45,9 @@ pub enum Command {
     },
     /// Samples per pixel after which the thread idles.
     MaxSamples(u32),
+    /// Show the first frames through the viewport denoiser (fading out by
+    /// `denoise::FADE_SAMPLES`); the estimate itself is never filtered.
+    Denoise(bool),
 }
 
 /// A finished frame.
@@ -53,14 +58,20 @@ pub struct Frame {
     /// The mode that rendered it.
     pub mode: ModeKind,
     pub device: Device,
+    /// The estimate: what is saved, compared and measured.
     pub image: Arc<Image>,
     /// The mode's debug images by name (`RenderMode::debug_overlays`; the adaptive
     /// mode's bandwidth level and samples per pixel), empty for other modes.
     pub overlays: Vec<(&'static str, Arc<Image>)>,
+    /// What the viewport shows: the estimate, blended with its denoised version
+    /// during the first frames when the denoiser is on (the same `Arc` otherwise).
+    pub shown: Arc<Image>,
     pub progress: Progress,
     pub frame_ms: f64,
     pub rays_per_second: f64,
     pub finished: Instant,
+    /// The mode's own one-line state (`RenderMode::summary`).
+    pub summary: Option<String>,
 }
 
 /// A rejected command: the version it carried and why.
@@ -141,6 +152,22 @@ impl Drop for RenderWorker {
     }
 }
 
+/// The viewport's picture of `image` after `samples` samples per pixel: blended with
+/// its denoised version while the blend's strength is positive and the mode gives
+/// guides.
+fn shown(mode: &dyn RenderMode, image: &Arc<Image>, samples: u32) -> Arc<Image> {
+    let strength = denoise::viewport_strength(samples);
+    if strength <= 0.0 {
+        return Arc::clone(image);
+    }
+    mode.guides()
+        .and_then(|g| Denoiser::for_samples(samples).apply(image, &g))
+        .map_or_else(
+            || Arc::clone(image),
+            |d| Arc::new(denoise::blend(image, &d, strength)),
+        )
+}
+
 fn run(
     rx: Receiver<Command>,
     shared: Arc<Mutex<Shared>>,
@@ -150,6 +177,7 @@ fn run(
     let mut mode: Option<Box<dyn RenderMode>> = None;
     let mut version = 0;
     let mut max_samples = 4096u32;
+    let mut denoise = true;
     loop {
         let idle = mode
             .as_ref()
@@ -213,6 +241,10 @@ fn run(
                     max_samples = n.max(1);
                     Ok(())
                 }
+                Command::Denoise(on) => {
+                    denoise = on;
+                    Ok(())
+                }
             };
             if let Err((version, message)) = result
                 && let Ok(mut s) = shared.lock()
@@ -230,20 +262,28 @@ fn run(
         } else {
             m.render_frame()
         };
+        let image = Arc::new(m.image());
+        let progress = m.progress();
         let frame = Frame {
             version,
             mode: m.kind(),
             device: m.device(),
-            image: Arc::new(m.image()),
+            shown: if denoise {
+                shown(m.as_ref(), &image, progress.min_samples)
+            } else {
+                Arc::clone(&image)
+            },
+            image,
+            progress,
             overlays: m
                 .debug_overlays()
                 .into_iter()
                 .map(|(name, img)| (name, Arc::new(img)))
                 .collect(),
-            progress: m.progress(),
             frame_ms: stats.seconds * 1e3,
             rays_per_second: stats.counters.rays.total() as f64 / stats.seconds.max(1e-9),
             finished: Instant::now(),
+            summary: m.summary(),
         };
         if let Ok(mut s) = shared.lock() {
             s.frame = Some(frame);

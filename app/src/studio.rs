@@ -12,7 +12,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use egui::{Key, KeyboardShortcut, Modifiers, Ui};
-use meso_core::geometry::{SceneBvh, pick};
+use meso_core::geometry::{BrushUnits, SceneBvh, brush, pick};
 use meso_core::image::Image;
 use meso_core::metrics::{self, Comparison};
 use meso_core::render::{
@@ -72,6 +72,9 @@ pub struct Settings {
     pub compare: bool,
     /// Samples per pixel the compare view's reference is refined to.
     pub reference_spp: u32,
+    /// The first frames through the viewport denoiser (saved images and the compare
+    /// view's figures are always the unfiltered estimate).
+    pub denoise: bool,
 }
 
 impl Default for Settings {
@@ -85,6 +88,7 @@ impl Default for Settings {
             show_timings: true,
             compare: false,
             reference_spp: 256,
+            denoise: true,
         }
     }
 }
@@ -285,6 +289,7 @@ impl Studio {
             pack_job: None,
         };
         s.set_max_samples(s.settings.max_samples);
+        s.worker.send(Command::Denoise(s.settings.denoise));
         s.open_scene(&scene.unwrap_or_else(default_scene_path));
         s
     }
@@ -704,6 +709,37 @@ impl Studio {
         }));
     }
 
+    /// A file dropped on the window: a `.spmm` pack goes on the edited object, a scene
+    /// `.toml` opens; BTFs and MERL tables are named with what to do instead.
+    pub fn open_dropped(&mut self, path: &Path) {
+        let ext = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase());
+        match ext.as_deref() {
+            Some("spmm") => self.open_pack(path),
+            Some("toml") => self.open_scene(path),
+            Some("btf") => {
+                self.error = Some(format!(
+                    "`{}` is a BTF: fit it to a pack first (`meso fit {} -o PACK.spmm`), then drop the pack",
+                    path.display(),
+                    path.display()
+                ))
+            }
+            Some("binary") => {
+                self.error = Some(format!(
+                    "`{}` is a MERL table: name it in a scene file (`kind = \"merl\"`, docs/scenes.md) and drop the scene",
+                    path.display()
+                ))
+            }
+            _ => {
+                self.error = Some(format!(
+                    "`{}`: drop a .spmm pack or a scene .toml",
+                    path.display()
+                ))
+            }
+        }
+    }
+
     /// Writes the frame on screen (EXR: linear; PNG: after the viewport's exposure).
     pub fn export_frame(&mut self, path: &Path) {
         let Some(frame) = self.viewport.frame() else {
@@ -925,6 +961,16 @@ impl Studio {
                 {
                     self.set_max_samples(self.settings.max_samples);
                 }
+                if ui
+                    .checkbox(&mut self.settings.denoise, "Denoise the first frames")
+                    .on_hover_text(
+                        "An edge-aware filter guided by normal, depth and albedo, fading \
+                         out by 32 samples per pixel; saved images are never filtered",
+                    )
+                    .changed()
+                {
+                    self.worker.send(Command::Denoise(self.settings.denoise));
+                }
                 ui.checkbox(&mut self.settings.show_timings, "timings in the status bar");
                 ui.checkbox(&mut self.settings.compare, "Compare with a reference");
                 let names: Vec<&'static str> = self
@@ -994,6 +1040,10 @@ impl Studio {
                             f.rays_per_second / 1e6
                         ));
                     }
+                    if let Some(summary) = &f.summary {
+                        ui.separator();
+                        ui.label(summary);
+                    }
                 }
                 None => {
                     ui.label("waiting for the first frame");
@@ -1059,6 +1109,17 @@ impl Studio {
         self.poll_jobs();
         self.receive();
         self.shortcuts(ui);
+        let dropped: Vec<PathBuf> = ui.input(|i| {
+            i.raw
+                .dropped_files
+                .iter()
+                .map(|f| f.path().to_path_buf())
+                .filter(|p| !p.as_os_str().is_empty())
+                .collect()
+        });
+        for path in dropped {
+            self.open_dropped(&path);
+        }
         egui::Panel::top("menu").show(ui, |ui| self.menus(ui));
         egui::Panel::bottom("status").show(ui, |ui| self.status(ui));
         let mut requests = Vec::new();
@@ -1144,10 +1205,20 @@ impl Studio {
                 None => "reference: spmm, starting".into(),
             },
         });
+        let scale = f64::from(self.settings.resolution);
+        // The brush outline: its radius in points when measured in image pixels.
+        let brush_points = self.material_panel.paint.on.then(|| {
+            let b = &self.material_panel.paint.brush;
+            match b.units {
+                BrushUnits::ScreenPixels => {
+                    (b.radius / (scale * f64::from(ui.ctx().pixels_per_point()))) as f32
+                }
+                BrushUnits::Texels => 4.0,
+            }
+        });
         let input = self
             .viewport
-            .show(ui, &camera, self.settings.exposure, compare);
-        let scale = f64::from(self.settings.resolution);
+            .show(ui, &camera, self.settings.exposure, compare, brush_points);
         let full = (
             ((f64::from(input.panel_pixels.0) * scale) as u32).clamp(16, 4096),
             ((f64::from(input.panel_pixels.1) * scale) as u32).clamp(16, 4096),
@@ -1187,6 +1258,42 @@ impl Studio {
         }
         if let Some((x, y)) = input.click {
             self.pick_at(x, y);
+        }
+        if let Some((from, to)) = input.paint {
+            self.paint_stroke(from, to);
+        }
+        if input.paint_end {
+            self.material_panel.end_stroke();
+        }
+    }
+
+    /// Paints the brush from `from` to `to` (in [0, 1]^2 of the image) on the edited
+    /// pack, through the same picking as a click: one edit of the stroke so far, in the
+    /// open undo group (a stroke is one undo step).
+    pub fn paint_stroke(&mut self, from: (f64, f64), to: (f64, f64)) {
+        let (Some(doc), Some(bvh)) = (&self.doc, &self.bvh) else {
+            return;
+        };
+        let Some(index) = doc.pack.as_ref().map(|p| p.material) else {
+            return;
+        };
+        let (w, h) = (self.full_size.0.max(1), self.full_size.1.max(1));
+        let at = |p: (f64, f64)| glam::DVec2::new(p.0 * f64::from(w), p.1 * f64::from(h));
+        let brush = self.material_panel.paint.brush;
+        let edit = self.material_panel.stroke_edit(doc, |mask| {
+            brush::stroke(
+                &doc.scene,
+                bvh,
+                (w, h),
+                at(from),
+                at(to),
+                &brush,
+                index,
+                mask,
+            )
+        });
+        if let Some(e) = edit {
+            self.edit(e);
         }
     }
 

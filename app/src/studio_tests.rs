@@ -641,3 +641,234 @@ fn opening_the_shipped_scenes_edits_nothing() {
         assert!(s.error.is_none(), "{scene}: {:?}", s.error);
     }
 }
+
+/// The pixel centres (in the document's full render size) along a row that see the
+/// edited pack, found with core's pick: two points `gap` pixels apart.
+fn two_points_on_the_pack(h: &Harness<'_, Studio>, gap: u32) -> ((u32, u32), (u32, u32)) {
+    let doc = h.state().doc.as_ref().expect("doc");
+    let index = doc.pack.as_ref().expect("pack").material;
+    let (w, hgt) = h.state().full_size;
+    let bvh = SceneBvh::build(&doc.scene.meshes);
+    let on = |x: u32, y: u32| {
+        pick(
+            &doc.scene,
+            &bvh,
+            w,
+            hgt,
+            f64::from(x) + 0.5,
+            f64::from(y) + 0.5,
+        )
+        .is_some_and(|p| p.material == index)
+    };
+    let y = hgt / 2;
+    let x = (0..w.saturating_sub(gap))
+        .find(|&x| (0..=gap).all(|d| on(x + d, y)) && x > w / 3)
+        .expect("the middle row crosses the object");
+    ((x, y), (x + gap, y))
+}
+
+#[test]
+fn a_real_drag_on_the_viewport_paints_only_the_brushed_texels_and_undoes_in_one_step() {
+    use meso_core::geometry::{Brush, BrushUnits};
+    use meso_core::spmm::Falloff;
+    use meso_core::spmm::pack::{ResidualPrecision, encode_pack};
+
+    let mut h = resting_studio(None, 2);
+    rested_frame(&mut h, 2);
+    let original = material(&h);
+    h.get_by_label("Paint weights").click();
+    h.run_steps(2);
+    {
+        let p = &mut h.state_mut().material_panel.paint;
+        p.brush = Brush {
+            radius: 1.5,
+            units: BrushUnits::Texels,
+            strength: 1.0,
+            falloff: Falloff::Constant,
+        };
+        p.amount = [2.0; 3];
+    }
+    // Showing the brush settings can resize the viewport: wait for the new size.
+    rested_frame(&mut h, 2);
+    let rect = h.state().viewport.rect.expect("the viewport was shown");
+    let (w, hgt) = h.state().full_size;
+    let (a, b) = two_points_on_the_pack(&h, 12);
+    let to_pos = |(x, y): (u32, u32)| {
+        rect.min
+            + egui::vec2(
+                (x as f32 + 0.5) / w as f32 * rect.width(),
+                (y as f32 + 0.5) / hgt as f32 * rect.height(),
+            )
+    };
+    let v0 = h.state().doc.as_ref().expect("doc").version;
+    // A real drag: move, press, move in steps, release.
+    h.hover_at(to_pos(a));
+    h.step();
+    h.drag_at(to_pos(a));
+    h.step();
+    for k in 1..=4 {
+        let x = a.0 + (b.0 - a.0) * k / 4;
+        h.hover_at(to_pos((x, a.1)));
+        h.step();
+    }
+    h.drop_at(to_pos(b));
+    h.run_steps(2);
+    let painted = material(&h);
+    assert!(
+        !Arc::ptr_eq(&painted, &original),
+        "the stroke edited the pack"
+    );
+    let doc = h.state().doc.as_ref().expect("doc");
+    assert!(doc.version > v0);
+    let bvh = SceneBvh::build(&doc.scene.meshes);
+    let Material::Spmm { uv_scale, .. } =
+        &doc.scene.materials[doc.pack.as_ref().expect("pack").material]
+    else {
+        panic!("the pack's slot is SPMM");
+    };
+    // Texels within the brush radius of where the segment a..b meets the object (by
+    // core's pick, the viewport's own picking): the swept disc bounds the stroke, and
+    // the discs at both ends lie inside it.
+    let (tw, th) = (original.width() as i64, original.height() as i64);
+    let disc = |x: f64, y: f64, r: f64| -> Vec<usize> {
+        let p = pick(&doc.scene, &bvh, w, hgt, x, y).expect("on the object");
+        let c = original.texel_position(p.uv, *uv_scale);
+        let mut out = Vec::new();
+        for ty in (c.y - r).floor() as i64..=(c.y + r).ceil() as i64 {
+            for tx in (c.x - r).floor() as i64..=(c.x + r).ceil() as i64 {
+                let d = glam::DVec2::new(tx as f64 + 0.5, ty as f64 + 0.5).distance(c);
+                if d <= r {
+                    out.push((ty.rem_euclid(th) * tw + tx.rem_euclid(tw)) as usize);
+                }
+            }
+        }
+        out
+    };
+    let mut swept = std::collections::HashSet::new();
+    for k in 0..=200 {
+        let x = f64::from(a.0) + f64::from(b.0 - a.0) * f64::from(k) / 200.0 + 0.5;
+        // A little wider than the brush covers the rounding of pointer positions.
+        swept.extend(disc(x, f64::from(a.1) + 0.5, 2.2));
+    }
+    let changed = original.changed_texels(&painted).expect("same grid");
+    let changed: Vec<usize> = (0..changed.len()).filter(|&t| changed[t]).collect();
+    assert!(!changed.is_empty());
+    for t in &changed {
+        assert!(
+            swept.contains(t),
+            "texel {t} changed outside the brushed path"
+        );
+        for ((j0, w0), (j1, w1)) in original.texel_weights(*t).zip(painted.texel_weights(*t)) {
+            assert_eq!(j0, j1);
+            assert_eq!(
+                w1,
+                w0.map(|v| v * 2.0),
+                "texel {t}: the whole mixture doubled"
+            );
+        }
+    }
+    for end in [a, b] {
+        for t in disc(f64::from(end.0) + 0.5, f64::from(end.1) + 0.5, 1.2) {
+            assert!(
+                changed.contains(&t),
+                "texel {t} under the stroke's end {end:?}"
+            );
+        }
+    }
+    // One undo step takes the whole stroke back, to the byte.
+    h.state_mut().undo();
+    h.step();
+    let undone = material(&h);
+    assert_eq!(
+        encode_pack(&undone, ResidualPrecision::F32),
+        encode_pack(&original, ResidualPrecision::F32)
+    );
+    assert!(!undone.edited());
+}
+
+#[test]
+fn per_basis_rows_scale_one_basis_and_solo_changes_the_view_not_the_pack() {
+    use meso_core::spmm::pack::{ResidualPrecision, encode_pack};
+
+    let mut h = harness();
+    wait_for_current_frame(&mut h);
+    let original = material(&h);
+    let c = h.state().material_panel.cluster;
+    // The multiplier of basis 1 of the chosen cluster doubles exactly its weights.
+    h.get_by_role_and_label(Role::SpinButton, "×1")
+        .set_value_accesskit(2.0);
+    h.step();
+    let scaled = material(&h);
+    for (t, &tc) in original.texel_cluster().iter().enumerate() {
+        for ((j, w0), (_, w1)) in original.texel_weights(t).zip(scaled.texel_weights(t)) {
+            if tc as usize == c && j == 1 {
+                assert_eq!(w1, w0.map(|v| v * 2.0));
+            } else {
+                assert_eq!(w1, w0, "texel {t} basis {j}");
+            }
+        }
+    }
+    wait_for_current_frame(&mut h);
+    // Solo basis 0: the view changes (a new frame), the pack's bytes do not.
+    let v = h.state().doc.as_ref().expect("doc").version;
+    h.get_by_label("solo 0").click();
+    h.step();
+    let soloed = material(&h);
+    assert!(soloed.view().soloed(c, 0));
+    assert_eq!(
+        encode_pack(&soloed, ResidualPrecision::F32),
+        encode_pack(&scaled, ResidualPrecision::F32)
+    );
+    wait_for_current_frame(&mut h);
+    assert!(h.state().frame().expect("frame").version > v);
+}
+
+/// A file dropped on the window, as a native backend hands it over.
+#[derive(Debug)]
+struct Dropped(std::path::PathBuf);
+
+impl egui::DroppedFile for Dropped {
+    fn path(&self) -> &std::path::Path {
+        &self.0
+    }
+    fn bytes(&self) -> Result<Vec<u8>, String> {
+        std::fs::read(&self.0).map_err(|e| e.to_string())
+    }
+}
+
+#[test]
+fn a_pack_dropped_on_the_window_goes_on_the_object_and_other_files_are_named() {
+    let mut h = harness();
+    let original = material(&h);
+    let other = std::path::PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../materials/corduroy.spmm"
+    ));
+    h.input_mut()
+        .dropped_files
+        .push(Arc::new(Dropped(other.clone())));
+    h.step();
+    loaded(&mut h);
+    let now = material(&h);
+    assert!(!Arc::ptr_eq(&now, &original));
+    let expected = meso_core::spmm::pack::read_pack(&other).expect("shipped pack");
+    assert_eq!(now.weights(), expected.weights());
+    assert_eq!(
+        h.state()
+            .doc
+            .as_ref()
+            .and_then(|d| d.pack.as_ref())
+            .and_then(|p| p.path.clone()),
+        Some(other)
+    );
+    h.input_mut()
+        .dropped_files
+        .push(Arc::new(Dropped("/tmp/some.btf".into())));
+    h.step();
+    let e = h
+        .state()
+        .error
+        .clone()
+        .expect("a BTF is refused with a reason");
+    assert!(e.contains("some.btf") && e.contains("meso fit"), "{e}");
+}

@@ -1,6 +1,7 @@
 //! The progressive viewport: shows the newest finished frame, turns mouse input into
 //! camera edits (orbit with the left button, pan with the right or middle button or
-//! shift-drag, zoom with the wheel) and a click into a pick position. While the
+//! shift-drag, zoom with the wheel) and a click into a pick position; in paint mode a
+//! left-drag (or click) is a brush stroke instead of an orbit. While the
 //! camera moves the render runs at a quarter of the resolution with the residual
 //! skipped; the studio sends those edits, this module only reports what happened.
 //! In the compare view a draggable vertical divider splits the image: the live frame
@@ -79,6 +80,10 @@ pub struct Input {
     pub click: Option<(f64, f64)>,
     /// The image size the panel shows, in physical pixels.
     pub panel_pixels: (u32, u32),
+    /// In paint mode: the brush moved from `.0` to `.1` (in [0, 1]^2 of the image).
+    pub paint: Option<((f64, f64), (f64, f64))>,
+    /// In paint mode: the stroke ended (the button was released).
+    pub paint_end: bool,
 }
 
 /// The compare view's labels: (left, live; right, reference).
@@ -92,8 +97,8 @@ pub struct Viewport {
     /// The debug overlay shown instead of the image, by name, and the one uploaded.
     overlay: Option<&'static str>,
     uploaded_overlay: Option<&'static str>,
-    /// The frame on screen and the exposure its texture was made with.
-    shown: Option<(Frame, f64)>,
+    /// The newest frame and what its texture was made with (exposure, estimate only).
+    shown: Option<(Frame, Option<(f64, bool)>)>,
     reference_texture: Option<TextureHandle>,
     /// The reference image on screen and the exposure its texture was made with.
     reference: Option<(Arc<Image>, f64)>,
@@ -155,7 +160,7 @@ impl Viewport {
 
     /// Takes a newer frame for display.
     pub fn set_frame(&mut self, frame: Frame) {
-        self.shown = Some((frame, f64::NAN));
+        self.shown = Some((frame, None));
     }
 
     /// Shows the frame (and, with `compare`, the reference right of the divider).
@@ -165,6 +170,7 @@ impl Viewport {
         camera: &Camera,
         exposure: f64,
         compare: Option<CompareLabels>,
+        brush_points: Option<f32>,
     ) -> Input {
         let size = ui.available_size().max(Vec2::splat(16.0));
         let ppp = ui.ctx().pixels_per_point();
@@ -175,9 +181,12 @@ impl Viewport {
             ),
             ..Default::default()
         };
+        // The compare view measures the estimate, so it shows the estimate; otherwise
+        // the first frames come through the denoiser (`Frame::shown`).
+        let key = Some((exposure, compare.is_some()));
         if let Some((frame, made_with)) = &mut self.shown
             && (self.texture.is_none()
-                || *made_with != exposure
+                || *made_with != key
                 || self.uploaded_overlay != self.overlay)
         {
             // A debug overlay is a colour map: shown as it is, without exposure.
@@ -186,9 +195,16 @@ impl Viewport {
                 .and_then(|name| frame.overlays.iter().find(|o| o.0 == name))
             {
                 Some((_, img)) => upload(ui, &mut self.texture, "viewport", img, 0.0),
-                None => upload(ui, &mut self.texture, "viewport", &frame.image, exposure),
+                None => {
+                    let image = if compare.is_some() {
+                        &frame.image
+                    } else {
+                        &frame.shown
+                    };
+                    upload(ui, &mut self.texture, "viewport", image, exposure);
+                }
             }
-            *made_with = exposure;
+            *made_with = key;
             self.uploaded_overlay = self.overlay;
         }
         if compare.is_some()
@@ -224,14 +240,49 @@ impl Viewport {
         ui.painter().text(
             rect.left_top() + Vec2::new(8.0, 6.0),
             egui::Align2::LEFT_TOP,
-            "drag: orbit · right-drag: pan · wheel: zoom · click: pick a cluster",
+            if brush_points.is_some() {
+                "paint: drag or click paints · right-drag: pan · wheel: zoom"
+            } else {
+                "drag: orbit · right-drag: pan · wheel: zoom · click: pick a cluster"
+            },
             egui::FontId::proportional(11.0),
             egui::Color32::from_gray(150),
         );
-        input.drag_started = response.drag_started();
-        input.drag_stopped = response.drag_stopped();
         let delta = response.drag_delta();
-        if response.dragged() && delta != Vec2::ZERO {
+        let rel = |p: egui::Pos2| {
+            let r = (p - rect.min) / rect.size();
+            (f64::from(r.x), f64::from(r.y))
+        };
+        let primary = egui::PointerButton::Primary;
+        let painting = brush_points.is_some()
+            && !ui.input(|i| i.modifiers.shift)
+            && (response.dragged_by(primary)
+                || response.drag_started_by(primary)
+                || response.drag_stopped_by(primary)
+                || response.clicked());
+        if painting {
+            if let Some(p) = response.interact_pointer_pos() {
+                // A drag is recognised only after some movement: its first segment
+                // starts where the button went down, so the stroke covers that point.
+                let from = if response.drag_started() || response.clicked() {
+                    ui.input(|i| i.pointer.press_origin()).unwrap_or(p - delta)
+                } else {
+                    p - delta
+                };
+                input.paint = Some((rel(from), rel(p)));
+            }
+            input.paint_end = response.drag_stopped() || response.clicked();
+        }
+        if let (Some(r), Some(p)) = (brush_points, response.hover_pos()) {
+            ui.painter().circle_stroke(
+                p,
+                r.max(2.0),
+                egui::Stroke::new(1.0, egui::Color32::from_white_alpha(180)),
+            );
+        }
+        input.drag_started = response.drag_started() && !painting;
+        input.drag_stopped = response.drag_stopped() && !painting;
+        if response.dragged() && delta != Vec2::ZERO && !painting {
             let panning = response.dragged_by(egui::PointerButton::Secondary)
                 || response.dragged_by(egui::PointerButton::Middle)
                 || ui.input(|i| i.modifiers.shift);
@@ -258,10 +309,10 @@ impl Viewport {
             }
         }
         if response.clicked()
+            && !painting
             && let Some(p) = response.interact_pointer_pos()
         {
-            let rel = (p - rect.min) / rect.size();
-            input.click = Some((f64::from(rel.x), f64::from(rel.y)));
+            input.click = Some(rel(p));
         }
         input
     }

@@ -530,6 +530,267 @@ fn pack_eval_prints_rgb_per_row() {
     );
 }
 
+/// `meso pack eval --json` at `uv` for one direction pair: (values, per-basis
+/// contributions) of the nearest texel.
+fn eval_parts(pack: &str, uv: &str) -> (Vec<f64>, Vec<Vec<f64>>) {
+    let row = "0.3,0.1,0.9,-0.2,0.1,0.95\n";
+    let o = meso(&["pack", "eval", pack, "--texel", uv, "--json"], row);
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    let nums = |x: &serde_json::Value| -> Vec<f64> {
+        x.as_array()
+            .expect("array")
+            .iter()
+            .map(|n| n.as_f64().expect("number"))
+            .collect()
+    };
+    let values = nums(&v["values"][0]);
+    let bases: Vec<Vec<f64>> = v["contributions"][0]["bases"]
+        .as_array()
+        .expect("bases")
+        .iter()
+        .map(nums)
+        .collect();
+    // The parts add up to the value (no residual in this pack).
+    for k in 0..3 {
+        let sum: f64 = bases.iter().map(|b| b[k]).sum();
+        assert!((sum - values[k]).abs() < 1e-12, "{sum} vs {}", values[k]);
+    }
+    (values, bases)
+}
+
+#[test]
+fn pack_edit_scales_mutes_adds_and_removes_through_the_core_edits() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("small.spmm");
+    write_small_pack(&path);
+    let p = path.to_str().expect("utf-8");
+    let out = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_string();
+    let original = std::fs::read(&path).expect("read");
+
+    // A unit scale writes the same bytes.
+    let same = out("same.spmm");
+    assert_ok(&meso(
+        &[
+            "pack",
+            "edit",
+            p,
+            "-o",
+            &same,
+            "--cluster",
+            "0",
+            "--basis",
+            "1",
+            "--scale",
+            "1,1,1",
+        ],
+        "",
+    ));
+    assert_eq!(std::fs::read(&same).expect("read"), original);
+
+    // Scaling basis 1 of cluster 0 by 2 doubles its contribution at texel 0 (u 0.25,
+    // v 0.75: cluster 0, bases 0 and 1) and leaves basis 0's as it was.
+    let doubled = out("doubled.spmm");
+    let o = meso(
+        &[
+            "pack",
+            "edit",
+            p,
+            "-o",
+            &doubled,
+            "--cluster",
+            "0",
+            "--basis",
+            "1",
+            "--scale",
+            "2",
+            "--json",
+        ],
+        "",
+    );
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    assert_eq!(
+        v["changed_texels"], 2,
+        "the two texels of cluster 0 weigh basis 1"
+    );
+    let (_, before) = eval_parts(p, "0.25,0.75");
+    let (_, after) = eval_parts(&doubled, "0.25,0.75");
+    assert_eq!(after[0], before[0]);
+    for k in 0..3 {
+        assert!((after[1][k] - 2.0 * before[1][k]).abs() < 1e-12 && before[1][k] > 0.0);
+    }
+    // Scales read their --cluster and --basis in order: basis 1 of cluster 0 doubled,
+    // then the whole of cluster 1 (texel (1, 0), u 0.75, v 0.75) halved.
+    let mixed = out("mixed.spmm");
+    assert_ok(&meso(
+        &[
+            "pack",
+            "edit",
+            p,
+            "-o",
+            &mixed,
+            "--cluster",
+            "0",
+            "--basis",
+            "1",
+            "--scale",
+            "2",
+            "--cluster",
+            "1",
+            "--scale",
+            "0.5",
+        ],
+        "",
+    ));
+    assert_eq!(eval_parts(&mixed, "0.25,0.75").1, after);
+    let (v0, _) = eval_parts(p, "0.75,0.75");
+    let (v1, _) = eval_parts(&mixed, "0.75,0.75");
+    for k in 0..3 {
+        assert!((v1[k] - 0.5 * v0[k]).abs() < 1e-12);
+    }
+    // ... and 0.5 brings it back.
+    let back = out("back.spmm");
+    assert_ok(&meso(
+        &[
+            "pack",
+            "edit",
+            &doubled,
+            "-o",
+            &back,
+            "--cluster",
+            "0",
+            "--basis",
+            "1",
+            "--scale",
+            "0.5",
+        ],
+        "",
+    ));
+    assert_eq!(eval_parts(&back, "0.25,0.75").1, before);
+
+    // Mute bakes: basis 1 loses its weights, basis 0 keeps them.
+    let muted = out("muted.spmm");
+    assert_ok(&meso(
+        &["pack", "edit", p, "-o", &muted, "--mute", "0:1"],
+        "",
+    ));
+    let (_, m) = eval_parts(&muted, "0.25,0.75");
+    assert_eq!(m[0], before[0]);
+    assert_eq!(m[1], vec![0.0; 3]);
+
+    // Add a Lambertian basis to cluster 1 weighted only where the mask is white
+    // (texel (1, 0)), then remove it again.
+    let mask = dir.path().join("mask.png");
+    image::GrayImage::from_raw(2, 2, vec![0, 255, 0, 0])
+        .expect("2x2")
+        .save(&mask)
+        .expect("write mask");
+    let added = out("added.spmm");
+    let o = meso(
+        &[
+            "pack",
+            "edit",
+            p,
+            "-o",
+            &added,
+            "--add-basis",
+            "1",
+            "--model",
+            "lambertian",
+            "--normal",
+            "0.2,-1",
+            "--add-weight",
+            "0.1,0.2,0.3",
+            "--texels",
+            mask.to_str().expect("utf-8"),
+            "--json",
+        ],
+        "",
+    );
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    assert_eq!(v["added_basis"]["basis"], 1);
+    assert_eq!(v["changed_texels"], 1);
+    assert_eq!(
+        meso(&["pack", "validate", &added], "").status.code(),
+        Some(0)
+    );
+    let (_, at_painted) = eval_parts(&added, "0.75,0.75");
+    assert!(at_painted[1].iter().all(|&x| x > 0.0), "{at_painted:?}");
+    let (_, elsewhere) = eval_parts(&added, "0.25,0.25");
+    assert_eq!(
+        elsewhere[1],
+        vec![0.0; 3],
+        "cluster 1's other texel is unpainted"
+    );
+    let removed = out("removed.spmm");
+    assert_ok(&meso(
+        &[
+            "pack",
+            "edit",
+            &added,
+            "-o",
+            &removed,
+            "--remove-basis",
+            "1:1",
+        ],
+        "",
+    ));
+    assert_eq!(
+        eval_parts(&removed, "0.75,0.75"),
+        eval_parts(p, "0.75,0.75")
+    );
+
+    // Bad indices and values exit 2 naming the option; nothing is written.
+    let never = out("never.spmm");
+    let bad = |args: &[&str], needles: &[&str]| {
+        let mut all = vec!["pack", "edit", p, "-o", never.as_str()];
+        all.extend_from_slice(args);
+        assert_bad_input(&meso(&all, ""), needles);
+        assert!(!Path::new(&never).exists());
+    };
+    bad(
+        &["--cluster", "0", "--basis", "7", "--scale", "2"],
+        &["--basis 7", "basis 7 of cluster 0"],
+    );
+    bad(
+        &["--cluster", "3", "--scale", "2"],
+        &["--cluster 3", "cluster 3"],
+    );
+    bad(
+        &["--cluster", "0", "--scale", "-1"],
+        &["--cluster 0", "non-negative"],
+    );
+    bad(
+        &["--cluster", "0", "--scale", "1,x,1"],
+        &["--scale #1", "1,x,1"],
+    );
+    bad(&["--scale", "2"], &["--scale #1", "no --cluster before it"]);
+    bad(
+        &["--cluster", "0", "--scale", "2", "--basis", "1"],
+        &["give --scale after them"],
+    );
+    bad(
+        &["--remove-basis", "1:4"],
+        &["--remove-basis 1:4", "basis 4 of cluster 1"],
+    );
+    bad(
+        &["--remove-basis", "1:0"],
+        &["--remove-basis 1:0", "only basis"],
+    );
+    bad(&["--mute", "0:9"], &["--mute 0:9"]);
+    bad(&["--add-basis", "0", "--model", "nope"], &["--model"]);
+    bad(
+        &["--add-basis", "0", "--model", "ward", "--param", "ax"],
+        &["--param #1", "ax"],
+    );
+    bad(
+        &["--cluster", "0", "--scale", "2", "--texels", p],
+        &["--texels"],
+    );
+}
+
 #[test]
 fn render_writes_an_image_and_reports_json() {
     let dir = tempfile::tempdir().expect("temp dir");
@@ -638,8 +899,8 @@ fn report_convergence_writes_csv_json_charts_and_the_reference() {
         .collect();
     assert_eq!(
         variants,
-        ["full", "no_ao"],
-        "the default scene has AO and no residual"
+        ["full", "full_denoised", "independent", "no_ao"],
+        "the default scene has AO and no residual; the denoiser's and the independent sampler's rows come with every scene"
     );
     let csv = std::fs::read_to_string(out.join("convergence.csv")).expect("csv");
     let rows: Vec<&str> = csv.lines().collect();
@@ -647,7 +908,11 @@ fn report_convergence_writes_csv_json_charts_and_the_reference() {
         rows[0],
         "variant,reference,frames,seconds,rmse,psnr_db,mssim"
     );
-    assert_eq!(rows.len(), 1 + 2 * 4, "frames 1, 2, 4, 8 for two variants");
+    assert_eq!(
+        rows.len(),
+        1 + 4 * 4,
+        "frames 1, 2, 4, 8 for the four variants (the denoiser's rows too)"
+    );
     for name in [
         "convergence_rmse.svg",
         "convergence_mssim.svg",
@@ -1111,8 +1376,19 @@ fn render_modes_devices_and_unsupported_scenes_exit_2_naming_why() {
     };
     // Modes and devices not built yet say so; unknown names are usage errors.
     assert_bad_input(
-        &render(&["--mode", "biscale"]),
-        &["biscale", "not built yet"],
+        &render(&["--mode", "adaptive"]),
+        &["adaptive", "not built yet"],
+    );
+    // The biscale mode names what it cannot render: lights, AO, no environment.
+    let default = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/default.toml");
+    assert_bad_input(
+        &meso(&["render", default, "-o", out_arg, "--mode", "biscale"], ""),
+        &[
+            "biscale",
+            "light[0] (area)",
+            "[ambient]",
+            "without [environment]",
+        ],
     );
     assert_bad_input(
         &render(&["--device", "gpu"]),
@@ -1289,4 +1565,492 @@ fn bench_rays_reports_both_kinds_on_the_spec_rays() {
         &["--size"],
     );
     assert_bad_input(&meso(&["bench", "rays", "/no/such.obj"], ""), &["such.obj"]);
+}
+
+/// A regression manifest in `dir` over the repository's default scene: its own
+/// material and the shipped woven wool substituted, `extra` appended.
+fn regress_manifest(dir: &Path, size: u32, frames: u32, extra: &str) -> std::path::PathBuf {
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let text = format!(
+        "version = 1\ngoldens = \"goldens\"\n\n[defaults]\nwidth = {size}\nheight = {size}\nframes = {frames}\nmax_relative_rmse = 0.001\n\n[scenes.default]\npath = \"{}\"\nreplace = \"leather\"\n\n[materials.wool]\nkind = \"spmm\"\npack = \"{}\"\n\n[[matrix]]\nscenes = [\"default\"]\nmaterials = [\"scene\", \"wool\"]\nmodes = [\"spmm\"]\n{extra}",
+        repo.join("tests/scenes/default.toml").display(),
+        repo.join("materials/woven_wool.spmm").display(),
+    );
+    let path = dir.join("manifest.toml");
+    std::fs::write(&path, text).expect("manifest");
+    path
+}
+
+#[test]
+fn regress_exit_codes_json_update_log_and_junit() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let m = regress_manifest(dir.path(), 24, 2, "");
+    let ms = m.to_str().expect("utf-8 path");
+    // No goldens yet: exit 1, each case says how to create its golden.
+    let o = meso(&["regress", ms], "");
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.starts_with("error: 2 of 2 cases failed: "), "{err}");
+    assert!(stdout(&o).contains("--update --reason"), "{}", stdout(&o));
+    // --update needs a reason, and a reason needs --update.
+    assert_bad_input(&meso(&["regress", ms, "--update"], ""), &["--reason"]);
+    assert_bad_input(&meso(&["regress", ms, "--reason", "x"], ""), &["--update"]);
+    let o = meso(
+        &["regress", ms, "--update", "--reason", "first goldens"],
+        "",
+    );
+    assert_ok(&o);
+    let log = std::fs::read_to_string(dir.path().join("goldens/LOG.md")).expect("log");
+    assert!(log.contains("- reason: first goldens"), "{log}");
+    assert!(log.contains("--update --reason 'first goldens'"), "{log}");
+    assert!(
+        log.contains("cases: `default.scene.spmm-cpu` `default.wool.spmm-cpu`"),
+        "{log}"
+    );
+    assert!(
+        log.contains(&format!("- meso: {}", env!("CARGO_PKG_VERSION"))),
+        "{log}"
+    );
+    for case in ["default.scene.spmm-cpu", "default.wool.spmm-cpu"] {
+        assert!(dir.path().join(format!("goldens/{case}.exr")).is_file());
+    }
+    // All pass: exit 0, one JSON object, a report folder and a JUnit file.
+    let report = dir.path().join("report");
+    let junit = dir.path().join("junit.xml");
+    let o = meso(
+        &[
+            "regress",
+            ms,
+            "--json",
+            "--jobs",
+            "2",
+            "-o",
+            report.to_str().expect("utf-8"),
+            "--junit",
+            junit.to_str().expect("utf-8"),
+        ],
+        "",
+    );
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON object");
+    assert_eq!(
+        (v["total"].as_u64(), v["passed"].as_u64()),
+        (Some(2), Some(2)),
+        "{v}"
+    );
+    assert_eq!(
+        v["cases"][0]["metrics"]["identical"],
+        serde_json::json!(true)
+    );
+    for f in ["index.html", "summary.md", "report.json"] {
+        assert!(report.join(f).is_file(), "{f}");
+    }
+    let x = std::fs::read_to_string(&junit).expect("junit");
+    assert!(x.contains("tests=\"2\" failures=\"0\""), "{x}");
+    // Another seed changes every render: exit 1 naming both cases; the JUnit file
+    // says so too.
+    let m = regress_manifest(dir.path(), 24, 2, "seed = 9\n");
+    let ms = m.to_str().expect("utf-8 path");
+    let o = meso(
+        &["regress", ms, "--junit", junit.to_str().expect("utf-8")],
+        "",
+    );
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("default.scene.spmm-cpu") && err.contains("default.wool.spmm-cpu"),
+        "{err}"
+    );
+    let x = std::fs::read_to_string(&junit).expect("junit");
+    assert!(x.contains("tests=\"2\" failures=\"2\""), "{x}");
+    // Shards: every case in one of the two; merged, one report and one JUnit file
+    // with both failures, and exit 1.
+    let mut total = 0;
+    let mut dirs = Vec::new();
+    for (i, k) in ["1/2", "2/2"].into_iter().enumerate() {
+        let d = dir.path().join(format!("shard{i}"));
+        let o = meso(
+            &[
+                "regress",
+                ms,
+                "--shard",
+                k,
+                "--json",
+                "-o",
+                d.to_str().expect("utf-8"),
+            ],
+            "",
+        );
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON");
+        total += v["total"].as_u64().expect("total");
+        dirs.push(d.to_str().expect("utf-8").to_string());
+    }
+    assert_eq!(total, 2);
+    let merged = dir.path().join("merged");
+    let merged_junit = dir.path().join("merged.xml");
+    let o = meso(
+        &[
+            "regress",
+            "merge",
+            &dirs[0],
+            &dirs[1],
+            "-o",
+            merged.to_str().expect("utf-8"),
+            "--junit",
+            merged_junit.to_str().expect("utf-8"),
+        ],
+        "",
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(merged.join("index.html").is_file());
+    let x = std::fs::read_to_string(&merged_junit).expect("merged junit");
+    assert!(x.contains("tests=\"2\" failures=\"2\""), "{x}");
+    assert_bad_input(
+        &meso(
+            &[
+                "regress",
+                "merge",
+                &dirs[0],
+                "-o",
+                merged.to_str().expect("utf-8"),
+            ],
+            "",
+        ),
+        &["shard(s) 2/2 missing"],
+    );
+}
+
+#[test]
+fn regress_bad_input_exits_2_naming_the_place() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let m = regress_manifest(dir.path(), 24, 2, "colour = 3\n");
+    let ms = m.to_str().expect("utf-8 path");
+    assert_bad_input(
+        &meso(&["regress", ms], ""),
+        &["manifest.toml` line 22", "colour"],
+    );
+    let m = regress_manifest(
+        dir.path(),
+        24,
+        2,
+        "\n[materials.velvet]\nkind = \"btf\"\npath = \"velvet.btf\"\n\n[[case]]\nscene = \"default\"\nmaterial = \"velvet\"\nmode = \"spmm\"\n",
+    );
+    let ms = m.to_str().expect("utf-8 path");
+    assert_bad_input(
+        &meso(&["regress", ms], ""),
+        &[
+            "case `default.velvet.spmm-cpu`",
+            "materials.velvet.kind",
+            "BTF materials cannot be substituted yet",
+        ],
+    );
+    let m = regress_manifest(dir.path(), 24, 2, "");
+    let ms = m.to_str().expect("utf-8 path");
+    assert_bad_input(
+        &meso(&["regress", ms, "--only", "nothing*"], ""),
+        &["matches no case"],
+    );
+    assert_bad_input(
+        &meso(&["regress", ms, "--shard", "3/2"], ""),
+        &["--shard", "K/N"],
+    );
+    assert_bad_input(&meso(&["regress", ms, "--jobs", "0"], ""), &["--jobs"]);
+    assert_bad_input(
+        &meso(&["regress", "/no/such.toml"], ""),
+        &["/no/such.toml", "cannot read"],
+    );
+    // A replaced material the scene does not have names the manifest line and the case.
+    let text = std::fs::read_to_string(&m)
+        .expect("text")
+        .replace("replace = \"leather\"", "replace = \"suede\"");
+    std::fs::write(&m, text).expect("edit");
+    assert_bad_input(
+        &meso(&["regress", ms], ""),
+        &[
+            "case `default.wool.spmm-cpu`",
+            "line 12",
+            "no material `suede`",
+            "leather",
+        ],
+    );
+    // merge: not a report folder.
+    assert_bad_input(
+        &meso(
+            &[
+                "regress",
+                "merge",
+                dir.path().to_str().expect("utf-8"),
+                "-o",
+                "x",
+            ],
+            "",
+        ),
+        &["report.json"],
+    );
+}
+
+/// `--update` renders every case before it writes: killed while rendering, every old
+/// golden and the log stay as they were.
+#[test]
+fn regress_update_killed_midway_keeps_the_old_goldens() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let m = regress_manifest(dir.path(), 16, 1, "");
+    let ms = m.to_str().expect("utf-8 path");
+    assert_ok(&meso(&["regress", ms, "--update", "--reason", "old"], ""));
+    let goldens = dir.path().join("goldens");
+    let snapshot = || -> Vec<(std::ffi::OsString, Vec<u8>)> {
+        let mut files: Vec<_> = std::fs::read_dir(&goldens)
+            .expect("goldens")
+            .map(|e| {
+                let e = e.expect("entry");
+                (e.file_name(), std::fs::read(e.path()).expect("readable"))
+            })
+            .collect();
+        files.sort();
+        files
+    };
+    let before = snapshot();
+    assert_eq!(before.len(), 3, "two goldens and the log");
+    // Larger and longer on another seed, on one thread: seconds of rendering on any
+    // machine to kill into.
+    regress_manifest(dir.path(), 256, 64, "seed = 3\n");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_meso"))
+        .args([
+            "regress",
+            ms,
+            "--update",
+            "--reason",
+            "new",
+            "--threads",
+            "1",
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("meso starts");
+    std::thread::sleep(std::time::Duration::from_millis(700));
+    let still_running = child.try_wait().expect("wait").is_none();
+    child.kill().expect("kill");
+    let status = child.wait().expect("reaped");
+    assert!(
+        still_running && !status.success(),
+        "the update finished before it could be killed ({status}); the test needs a longer render"
+    );
+    assert_eq!(
+        snapshot(),
+        before,
+        "goldens or log changed by a killed update"
+    );
+}
+
+#[test]
+fn render_denoises_only_when_asked() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/default.toml");
+    let render = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let out_arg = out.to_str().expect("utf-8").to_owned();
+        let mut args = vec![
+            "render", scene, "-o", &out_arg, "--width", "32", "--height", "32", "--frames", "1",
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        let o = meso(&args, "");
+        assert_eq!(
+            o.status.code(),
+            Some(0),
+            "{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+        (
+            meso_core::image::read_image(&out).expect("written"),
+            v["denoised"].clone(),
+        )
+    };
+    let (plain, flag) = render("a.exr", &[]);
+    let (again, _) = render("b.exr", &[]);
+    let (filtered, flag_on) = render("c.exr", &["--denoise"]);
+    assert_eq!(
+        (flag, flag_on),
+        (serde_json::json!(false), serde_json::json!(true))
+    );
+    // Without the flag the image is the estimate, bit for bit.
+    assert_eq!(plain, again);
+    // With it, the one-sample noise is smoothed: less variation between neighbours.
+    let variation = |img: &meso_core::image::Image| -> f64 {
+        (1..32u32)
+            .flat_map(|y| (1..32u32).map(move |x| (x, y)))
+            .map(|(x, y)| f64::from((img.get(x, y)[1] - img.get(x - 1, y)[1]).abs()))
+            .sum()
+    };
+    assert!(
+        variation(&filtered) < 0.8 * variation(&plain),
+        "{} vs {}",
+        variation(&filtered),
+        variation(&plain)
+    );
+}
+
+#[test]
+fn bench_stroke_times_each_step_and_restarts_fewer_pixels_than_the_material() {
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/default.toml");
+    let o = meso(
+        &[
+            "bench",
+            "stroke",
+            scene,
+            "--size",
+            "48",
+            "--strokes",
+            "3",
+            "--warm-frames",
+            "1",
+            "--json",
+        ],
+        "",
+    );
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    let parts: Vec<&str> = v["ms"]
+        .as_array()
+        .expect("parts")
+        .iter()
+        .map(|p| p["part"].as_str().expect("name"))
+        .collect();
+    assert_eq!(
+        parts,
+        [
+            "dab",
+            "pack edit",
+            "apply",
+            "frame + image",
+            "stroke to frame"
+        ]
+    );
+    for p in v["ms"].as_array().expect("parts") {
+        let (med, max) = (
+            p["median"].as_f64().expect("ms"),
+            p["max"].as_f64().expect("ms"),
+        );
+        assert!(med >= 0.0 && max >= med, "{p}");
+    }
+    let restarted = v["restarted_pixels_median"].as_u64().expect("count");
+    let material = v["pixels_of_material"].as_u64().expect("count");
+    assert!(
+        restarted > 0 && restarted < material,
+        "{restarted} of {material}"
+    );
+    assert_bad_input(
+        &meso(&["bench", "stroke", scene, "--size", "8"], ""),
+        &["--size"],
+    );
+}
+
+#[test]
+fn precompute_biscale_reports_json_and_writes_a_cache() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+    // A floor and a wall beside it (occlusion) under the studio map: 8 vertices.
+    let scene = dir.path().join("plane.toml");
+    std::fs::write(
+        &scene,
+        format!(
+            r#"version = 1
+[render]
+width = 16
+height = 16
+[camera]
+position = [0.0, 2.0, 3.0]
+look_at = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov_y_deg = 40.0
+[materials.white]
+kind = "brdf"
+model = "lambertian"
+albedo = [0.6, 0.6, 0.6]
+[[quad]]
+corner = [-1.0, 0.0, 1.0]
+edge_u = [2.0, 0.0, 0.0]
+edge_v = [0.0, 0.0, -2.0]
+material = "white"
+[[quad]]
+corner = [0.0, 0.0, 1.0]
+edge_u = [0.0, 0.0, -2.0]
+edge_v = [0.0, 1.0, 0.0]
+material = "white"
+[environment]
+path = "{root}/materials/env/env_studio.exr"
+strength = 1.0
+"#
+        ),
+    )
+    .expect("write scene");
+    let cache = dir.path().join("plane.biscale");
+    let scene_arg = scene.to_str().expect("utf-8");
+    let cache_arg = cache.to_str().expect("utf-8");
+    let o = meso(
+        &[
+            "precompute",
+            scene_arg,
+            "--mode",
+            "biscale",
+            "-o",
+            cache_arg,
+            "--cube-n",
+            "8",
+            "--json",
+        ],
+        "",
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("one JSON object");
+    for key in [
+        "seconds",
+        "vertices",
+        "local_dirs",
+        "env_pixels",
+        "dense_nonzeros",
+        "biclusters",
+        "flop_ratio",
+        "bytes_dense",
+        "bytes_biclustered",
+        "bytes_cpca",
+        "bytes_sh",
+        "max_abs_error",
+    ] {
+        assert!(v.get(key).is_some(), "missing `{key}` in {v}");
+    }
+    assert_eq!(v["vertices"], 8);
+    assert_eq!(v["local_dirs"], 64);
+    assert_eq!(v["env_pixels"], 6 * 8 * 8);
+    assert!(v["flop_ratio"].as_f64().expect("number") <= 1.0);
+    assert!(v["max_rel_error"].as_f64().expect("number") < 1e-6);
+    assert!(cache.exists(), "the cache was written");
+    // Bad input: another mode, a scene without an environment.
+    assert_bad_input(
+        &meso(&["precompute", scene_arg, "--mode", "spmm"], ""),
+        &["spmm", "only the biscale mode"],
+    );
+    let default = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/default.toml");
+    assert_bad_input(
+        &meso(&["precompute", default, "--mode", "biscale"], ""),
+        &["biscale", "without [environment]"],
+    );
 }

@@ -3,6 +3,8 @@
 //! as render modes arrive, image regressions against golden references.
 
 #[cfg(test)]
+mod biscale;
+#[cfg(test)]
 mod brdf_reference;
 #[cfg(test)]
 mod fuzz;
@@ -10,6 +12,8 @@ mod fuzz;
 mod golden;
 #[cfg(test)]
 mod metrics_reference;
+#[cfg(test)]
+mod regress;
 #[cfg(test)]
 mod scenes;
 #[cfg(test)]

@@ -6,6 +6,7 @@
 pub mod convergence;
 
 use crate::adaptive::AdaptiveMode;
+use crate::biscale::BiscaleMode;
 use crate::render::{Device, ModeError, ModeKind, Prepare, RenderMode};
 use crate::scene::Scene;
 use crate::trace::SpmmMode;
@@ -14,7 +15,9 @@ use crate::trace::SpmmMode;
 pub fn is_built(kind: ModeKind, device: Device) -> bool {
     matches!(
         (kind, device),
-        (ModeKind::Spmm, Device::Cpu) | (ModeKind::Adaptive, Device::Cpu)
+        (ModeKind::Spmm, Device::Cpu)
+            | (ModeKind::Biscale, Device::Cpu)
+            | (ModeKind::Adaptive, Device::Cpu)
     )
 }
 
@@ -23,6 +26,7 @@ pub fn is_built(kind: ModeKind, device: Device) -> bool {
 pub fn supports(kind: ModeKind, device: Device, scene: &Scene) -> Result<(), ModeError> {
     match (kind, device) {
         (ModeKind::Spmm, Device::Cpu) => Ok(SpmmMode::supports(scene)?),
+        (ModeKind::Biscale, Device::Cpu) => Ok(BiscaleMode::supports(scene)?),
         (ModeKind::Adaptive, Device::Cpu) => Ok(AdaptiveMode::supports(scene)?),
         _ => Err(ModeError::NotBuilt { mode: kind, device }),
     }
@@ -41,6 +45,9 @@ pub fn create(
     match (kind, device) {
         (ModeKind::Spmm, Device::Cpu) => {
             Ok(Box::new(SpmmMode::prepare(scene, width, height, prepare)?))
+        }
+        (ModeKind::Biscale, Device::Cpu) => {
+            Ok(Box::new(BiscaleMode::new(scene, width, height, prepare)?))
         }
         (ModeKind::Adaptive, Device::Cpu) => Ok(Box::new(AdaptiveMode::prepare(
             scene, width, height, prepare,
@@ -61,8 +68,8 @@ mod tests {
     fn modes_not_built_say_so() {
         let scene = edit_test_scene();
         for (kind, device) in [
-            (ModeKind::Biscale, Device::Cpu),
             (ModeKind::Adaptive, Device::Gpu),
+            (ModeKind::Biscale, Device::Gpu),
             (ModeKind::Spmm, Device::Gpu),
         ] {
             let err = create(kind, device, scene.clone(), 8, 8, Prepare::quietly())

@@ -21,8 +21,23 @@ pub struct Film {
     /// Per pixel, the materials its samples shaded (bit `m % 64`): a material edit
     /// restarts only these pixels.
     touched: Vec<u64>,
+    /// Per pixel, the texture coordinates its samples shaded, as a box (u min, v min,
+    /// u max, v max; empty while u min > u max): an edit of a few texels restarts only
+    /// the pixels whose box reaches one of them.
+    reached: Vec<UvBox>,
     dropped: u64,
 }
+
+/// A box of texture coordinates (before tiling): u min, v min, u max, v max.
+pub type UvBox = [f32; 4];
+
+/// The box that holds nothing.
+pub const EMPTY_UV_BOX: UvBox = [
+    f32::INFINITY,
+    f32::INFINITY,
+    f32::NEG_INFINITY,
+    f32::NEG_INFINITY,
+];
 
 /// One row of the film, handed to a worker thread.
 pub struct FilmRow<'a> {
@@ -31,6 +46,7 @@ pub struct FilmRow<'a> {
     sum: &'a mut [[f64; 3]],
     count: &'a mut [u32],
     touched: &'a mut [u64],
+    reached: &'a mut [UvBox],
     dropped: u64,
 }
 
@@ -56,6 +72,33 @@ impl FilmRow<'_> {
     #[inline]
     pub fn touch(&mut self, x: u32, mask: u64) {
         self.touched[x as usize] |= mask;
+    }
+
+    /// Records that one of the pixel's samples shaded texture coordinates `uv`.
+    #[inline]
+    pub fn reach(&mut self, x: u32, uv: glam::DVec2) {
+        extend_uv_box(&mut self.reached[x as usize], uv);
+    }
+
+    /// Records that the pixel's samples shaded the texture coordinates in box `b`.
+    #[inline]
+    pub fn reach_box(&mut self, x: u32, b: &UvBox) {
+        let r = &mut self.reached[x as usize];
+        *r = [
+            r[0].min(b[0]),
+            r[1].min(b[1]),
+            r[2].max(b[2]),
+            r[3].max(b[3]),
+        ];
+    }
+}
+
+/// Grows `b` to hold `uv` (a non-finite uv is left out: it shades nothing).
+#[inline]
+pub fn extend_uv_box(b: &mut UvBox, uv: glam::DVec2) {
+    if uv.is_finite() {
+        let (u, v) = (uv.x as f32, uv.y as f32);
+        *b = [b[0].min(u), b[1].min(v), b[2].max(u), b[3].max(v)];
     }
 }
 
@@ -140,6 +183,7 @@ impl Film {
             sum: vec![[0.0; 3]; n * layers],
             count: vec![0; n * layers],
             touched: vec![0; n],
+            reached: vec![EMPTY_UV_BOX; n],
             dropped: 0,
         }
     }
@@ -171,14 +215,16 @@ impl Film {
             .par_chunks_mut(w * l)
             .zip(self.count.par_chunks_mut(w * l))
             .zip(self.touched.par_chunks_mut(w))
+            .zip(self.reached.par_chunks_mut(w))
             .enumerate()
-            .map(|(y, ((sum, count), touched))| {
+            .map(|(y, (((sum, count), touched), reached))| {
                 let mut row = FilmRow {
                     y: y as u32,
                     layers: l,
                     sum,
                     count,
                     touched,
+                    reached,
                     dropped: 0,
                 };
                 let r = f(&mut row);
@@ -217,6 +263,7 @@ impl Film {
         self.sum.iter_mut().for_each(|s| *s = [0.0; 3]);
         self.count.iter_mut().for_each(|c| *c = 0);
         self.touched.iter_mut().for_each(|t| *t = 0);
+        self.reached.iter_mut().for_each(|b| *b = EMPTY_UV_BOX);
     }
 
     /// Forgets one layer's samples (its light moved).
@@ -230,10 +277,18 @@ impl Film {
     /// Forgets every sample of the pixels whose samples shaded a material in `mask`;
     /// returns how many pixels restart.
     pub fn reset_touching(&mut self, mask: u64) -> usize {
+        self.reset_reaching(mask, |_| true)
+    }
+
+    /// Forgets every sample of the pixels whose samples shaded a material in `mask`
+    /// and whose box of shaded texture coordinates passes `reaches` (a conservative
+    /// test against the edited texels); returns how many pixels restart.
+    pub fn reset_reaching(&mut self, mask: u64, reaches: impl Fn(&UvBox) -> bool) -> usize {
         let mut n = 0;
         for (p, t) in self.touched.iter_mut().enumerate() {
-            if *t & mask != 0 {
+            if *t & mask != 0 && reaches(&self.reached[p]) {
                 *t = 0;
+                self.reached[p] = EMPTY_UV_BOX;
                 n += 1;
                 let r = p * self.layers..(p + 1) * self.layers;
                 self.sum[r.clone()].iter_mut().for_each(|s| *s = [0.0; 3]);
@@ -250,17 +305,19 @@ impl Film {
     }
 
     /// The bytes a `width` x `height` film with `layers` layers holds: per pixel and
-    /// layer three f64 sums and a u32 count, per pixel a u64 material mask.
+    /// layer three f64 sums and a u32 count, per pixel a u64 material mask and a box
+    /// of four f32 texture coordinates.
     pub fn bytes_for(width: u32, height: u32, layers: usize) -> u64 {
         let pixels = u64::from(width) * u64::from(height);
-        pixels * (layers as u64 * (3 * 8 + 4) + 8)
+        pixels * (layers as u64 * (3 * 8 + 4) + 8 + 16)
     }
 
     /// The bytes this film's buffers hold.
     pub fn bytes(&self) -> u64 {
         (self.sum.capacity() * std::mem::size_of::<[f64; 3]>()
             + self.count.capacity() * std::mem::size_of::<u32>()
-            + self.touched.capacity() * std::mem::size_of::<u64>()) as u64
+            + self.touched.capacity() * std::mem::size_of::<u64>()
+            + self.reached.capacity() * std::mem::size_of::<UvBox>()) as u64
     }
 
     /// Appends an empty layer (a light was added).
@@ -388,6 +445,34 @@ mod tests {
             [1.0, 0.0, 0.0]
         );
         assert_eq!(f.reset_touching(material_bit(1)), 0, "the mask was cleared");
+    }
+
+    #[test]
+    fn a_texel_edit_restarts_only_the_pixels_whose_uv_box_reaches_it() {
+        let mut f = Film::new(3, 1, 1);
+        f.par_rows(|row| {
+            for x in 0..3 {
+                row.add(x, 0, DVec3::ONE);
+                row.touch(x, material_bit(0));
+                // Pixel x saw u in [x / 3, x / 3 + 0.1]; pixel 2 also a non-finite uv.
+                row.reach(x, glam::DVec2::new(x as f64 / 3.0, 0.5));
+                row.reach(x, glam::DVec2::new(x as f64 / 3.0 + 0.1, 0.5));
+            }
+            row.reach(2, glam::DVec2::new(f64::NAN, 0.5));
+        });
+        // An edit of u in [0.35, 0.4]: only pixel 1's box [1/3, 0.433] reaches it.
+        let n = f.reset_reaching(material_bit(0), |b| b[0] <= 0.4 && b[2] >= 0.35);
+        assert_eq!(n, 1);
+        let img = f.resolve(&[DVec3::ONE]);
+        assert_eq!(
+            [img.get(0, 0)[0], img.get(1, 0)[0], img.get(2, 0)[0]],
+            [1.0, 0.0, 1.0]
+        );
+        assert_eq!(
+            f.reset_reaching(material_bit(0), |b| b[0] > b[2]),
+            0,
+            "boxes stay"
+        );
     }
 
     #[test]

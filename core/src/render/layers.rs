@@ -24,7 +24,7 @@ pub const FIRST_LIGHT: usize = 3;
 pub const MANY_LIGHTS: usize = 16;
 
 /// Lights with a layer of their own in a bounded film. Two keeps a 10,000-light film
-/// within 1.5x the bytes of a one-light film (6 layers against 4: 176 against 120
+/// within 1.5x the bytes of a one-light film (6 layers against 4: 192 against 136
 /// bytes per pixel, `Film::bytes_for`).
 pub const OWN_LIGHT_LAYERS: usize = 2;
 

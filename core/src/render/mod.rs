@@ -5,12 +5,15 @@
 //! statistics. It knows no mode: the registry above the modes makes them by kind
 //! (`modes`). `meso render`, the reports and the studio drive modes through it.
 
+pub mod denoise;
 pub mod edit;
 pub mod film;
 pub mod layers;
+pub mod reach;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
+pub use denoise::{Denoiser, Guides};
 pub use edit::{EditError, Invalidation, SceneEdit};
 pub use film::{Film, FilmTooLarge};
 
@@ -264,6 +267,16 @@ pub trait RenderMode: Send {
     /// The stages of the last preparation (first build, or the last rebuild an edit
     /// caused) and their times.
     fn preparation(&self) -> PreparationReport;
+    /// What each pixel's centre ray first sees, for the viewport denoiser
+    /// (`denoise`); `None` where the mode has no such pass (the image is shown as is).
+    fn guides(&self) -> Option<Guides> {
+        None
+    }
+    /// A mode's own state in one line for status bars (e.g. the biscale mode's
+    /// biclusters and light-change time); `None` where a mode has nothing to add.
+    fn summary(&self) -> Option<String> {
+        None
+    }
     /// Debug images of the mode's own decisions, by name (the adaptive mode's
     /// bandwidth-buffer level and samples per pixel, as colour maps); none by default.
     fn debug_overlays(&self) -> Vec<(&'static str, Image)> {

@@ -44,6 +44,7 @@ pub struct RenderFile {
     pub max_specular_depth: Spanned<u32>,
     pub mode: Option<Spanned<String>>,
     pub device: Option<Spanned<String>>,
+    pub sampler: Option<Spanned<String>>,
 }
 
 fn default_size() -> Spanned<u32> {
@@ -66,6 +67,7 @@ impl Default for RenderFile {
             max_specular_depth: default_depth(),
             mode: None,
             device: None,
+            sampler: None,
         }
     }
 }

@@ -25,6 +25,7 @@ use toml::Spanned;
 use crate::brdf::{AnalyticBrdf, BrdfModel};
 use crate::image::{self, Image};
 use crate::merl::{self, MerlBrdf};
+use crate::rng::Sampler;
 use crate::spmm::SpmmMaterial;
 use crate::spmm::pack;
 pub use environment::Environment;
@@ -39,6 +40,8 @@ pub struct RenderSettings {
     pub max_specular_depth: u32,
     pub mode: ModeKind,
     pub device: Device,
+    /// How samples draw their numbers (`[render] sampler`, default Sobol).
+    pub sampler: Sampler,
 }
 
 /// The scene's extent: every coordinate the tracer receives (placed vertices, quad
@@ -538,6 +541,19 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
             Ok,
         )?,
     };
+    let sampler = match &r.sampler {
+        None => Sampler::default(),
+        Some(s) => Sampler::from_name(s.get_ref()).map_or_else(
+            || {
+                ctx.err(
+                    &s.span(),
+                    "render.sampler",
+                    format!("`{}`: samplers are sobol, independent", s.get_ref()),
+                )
+            },
+            Ok,
+        )?,
+    };
     let render = RenderSettings {
         width: *r.width.get_ref(),
         height: *r.height.get_ref(),
@@ -546,6 +562,7 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
         max_specular_depth: *r.max_specular_depth.get_ref(),
         mode,
         device,
+        sampler,
     };
 
     let c = &f.camera;
@@ -570,7 +587,12 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
     for (name, m) in &f.materials {
         index_of.insert(name.clone(), materials.len());
         material_names.push(name.clone());
-        materials.push(build_material(ctx, name, m, folder)?);
+        materials.push(build_material(
+            ctx,
+            &format!("materials.{name}"),
+            m,
+            folder,
+        )?);
     }
     let material_ref = |s: &Spanned<String>, key: &str| -> Result<usize, SceneError> {
         match index_of.get(s.get_ref()) {
@@ -814,15 +836,52 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
     })
 }
 
+/// A material table as scene files write it (`kind = "spmm"`, `pack = ...`), read
+/// from another TOML file: regression manifests name their material substitutions in
+/// this form, so every kind the scene loader knows is known there too.
+#[derive(Debug, serde::Deserialize)]
+#[serde(transparent)]
+pub struct MaterialTable(Spanned<file::MaterialFile>);
+
+impl MaterialTable {
+    /// The `kind` as written.
+    pub fn kind(&self) -> &str {
+        self.0.get_ref().kind.get_ref()
+    }
+    /// True if the table sets `uv_scale` (an `spmm` substitution without it keeps the
+    /// tiling of the material it replaces).
+    pub fn sets_uv_scale(&self) -> bool {
+        self.0.get_ref().uv_scale.is_some()
+    }
+    /// Byte range of the table in the file it was read from.
+    pub fn span(&self) -> Range<usize> {
+        self.0.span()
+    }
+}
+
+/// Builds the material of `table`, read from `file` (whose text is `text`, for line
+/// numbers) under the key `table_key`; paths in it are relative to `folder`. Errors
+/// name `file`, the line and `table_key.field`, as scene errors do.
+pub fn material_from_table(
+    file: &Path,
+    text: &str,
+    table_key: &str,
+    table: &MaterialTable,
+    folder: &Path,
+) -> Result<Material, SceneError> {
+    build_material(&Ctx { file, text }, table_key, &table.0, folder)
+}
+
+/// `table`: the key of the material's table (`materials.cloth`), for errors.
 fn build_material(
     ctx: &Ctx,
-    name: &str,
+    table: &str,
     m: &Spanned<file::MaterialFile>,
     folder: &Path,
 ) -> Result<Material, SceneError> {
     let span = m.span();
     let m = m.get_ref();
-    let key = |k: &str| format!("materials.{name}.{k}");
+    let key = |k: &str| format!("{table}.{k}");
     // Keys given, and the keys each kind accepts: one list, so a new key cannot be
     // forgotten in one kind's check.
     let given = [

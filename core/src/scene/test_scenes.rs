@@ -23,6 +23,7 @@ pub(crate) fn edit_test_scene() -> Scene {
             max_specular_depth: 2,
             mode: crate::scene::ModeKind::Spmm,
             device: crate::scene::Device::Cpu,
+            sampler: crate::rng::Sampler::Sobol,
         },
         camera: Camera {
             position: DVec3::new(0.0, 1.2, 2.0),
@@ -112,6 +113,7 @@ pub(crate) fn floor_scene(material: Material, wall: bool) -> Scene {
             max_specular_depth: 2,
             mode: crate::scene::ModeKind::Spmm,
             device: crate::scene::Device::Cpu,
+            sampler: crate::rng::Sampler::Sobol,
         },
         camera: Camera {
             position: look + DVec3::new(0.0, 1.0, 0.0),

@@ -134,6 +134,7 @@ fn the_spec_example_loads_with_its_values() {
             max_specular_depth: 2,
             mode: crate::scene::ModeKind::Spmm,
             device: crate::scene::Device::Cpu,
+            sampler: crate::rng::Sampler::Sobol,
         }
     );
     assert_eq!(s.camera.fov_y_deg, 35.0);
@@ -522,4 +523,25 @@ fn bad_input_names_file_line_and_key() {
         }
         assert!(!err.contains('\n'), "case {i}: one line: {err}");
     }
+}
+
+#[test]
+fn the_sampler_is_read_and_a_wrong_one_is_named() {
+    let dir = setup();
+    let scene = |sampler: &str| {
+        EXAMPLE.replacen(
+            "[render]\n",
+            &format!("[render]\nsampler = \"{sampler}\"\n"),
+            1,
+        )
+    };
+    let s = load_scene(&write(dir.path(), &scene("independent"))).expect("valid scene");
+    assert_eq!(s.render.sampler, crate::rng::Sampler::Independent);
+    let e = load_scene(&write(dir.path(), &scene("halton")))
+        .expect_err("unknown sampler")
+        .to_string();
+    assert!(
+        e.contains("render.sampler") && e.contains("`halton`") && e.contains("sobol, independent"),
+        "{e}"
+    );
 }

@@ -52,17 +52,34 @@ impl SpmmMaterial {
         residual: bool,
         max_npca: usize,
     ) -> DVec3 {
+        self.eval_texel_in(self.view(), t, wi, wo, residual, max_npca)
+    }
+
+    /// `eval_texel` as `view` shows the material (the default view: as stored).
+    pub(super) fn eval_texel_in(
+        &self,
+        view: &super::BasisView,
+        t: usize,
+        wi: DVec3,
+        wo: DVec3,
+        residual: bool,
+        max_npca: usize,
+    ) -> DVec3 {
         if wi.z <= 0.0 || wo.z <= 0.0 {
             return DVec3::ZERO;
         }
         let c = self.texel_cluster()[t] as usize;
         let bases = &self.clusters()[c].bases;
+        let all_shown = view.is_empty();
         let mut rgb = DVec3::ZERO;
         for (j, w) in self.texel_weights(t) {
-            rgb += DVec3::new(w[0] as f64, w[1] as f64, w[2] as f64)
-                * bases[usize::from(j)].eval(wi, wo);
+            if all_shown || view.shows(c, usize::from(j)) {
+                rgb += DVec3::new(w[0] as f64, w[1] as f64, w[2] as f64)
+                    * bases[usize::from(j)].eval(wi, wo);
+            }
         }
         if residual
+            && (all_shown || view.shows_residual(c))
             && let (Some(r), Some((lights, views))) = (self.residual(), self.residual_tables())
         {
             let (nl, nv, npca) = (r.light_dirs.len(), r.view_dirs.len(), r.npca);
@@ -94,6 +111,12 @@ impl SpmmMaterial {
         TexelGrid::of(self).nearest(uv, scale)
     }
 
+    /// Continuous texel coordinates of a UV position after tiling (x right, y down,
+    /// texel centres at +0.5), as nearest filtering reads them: where a brush lands.
+    pub fn texel_position(&self, uv: DVec2, scale: DVec2) -> DVec2 {
+        TexelGrid::of(self).position(uv, scale)
+    }
+
     /// BTF at a surface UV position, with the settings' filter, tiling and residual knobs.
     pub fn eval_uv(&self, uv: DVec2, wi: DVec3, wo: DVec3, s: &EvalSettings) -> DVec3 {
         TexelGrid::of(self).filter(uv, s, |t| {
@@ -119,7 +142,7 @@ impl TexelGrid {
 
     /// Texel coordinates (continuous, texel centres at +0.5) after tiling: u to the
     /// right, v up (row 0 is the top), wrapping outside [0, 1).
-    fn position(&self, uv: DVec2, scale: DVec2) -> DVec2 {
+    pub fn position(&self, uv: DVec2, scale: DVec2) -> DVec2 {
         let u = (uv.x * scale.x).rem_euclid(1.0);
         let v = (uv.y * scale.y).rem_euclid(1.0);
         DVec2::new(u * self.width as f64, (1.0 - v) * self.height as f64)

@@ -6,6 +6,7 @@
 use glam::DVec3;
 
 use super::directions::{DirectionTable, DirectionTableError};
+use super::view::BasisView;
 use crate::brdf::BasisFunction;
 
 /// A cluster's dictionary: the basis functions its texels' weights refer to.
@@ -50,6 +51,8 @@ pub struct SpmmMaterial {
     texel_cluster: Vec<u32>,
     weights: SparseWeights,
     residual: Option<Residual>,
+    /// Which bases the view shows (mute and solo): never written to a pack.
+    view: BasisView,
     /// Interpolation tables of the residual's light and view directions, built once.
     residual_tables: Option<(DirectionTable, DirectionTable)>,
 }
@@ -276,6 +279,7 @@ impl SpmmMaterial {
             weights,
             residual,
             residual_tables,
+            view: BasisView::default(),
         })
     }
 
@@ -310,8 +314,15 @@ impl SpmmMaterial {
     pub fn residual(&self) -> Option<&Residual> {
         self.residual.as_ref()
     }
-    pub(super) fn residual_tables(&self) -> Option<&(DirectionTable, DirectionTable)> {
+    pub(crate) fn residual_tables(&self) -> Option<&(DirectionTable, DirectionTable)> {
         self.residual_tables.as_ref()
+    }
+    /// Which bases the view shows; a pack file never holds it.
+    pub fn view(&self) -> &BasisView {
+        &self.view
+    }
+    pub(super) fn set_view(&mut self, view: BasisView) {
+        self.view = view;
     }
     /// PCA terms stored per cluster (0 without a residual).
     pub fn npca(&self) -> usize {

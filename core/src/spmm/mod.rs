@@ -3,6 +3,7 @@
 //! a per-cluster PCA residual tabulated on the BTF's direction sets. `material.rs`
 //! holds the model with its invariants; `pack.rs` the `.spmm` file (docs/formats/spmm.md).
 
+mod change;
 pub mod directions;
 mod edit;
 mod eval;
@@ -10,10 +11,15 @@ mod material;
 pub mod pack;
 mod prepared;
 pub mod recipe;
+mod texel_mask;
+mod view;
 
 #[cfg(test)]
 pub(crate) mod tests;
 
+pub use edit::{Contributions, WeightTarget};
 pub use eval::{EvalSettings, TexelFilter};
 pub use material::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial};
 pub use prepared::{PrepareRequest, PreparedBytes, PreparedSpmm};
+pub use texel_mask::{Falloff, TexelMask};
+pub use view::BasisView;

@@ -71,6 +71,26 @@ impl SpmmMaterial {
         used
     }
 
+    /// The weights as the view shows them: hidden (muted, or not soloed) bases' weights
+    /// are zero, so evaluation needs no per-entry check.
+    fn viewed_rgb(&self) -> Vec<[f32; 3]> {
+        let view = self.view();
+        let mut rgb = self.weights().rgb.clone();
+        if view.is_empty() {
+            return rgb;
+        }
+        let w = self.weights();
+        for (t, &c) in self.texel_cluster().iter().enumerate() {
+            let range = w.offsets[t] as usize..w.offsets[t + 1] as usize;
+            for (v, &j) in rgb[range.clone()].iter_mut().zip(&w.basis[range]) {
+                if !view.shows(c as usize, usize::from(j)) {
+                    *v = [0.0; 3];
+                }
+            }
+        }
+        rgb
+    }
+
     /// Builds the evaluation data a render with these settings needs.
     pub fn prepare(&self, request: &PrepareRequest) -> PreparedSpmm {
         let used = |c: usize| {
@@ -87,7 +107,7 @@ impl SpmmMaterial {
                 let mut cluster_offset = Vec::with_capacity(self.clusters().len());
                 let mut cells = Vec::new();
                 for c in 0..self.clusters().len() {
-                    if !used(c) {
+                    if !used(c) || !self.view().shows_residual(c) {
                         cluster_offset.push(None);
                         continue;
                     }
@@ -127,7 +147,7 @@ impl SpmmMaterial {
             texel_cluster: self.texel_cluster().to_vec(),
             offsets: self.weights().offsets.clone(),
             basis: self.weights().basis.clone(),
-            rgb: self.weights().rgb.clone(),
+            rgb: self.viewed_rgb(),
             residual,
             clusters_used: (0..self.clusters().len()).filter(|&c| used(c)).count(),
         }

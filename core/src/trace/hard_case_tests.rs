@@ -87,6 +87,7 @@ fn no_nan_and_no_panic_on_hard_geometry() {
             max_specular_depth: 3,
             mode: crate::scene::ModeKind::Spmm,
             device: crate::scene::Device::Cpu,
+            sampler: crate::rng::Sampler::Sobol,
         },
         camera: Camera {
             position: DVec3::new(0.0, 0.5, 2.0),

@@ -13,8 +13,9 @@ use super::shading::Shader;
 use crate::environment::EnvironmentSampler;
 use crate::geometry::{PinholeCamera, SceneBvh};
 use crate::image::Image;
-use crate::render::film::{material_bit, memory_limit_bytes};
+use crate::render::film::{EMPTY_UV_BOX, UvBox, extend_uv_box, material_bit, memory_limit_bytes};
 use crate::render::layers::{self, Before, Layers, LightTarget};
+use crate::render::reach::EditedTexels;
 use crate::render::{
     Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind,
     PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit,
@@ -31,11 +32,11 @@ const EPSILON_REL: f64 = 1e-5;
 pub struct SpmmMode {
     pub(super) scene: Scene,
     pub(super) bvh: SceneBvh,
-    camera: PinholeCamera,
+    pub(super) camera: PinholeCamera,
     pub(super) shaders: Vec<Shader>,
     /// The environment map's importance sampler (`None`: no environment, or black).
     pub(super) env_sampler: Option<EnvironmentSampler>,
-    film: Film,
+    pub(super) film: Film,
     layers: Layers,
     /// Per light, the film layer its samples go to and their factor.
     pub(super) light_targets: Vec<LightTarget>,
@@ -55,6 +56,8 @@ pub struct SpmmMode {
 pub(super) struct Path<'a> {
     pub out: &'a mut [DVec3],
     pub mask: &'a mut u64,
+    /// The texture coordinates of the SPMM points shaded (finer edit invalidation).
+    pub reached: &'a mut UvBox,
     pub counts: &'a mut RayCounts,
     pub shading_points: &'a mut u64,
     pub rng: &'a mut SampleStream,
@@ -212,11 +215,12 @@ impl SpmmMode {
         let mut mask = 0;
         let mut counts = RayCounts::default();
         let mut shading_points = 0;
+        let mut reached = EMPTY_UV_BOX;
         self.sample_into(
             (x, y, self.film.width()),
             index,
             &mut out,
-            &mut mask,
+            (&mut mask, &mut reached),
             &mut counts,
             &mut shading_points,
         );
@@ -230,17 +234,19 @@ impl SpmmMode {
         (x, y, width): (u32, u32, u32),
         index: u64,
         out: &mut [DVec3],
-        mask: &mut u64,
+        (mask, reached): (&mut u64, &mut UvBox),
         counts: &mut RayCounts,
         shading_points: &mut u64,
     ) {
         let pixel = u64::from(y) * u64::from(width) + u64::from(x);
-        let mut rng = SampleStream::new(&[self.scene.render.seed, index, pixel]);
+        let render = &self.scene.render;
+        let mut rng = SampleStream::for_sample(render.sampler, render.seed, index, pixel);
         let ray = self.camera.ray(x, y, rng.next_2d());
         counts.primary += 1;
         let mut path = Path {
             out,
             mask,
+            reached,
             counts,
             shading_points,
             rng: &mut rng,
@@ -261,6 +267,9 @@ impl SpmmMode {
         };
         let s = self.shading(&hit, dir);
         *path.mask |= material_bit(s.material);
+        if matches!(self.scene.materials[s.material], Material::Spmm { .. }) {
+            extend_uv_box(path.reached, s.uv);
+        }
         let wo = -dir;
         // Secondary rays start just off the surface; light geometry uses the true point.
         let lift = s.p + s.n * (EPSILON_REL * s.p.abs().max_element().max(1.0));
@@ -329,11 +338,12 @@ impl RenderMode for SpmmMode {
                 for index in first..first + k {
                     out.iter_mut().for_each(|o| *o = DVec3::ZERO);
                     let mut mask = 0;
+                    let mut reached = EMPTY_UV_BOX;
                     self.sample_into(
                         (x, row.y, width),
                         index,
                         &mut out,
-                        &mut mask,
+                        (&mut mask, &mut reached),
                         &mut counts,
                         &mut shading_points,
                     );
@@ -341,6 +351,7 @@ impl RenderMode for SpmmMode {
                         row.add(x, l, out[l]);
                     }
                     row.touch(x, mask);
+                    row.reach_box(x, &reached);
                 }
             }
             Counters {
@@ -382,6 +393,10 @@ impl RenderMode for SpmmMode {
         self.preparation.clone()
     }
 
+    fn guides(&self) -> Option<crate::render::Guides> {
+        Some(self.compute_guides())
+    }
+
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
         if let SceneEdit::Material { index, material } = &edit
             && let Some(part) = Self::unrenderable(&self.scene, *index, material)
@@ -403,6 +418,10 @@ impl RenderMode for SpmmMode {
             )?;
         }
         let before = Before::of(&self.scene, &edit);
+        let material_before = match &edit {
+            SceneEdit::Material { index, .. } => self.scene.materials.get(*index).cloned(),
+            _ => None,
+        };
         edit.apply_to(&mut self.scene)?;
         if let Some(invalidation) = self
             .layers
@@ -436,8 +455,16 @@ impl RenderMode for SpmmMode {
                 self.restart_all()
             }
             SceneEdit::Material { index, .. } => {
-                self.shaders[index] = Shader::new(&self.scene.materials[index]);
-                Invalidation::Pixels(self.film.reset_touching(material_bit(index)))
+                let after = &self.scene.materials[index];
+                self.shaders[index] = Shader::new(after);
+                // Only pixels whose shading reached a changed texel restart.
+                let bit = material_bit(index);
+                Invalidation::Pixels(
+                    match material_before.and_then(|b| EditedTexels::between(&b, after)) {
+                        Some(texels) => self.film.reset_reaching(bit, |b| texels.reaches(b)),
+                        None => self.film.reset_touching(bit),
+                    },
+                )
             }
             SceneEdit::Moving(moving) if moving == self.moving => Invalidation::Nothing,
             SceneEdit::Moving(moving) => {

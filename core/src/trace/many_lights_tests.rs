@@ -332,7 +332,7 @@ fn crossing_the_threshold_lays_the_light_layers_out_again() {
 fn a_film_that_cannot_fit_is_refused_naming_its_bytes() {
     let err = Film::check(16384, 16384, 19, 1 << 30).expect_err("145 GB");
     let bytes = Film::bytes_for(16384, 16384, 19);
-    assert_eq!(bytes, 16384 * 16384 * (19 * 28 + 8));
+    assert_eq!(bytes, 16384 * 16384 * (19 * 28 + 8 + 16));
     let msg = err.to_string();
     assert!(msg.contains(&bytes.to_string()), "{msg}");
     assert!(!msg.contains('\n'));

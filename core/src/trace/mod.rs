@@ -4,10 +4,11 @@
 //! (the mode itself), shading, light sampling, environment sampling.
 
 mod environment;
+mod guides;
 mod integrator;
 pub mod light_selection;
 mod lights;
-mod shading;
+pub(crate) mod shading;
 
 use integrator::Path;
 pub use integrator::SpmmMode;
@@ -22,5 +23,7 @@ mod hard_case_tests;
 mod many_lights_tests;
 #[cfg(test)]
 mod merl_tests;
+#[cfg(test)]
+mod paint_tests;
 #[cfg(test)]
 mod tests;

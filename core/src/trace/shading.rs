@@ -126,6 +126,26 @@ impl Shading {
     }
 }
 
+/// A triangle's dp/du from its edges `e1`, `e2` and their UV differences `d1`, `d2`
+/// (zero where the UVs are degenerate). Shared with the biscale mode's vertex frames.
+pub(crate) fn dpdu(e1: DVec3, e2: DVec3, d1: DVec2, d2: DVec2) -> DVec3 {
+    let det = d1.x * d2.y - d2.x * d1.y;
+    if det.abs() > 1e-20 {
+        (e1 * d2.y - e2 * d1.y) / det
+    } else {
+        DVec3::ZERO
+    }
+}
+
+/// Tangent (along increasing u: `dpdu` made orthogonal to `n`; any perpendicular where
+/// it vanishes) and bitangent n x t: the SPMM convention of the shading frame.
+pub(crate) fn tangent_frame(n: DVec3, dpdu: DVec3) -> (DVec3, DVec3) {
+    let t = (dpdu - n * n.dot(dpdu))
+        .try_normalize()
+        .unwrap_or_else(|| warp::orthonormal_basis(n).0);
+    (t, n.cross(t))
+}
+
 impl SpmmMode {
     pub(super) fn shading(&self, hit: &Hit, dir: DVec3) -> Shading {
         let mesh = &self.scene.meshes[hit.mesh];
@@ -145,18 +165,7 @@ impl SpmmMode {
         }
         let (uv0, uv1, uv2) = (mesh.uvs[i0], mesh.uvs[i1], mesh.uvs[i2]);
         let uv = uv0 * w0 + uv1 * hit.b1 + uv2 * hit.b2;
-        // Tangent along increasing u (dp/du), made orthogonal to n.
-        let (e1, e2, d1, d2) = (p1 - p0, p2 - p0, uv1 - uv0, uv2 - uv0);
-        let det = d1.x * d2.y - d2.x * d1.y;
-        let dpdu = if det.abs() > 1e-20 {
-            (e1 * d2.y - e2 * d1.y) / det
-        } else {
-            DVec3::ZERO
-        };
-        let t = (dpdu - n * n.dot(dpdu))
-            .try_normalize()
-            .unwrap_or_else(|| warp::orthonormal_basis(n).0);
-        let b = n.cross(t);
+        let (t, b) = tangent_frame(n, dpdu(p1 - p0, p2 - p0, uv1 - uv0, uv2 - uv0));
         Shading {
             p,
             t,

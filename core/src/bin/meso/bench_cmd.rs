@@ -27,6 +27,8 @@ use crate::failure::CliError;
 pub enum BenchCommand {
     /// Closest-hit rays per second on a mesh, coherent and incoherent.
     Rays(RaysArgs),
+    /// Weight-brush stroke to updated frame latency on a scene's SPMM material.
+    Stroke(crate::bench_stroke::StrokeArgs),
 }
 
 #[derive(Args, Debug)]
@@ -46,6 +48,7 @@ pub struct RaysArgs {
 pub fn run(command: BenchCommand) -> Result<(), CliError> {
     match command {
         BenchCommand::Rays(args) => rays(&args),
+        BenchCommand::Stroke(args) => crate::bench_stroke::run(&args),
     }
 }
 

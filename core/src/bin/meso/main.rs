@@ -3,6 +3,7 @@
 //! `--json` prints exactly one JSON object on stdout.
 
 mod bench_cmd;
+mod bench_stroke;
 mod brdf_cmd;
 mod btf_cmd;
 mod compare_cmd;
@@ -11,8 +12,11 @@ mod fit_cmd;
 mod merl_cmd;
 mod mode_args;
 mod pack_cmd;
+mod pack_edit_cmd;
 mod plot;
+mod precompute_cmd;
 mod progress;
+mod regress_cmd;
 mod render_cmd;
 mod report_cmd;
 mod svg_chart;
@@ -60,14 +64,18 @@ enum Command {
         #[command(subcommand)]
         command: merl_cmd::MerlCommand,
     },
+    /// A render mode's precomputation (biscale: transfer matrices and biclusters).
+    Precompute(precompute_cmd::PrecomputeArgs),
     /// Progressive render of a scene file in a render mode to EXR or PNG.
     Render(render_cmd::RenderArgs),
+    /// Regression renders over a manifest, compared with goldens; `merge` joins shards.
+    Regress(regress_cmd::RegressArgs),
     /// Reports: speed against error of the render modes.
     Report {
         #[command(subcommand)]
         command: report_cmd::ReportCommand,
     },
-    /// SPMM material packs (.spmm): summarise and validate.
+    /// SPMM material packs (.spmm): summarise, validate, build, preview, evaluate, edit.
     Pack {
         #[command(subcommand)]
         command: pack_cmd::PackCommand,
@@ -88,7 +96,9 @@ fn main() -> ExitCode {
         Command::Compare(args) => compare_cmd::run(&args),
         Command::Merl { command } => merl_cmd::run(command),
         Command::Pack { command } => pack_cmd::run(command),
+        Command::Precompute(args) => precompute_cmd::run(&args),
         Command::Render(args) => render_cmd::run(&args),
+        Command::Regress(args) => regress_cmd::run(&args),
         Command::Report { command } => report_cmd::run(command),
     };
     match result {

@@ -1,5 +1,7 @@
 //! `meso pack info FILE` and `meso pack validate FILE`: summarise an SPMM pack, or
-//! check it fully (exit 0, or 2 with the first fault named), per spec/cli.md.
+//! check it fully (exit 0, or 2 with the first fault named), per spec/cli.md; `new`,
+//! `preview`, `eval` (with each basis's contribution in JSON) and `edit`
+//! (`pack_edit_cmd.rs`).
 
 use std::path::{Path, PathBuf};
 
@@ -50,6 +52,8 @@ pub enum PackCommand {
         #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
         exposure: f64,
     },
+    /// Scripted edits: scale weights per basis or cluster, mute, remove or add bases, within a texel mask.
+    Edit(Box<crate::pack_edit_cmd::PackEditArgs>),
     /// Read CSV rows `wix,wiy,wiz,wox,woy,woz` from stdin, print the RGB BTF value of one texel per row.
     Eval {
         file: PathBuf,
@@ -93,6 +97,9 @@ pub fn run(command: PackCommand) -> Result<(), CliError> {
             json,
         } => eval(&file, &texel, !no_residual, npca, bilinear, json),
         PackCommand::Info { file, json } => info(&file, json),
+        PackCommand::Edit(args) => {
+            crate::pack_edit_cmd::run(&args, &std::env::args().collect::<Vec<_>>())
+        }
         PackCommand::Validate { file, json } => {
             let m = load(&file)?;
             if json {
@@ -275,13 +282,29 @@ fn eval(
         .map(|&(wi, wo)| m.eval_uv(uv, wi, wo, &settings).to_array())
         .collect();
     if json {
+        // Each part of the nearest texel's value (with --bilinear, `values` blends four
+        // texels; the parts stay the nearest one's).
+        let texel = m.texel_at(uv, DVec2::ONE);
+        let contributions: Vec<serde_json::Value> = rows
+            .iter()
+            .map(|&(wi, wo)| {
+                let c = m.contributions(texel, wi, wo, residual, settings.max_npca);
+                json!({
+                    "bases": c.bases.iter().map(|b| b.to_array()).collect::<Vec<_>>(),
+                    "residual": c.residual.to_array(),
+                })
+            })
+            .collect();
         return crate::print_json(&json!({
             "file": file.display().to_string(),
             "uv": [uv.x, uv.y],
-            "texel": m.texel_at(uv, DVec2::ONE),
+            "texel": texel,
+            "cluster": m.texel_cluster()[texel],
+            "weights": m.texel_weights(texel).map(|(b, w)| json!({"basis": b, "rgb": w})).collect::<Vec<_>>(),
             "residual": residual,
             "npca": m.npca().min(settings.max_npca),
             "values": values,
+            "contributions": contributions,
         }));
     }
     for v in values {

@@ -11,7 +11,7 @@ use std::time::Instant;
 use anyhow::anyhow;
 use clap::Args;
 use meso_core::modes;
-use meso_core::render::{Prepare, run_frames};
+use meso_core::render::{Denoiser, Prepare, run_frames};
 use meso_core::scene::{RenderSettings, load_scene};
 use serde_json::json;
 
@@ -40,6 +40,10 @@ pub struct RenderArgs {
     exposure: f64,
     #[command(flatten)]
     mode: ModeArgs,
+    /// Filter the final image with the viewport denoiser (edge-avoiding a-trous, guided
+    /// by normal, depth and albedo). Off by default: the image is the estimate itself.
+    #[arg(long)]
+    denoise: bool,
     #[arg(long)]
     json: bool,
 }
@@ -101,7 +105,20 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
     let counters = run.counters;
     let rays = counters.rays;
     let trace_s = run.seconds;
-    let image = mode.image();
+    let mut image = mode.image();
+    if args.denoise {
+        let guides = mode.guides().ok_or_else(|| {
+            CliError::bad_input(anyhow!(
+                "--denoise: the {} mode has no denoiser guides",
+                mode.kind().name()
+            ))
+        })?;
+        image = Denoiser::for_samples(mode.progress().min_samples)
+            .apply(&image, &guides)
+            .ok_or_else(|| {
+                CliError::failure(anyhow!("--denoise: the guides do not match the image"))
+            })?;
+    }
     let dropped = mode.progress().dropped;
     meso_core::image::write_image(&args.output, &image, args.exposure)
         .failure_ctx(|| format!("writing `{}`", args.output.display()))?;
@@ -129,6 +146,7 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
             "rays_per_second": rays_per_s,
             "nonfinite_dropped": dropped,
             "film_bytes": mode.progress().film_bytes,
+            "denoised": args.denoise,
         }));
     }
     println!(

@@ -4,6 +4,41 @@
 //! The mixer is SplitMix64's finaliser (Steele et al. 2014) applied to a running hash
 //! of the key words; it is a counter-based generator, not a sequential state, so the
 //! result never depends on thread count or evaluation order.
+//!
+//! Renderers draw a sample's numbers through a `Sampler`: independent hashed numbers,
+//! or Owen-scrambled Sobol points along the sample index (`sobol.rs`), which stratify
+//! each pixel's integrals across frames.
+
+mod sobol;
+
+use serde::{Deserialize, Serialize};
+
+/// How a renderer draws the numbers of its samples.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Sampler {
+    /// Owen-scrambled Sobol points: a (0, 2)-sequence along the sample index in each
+    /// pair of dimensions, scrambled per pixel and pair.
+    #[default]
+    Sobol,
+    /// Independent uniform numbers hashed from (seed, sample, pixel, dimension).
+    Independent,
+}
+
+impl Sampler {
+    pub const ALL: [Sampler; 2] = [Sampler::Sobol, Sampler::Independent];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Sampler::Sobol => "sobol",
+            Sampler::Independent => "independent",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|s| s.name() == name)
+    }
+}
 
 /// SplitMix64 finaliser: a bijective 64-bit mix with full avalanche.
 #[inline]
@@ -38,17 +73,48 @@ pub fn unit_f64(bits: u64) -> f64 {
 pub struct SampleStream {
     key_hash: u64,
     next_dim: u64,
+    /// Sobol points instead of independent numbers: the sample's index in the
+    /// sequence and the pixel's scramble key.
+    sobol: Option<(u32, u64)>,
 }
 
 impl SampleStream {
+    /// Independent numbers for `key`.
     pub fn new(key: &[u64]) -> Self {
         Self {
             key_hash: hash_key(key),
             next_dim: 0,
+            sobol: None,
         }
     }
 
-    /// The uniform number of dimension `dim`, independent of the stream position.
+    /// The numbers of sample `index` of `pixel` under `seed`, drawn by `sampler`.
+    /// Independent: exactly `new(&[seed, index, pixel])`. Sobol: the pixel's own
+    /// scramble, point `index` of the sequence (indices wrap at 2^32); its
+    /// independent numbers (`at`, `next_32_16_16`) are those of `new(&[seed, index,
+    /// pixel])`, so they still change with every sample.
+    pub fn for_sample(sampler: Sampler, seed: u64, index: u64, pixel: u64) -> Self {
+        let independent = Self::new(&[seed, index, pixel]);
+        match sampler {
+            Sampler::Independent => independent,
+            Sampler::Sobol => Self {
+                sobol: Some((index as u32, hash_key(&[seed, 0x0073_6f62_6f6c, pixel]))),
+                ..independent
+            },
+        }
+    }
+
+    /// The Sobol point of the pair of dimensions starting at `dim`.
+    #[inline]
+    fn sobol_at((index, scramble): (u32, u64), dim: u64) -> [f64; 2] {
+        sobol::point_2d(
+            index,
+            mix64(scramble ^ mix64(dim.wrapping_add(0x632b_e59b_d9b4_e019))),
+        )
+    }
+
+    /// The independent uniform number of dimension `dim`, whatever the sampler,
+    /// independent of the stream position.
     #[inline]
     pub fn at(&self, dim: u64) -> f64 {
         unit_f64(mix64(
@@ -58,7 +124,8 @@ impl SampleStream {
 
     /// Three uniform numbers in [0, 1) from one dimension: 32 bits, then 16 and 16,
     /// for hot loops that need many numbers (a many-light candidate: which light, with
-    /// the alias table's keep test at 2^-32 / lights, and a point on it).
+    /// the alias table's keep test at 2^-32 / lights, and a point on it). Always
+    /// independent numbers: a Sobol coordinate has 32 bits, not 64.
     #[inline]
     pub fn next_32_16_16(&mut self) -> [f64; 3] {
         let bits = mix64(self.key_hash ^ mix64(self.next_dim.wrapping_add(0x632b_e59b_d9b4_e019)));
@@ -74,15 +141,26 @@ impl SampleStream {
     #[inline]
     #[allow(clippy::should_implement_trait)]
     pub fn next(&mut self) -> f64 {
-        let u = self.at(self.next_dim);
+        let u = match self.sobol {
+            // One coordinate of its own padded pair: a scrambled van der Corput sequence.
+            Some(sobol) => Self::sobol_at(sobol, self.next_dim)[0],
+            None => self.at(self.next_dim),
+        };
         self.next_dim += 1;
         u
     }
 
-    /// Two consecutive dimensions, for 2-D warps.
+    /// Two consecutive dimensions, for 2-D warps; one Sobol pair.
     #[inline]
     pub fn next_2d(&mut self) -> glam::DVec2 {
-        glam::DVec2::new(self.next(), self.next())
+        match self.sobol {
+            Some(sobol) => {
+                let [x, y] = Self::sobol_at(sobol, self.next_dim);
+                self.next_dim += 2;
+                glam::DVec2::new(x, y)
+            }
+            None => glam::DVec2::new(self.next(), self.next()),
+        }
     }
 }
 
@@ -131,5 +209,21 @@ mod tests {
         let cov: f64 = xs.windows(2).map(|w| w[0] * w[1]).sum::<f64>() / (n - 1) as f64;
         let corr = cov / (1.0 / 12.0);
         assert!(corr.abs() < 0.01, "lag-1 correlation {corr}");
+    }
+
+    #[test]
+    fn sobol_streams_change_with_the_sample_in_every_kind_of_draw() {
+        // Every kind of draw (1-D, 2-D, the independent 32/16/16 split) must differ
+        // between samples of one pixel, or an estimator repeats one number each frame.
+        let stream = |i| SampleStream::for_sample(Sampler::Sobol, 3, i, 77);
+        let (mut a, mut b) = (stream(0), stream(1));
+        assert_ne!(a.next(), b.next());
+        assert_ne!(a.next_2d(), b.next_2d());
+        assert_ne!(a.next_32_16_16(), b.next_32_16_16());
+        assert_ne!(stream(0).at(5), stream(1).at(5));
+        // Independent streams are the hashed key exactly, as before samplers existed.
+        let mut i = SampleStream::for_sample(Sampler::Independent, 3, 1, 77);
+        let mut j = SampleStream::new(&[3, 1, 77]);
+        assert_eq!(i.next_2d(), j.next_2d());
     }
 }

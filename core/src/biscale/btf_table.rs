@@ -1,0 +1,302 @@
+//! The meso-scale side (Sun et al. 2010, eq. 3): each material's BTF tabulated at the
+//! M local incident cells and a grid of view directions, so a pixel's shading is dot
+//! products of length M with the interpolated local incident radiance L*. Each table
+//! entry is the BTF (cosine included) averaged over its local cell (3 x 3 strata), so
+//! sum_m b_m L*_m integrates BTF x radiance over the hemisphere. SPMM packs are linear
+//! in their basis functions and PCA terms, so each cluster's basis functions and
+//! residual components are tabulated once and a texel combines them with its own
+//! weights at shading time (far smaller than a table per texel); analytic BRDFs are
+//! one tabulated function times the albedo. Views: `HemisphereGrid` cell centres,
+//! interpolated bilinearly in the area-preserving square.
+
+use std::sync::Arc;
+
+use glam::{DVec2, DVec3};
+use rayon::prelude::*;
+
+use super::hemisphere::HemisphereGrid;
+use crate::brdf::AnalyticBrdf;
+use crate::scene::Material;
+use crate::spmm::SpmmMaterial;
+
+/// Strata per side for the cell averages.
+const STRATA: u32 = 3;
+
+/// A tabulated material.
+pub enum BtfTable {
+    Brdf {
+        /// [view][M]
+        rows: Vec<f32>,
+        albedo: [f32; 3],
+    },
+    Spmm(Box<SpmmTable>),
+}
+
+pub struct SpmmTable {
+    material: Arc<SpmmMaterial>,
+    uv_scale: DVec2,
+    /// Per cluster, [basis][view][M].
+    bases: Vec<Vec<f32>>,
+    /// Per cluster, [term (mean, then k components)][view][channel][M]; empty without
+    /// a residual in use.
+    residual: Vec<Vec<f32>>,
+    /// PCA components used.
+    k: usize,
+}
+
+/// The shared geometry of the tables.
+#[derive(Clone, Copy, Debug)]
+pub struct Tabulation {
+    pub local: HemisphereGrid,
+    pub views: HemisphereGrid,
+}
+
+#[inline]
+fn dot(a: &[f32], b: &[f32]) -> f32 {
+    // Eight independent partial sums so the compiler vectorises the loop.
+    let mut acc = [0.0f32; 8];
+    let (ac, bc) = (a.chunks_exact(8), b.chunks_exact(8));
+    let (ar, br) = (ac.remainder(), bc.remainder());
+    for (x, y) in ac.zip(bc) {
+        for i in 0..8 {
+            acc[i] += x[i] * y[i];
+        }
+    }
+    let mut s: f32 = acc.iter().sum();
+    for (x, y) in ar.iter().zip(br) {
+        s += x * y;
+    }
+    s
+}
+
+impl Tabulation {
+    /// Cell average over local cell `m` of `f(wi)`.
+    fn cell_mean(&self, m: usize, f: impl Fn(DVec3) -> f64) -> f64 {
+        let s: f64 = self.local.strata(m, STRATA).map(f).sum();
+        s / (STRATA * STRATA) as f64
+    }
+
+    /// `None` for materials the mode refuses (mirror, merl).
+    pub fn table(&self, material: &Material) -> Option<BtfTable> {
+        match material {
+            Material::Brdf { brdf, albedo } => Some(self.brdf_table(brdf, *albedo)),
+            Material::Spmm {
+                material,
+                uv_scale,
+                residual,
+                npca,
+            } => Some(BtfTable::Spmm(Box::new(
+                self.spmm_table(material, *uv_scale, *residual, *npca),
+            ))),
+            Material::Mirror { .. } | Material::Merl { .. } => None,
+        }
+    }
+
+    fn brdf_table(&self, brdf: &AnalyticBrdf, albedo: DVec3) -> BtfTable {
+        let (mc, vc) = (self.local.len(), self.views.len());
+        let rows = (0..vc * mc)
+            .into_par_iter()
+            .map(|i| {
+                let wo = self.views.centre(i / mc);
+                self.cell_mean(i % mc, |wi| brdf.eval(wi, wo) * wi.z.max(0.0)) as f32
+            })
+            .collect();
+        BtfTable::Brdf {
+            rows,
+            albedo: [albedo.x as f32, albedo.y as f32, albedo.z as f32],
+        }
+    }
+
+    fn spmm_table(
+        &self,
+        material: &Arc<SpmmMaterial>,
+        uv_scale: DVec2,
+        use_residual: bool,
+        npca: usize,
+    ) -> SpmmTable {
+        let (mc, vc) = (self.local.len(), self.views.len());
+        let bases = material
+            .clusters()
+            .par_iter()
+            .map(|cluster| {
+                let mut out = Vec::with_capacity(cluster.bases.len() * vc * mc);
+                for basis in &cluster.bases {
+                    for v in 0..vc {
+                        let wo = self.views.centre(v);
+                        for m in 0..mc {
+                            out.push(self.cell_mean(m, |wi| basis.eval(wi, wo)) as f32);
+                        }
+                    }
+                }
+                out
+            })
+            .collect();
+        let (residual, k) = match (
+            use_residual,
+            material.residual(),
+            material.residual_tables(),
+        ) {
+            (true, Some(r), Some((lights, views))) => {
+                let k = r.npca.min(npca);
+                let (nl, nv) = (r.light_dirs.len(), r.view_dirs.len());
+                // Interpolation weights of every stratum and every view centre.
+                let strata: Vec<Vec<[(u32, f64); 3]>> = (0..mc)
+                    .map(|m| {
+                        self.local
+                            .strata(m, STRATA)
+                            .map(|d| lights.weights(d))
+                            .collect()
+                    })
+                    .collect();
+                let view_w: Vec<[(u32, f64); 3]> = (0..vc)
+                    .map(|v| views.weights(self.views.centre(v)))
+                    .collect();
+                let table_at = |c: usize, term: usize, l: usize, v: usize| -> [f64; 3] {
+                    let i = if term == 0 {
+                        ((c * nl + l) * nv + v) * 3
+                    } else {
+                        (((c * r.npca + term - 1) * nl + l) * nv + v) * 3
+                    };
+                    let t = if term == 0 { &r.mean } else { &r.components };
+                    [t[i] as f64, t[i + 1] as f64, t[i + 2] as f64]
+                };
+                let per_cluster = (0..material.clusters().len())
+                    .into_par_iter()
+                    .map(|c| {
+                        let mut out = vec![0.0f32; (1 + k) * vc * 3 * mc];
+                        for term in 0..=k {
+                            for v in 0..vc {
+                                for m in 0..mc {
+                                    let mut acc = [0.0f64; 3];
+                                    for s in &strata[m] {
+                                        for &(l, wl) in s {
+                                            for &(vv, wv) in &view_w[v] {
+                                                let w = wl * wv;
+                                                if w == 0.0 {
+                                                    continue;
+                                                }
+                                                let e = table_at(c, term, l as usize, vv as usize);
+                                                for ch in 0..3 {
+                                                    acc[ch] += w * e[ch];
+                                                }
+                                            }
+                                        }
+                                    }
+                                    let n = strata[m].len() as f64;
+                                    for ch in 0..3 {
+                                        out[((term * vc + v) * 3 + ch) * mc + m] =
+                                            (acc[ch] / n) as f32;
+                                    }
+                                }
+                            }
+                        }
+                        out
+                    })
+                    .collect();
+                (per_cluster, k)
+            }
+            _ => (Vec::new(), 0),
+        };
+        SpmmTable {
+            material: material.clone(),
+            uv_scale,
+            bases,
+            residual,
+            k,
+        }
+    }
+}
+
+impl BtfTable {
+    /// Outgoing radiance towards local `wo` at surface UV `uv`, for local incident
+    /// radiance `lstar` laid out [channel][M] (eq. 3). `moving`: the nearest tabulated
+    /// view instead of four interpolated ones, and no SPMM residual (the seed's trick
+    /// for a camera being dragged: a quarter of the dot products or fewer).
+    pub fn shade(
+        &self,
+        tab: &Tabulation,
+        uv: DVec2,
+        wo: DVec3,
+        lstar: &[f32],
+        moving: bool,
+    ) -> [f32; 3] {
+        if wo.z <= 0.0 {
+            return [0.0; 3];
+        }
+        let mc = tab.local.len();
+        let (lr, lg, lb) = (&lstar[..mc], &lstar[mc..2 * mc], &lstar[2 * mc..3 * mc]);
+        let mut views = tab.views.bilinear(wo);
+        if moving {
+            let nearest = views
+                .iter()
+                .copied()
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .map_or(0, |v| v.0);
+            views = [(nearest, 1.0), (0, 0.0), (0, 0.0), (0, 0.0)];
+        }
+        let mut out = [0.0f32; 3];
+        match self {
+            BtfTable::Brdf { rows, albedo } => {
+                for (v, w) in views {
+                    if w == 0.0 {
+                        continue;
+                    }
+                    let row = &rows[v * mc..(v + 1) * mc];
+                    out[0] += w * dot(row, lr);
+                    out[1] += w * dot(row, lg);
+                    out[2] += w * dot(row, lb);
+                }
+                for c in 0..3 {
+                    out[c] *= albedo[c];
+                }
+            }
+            BtfTable::Spmm(t) => {
+                let vc = tab.views.len();
+                let texel = t.material.texel_at(uv, t.uv_scale);
+                let c = t.material.texel_cluster()[texel] as usize;
+                let bases = &t.bases[c];
+                for (v, w) in views {
+                    if w == 0.0 {
+                        continue;
+                    }
+                    for (j, a) in t.material.texel_weights(texel) {
+                        let row = &bases[(j as usize * vc + v) * mc..][..mc];
+                        out[0] += w * a[0] * dot(row, lr);
+                        out[1] += w * a[1] * dot(row, lg);
+                        out[2] += w * a[2] * dot(row, lb);
+                    }
+                    if let Some(res) = t.residual.get(c).filter(|_| !moving) {
+                        let npca = t.material.npca();
+                        let coef = t
+                            .material
+                            .residual()
+                            .map(|r| &r.coefficients[texel * npca..texel * npca + t.k]);
+                        for term in 0..=t.k {
+                            let a = if term == 0 {
+                                1.0
+                            } else {
+                                coef.map_or(0.0, |c| c[term - 1])
+                            };
+                            let base = (term * vc + v) * 3 * mc;
+                            for (ch, l) in [lr, lg, lb].into_iter().enumerate() {
+                                out[ch] += w * a * dot(&res[base + ch * mc..][..mc], l);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Bytes of the tables.
+    pub fn bytes(&self) -> usize {
+        match self {
+            BtfTable::Brdf { rows, .. } => 4 * rows.len(),
+            BtfTable::Spmm(t) => {
+                4 * (t.bases.iter().map(Vec::len).sum::<usize>()
+                    + t.residual.iter().map(Vec::len).sum::<usize>())
+            }
+        }
+    }
+}

@@ -311,10 +311,13 @@ fn a_mode_that_cannot_render_a_light_asks_and_renders_without_it() {
 
 #[test]
 fn a_mode_that_is_not_built_says_so_and_the_old_mode_keeps_rendering() {
-    // (The adaptive mode is the one core does not build yet.)
+    // (Every mode is built on the CPU now; none on the GPU yet.)
     let mut h = harness_with(Arc::new(CoreModes), small());
     wait_for_current_frame(&mut h);
-    choose_mode(&mut h, "adaptive");
+    h.get_by_role_and_label(Role::ComboBox, "Device").click();
+    h.run_steps(2);
+    h.get_by_label("gpu").click();
+    h.run_steps(2);
     assert!(!h.state().switching());
     let message = h.state().mode_message.clone().expect("a message");
     assert!(

@@ -685,7 +685,10 @@ impl AdaptiveMode {
         counts: &mut RayCounts,
     ) -> u64 {
         let pixel = u64::from(y) * u64::from(self.width()) + u64::from(x);
-        let mut rng = SampleStream::new(&[self.scene.render.seed, STREAM, index, pixel]);
+        // The scene's sampler (Sobol by default), sample `index` of this pixel: each
+        // pixel's own samples are consecutive points of its sequence.
+        let render = &self.scene.render;
+        let mut rng = SampleStream::for_sample(render.sampler, render.seed ^ STREAM, index, pixel);
         let ray = self.camera.ray(x, y, rng.next_2d());
         counts.primary += 1;
         let Some(hit) =

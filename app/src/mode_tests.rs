@@ -311,10 +311,13 @@ fn a_mode_that_cannot_render_a_light_asks_and_renders_without_it() {
 
 #[test]
 fn a_mode_that_is_not_built_says_so_and_the_old_mode_keeps_rendering() {
-    // (The adaptive mode is the one core does not build yet.)
+    // (Every mode is built on the CPU now; none on the GPU yet.)
     let mut h = harness_with(Arc::new(CoreModes), small());
     wait_for_current_frame(&mut h);
-    choose_mode(&mut h, "adaptive");
+    h.get_by_role_and_label(Role::ComboBox, "Device").click();
+    h.run_steps(2);
+    h.get_by_label("gpu").click();
+    h.run_steps(2);
     assert!(!h.state().switching());
     let message = h.state().mode_message.clone().expect("a message");
     assert!(
@@ -470,4 +473,41 @@ fn a_scene_that_names_a_mode_asks_for_it_once_loaded() {
     );
     assert_eq!(h.state().mode(), (ModeKind::Spmm, Device::Cpu));
     assert_eq!(next_frame_mode(&mut h), ModeKind::Spmm);
+}
+
+#[test]
+fn the_adaptive_mode_renders_a_shipped_merl_scene_and_shows_its_debug_overlays() {
+    // The real registry on the MERL bunny (inline tabulated tables, env_studio.exr
+    // and an area light): the toggle reaches the adaptive mode, whose frames carry
+    // the bandwidth level and samples-per-pixel maps the View menu offers.
+    let scene = default_scene_path()
+        .parent()
+        .expect("scenes folder")
+        .join("merl_bunny.toml");
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1280.0, 800.0))
+        .build_ui_state(
+            |ui, s: &mut Studio| s.show(ui),
+            Studio::with_maker(None, Some(scene), small(), Arc::new(CoreModes)),
+        );
+    loaded(&mut h);
+    wait_for_current_frame(&mut h);
+    choose_mode(&mut h, "adaptive");
+    step_until(&mut h, "the switch", |h| !h.state().switching());
+    assert_eq!(h.state().mode(), (ModeKind::Adaptive, Device::Cpu));
+    wait_for_mode_frame(&mut h, ModeKind::Adaptive);
+    let frame = h.state().frame().expect("frame").clone();
+    let names: Vec<&str> = frame.overlays.iter().map(|o| o.0).collect();
+    assert_eq!(names, ["bandwidth level", "samples per pixel"]);
+    for (_, img) in &frame.overlays {
+        assert_eq!(
+            (img.width(), img.height()),
+            (frame.image.width(), frame.image.height())
+        );
+    }
+    h.state_mut()
+        .viewport
+        .set_overlay(Some("samples per pixel"));
+    h.run_steps(2);
+    assert_eq!(h.state().viewport.overlay(), Some("samples per pixel"));
 }

@@ -60,6 +60,9 @@ pub struct Frame {
     pub device: Device,
     /// The estimate: what is saved, compared and measured.
     pub image: Arc<Image>,
+    /// The mode's debug images by name (`RenderMode::debug_overlays`; the adaptive
+    /// mode's bandwidth level and samples per pixel), empty for other modes.
+    pub overlays: Vec<(&'static str, Arc<Image>)>,
     /// What the viewport shows: the estimate, blended with its denoised version
     /// during the first frames when the denoiser is on (the same `Arc` otherwise).
     pub shown: Arc<Image>,
@@ -272,6 +275,11 @@ fn run(
             },
             image,
             progress,
+            overlays: m
+                .debug_overlays()
+                .into_iter()
+                .map(|(name, img)| (name, Arc::new(img)))
+                .collect(),
             frame_ms: stats.seconds * 1e3,
             rays_per_second: stats.counters.rays.total() as f64 / stats.seconds.max(1e-9),
             finished: Instant::now(),

@@ -973,6 +973,22 @@ impl Studio {
                 }
                 ui.checkbox(&mut self.settings.show_timings, "timings in the status bar");
                 ui.checkbox(&mut self.settings.compare, "Compare with a reference");
+                let names: Vec<&'static str> = self
+                    .viewport
+                    .frame()
+                    .map(|f| f.overlays.iter().map(|o| o.0).collect())
+                    .unwrap_or_default();
+                if !names.is_empty() {
+                    ui.horizontal(|ui| {
+                        ui.label("debug overlay");
+                        let mut chosen = self.viewport.overlay();
+                        ui.selectable_value(&mut chosen, None, "image");
+                        for name in names {
+                            ui.selectable_value(&mut chosen, Some(name), name);
+                        }
+                        self.viewport.set_overlay(chosen);
+                    });
+                }
                 ui.add(
                     egui::Slider::new(&mut self.settings.reference_spp, 1..=4096)
                         .logarithmic(true)

@@ -94,6 +94,9 @@ pub struct CompareLabels {
 
 pub struct Viewport {
     texture: Option<TextureHandle>,
+    /// The debug overlay shown instead of the image, by name, and the one uploaded.
+    overlay: Option<&'static str>,
+    uploaded_overlay: Option<&'static str>,
     /// The newest frame and what its texture was made with (exposure, estimate only).
     shown: Option<(Frame, Option<(f64, bool)>)>,
     reference_texture: Option<TextureHandle>,
@@ -109,6 +112,8 @@ impl Default for Viewport {
     fn default() -> Self {
         Self {
             texture: None,
+            overlay: None,
+            uploaded_overlay: None,
             shown: None,
             reference_texture: None,
             reference: None,
@@ -143,6 +148,16 @@ impl Viewport {
         self.shown.as_ref().map(|(f, _)| f)
     }
 
+    /// Shows the frame's debug overlay of this name instead of the image (where the
+    /// frame has one), or the image with `None`.
+    pub fn set_overlay(&mut self, overlay: Option<&'static str>) {
+        self.overlay = overlay;
+    }
+
+    pub fn overlay(&self) -> Option<&'static str> {
+        self.overlay
+    }
+
     /// Takes a newer frame for display.
     pub fn set_frame(&mut self, frame: Frame) {
         self.shown = Some((frame, None));
@@ -170,15 +185,27 @@ impl Viewport {
         // the first frames come through the denoiser (`Frame::shown`).
         let key = Some((exposure, compare.is_some()));
         if let Some((frame, made_with)) = &mut self.shown
-            && (self.texture.is_none() || *made_with != key)
+            && (self.texture.is_none()
+                || *made_with != key
+                || self.uploaded_overlay != self.overlay)
         {
-            let image = if compare.is_some() {
-                &frame.image
-            } else {
-                &frame.shown
-            };
-            upload(ui, &mut self.texture, "viewport", image, exposure);
+            // A debug overlay is a colour map: shown as it is, without exposure.
+            match self
+                .overlay
+                .and_then(|name| frame.overlays.iter().find(|o| o.0 == name))
+            {
+                Some((_, img)) => upload(ui, &mut self.texture, "viewport", img, 0.0),
+                None => {
+                    let image = if compare.is_some() {
+                        &frame.image
+                    } else {
+                        &frame.shown
+                    };
+                    upload(ui, &mut self.texture, "viewport", image, exposure);
+                }
+            }
             *made_with = key;
+            self.uploaded_overlay = self.overlay;
         }
         if compare.is_some()
             && let Some((img, made_with)) = &mut self.reference

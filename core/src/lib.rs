@@ -7,6 +7,7 @@
 //! is the map; the `meso` binary (`src/bin/meso`) and the `meso-studio` app use this
 //! crate through its public API only.
 
+pub mod adaptive;
 pub mod atomic;
 pub mod biscale;
 pub mod brdf;

@@ -1374,10 +1374,11 @@ fn render_modes_devices_and_unsupported_scenes_exit_2_naming_why() {
         args.extend_from_slice(extra);
         meso(&args, "")
     };
-    // Modes and devices not built yet say so; unknown names are usage errors.
+    // The adaptive mode names the material it cannot shade (an SPMM pack); devices
+    // not built yet say so; unknown names are usage errors.
     assert_bad_input(
         &render(&["--mode", "adaptive"]),
-        &["adaptive", "not built yet"],
+        &["adaptive", "material `cloth` (spmm)"],
     );
     // The biscale mode names what it cannot render: lights, AO, no environment.
     let default = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/default.toml");

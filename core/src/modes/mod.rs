@@ -5,6 +5,7 @@
 
 pub mod convergence;
 
+use crate::adaptive::AdaptiveMode;
 use crate::biscale::BiscaleMode;
 use crate::render::{Device, ModeError, ModeKind, Prepare, RenderMode};
 use crate::scene::Scene;
@@ -14,7 +15,9 @@ use crate::trace::SpmmMode;
 pub fn is_built(kind: ModeKind, device: Device) -> bool {
     matches!(
         (kind, device),
-        (ModeKind::Spmm, Device::Cpu) | (ModeKind::Biscale, Device::Cpu)
+        (ModeKind::Spmm, Device::Cpu)
+            | (ModeKind::Biscale, Device::Cpu)
+            | (ModeKind::Adaptive, Device::Cpu)
     )
 }
 
@@ -24,6 +27,7 @@ pub fn supports(kind: ModeKind, device: Device, scene: &Scene) -> Result<(), Mod
     match (kind, device) {
         (ModeKind::Spmm, Device::Cpu) => Ok(SpmmMode::supports(scene)?),
         (ModeKind::Biscale, Device::Cpu) => Ok(BiscaleMode::supports(scene)?),
+        (ModeKind::Adaptive, Device::Cpu) => Ok(AdaptiveMode::supports(scene)?),
         _ => Err(ModeError::NotBuilt { mode: kind, device }),
     }
 }
@@ -45,6 +49,9 @@ pub fn create(
         (ModeKind::Biscale, Device::Cpu) => {
             Ok(Box::new(BiscaleMode::new(scene, width, height, prepare)?))
         }
+        (ModeKind::Adaptive, Device::Cpu) => Ok(Box::new(AdaptiveMode::prepare(
+            scene, width, height, prepare,
+        )?)),
         _ => Err(ModeError::NotBuilt { mode: kind, device }),
     }
 }
@@ -61,7 +68,8 @@ mod tests {
     fn modes_not_built_say_so() {
         let scene = edit_test_scene();
         for (kind, device) in [
-            (ModeKind::Adaptive, Device::Cpu),
+            (ModeKind::Adaptive, Device::Gpu),
+            (ModeKind::Biscale, Device::Gpu),
             (ModeKind::Spmm, Device::Gpu),
         ] {
             let err = create(kind, device, scene.clone(), 8, 8, Prepare::quietly())

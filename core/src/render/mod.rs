@@ -277,6 +277,11 @@ pub trait RenderMode: Send {
     fn summary(&self) -> Option<String> {
         None
     }
+    /// Debug images of the mode's own decisions, by name (the adaptive mode's
+    /// bandwidth-buffer level and samples per pixel, as colour maps); none by default.
+    fn debug_overlays(&self) -> Vec<(&'static str, Image)> {
+        Vec::new()
+    }
 }
 
 /// Totals of a run of frames.

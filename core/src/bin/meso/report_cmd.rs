@@ -21,6 +21,39 @@ use crate::svg_chart::{Chart, Series, render};
 pub enum ReportCommand {
     /// Error against a converged reference after 1, 2, 4, ... frames, with time.
     Convergence(ConvergenceArgs),
+    /// The adaptive mode against the spmm brute force: speed-up at equal PSNR, the
+    /// bandwidth pass, n_b 16 against 256, the pre-convolved variant.
+    Adaptive(AdaptiveArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct AdaptiveArgs {
+    /// The scene file.
+    scene: PathBuf,
+    /// Output folder (created if missing).
+    #[arg(short = 'o', long)]
+    output: PathBuf,
+    #[arg(long, default_value_t = 128)]
+    width: u32,
+    #[arg(long, default_value_t = 128)]
+    height: u32,
+    /// Frames of the converged spmm reference.
+    #[arg(long, default_value_t = 2048)]
+    reference_frames: u32,
+    /// Last checkpoint of the brute force.
+    #[arg(long, default_value_t = 256)]
+    spmm_frames: u32,
+    /// Last checkpoint of the adaptive variants.
+    #[arg(long, default_value_t = 64)]
+    adaptive_frames: u32,
+    /// Frames between two refinements of the adaptive mode's levels.
+    #[arg(long)]
+    refine_frames: Option<u32>,
+    /// Mean samples per shaded pixel per frame of the adaptive mode.
+    #[arg(long)]
+    mean_samples: Option<f64>,
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Args, Debug)]
@@ -49,7 +82,111 @@ pub struct ConvergenceArgs {
 pub fn run(command: ReportCommand) -> Result<(), CliError> {
     match command {
         ReportCommand::Convergence(args) => convergence(&args),
+        ReportCommand::Adaptive(args) => adaptive(&args),
     }
+}
+
+fn adaptive(args: &AdaptiveArgs) -> Result<(), CliError> {
+    use meso_core::adaptive::report::{SpeedupRequest, speedup_report};
+    let scene = load_scene(&args.scene).map_err(CliError::bad_input)?;
+    if let Some(p) = RenderSettings::size_problem(args.width, args.height) {
+        return Err(CliError::bad_input(anyhow!("--width/--height: {p}")));
+    }
+    if args
+        .mean_samples
+        .is_some_and(|m| !(m.is_finite() && m >= 1.0))
+    {
+        return Err(CliError::bad_input(anyhow!(
+            "--mean-samples must be finite and at least 1"
+        )));
+    }
+    for (name, v) in [
+        ("--refine-frames", args.refine_frames.unwrap_or(1)),
+        ("--reference-frames", args.reference_frames),
+        ("--spmm-frames", args.spmm_frames),
+        ("--adaptive-frames", args.adaptive_frames),
+    ] {
+        if v == 0 {
+            return Err(CliError::bad_input(anyhow!("{name} must be at least 1")));
+        }
+    }
+    std::fs::create_dir_all(&args.output)
+        .failure_ctx(|| format!("creating `{}`", args.output.display()))?;
+    let verbose = std::io::stderr().is_terminal() && !args.json;
+    let report = speedup_report(
+        &scene,
+        &SpeedupRequest {
+            width: args.width,
+            height: args.height,
+            reference_frames: args.reference_frames,
+            spmm_frames: args.spmm_frames,
+            adaptive_frames: args.adaptive_frames,
+            options: {
+                let d = meso_core::adaptive::AdaptiveOptions::default();
+                meso_core::adaptive::AdaptiveOptions {
+                    refine_frames: args.refine_frames.unwrap_or(d.refine_frames),
+                    mean_samples: args.mean_samples.unwrap_or(d.mean_samples),
+                    ..d
+                }
+            },
+        },
+        |m| {
+            if verbose {
+                eprintln!("{m}");
+            }
+        },
+    )
+    .map_err(CliError::failure)?;
+    let out = |name: &str| args.output.join(name);
+    let mut csv = String::from("curve,frames,seconds,samples,psnr_db,rmse,speedup\n");
+    for c in &report.curves {
+        for k in &c.checkpoints {
+            let _ = writeln!(
+                csv,
+                "{},{},{:.6},{},{:.3},{:.6e},{}",
+                c.name,
+                k.frames,
+                k.seconds,
+                k.samples,
+                k.psnr_db,
+                k.rmse,
+                k.speedup.map_or(String::new(), |s| format!("{s:.3}"))
+            );
+        }
+    }
+    write_bytes_atomic(&out("adaptive.csv"), csv.as_bytes())
+        .failure_ctx(|| format!("writing `{}`", out("adaptive.csv").display()))?;
+    let json = serde_json::to_string_pretty(&report)
+        .map_err(|e| CliError::failure(anyhow!("cannot encode the report: {e}")))?;
+    write_bytes_atomic(&out("adaptive.json"), json.as_bytes())
+        .failure_ctx(|| format!("writing `{}`", out("adaptive.json").display()))?;
+    meso_core::image::write_image(&out("reference.png"), &report.reference, 0.0)
+        .failure_ctx(|| format!("writing `{}`", out("reference.png").display()))?;
+    if args.json {
+        let value = serde_json::to_value(&report)
+            .map_err(|e| CliError::failure(anyhow!("cannot encode the report: {e}")))?;
+        return crate::print_json(&value);
+    }
+    println!(
+        "{:<16} {:>7} {:>10} {:>9} {:>9} {:>12}",
+        "curve", "frames", "seconds", "PSNR dB", "speed-up", "pass (ms)"
+    );
+    for c in &report.curves {
+        for k in &c.checkpoints {
+            println!(
+                "{:<16} {:>7} {:>10.3} {:>9.2} {:>9} {:>12}",
+                c.name,
+                k.frames,
+                k.seconds,
+                k.psnr_db,
+                k.speedup.map_or("-".into(), |s| format!("{s:.2}x")),
+                c.bandwidth_pass_seconds
+                    .map_or("-".into(), |s| format!("{:.1}", s * 1e3))
+            );
+        }
+    }
+    println!("wrote {}", args.output.display());
+    Ok(())
 }
 
 fn convergence(args: &ConvergenceArgs) -> Result<(), CliError> {

@@ -1,0 +1,230 @@
+//! Coarse-to-fine bilateral up-sampling (Bagher et al. 2013, section 3.2, Fig. 8):
+//! level k of the image is the grid of pixels whose coordinates are multiples of 2^k;
+//! from the top level down, a pixel of level k that is not on level k + 1 and has no
+//! value of its own takes the average of its (up to four) level-(k+1) parents with
+//! weights w_i = g_z(z - z_i) g_a(p - p_i) alpha_i: a Gaussian of the relative depth
+//! difference, the anisotropic screen-space Gaussian of the projected normal, and
+//! bilinear weights.
+
+use glam::{DVec2, DVec3};
+
+/// Relative depth difference at which g_z falls to 1/e.
+pub const DEPTH_SIGMA: f64 = 0.05;
+/// Below this sum of alpha g_z a pixel has no parent at its depth: it must be shaded.
+pub const MIN_WEIGHT: f64 = 1e-3;
+
+/// What the weights read of each pixel (the G-buffer's share).
+#[derive(Clone, Debug)]
+pub struct Guide {
+    pub width: u32,
+    pub height: u32,
+    /// Distance along the primary ray; `f64::INFINITY` where the ray left the scene.
+    pub depth: Vec<f64>,
+    /// Unit screen-space direction of the projected normal (x right, y down); zero
+    /// where there is no surface or the normal faces the eye.
+    pub normal_dir: Vec<DVec2>,
+    /// |cos| of the angle between the normal and the view direction (1 off surfaces).
+    pub cos_x: Vec<f64>,
+}
+
+/// g_z: 1 for equal depths (two misses count as equal), 0 between a surface and a miss.
+pub fn depth_weight(z: f64, zi: f64) -> f64 {
+    if z.is_infinite() || zi.is_infinite() {
+        return if z == zi { 1.0 } else { 0.0 };
+    }
+    let rel = (z - zi) / (DEPTH_SIGMA * z.abs().max(1e-12));
+    (-rel * rel).exp()
+}
+
+/// g_a(v) = exp(-v^T M v), v in units of the parent spacing, with M stretching the
+/// direction of the projected normal by 1 / cos^2(theta_x) (section 3.2).
+pub fn screen_weight(v: DVec2, normal_dir: DVec2, cos_x: f64) -> f64 {
+    let along = v.dot(normal_dir);
+    let across2 = v.length_squared() - along * along;
+    let c = cos_x.max(0.05);
+    (-(across2 + along * along / (c * c))).exp()
+}
+
+/// The level-(k+1) parents of pixel (x, y) with their alpha g_z and full weights.
+fn parents(guide: &Guide, x: u32, y: u32, k: u32) -> ([(usize, f64, f64); 4], usize) {
+    let s = 1u32 << (k + 1);
+    let (x0, y0) = (x / s * s, y / s * s);
+    let (fx, fy) = (
+        f64::from(x - x0) / f64::from(s),
+        f64::from(y - y0) / f64::from(s),
+    );
+    let i = (y * guide.width + x) as usize;
+    let mut out = [(0usize, 0.0, 0.0); 4];
+    let mut n = 0;
+    for (dx, dy, alpha) in [
+        (0, 0, (1.0 - fx) * (1.0 - fy)),
+        (s, 0, fx * (1.0 - fy)),
+        (0, s, (1.0 - fx) * fy),
+        (s, s, fx * fy),
+    ] {
+        let (px, py) = (x0 + dx, y0 + dy);
+        if alpha == 0.0 || px >= guide.width || py >= guide.height {
+            continue;
+        }
+        let j = (py * guide.width + px) as usize;
+        let gz = depth_weight(guide.depth[i], guide.depth[j]);
+        let v =
+            DVec2::new(f64::from(px) - f64::from(x), f64::from(py) - f64::from(y)) / f64::from(s);
+        let ga = screen_weight(v, guide.normal_dir[i], guide.cos_x[i]);
+        out[n] = (j, alpha * gz, alpha * gz * ga);
+        n += 1;
+    }
+    (out, n)
+}
+
+/// The finest level pixel (x, y) lies on, capped at `top`.
+pub fn level_of_pixel(x: u32, y: u32, top: u32) -> u32 {
+    (x | y).trailing_zeros().min(top)
+}
+
+/// True if pixel (x, y), on level k < top and not on level k + 1, has parents at its
+/// depth (else it must be shaded itself).
+pub fn has_parents(guide: &Guide, x: u32, y: u32, k: u32) -> bool {
+    let (p, n) = parents(guide, x, y, k);
+    p[..n].iter().map(|q| q.1).sum::<f64>() >= MIN_WEIGHT
+}
+
+/// Fills every pixel without a value (`has_value` false) from the pyramid, coarse to
+/// fine. Every pixel of the top level must have a value; a pixel whose parents all
+/// lie at other depths takes the parent nearest in depth (the caller shades such
+/// pixels, `has_parents`, so this only happens in tests that ask for it).
+pub fn upsample(guide: &Guide, has_value: &[bool], values: &mut [DVec3], top: u32) {
+    let (w, h) = (guide.width, guide.height);
+    for k in (0..top).rev() {
+        let step = 1u32 << k;
+        for y in (0..h).step_by(step as usize) {
+            for x in (0..w).step_by(step as usize) {
+                let i = (y * w + x) as usize;
+                if level_of_pixel(x, y, top) != k || has_value[i] {
+                    continue;
+                }
+                let (p, n) = parents(guide, x, y, k);
+                let total: f64 = p[..n].iter().map(|q| q.2).sum();
+                values[i] = if total > 0.0 {
+                    p[..n].iter().map(|q| values[q.0] * q.2).sum::<DVec3>() / total
+                } else {
+                    let nearest = p[..n].iter().min_by(|a, b| {
+                        let da = (guide.depth[a.0] - guide.depth[i]).abs();
+                        let db = (guide.depth[b.0] - guide.depth[i]).abs();
+                        da.total_cmp(&db)
+                    });
+                    nearest.map_or(DVec3::ZERO, |q| values[q.0])
+                };
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn flat_guide(w: u32, h: u32, depth: impl Fn(u32, u32) -> f64) -> Guide {
+        let n = (w * h) as usize;
+        Guide {
+            width: w,
+            height: h,
+            depth: (0..n as u32).map(|i| depth(i % w, i / w)).collect(),
+            normal_dir: vec![DVec2::ZERO; n],
+            cos_x: vec![1.0; n],
+        }
+    }
+
+    fn top_only(w: u32, h: u32, top: u32) -> Vec<bool> {
+        (0..w * h)
+            .map(|i| level_of_pixel(i % w, i / w, 31) >= top)
+            .collect()
+    }
+
+    #[test]
+    fn a_flat_shaded_plane_is_reproduced_exactly() {
+        // Constant radiance on a plane seen at constant depth: every interpolated pixel
+        // is a weighted mean of equal values.
+        let (w, h, top) = (37, 29, 3);
+        let guide = flat_guide(w, h, |_, _| 2.0);
+        let has = top_only(w, h, top);
+        let c = DVec3::new(0.3, 0.5, 0.7);
+        let mut v: Vec<DVec3> = has
+            .iter()
+            .map(|&b| if b { c } else { DVec3::splat(-1.0) })
+            .collect();
+        upsample(&guide, &has, &mut v, top);
+        for (i, p) in v.iter().enumerate() {
+            assert!((*p - c).abs().max_element() < 1e-12, "pixel {i}: {p}");
+        }
+    }
+
+    #[test]
+    fn a_linear_ramp_on_the_grid_is_interpolated_linearly_where_parents_surround() {
+        let (w, h, top) = (17, 17, 2);
+        let guide = flat_guide(w, h, |_, _| 1.0);
+        let has = top_only(w, h, top);
+        let ramp = |i: usize| DVec3::splat((i as u32 % w) as f64);
+        let mut v: Vec<DVec3> = (0..(w * h) as usize)
+            .map(|i| if has[i] { ramp(i) } else { DVec3::ZERO })
+            .collect();
+        upsample(&guide, &has, &mut v, top);
+        // Pixel (2, 0) lies halfway between (0, 0) and (4, 0); isotropic g_a is equal
+        // for both, so the mean is exact.
+        assert!((v[2].x - 2.0).abs() < 1e-12, "{}", v[2]);
+        assert!((v[(2 * w + 2) as usize].x - 2.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn depth_discontinuities_are_not_blurred_across() {
+        // Two planes: x < 8 at depth 1 (radiance 1), x >= 8 at depth 5 (radiance 10).
+        // With only the level-2 grid shaded, every pixel must take its own plane's
+        // value; a plain bilinear filter would mix them next to the edge.
+        let (w, h, top) = (16, 16, 2);
+        let guide = flat_guide(w, h, |x, _| if x < 8 { 1.0 } else { 5.0 });
+        let has = top_only(w, h, top);
+        let truth = |x: u32| if x < 8 { 1.0 } else { 10.0 };
+        let mut v: Vec<DVec3> = (0..w * h)
+            .map(|i| {
+                if has[i as usize] {
+                    DVec3::splat(truth(i % w))
+                } else {
+                    DVec3::ZERO
+                }
+            })
+            .collect();
+        upsample(&guide, &has, &mut v, top);
+        for i in 0..w * h {
+            let (x, y) = (i % w, i / w);
+            let got = v[i as usize].x;
+            assert!(
+                (got - truth(x)).abs() < 1e-6 * truth(x),
+                "({x}, {y}): {got}, expected {}",
+                truth(x)
+            );
+        }
+        // And pixel (7, y) has no parent at its depth on its right: its level-0
+        // parents (6, y) and (8, y) differ, yet (6, y) is kept alone.
+        assert!(has_parents(&guide, 7, 0, 0));
+    }
+
+    #[test]
+    fn the_screen_gaussian_is_narrow_along_a_grazing_normal() {
+        let n = DVec2::X;
+        let along = screen_weight(DVec2::new(0.5, 0.0), n, 0.2);
+        let across = screen_weight(DVec2::new(0.0, 0.5), n, 0.2);
+        assert!(along < 0.01 * across, "{along} {across}");
+        assert!((screen_weight(DVec2::new(0.5, 0.0), n, 1.0) - across).abs() < 1e-15);
+    }
+
+    #[test]
+    fn a_surface_pixel_next_to_only_background_parents_has_none() {
+        let guide = flat_guide(
+            4,
+            4,
+            |x, y| if x == 1 && y == 1 { 1.0 } else { f64::INFINITY },
+        );
+        assert!(!has_parents(&guide, 1, 1, 0));
+        assert!(has_parents(&guide, 3, 1, 0));
+    }
+}

@@ -768,7 +768,7 @@ impl AdaptiveMode {
                     continue;
                 }
                 let Some((distance, falloff)) =
-                    surface::hit_parallelogram(s.p, wi, corner, edge_u, edge_v)
+                    crate::geometry::hit_parallelogram(s.p, wi, corner, edge_u, edge_v)
                 else {
                     continue;
                 };

@@ -6,7 +6,6 @@
 
 use glam::{DVec2, DVec3};
 
-use crate::brdf::warp;
 use crate::geometry::Hit;
 use crate::scene::{Material, Scene};
 
@@ -24,38 +23,13 @@ impl Surface {
     /// The frame at `hit` for a ray travelling along `dir` (the spmm mode's rule, so
     /// both modes shade the same frame and converge to the same image).
     pub fn at(scene: &Scene, hit: &Hit, dir: DVec3) -> Self {
-        let mesh = &scene.meshes[hit.mesh];
-        let [i0, i1, i2] = mesh.indices[hit.triangle].map(|i| i as usize);
-        let w0 = 1.0 - hit.b1 - hit.b2;
-        let (p0, p1, p2) = (mesh.positions[i0], mesh.positions[i1], mesh.positions[i2]);
-        let p = p0 * w0 + p1 * hit.b1 + p2 * hit.b2;
-        let mut ng = (p1 - p0).cross(p2 - p0).normalize_or(DVec3::Y);
-        if ng.dot(dir) > 0.0 {
-            ng = -ng;
-        }
-        let mut n = (mesh.normals[i0] * w0 + mesh.normals[i1] * hit.b1 + mesh.normals[i2] * hit.b2)
-            .normalize_or(ng);
-        if n.dot(ng) < 0.0 {
-            n = -n;
-        }
-        let (uv0, uv1, uv2) = (mesh.uvs[i0], mesh.uvs[i1], mesh.uvs[i2]);
-        let (e1, e2, d1, d2) = (p1 - p0, p2 - p0, uv1 - uv0, uv2 - uv0);
-        let det = d1.x * d2.y - d2.x * d1.y;
-        let dpdu = if det.abs() > 1e-20 {
-            (e1 * d2.y - e2 * d1.y) / det
-        } else {
-            DVec3::ZERO
-        };
-        let t = (dpdu - n * n.dot(dpdu))
-            .try_normalize()
-            .unwrap_or_else(|| warp::orthonormal_basis(n).0);
-        let b = n.cross(t);
+        let s = crate::trace::shading::shading_at(scene, hit, dir);
         Self {
-            p,
-            t,
-            b,
-            n,
-            material: mesh.material,
+            p: s.p,
+            t: s.t,
+            b: s.b,
+            n: s.n,
+            material: s.material,
         }
     }
 
@@ -97,36 +71,10 @@ pub fn pdf(material: &Material, wo: DVec3, wi: DVec3) -> f64 {
     }
 }
 
-/// Where a ray from `origin` along unit `dir` meets the front of the parallelogram
-/// `corner + a edge_u + b edge_v` (a, b in [0, 1], emitting towards edge_u x edge_v):
-/// its distance and `cos_l area / r^2`, the reciprocal of the solid-angle pdf of a
-/// uniform point on it.
-pub fn hit_parallelogram(
-    origin: DVec3,
-    dir: DVec3,
-    corner: DVec3,
-    edge_u: DVec3,
-    edge_v: DVec3,
-) -> Option<(f64, f64)> {
-    let normal = edge_u.cross(edge_v);
-    let facing = -dir.dot(normal);
-    if facing.is_nan() || facing <= 0.0 {
-        return None;
-    }
-    let t = (origin - corner).dot(normal) / facing;
-    if !(t > 0.0 && t.is_finite()) {
-        return None;
-    }
-    let rel = origin + dir * t - corner;
-    let n2 = normal.length_squared();
-    let a = rel.cross(edge_v).dot(normal) / n2;
-    let b = edge_u.cross(rel).dot(normal) / n2;
-    ((0.0..=1.0).contains(&a) && (0.0..=1.0).contains(&b)).then(|| (t, facing / (t * t)))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::hit_parallelogram;
 
     #[test]
     fn a_ray_meets_the_front_of_a_unit_square_above_with_its_solid_angle_density() {

@@ -11,5 +11,38 @@ pub mod pick;
 
 pub use brush::{Brush, BrushUnits};
 pub use bvh::{Hit, SceneBvh};
+
 pub use camera::{PinholeCamera, Ray};
+use glam::DVec3;
 pub use pick::{Pick, pick};
+
+/// Where the ray from `origin` along unit `dir` meets the front face of the
+/// parallelogram `corner + a edge_u + b edge_v` (a, b in [0, 1], emitting towards
+/// edge_u x edge_v): its distance and `cos_l area / r^2`, the reciprocal of the
+/// solid-angle pdf of a uniform point on it.
+pub fn hit_parallelogram(
+    origin: DVec3,
+    dir: DVec3,
+    corner: DVec3,
+    edge_u: DVec3,
+    edge_v: DVec3,
+) -> Option<(f64, f64)> {
+    let normal = edge_u.cross(edge_v);
+    let facing = -dir.dot(normal);
+    if facing.is_nan() || facing <= 0.0 {
+        return None;
+    }
+    let t = (origin - corner).dot(normal) / facing;
+    if !(t > 0.0 && t.is_finite()) {
+        return None;
+    }
+    let rel = origin + dir * t - corner;
+    let n2 = normal.length_squared();
+    let a = rel.cross(edge_v).dot(normal) / n2;
+    let b = edge_u.cross(rel).dot(normal) / n2;
+    if !((0.0..=1.0).contains(&a) && (0.0..=1.0).contains(&b)) {
+        return None;
+    }
+    // cos_l |N| / t^2 with cos_l = facing / |N|.
+    Some((t, facing / (t * t)))
+}

@@ -11,7 +11,7 @@ use glam::{DVec2, DVec3};
 use super::SpmmMode;
 use crate::brdf::warp;
 use crate::geometry::Hit;
-use crate::scene::Material;
+use crate::scene::{Material, Scene};
 use crate::spmm::{EvalSettings, PrepareRequest, PreparedSpmm, TexelFilter};
 
 /// What shading a material needs at render time.
@@ -107,7 +107,7 @@ impl Shader {
 }
 
 /// A surface point ready to shade.
-pub(super) struct Shading {
+pub(crate) struct Shading {
     pub p: DVec3,
     /// Shading frame: tangent, bitangent, normal (facing the incoming ray).
     pub t: DVec3,
@@ -146,34 +146,41 @@ pub(crate) fn tangent_frame(n: DVec3, dpdu: DVec3) -> (DVec3, DVec3) {
     (t, n.cross(t))
 }
 
+/// The shading frame at `hit` for a ray along `dir`: interpolated normal turned to
+/// the viewer, tangent along +u. Every mode that shades the scene's surfaces uses it,
+/// so they converge to the same image.
+pub(crate) fn shading_at(scene: &Scene, hit: &Hit, dir: DVec3) -> Shading {
+    let mesh = &scene.meshes[hit.mesh];
+    let [i0, i1, i2] = mesh.indices[hit.triangle].map(|i| i as usize);
+    let w0 = 1.0 - hit.b1 - hit.b2;
+    let (p0, p1, p2) = (mesh.positions[i0], mesh.positions[i1], mesh.positions[i2]);
+    let p = p0 * w0 + p1 * hit.b1 + p2 * hit.b2;
+    let mut ng = (p1 - p0).cross(p2 - p0).normalize_or(DVec3::Y);
+    if ng.dot(dir) > 0.0 {
+        ng = -ng;
+    }
+    let mut n = (mesh.normals[i0] * w0 + mesh.normals[i1] * hit.b1 + mesh.normals[i2] * hit.b2)
+        .normalize_or(ng);
+    // Normals facing away from the viewer are flipped to the side the ray came from.
+    if n.dot(ng) < 0.0 {
+        n = -n;
+    }
+    let (uv0, uv1, uv2) = (mesh.uvs[i0], mesh.uvs[i1], mesh.uvs[i2]);
+    let uv = uv0 * w0 + uv1 * hit.b1 + uv2 * hit.b2;
+    let (t, b) = tangent_frame(n, dpdu(p1 - p0, p2 - p0, uv1 - uv0, uv2 - uv0));
+    Shading {
+        p,
+        t,
+        b,
+        n,
+        uv,
+        material: mesh.material,
+    }
+}
+
 impl SpmmMode {
     pub(super) fn shading(&self, hit: &Hit, dir: DVec3) -> Shading {
-        let mesh = &self.scene.meshes[hit.mesh];
-        let [i0, i1, i2] = mesh.indices[hit.triangle].map(|i| i as usize);
-        let w0 = 1.0 - hit.b1 - hit.b2;
-        let (p0, p1, p2) = (mesh.positions[i0], mesh.positions[i1], mesh.positions[i2]);
-        let p = p0 * w0 + p1 * hit.b1 + p2 * hit.b2;
-        let mut ng = (p1 - p0).cross(p2 - p0).normalize_or(DVec3::Y);
-        if ng.dot(dir) > 0.0 {
-            ng = -ng;
-        }
-        let mut n = (mesh.normals[i0] * w0 + mesh.normals[i1] * hit.b1 + mesh.normals[i2] * hit.b2)
-            .normalize_or(ng);
-        // Normals facing away from the viewer are flipped to the side the ray came from.
-        if n.dot(ng) < 0.0 {
-            n = -n;
-        }
-        let (uv0, uv1, uv2) = (mesh.uvs[i0], mesh.uvs[i1], mesh.uvs[i2]);
-        let uv = uv0 * w0 + uv1 * hit.b1 + uv2 * hit.b2;
-        let (t, b) = tangent_frame(n, dpdu(p1 - p0, p2 - p0, uv1 - uv0, uv2 - uv0));
-        Shading {
-            p,
-            t,
-            b,
-            n,
-            uv,
-            material: mesh.material,
-        }
+        shading_at(&self.scene, hit, dir)
     }
 
     /// The material's response to light from `wi` seen from `wo`, cosine included:

@@ -44,6 +44,21 @@ pub struct SpmmTable {
     k: usize,
 }
 
+/// How a pixel's view direction reads the tabulated views.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ViewLookup {
+    /// The four surrounding views, weighted bilinearly (the exact interpolant).
+    Bilinear,
+    /// One of those four views, chosen with probability equal to its bilinear weight
+    /// from the uniform number in [0, 1): an unbiased estimate of `Bilinear` at a
+    /// quarter of the dot products (stochastic filtering; the progressive film
+    /// averages the choice away as it averages the pixel jitter).
+    Pick(f64),
+    /// The view with the largest weight, no SPMM residual: the seed's trick while the
+    /// camera is dragged (biased, never accumulated with the others).
+    Nearest,
+}
+
 /// The shared geometry of the tables.
 #[derive(Clone, Copy, Debug)]
 pub struct Tabulation {
@@ -207,33 +222,53 @@ impl Tabulation {
     }
 }
 
+/// The (view, weight) pairs `lookup` keeps of the four bilinear ones.
+fn select_views(views: [(usize, f32); 4], lookup: ViewLookup) -> [(usize, f32); 4] {
+    let total: f32 = views.iter().map(|v| v.1).sum();
+    let one = |v: usize| [(v, total), (0, 0.0), (0, 0.0), (0, 0.0)];
+    match lookup {
+        ViewLookup::Bilinear => views,
+        ViewLookup::Nearest => one(views
+            .iter()
+            .copied()
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .map_or(0, |v| v.0)),
+        ViewLookup::Pick(u) => {
+            let mut left = u * f64::from(total);
+            // The last view with a weight takes what rounding leaves.
+            let mut chosen = views.iter().rposition(|v| v.1 > 0.0).unwrap_or(0);
+            for (i, v) in views.iter().enumerate() {
+                let w = f64::from(v.1);
+                if w > 0.0 && left < w {
+                    chosen = i;
+                    break;
+                }
+                left -= w;
+            }
+            one(views[chosen].0)
+        }
+    }
+}
+
 impl BtfTable {
     /// Outgoing radiance towards local `wo` at surface UV `uv`, for local incident
-    /// radiance `lstar` laid out [channel][M] (eq. 3). `moving`: the nearest tabulated
-    /// view instead of four interpolated ones, and no SPMM residual (the seed's trick
-    /// for a camera being dragged: a quarter of the dot products or fewer).
+    /// radiance `lstar` laid out [channel][M] (eq. 3), reading the views as `lookup`
+    /// says.
     pub fn shade(
         &self,
         tab: &Tabulation,
         uv: DVec2,
         wo: DVec3,
         lstar: &[f32],
-        moving: bool,
+        lookup: ViewLookup,
     ) -> [f32; 3] {
         if wo.z <= 0.0 {
             return [0.0; 3];
         }
         let mc = tab.local.len();
         let (lr, lg, lb) = (&lstar[..mc], &lstar[mc..2 * mc], &lstar[2 * mc..3 * mc]);
-        let mut views = tab.views.bilinear(wo);
-        if moving {
-            let nearest = views
-                .iter()
-                .copied()
-                .max_by(|a, b| a.1.total_cmp(&b.1))
-                .map_or(0, |v| v.0);
-            views = [(nearest, 1.0), (0, 0.0), (0, 0.0), (0, 0.0)];
-        }
+        let moving = lookup == ViewLookup::Nearest;
+        let views = select_views(tab.views.bilinear(wo), lookup);
         let mut out = [0.0f32; 3];
         match self {
             BtfTable::Brdf { rows, albedo } => {
@@ -296,6 +331,66 @@ impl BtfTable {
             BtfTable::Spmm(t) => {
                 4 * (t.bases.iter().map(Vec::len).sum::<usize>()
                     + t.residual.iter().map(Vec::len).sum::<usize>())
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::brdf::BrdfModel;
+
+    #[test]
+    fn picking_one_view_is_an_unbiased_estimate_of_the_bilinear_interpolant() {
+        // A glossy lobe makes the four views differ; the mean of the picked view over
+        // stratified u must equal the bilinear value (each view is chosen for a share
+        // of [0, 1) equal to its weight, so N strata are exact to about 4/N).
+        let tab = Tabulation {
+            local: HemisphereGrid::new(4),
+            views: HemisphereGrid::new(6),
+        };
+        let brdf = AnalyticBrdf::with_defaults(BrdfModel::CookTorrance);
+        let table = tab.brdf_table(&brdf, DVec3::ONE);
+        let lstar: Vec<f32> = (0..3 * tab.local.len())
+            .map(|i| 0.1 + (i % 7) as f32 * 0.3)
+            .collect();
+        for wo in [
+            DVec3::new(0.3, -0.2, 0.9).normalize(),
+            DVec3::new(0.8, 0.1, 0.3).normalize(),
+            DVec3::new(-0.05, 0.6, 0.2).normalize(),
+        ] {
+            let exact = table.shade(&tab, DVec2::ZERO, wo, &lstar, ViewLookup::Bilinear);
+            let n = 4096;
+            let mut mean = [0.0f64; 3];
+            for i in 0..n {
+                let u = (i as f64 + 0.5) / n as f64;
+                let v = table.shade(&tab, DVec2::ZERO, wo, &lstar, ViewLookup::Pick(u));
+                for c in 0..3 {
+                    mean[c] += f64::from(v[c]) / n as f64;
+                }
+            }
+            let spread: f64 = tab
+                .views
+                .bilinear(wo)
+                .iter()
+                .map(|&(v, _)| {
+                    table.shade(
+                        &tab,
+                        DVec2::ZERO,
+                        tab.views.centre(v),
+                        &lstar,
+                        ViewLookup::Bilinear,
+                    )[0] as f64
+                })
+                .fold(0.0, |a, b| a.max(b.abs()));
+            for c in 0..3 {
+                let e = f64::from(exact[c]);
+                assert!(
+                    (mean[c] - e).abs() <= 1e-3 * spread.max(e.abs()) + 1e-6,
+                    "wo {wo}: channel {c}: picked mean {} vs bilinear {e}",
+                    mean[c]
+                );
             }
         }
     }

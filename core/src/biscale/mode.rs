@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use glam::DVec3;
 
-use super::btf_table::{BtfTable, Tabulation};
+use super::btf_table::{BtfTable, Tabulation, ViewLookup};
 use super::cubemap::CubeLayout;
 use super::hemisphere::HemisphereGrid;
 use super::precompute::{Precomputed, precompute};
@@ -326,7 +326,14 @@ impl BiscaleMode {
             }
         }
         let rgb = match &self.tables[mesh.material] {
-            Some(table) => table.shade(&self.tab, uv, wo_local, lstar, self.moving),
+            Some(table) => {
+                let lookup = if self.moving {
+                    ViewLookup::Nearest
+                } else {
+                    ViewLookup::Pick(rng.next())
+                };
+                table.shade(&self.tab, uv, wo_local, lstar, lookup)
+            }
             None => [0.0; 3],
         };
         (

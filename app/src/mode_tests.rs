@@ -511,3 +511,84 @@ fn the_adaptive_mode_renders_a_shipped_merl_scene_and_shows_its_debug_overlays()
     h.run_steps(2);
     assert_eq!(h.state().viewport.overlay(), Some("samples per pixel"));
 }
+
+#[test]
+fn the_biscale_mode_renders_a_shipped_scene_turns_its_light_and_reprepares_for_new_meshes() {
+    // The real registry on tests/scenes/env.toml (the low-res bunny and a floor under
+    // the studio map, no lights): the toggle precomputes in the background (or reads
+    // the cache), the status bar names the biclusters and the FLOP ratio, turning the
+    // map is a light change of the same mode, and new meshes start a new preparation
+    // in the background instead of an edit on the render thread; cancelling it shows
+    // the new meshes in spmm rather than a stale view.
+    let scene = default_scene_path()
+        .parent()
+        .expect("scenes folder")
+        .join("env.toml");
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1280.0, 800.0))
+        .build_ui_state(
+            |ui, s: &mut Studio| s.show(ui),
+            Studio::with_maker(None, Some(scene), small(), Arc::new(CoreModes)),
+        );
+    loaded(&mut h);
+    wait_for_current_frame(&mut h);
+    choose_mode(&mut h, "biscale");
+    assert!(
+        h.state().switching(),
+        "the precomputation runs in the background"
+    );
+    let deadline = Instant::now() + Duration::from_secs(300);
+    while h.state().switching() {
+        assert!(Instant::now() < deadline, "biscale prepared within 300 s");
+        h.step();
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert_eq!(h.state().mode(), (ModeKind::Biscale, Device::Cpu));
+    wait_for_mode_frame(&mut h, ModeKind::Biscale);
+    h.run_steps(2);
+    let summary = h.state().frame().and_then(|f| f.summary.clone());
+    let summary = summary.expect("the biscale mode describes itself");
+    assert!(summary.contains("biclusters") && summary.contains("FLOP ratio"));
+    assert!(
+        h.query_by_label_contains("FLOP ratio").is_some(),
+        "in the status bar"
+    );
+    let before = h.state().frame().expect("frame").image.clone();
+
+    h.get_by_role_and_label(Role::Slider, "environment rotation (deg)")
+        .set_value_accesskit(120.0);
+    h.step();
+    wait_for_current_frame(&mut h);
+    let frame = h.state().frame().expect("frame");
+    assert_eq!(
+        frame.mode,
+        ModeKind::Biscale,
+        "a light change keeps the mode"
+    );
+    let changed = before
+        .pixels()
+        .iter()
+        .zip(frame.image.pixels())
+        .filter(|(a, b)| (a[0] - b[0]).abs() > 1e-3)
+        .count();
+    assert!(changed > 0, "turning the map changes the image");
+
+    let mut meshes = h.state().doc.as_ref().expect("doc").scene.meshes.clone();
+    meshes.truncate(1);
+    h.state_mut().edit(SceneEdit::Meshes(meshes));
+    h.step();
+    assert!(h.state().switching(), "new meshes are a new preparation");
+    h.state_mut().cancel_switch();
+    step_until(&mut h, "the fallback to spmm", |h| {
+        h.state().mode().0 == ModeKind::Spmm
+    });
+    assert!(
+        h.state()
+            .mode_message
+            .as_deref()
+            .is_some_and(|m| m.contains("showing them in spmm")),
+        "{:?}",
+        h.state().mode_message
+    );
+    wait_for_mode_frame(&mut h, ModeKind::Spmm);
+}

@@ -120,6 +120,10 @@ struct Switch {
     /// Edits made while it is prepared, already translated for it: replayed after
     /// it is installed, so it ends at the document's current scene.
     replay: Vec<(u64, SceneEdit)>,
+    /// A preparation of the current mode for new geometry (`prepares_geometry`): the
+    /// mode on screen still shows the old meshes, so cancelling it cannot simply keep
+    /// that mode.
+    for_geometry: bool,
 }
 
 /// The compare view's numbers and the two images they were computed from.
@@ -407,6 +411,7 @@ impl Studio {
             version: doc.version,
             job,
             replay: Vec::new(),
+            for_geometry: false,
         });
     }
 
@@ -448,6 +453,14 @@ impl Studio {
                 }
                 self.mode = (sw.kind, sw.device);
                 self.disabled = sw.disabled;
+            }
+            Ok(Err(ModeError::Cancelled(_))) if sw.for_geometry => {
+                // The mode on screen has the old meshes: show the new ones in the
+                // spmm mode, which needs no precomputation, rather than a stale view.
+                self.mode_message = Some(format!(
+                    "the {target} preparation for the new meshes was cancelled; showing them in spmm."
+                ));
+                self.start_switch(ModeKind::Spmm, self.mode.1, Disabled::default());
             }
             Ok(Err(ModeError::Cancelled(_))) => {}
             Ok(Err(e)) => {
@@ -614,6 +627,23 @@ impl Studio {
         let Some(doc) = &self.doc else { return };
         if let SceneEdit::Meshes(m) = &edit {
             self.bvh = Some(SceneBvh::build(m));
+            // A mode whose preparation depends on the geometry is prepared again in the
+            // background, with progress and Cancel, for the edited scene (which the
+            // document already holds), instead of recomputing on the render thread.
+            let (kind, device, disabled) = match &self.switch {
+                Some(sw) => (sw.kind, sw.device, sw.disabled.clone()),
+                None => (self.mode.0, self.mode.1, self.disabled.clone()),
+            };
+            if kind.prepares_geometry() {
+                if let Some(sw) = self.switch.take() {
+                    sw.job.cancel();
+                }
+                self.start_switch(kind, device, disabled);
+                if let Some(sw) = &mut self.switch {
+                    sw.for_geometry = true;
+                }
+                return;
+            }
         }
         let version = doc.version;
         if let Some(sw) = &mut self.switch

@@ -120,6 +120,13 @@ impl ModeKind {
     pub fn from_name(name: &str) -> Option<Self> {
         Self::ALL.into_iter().find(|m| m.name() == name)
     }
+
+    /// True if the mode's preparation depends on the geometry (biscale's transfer
+    /// matrices), so a mesh change is a new preparation, which an editor runs in the
+    /// background rather than as an edit on the render thread.
+    pub fn prepares_geometry(self) -> bool {
+        self == ModeKind::Biscale
+    }
 }
 
 /// Where a mode runs.

@@ -84,22 +84,44 @@ pub fn report_clap_error(err: clap::Error) -> ExitCode {
             ExitCode::SUCCESS
         }
         _ => {
-            let rendered = err.to_string();
-            let first = rendered
-                .lines()
-                .find(|l| !l.trim().is_empty())
-                .unwrap_or("invalid usage")
-                .trim();
-            let message = first.strip_prefix("error:").unwrap_or(first).trim();
+            let message = usage_message(&err.to_string());
             eprintln!("error: {message} (see `meso --help`)");
             ExitCode::from(EXIT_BAD_INPUT)
         }
     }
 }
 
+/// Clap's first paragraph on one line: its first line alone would drop what follows
+/// it, such as the names of missing required arguments.
+fn usage_message(rendered: &str) -> String {
+    let paragraph: Vec<&str> = rendered
+        .lines()
+        .skip_while(|l| l.trim().is_empty())
+        .take_while(|l| !l.trim().is_empty())
+        .map(str::trim)
+        .collect();
+    let line = paragraph.join(" ");
+    let line = line.strip_prefix("error:").unwrap_or(&line).trim();
+    if line.is_empty() {
+        "invalid usage".to_string()
+    } else {
+        line.to_string()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_missing_argument_is_named_on_the_one_line() {
+        let rendered = "error: the following required arguments were not provided:\n  --mode <MODE>\n\nUsage: meso precompute --mode <MODE> <SCENE>\n\nFor more information, try '--help'.\n";
+        assert_eq!(
+            usage_message(rendered),
+            "the following required arguments were not provided: --mode <MODE>"
+        );
+        assert_eq!(usage_message("\n\n"), "invalid usage");
+    }
 
     #[test]
     fn a_cause_the_message_already_quotes_is_said_once() {

@@ -72,6 +72,8 @@ pub struct Frame {
     pub finished: Instant,
     /// The mode's own one-line state (`RenderMode::summary`).
     pub summary: Option<String>,
+    /// Prepared material data held and what preparing everything would hold.
+    pub material_bytes: Option<meso_core::render::MaterialBytes>,
 }
 
 /// A rejected command: the version it carried and why.
@@ -284,6 +286,7 @@ fn run(
             rays_per_second: stats.counters.rays.total() as f64 / stats.seconds.max(1e-9),
             finished: Instant::now(),
             summary: m.summary(),
+            material_bytes: m.material_bytes(),
         };
         if let Ok(mut s) = shared.lock() {
             s.frame = Some(frame);

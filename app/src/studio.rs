@@ -1063,6 +1063,16 @@ impl Studio {
                         f.progress.dropped,
                         f.progress.film_bytes as f64 / 1e6
                     ));
+                    if let Some(b) = f.material_bytes {
+                        ui.label(format!(
+                            "materials {:.1} of {:.1} MB resident",
+                            b.resident as f64 / 1e6,
+                            b.full as f64 / 1e6
+                        ))
+                        .on_hover_text(
+                            "Packs are prepared when a ray first reaches them: packs no ray reaches hold nothing.",
+                        );
+                    }
                     if self.settings.show_timings {
                         ui.label(format!(
                             "{:.1} ms/frame · {:.2} M rays/s",

@@ -282,6 +282,19 @@ pub trait RenderMode: Send {
     fn debug_overlays(&self) -> Vec<(&'static str, Image)> {
         Vec::new()
     }
+    /// Prepared material data held now and what preparing every material would hold,
+    /// where the mode prepares materials on demand; `None` by default.
+    fn material_bytes(&self) -> Option<MaterialBytes> {
+        None
+    }
+}
+
+/// Bytes of prepared material data (`meso render --json`: `material_bytes_resident`,
+/// `material_bytes_full`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct MaterialBytes {
+    pub resident: u64,
+    pub full: u64,
 }
 
 /// Totals of a run of frames.

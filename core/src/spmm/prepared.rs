@@ -91,6 +91,49 @@ impl SpmmMaterial {
         rgb
     }
 
+    /// True if `prepare(request)` keeps residual tables.
+    pub fn prepares_residual(&self, request: &PrepareRequest) -> bool {
+        request.residual && self.residual().is_some() && self.residual_tables().is_some()
+    }
+
+    /// What `prepare(request).bytes()` will be, without preparing: what a render
+    /// that prepared this material would hold.
+    pub fn prepared_bytes(&self, request: &PrepareRequest) -> PreparedBytes {
+        let used = |c: usize| {
+            request
+                .used_clusters
+                .as_ref()
+                .is_none_or(|u| u.get(c).copied().unwrap_or(false))
+        };
+        let w = self.weights();
+        let weights = self.texel_cluster().len() * 4
+            + w.offsets.len() * 4
+            + w.basis.len() * 2
+            + w.rgb.len() * 12;
+        let bases = self
+            .clusters()
+            .iter()
+            .map(|c| c.bases.len() * size_of::<BasisFunction>())
+            .sum();
+        let residual = match self.residual().filter(|_| self.prepares_residual(request)) {
+            Some(r) => {
+                let k = r.npca.min(request.max_npca);
+                let clusters = (0..self.clusters().len())
+                    .filter(|&c| used(c) && self.view().shows_residual(c))
+                    .count();
+                let cells = clusters * r.light_dirs.len() * r.view_dirs.len() * (1 + k) * 3;
+                let coefficients = r.coefficients.len() / r.npca.max(1) * k;
+                (cells + coefficients) * 4
+            }
+            None => 0,
+        };
+        PreparedBytes {
+            bases,
+            weights,
+            residual,
+        }
+    }
+
     /// Builds the evaluation data a render with these settings needs.
     pub fn prepare(&self, request: &PrepareRequest) -> PreparedSpmm {
         let used = |c: usize| {

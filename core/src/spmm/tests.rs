@@ -691,6 +691,23 @@ mod prepared {
         });
         assert_eq!(off.bytes().residual, 0);
         assert!(off.bytes().total() < part.bytes().total());
+        // The estimate a render reports for materials it has not prepared.
+        for (prepared, request) in [
+            (&full, (None, true, 3)),
+            (&part, (Some(m.clusters_of_texels([1usize, 5])), true, 2)),
+            (&off, (None, false, 3)),
+        ] {
+            let request = PrepareRequest {
+                used_clusters: request.0,
+                residual: request.1,
+                max_npca: request.2,
+            };
+            assert_eq!(m.prepare(&request).bytes(), m.prepared_bytes(&request));
+            assert_eq!(
+                m.prepared_bytes(&request).total() == prepared.bytes().total(),
+                m.prepare(&request).bytes().total() == prepared.bytes().total()
+            );
+        }
         // Texels of the used cluster evaluate exactly as the reference with N_PCA = 2.
         for (t, wi, wo) in points(300, texels) {
             if m.texel_cluster()[t] == 1 {

@@ -17,9 +17,9 @@ use crate::render::film::{EMPTY_UV_BOX, UvBox, extend_uv_box, material_bit, memo
 use crate::render::layers::{self, Before, Layers, LightTarget};
 use crate::render::reach::EditedTexels;
 use crate::render::{
-    Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind,
-    PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit,
-    Unrenderable, Unsupported,
+    Counters, Device, EditError, Film, FrameStats, Invalidation, MaterialBytes, ModeError,
+    ModeKind, PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode,
+    SceneEdit, Unrenderable, Unsupported,
 };
 use crate::rng::SampleStream;
 use crate::scene::{Material, RenderSettings, Scene};
@@ -137,10 +137,15 @@ impl SpmmMode {
         let bvh = SceneBvh::build(&scene.meshes);
         stage("bvh", start);
         let start = Instant::now();
-        let mut shaders = Vec::with_capacity(scene.materials.len());
-        for (i, m) in scene.materials.iter().enumerate() {
-            prepare.report("materials", i as f32 / scene.materials.len() as f32)?;
-            shaders.push(Shader::new(m));
+        let camera = PinholeCamera::new(&scene.camera, width, height);
+        let shaders: Vec<Shader> = scene.materials.iter().map(Shader::new).collect();
+        // Packs a pixel's centre ray sees are prepared now, so the first frame does not
+        // stall on them; any other is prepared when a ray first reaches it (a mirror's
+        // reflection, a jittered ray at a silhouette) and never if none does.
+        let seen = materials_seen(&bvh, &scene, &camera, (width, height));
+        for (i, shader) in shaders.iter().enumerate().filter(|(i, _)| seen[*i]) {
+            prepare.report("materials", i as f32 / shaders.len().max(1) as f32)?;
+            shader.prepared();
         }
         stage("materials", start);
         prepare.report("environment", 0.0)?;
@@ -153,7 +158,7 @@ impl SpmmMode {
         prepare.report("environment", 1.0)?;
         Ok(Self {
             bvh,
-            camera: PinholeCamera::new(&scene.camera, width, height),
+            camera,
             shaders,
             env_sampler,
             film,
@@ -173,6 +178,14 @@ impl SpmmMode {
     /// `prepare` without progress or cancel.
     pub fn new(scene: Scene, width: u32, height: u32) -> Result<Self, ModeError> {
         Self::prepare(scene, width, height, Prepare::quietly())
+    }
+
+    /// Prepares every material now, reached or not (what rendering held before
+    /// preparation on demand; tests compare the two).
+    pub fn prepare_every_material(&self) {
+        for shader in &self.shaders {
+            shader.prepared();
+        }
     }
 
     pub fn bvh(&self) -> &SceneBvh {
@@ -397,6 +410,14 @@ impl RenderMode for SpmmMode {
         Some(self.compute_guides())
     }
 
+    fn material_bytes(&self) -> Option<MaterialBytes> {
+        let sum = |f: fn(&Shader) -> usize| self.shaders.iter().map(f).sum::<usize>() as u64;
+        Some(MaterialBytes {
+            resident: sum(Shader::resident_bytes),
+            full: sum(Shader::full_bytes),
+        })
+    }
+
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
         if let SceneEdit::Material { index, material } = &edit
             && let Some(part) = Self::unrenderable(&self.scene, *index, material)
@@ -480,4 +501,31 @@ impl RenderMode for SpmmMode {
             | SceneEdit::Background(_) => unreachable!("emitter edits are the layers' to handle"),
         })
     }
+}
+
+/// Which materials the centre ray of some pixel hits first.
+fn materials_seen(
+    bvh: &SceneBvh,
+    scene: &Scene,
+    camera: &PinholeCamera,
+    (w, h): (u32, u32),
+) -> Vec<bool> {
+    use rayon::prelude::*;
+    let hits: Vec<usize> = (0..h)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            (0..w).filter_map(move |x| {
+                let ray = camera.ray(x, y, glam::DVec2::splat(0.5));
+                bvh.closest_hit(&scene.meshes, ray.origin, ray.dir, 0.0, f64::INFINITY)
+                    .map(|hit| scene.meshes[hit.mesh].material)
+            })
+        })
+        .collect();
+    let mut seen = vec![false; scene.materials.len()];
+    for m in hits {
+        if let Some(s) = seen.get_mut(m) {
+            *s = true;
+        }
+    }
+    seen
 }

@@ -6,21 +6,27 @@
 
 use std::f64::consts::PI;
 
+use std::sync::{Arc, OnceLock};
+
 use glam::{DVec2, DVec3};
 
 use super::SpmmMode;
 use crate::brdf::warp;
 use crate::geometry::Hit;
 use crate::scene::{Material, Scene};
-use crate::spmm::{EvalSettings, PrepareRequest, PreparedSpmm, TexelFilter};
+use crate::spmm::{EvalSettings, PrepareRequest, PreparedSpmm, SpmmMaterial, TexelFilter};
 
 /// What shading a material needs at render time.
 pub(super) enum Shader {
     /// Analytic BRDFs, MERL tables and mirrors read the scene's material directly.
     Scene,
-    /// An SPMM pack prepared for this render, with its settings when still and moving.
+    /// An SPMM pack, prepared for this render the first time a ray shades it (or
+    /// before the first frame if a primary ray sees it: `SpmmMode::prepare`), with its
+    /// settings when still and moving. Packs no ray reaches hold nothing.
     Spmm {
-        prepared: Box<PreparedSpmm>,
+        material: Arc<SpmmMaterial>,
+        request: PrepareRequest,
+        prepared: OnceLock<Box<PreparedSpmm>>,
         still: EvalSettings,
         moving: EvalSettings,
     },
@@ -42,11 +48,13 @@ impl Shader {
                     uv_scale: *uv_scale,
                 };
                 Shader::Spmm {
-                    prepared: Box::new(material.prepare(&PrepareRequest {
+                    material: Arc::clone(material),
+                    request: PrepareRequest {
                         used_clusters: None,
                         residual: *residual,
                         max_npca: *npca,
-                    })),
+                    },
+                    prepared: OnceLock::new(),
                     still,
                     moving: EvalSettings {
                         residual: false,
@@ -66,7 +74,39 @@ impl Shader {
 
     /// True if moving changes this material's evaluation (it has a residual in use).
     pub(super) fn skips_residual_when_moving(&self) -> bool {
-        matches!(self, Shader::Spmm { prepared, still, .. } if still.residual && prepared.has_residual())
+        matches!(self, Shader::Spmm { material, request, still, .. } if still.residual && material.prepares_residual(request))
+    }
+
+    /// The pack's evaluation data, prepared now if no ray needed it before (one
+    /// thread prepares, others needing it wait; afterwards a read is one atomic load).
+    pub(super) fn prepared(&self) -> Option<&PreparedSpmm> {
+        match self {
+            Shader::Spmm {
+                material,
+                request,
+                prepared,
+                ..
+            } => Some(prepared.get_or_init(|| Box::new(material.prepare(request)))),
+            Shader::Scene => None,
+        }
+    }
+
+    /// Bytes of prepared material data held now.
+    pub(super) fn resident_bytes(&self) -> usize {
+        match self {
+            Shader::Spmm { prepared, .. } => prepared.get().map_or(0, |p| p.bytes().total()),
+            Shader::Scene => 0,
+        }
+    }
+
+    /// Bytes this material holds once prepared.
+    pub(super) fn full_bytes(&self) -> usize {
+        match self {
+            Shader::Spmm {
+                material, request, ..
+            } => material.prepared_bytes(request).total(),
+            Shader::Scene => 0,
+        }
     }
 
     /// A direction of the upper hemisphere (shading frame) for sampling light over it,
@@ -191,14 +231,11 @@ impl SpmmMode {
         match (&self.scene.materials[s.material], &self.shaders[s.material]) {
             (Material::Brdf { brdf, albedo }, _) => *albedo * (brdf.eval(li, lo) * li.z.max(0.0)),
             (Material::Merl { brdf, tint }, _) => *tint * brdf.eval(li, lo) * li.z.max(0.0),
-            (
-                Material::Spmm { .. },
-                Shader::Spmm {
-                    prepared,
-                    still,
-                    moving,
-                },
-            ) => prepared.eval_uv(s.uv, li, lo, if self.moving { moving } else { still }),
+            (Material::Spmm { .. }, shader @ Shader::Spmm { still, moving, .. }) => {
+                shader.prepared().map_or(DVec3::ZERO, |p| {
+                    p.eval_uv(s.uv, li, lo, if self.moving { moving } else { still })
+                })
+            }
             // `supports` refused every other material before the mode was made.
             _ => DVec3::ZERO,
         }

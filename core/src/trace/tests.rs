@@ -316,3 +316,61 @@ fn a_lambertian_plane_seen_in_a_mirror_is_the_reflectance_times_the_plane() {
         "{mirrored} vs {want}"
     );
 }
+
+#[test]
+fn packs_no_ray_reaches_hold_nothing_and_the_image_is_the_same_bit_for_bit() {
+    // edit_test_scene's floor and SPMM panel, plus two larger packs on panels behind
+    // the camera: shadow and AO rays may hit them but never shade them, so only the
+    // visible pack is prepared, and the image equals the one rendered with every
+    // pack prepared up front.
+    use crate::scene::mesh::quad;
+    let mut scene = crate::scene::test_scenes::edit_test_scene();
+    let visible_full = |scene: &Scene| {
+        let mode = SpmmMode::new(scene.clone(), 24, 24).expect("mode");
+        mode.prepare_every_material();
+        mode.material_bytes().expect("spmm reports").full
+    };
+    let visible = visible_full(&scene);
+    for (i, z) in [(2usize, 4.0), (3, 5.0)] {
+        let pack = crate::spmm::tests::sample_material(16, 16, 4, Some(4));
+        scene.material_names.push(format!("behind{i}"));
+        scene.materials.push(Material::Spmm {
+            material: std::sync::Arc::new(pack),
+            uv_scale: glam::DVec2::ONE,
+            residual: true,
+            npca: 4,
+        });
+        scene.meshes.push(quad(
+            DVec3::new(-1.0, 0.0, z),
+            DVec3::new(2.0, 0.0, 0.0),
+            DVec3::new(0.0, 2.0, 0.0),
+            i,
+        ));
+    }
+    let mut lazy = SpmmMode::new(scene.clone(), 24, 24).expect("mode");
+    let mut eager = SpmmMode::new(scene.clone(), 24, 24).expect("mode");
+    eager.prepare_every_material();
+    for mode in [&mut lazy, &mut eager] {
+        crate::render::run_frames(mode, 8, |_, _| {});
+    }
+    let (l, e) = (
+        lazy.material_bytes().expect("bytes"),
+        eager.material_bytes().expect("bytes"),
+    );
+    assert_eq!(l.full, e.full);
+    assert_eq!(e.resident, e.full, "everything prepared");
+    assert!(e.full > 3 * visible, "the hidden packs are the larger part");
+    assert!(
+        l.resident as f64 <= 1.2 * visible as f64,
+        "resident {} against the visible pack's {visible}",
+        l.resident
+    );
+    let (a, b) = (lazy.image(), eager.image());
+    assert!(
+        a.pixels()
+            .iter()
+            .zip(b.pixels())
+            .all(|(p, q)| p.map(f32::to_bits) == q.map(f32::to_bits)),
+        "bit-identical images"
+    );
+}

@@ -146,6 +146,8 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
             "rays_per_second": rays_per_s,
             "nonfinite_dropped": dropped,
             "film_bytes": mode.progress().film_bytes,
+            "material_bytes_resident": mode.material_bytes().map(|b| b.resident),
+            "material_bytes_full": mode.material_bytes().map(|b| b.full),
             "denoised": args.denoise,
         }));
     }

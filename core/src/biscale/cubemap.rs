@@ -7,7 +7,9 @@
 
 use glam::DVec3;
 
-use crate::environment::{pixel_of, rotate_y};
+use rayon::prelude::*;
+
+use crate::environment::pixel_of;
 use crate::scene::Environment;
 
 /// (major axis, u axis, v axis) of each face.
@@ -113,7 +115,12 @@ impl CubeLayout {
         // Quadrature points at least twice as fine as the map's pixels along each side
         // (a cube pixel spans about (pi / 2) / n radians, a map pixel 2 pi / w).
         let q = ((w as f64 / (2.0 * self.n as f64)).ceil() as u32).clamp(2, 32);
+        // The turn's sine and cosine once, not per quadrature point (a light change is
+        // interactive: this loop is most of it).
+        let (sin, cos) = (-env.rotate_y_deg).to_radians().sin_cos();
+        let turn = |d: DVec3| DVec3::new(cos * d.x + sin * d.z, d.y, -sin * d.x + cos * d.z);
         (0..self.len())
+            .into_par_iter()
             .map(|k| {
                 let (_, a0, b0) = self.face_coords(k, 0.0, 0.0);
                 let step = 2.0 / (self.n as f64 * q as f64);
@@ -125,7 +132,7 @@ impl CubeLayout {
                     // dOmega = da db / (1 + a^2 + b^2)^(3/2)
                     let dw = (1.0 + a * a + b * b).powf(-1.5);
                     let d = self.direction(k, si / q as f64, sj / q as f64);
-                    let (x, y) = pixel_of(w, h, rotate_y(d, -env.rotate_y_deg));
+                    let (x, y) = pixel_of(w, h, turn(d));
                     let p = env.map.get(x, y);
                     sum += DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64) * dw;
                     weight += dw;

@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 
 use meso_core::image::Image;
 use meso_core::render::{
-    Denoiser, Device, ModeKind, Prepare, Progress, RenderMode, SceneEdit, denoise,
+    Denoiser, Device, Guides, ModeKind, Prepare, Progress, RenderMode, SceneEdit, denoise,
 };
 use meso_core::scene::Scene;
 
@@ -156,14 +156,22 @@ impl Drop for RenderWorker {
 
 /// The viewport's picture of `image` after `samples` samples per pixel: blended with
 /// its denoised version while the blend's strength is positive and the mode gives
-/// guides.
-fn shown(mode: &dyn RenderMode, image: &Arc<Image>, samples: u32) -> Arc<Image> {
+/// guides. `guides` caches the mode's guides until a command changes the scene, the
+/// view or the mode (they trace a ray per pixel: most of the denoiser's cost).
+fn shown(
+    mode: &dyn RenderMode,
+    image: &Arc<Image>,
+    samples: u32,
+    guides: &mut Option<Option<Guides>>,
+) -> Arc<Image> {
     let strength = denoise::viewport_strength(samples);
     if strength <= 0.0 {
         return Arc::clone(image);
     }
-    mode.guides()
-        .and_then(|g| Denoiser::for_samples(samples).apply(image, &g))
+    guides
+        .get_or_insert_with(|| mode.guides())
+        .as_ref()
+        .and_then(|g| Denoiser::for_samples(samples).apply(image, g))
         .map_or_else(
             || Arc::clone(image),
             |d| Arc::new(denoise::blend(image, &d, strength)),
@@ -180,6 +188,7 @@ fn run(
     let mut version = 0;
     let mut max_samples = 4096u32;
     let mut denoise = true;
+    let mut guides: Option<Option<Guides>> = None;
     loop {
         let idle = mode
             .as_ref()
@@ -205,6 +214,9 @@ fn run(
         let mut changed = false;
         for command in pending {
             changed |= !matches!(command, Command::MaxSamples(_));
+            if !matches!(command, Command::MaxSamples(_) | Command::Denoise(_)) {
+                guides = None;
+            }
             let result = match command {
                 Command::Load {
                     version: v,
@@ -271,7 +283,7 @@ fn run(
             mode: m.kind(),
             device: m.device(),
             shown: if denoise {
-                shown(m.as_ref(), &image, progress.min_samples)
+                shown(m.as_ref(), &image, progress.min_samples, &mut guides)
             } else {
                 Arc::clone(&image)
             },

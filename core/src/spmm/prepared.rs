@@ -211,6 +211,25 @@ impl PreparedSpmm {
             return DVec3::ZERO;
         }
         let c = self.texel_cluster[t] as usize;
+        // The residual's nine cells lie far apart in a table of megabytes: ask for all
+        // of them first, so their cache misses overlap with each other and with the
+        // basis sum instead of queueing after it (same arithmetic, same order).
+        let cells = match (&self.residual, residual) {
+            (Some(r), true) => r.cluster_offset[c].map(|base| {
+                let stride = (1 + r.k) * 3;
+                let nv = r.views.len();
+                let (lw, vw) = (r.lights.weights(wi), r.views.weights(wo));
+                let mut cells = [(0usize, 0.0f64); 9];
+                for (i, cell) in cells.iter_mut().enumerate() {
+                    let (l, v) = (lw[i / 3], vw[i % 3]);
+                    let start = base + (l.0 as usize * nv + v.0 as usize) * stride;
+                    *cell = (start, l.1 * v.1);
+                    prefetch(&r.cells[start..start + stride]);
+                }
+                (r, cells)
+            }),
+            _ => None,
+        };
         let bases = &self.bases[c];
         let mut rgb = DVec3::ZERO;
         for i in self.offsets[t] as usize..self.offsets[t + 1] as usize {
@@ -218,27 +237,20 @@ impl PreparedSpmm {
             rgb += DVec3::new(w[0] as f64, w[1] as f64, w[2] as f64)
                 * bases[usize::from(self.basis[i])].eval(wi, wo);
         }
-        if residual
-            && let Some(r) = &self.residual
-            && let Some(base) = r.cluster_offset[c]
-        {
+        if let Some((r, cells)) = cells {
             let stride = (1 + r.k) * 3;
-            let nv = r.views.len();
             let coef = &r.coefficients[t * r.k..(t + 1) * r.k];
-            for (l, wl) in r.lights.weights(wi) {
-                for (v, wv) in r.views.weights(wo) {
-                    let w = wl * wv;
-                    if w == 0.0 {
-                        continue;
-                    }
-                    let cell = &r.cells[base + (l as usize * nv + v as usize) * stride..][..stride];
-                    let mut e = DVec3::new(cell[0] as f64, cell[1] as f64, cell[2] as f64);
-                    for (k, &a) in coef.iter().enumerate() {
-                        let b = &cell[3 + 3 * k..6 + 3 * k];
-                        e += a as f64 * DVec3::new(b[0] as f64, b[1] as f64, b[2] as f64);
-                    }
-                    rgb += w * e;
+            for (start, w) in cells {
+                if w == 0.0 {
+                    continue;
                 }
+                let cell = &r.cells[start..][..stride];
+                let mut e = DVec3::new(cell[0] as f64, cell[1] as f64, cell[2] as f64);
+                for (k, &a) in coef.iter().enumerate() {
+                    let b = &cell[3 + 3 * k..6 + 3 * k];
+                    e += a as f64 * DVec3::new(b[0] as f64, b[1] as f64, b[2] as f64);
+                }
+                rgb += w * e;
             }
         }
         rgb
@@ -282,4 +294,23 @@ impl PreparedSpmm {
             residual,
         }
     }
+}
+
+/// Hints the cache to load `data` (its first and last cache lines); no effect on results.
+#[inline(always)]
+fn prefetch(data: &[f32]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        if let (Some(first), Some(last)) = (data.first(), data.last()) {
+            // SAFETY: prefetching is a hint; it never faults, and both pointers point
+            // into `data`.
+            unsafe {
+                _mm_prefetch::<_MM_HINT_T0>(std::ptr::from_ref(first).cast());
+                _mm_prefetch::<_MM_HINT_T0>(std::ptr::from_ref(last).cast());
+            }
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = data;
 }

@@ -146,6 +146,22 @@ fn harness_with(maker: Arc<dyn ModeMaker>, settings: Settings) -> Harness<'stati
     h
 }
 
+/// The studio with core's modes on a scene of tests/scenes/, loaded.
+fn shipped_scene(name: &str) -> Harness<'static, Studio> {
+    let scene = default_scene_path()
+        .parent()
+        .expect("scenes folder")
+        .join(name);
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1280.0, 800.0))
+        .build_ui_state(
+            |ui, s: &mut Studio| s.show(ui),
+            Studio::with_maker(None, Some(scene), small(), Arc::new(CoreModes)),
+        );
+    loaded(&mut h);
+    h
+}
+
 fn test_modes() -> (Arc<AtomicBool>, Applied, Arc<dyn ModeMaker>) {
     let release = Arc::new(AtomicBool::new(false));
     let applied: Applied = Arc::default();
@@ -480,17 +496,7 @@ fn the_adaptive_mode_renders_a_shipped_merl_scene_and_shows_its_debug_overlays()
     // The real registry on the MERL bunny (inline tabulated tables, env_studio.exr
     // and an area light): the toggle reaches the adaptive mode, whose frames carry
     // the bandwidth level and samples-per-pixel maps the View menu offers.
-    let scene = default_scene_path()
-        .parent()
-        .expect("scenes folder")
-        .join("merl_bunny.toml");
-    let mut h = Harness::builder()
-        .with_size(egui::vec2(1280.0, 800.0))
-        .build_ui_state(
-            |ui, s: &mut Studio| s.show(ui),
-            Studio::with_maker(None, Some(scene), small(), Arc::new(CoreModes)),
-        );
-    loaded(&mut h);
+    let mut h = shipped_scene("merl_bunny.toml");
     wait_for_current_frame(&mut h);
     choose_mode(&mut h, "adaptive");
     step_until(&mut h, "the switch", |h| !h.state().switching());
@@ -520,17 +526,7 @@ fn the_biscale_mode_renders_a_shipped_scene_turns_its_light_and_reprepares_for_n
     // map is a light change of the same mode, and new meshes start a new preparation
     // in the background instead of an edit on the render thread; cancelling it shows
     // the new meshes in spmm rather than a stale view.
-    let scene = default_scene_path()
-        .parent()
-        .expect("scenes folder")
-        .join("env.toml");
-    let mut h = Harness::builder()
-        .with_size(egui::vec2(1280.0, 800.0))
-        .build_ui_state(
-            |ui, s: &mut Studio| s.show(ui),
-            Studio::with_maker(None, Some(scene), small(), Arc::new(CoreModes)),
-        );
-    loaded(&mut h);
+    let mut h = shipped_scene("env.toml");
     wait_for_current_frame(&mut h);
     choose_mode(&mut h, "biscale");
     assert!(

@@ -20,6 +20,15 @@ pub struct PrepareRequest {
     pub max_npca: usize,
 }
 
+impl PrepareRequest {
+    /// True if the render evaluates texels of cluster `c`.
+    pub fn uses_cluster(&self, c: usize) -> bool {
+        self.used_clusters
+            .as_ref()
+            .is_none_or(|u| u.get(c).copied().unwrap_or(false))
+    }
+}
+
 /// Bytes held by each part of the prepared data.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize)]
 pub struct PreparedBytes {
@@ -99,12 +108,7 @@ impl SpmmMaterial {
     /// What `prepare(request).bytes()` will be, without preparing: what a render
     /// that prepared this material would hold.
     pub fn prepared_bytes(&self, request: &PrepareRequest) -> PreparedBytes {
-        let used = |c: usize| {
-            request
-                .used_clusters
-                .as_ref()
-                .is_none_or(|u| u.get(c).copied().unwrap_or(false))
-        };
+        let used = |c: usize| request.uses_cluster(c);
         let w = self.weights();
         let weights = self.texel_cluster().len() * 4
             + w.offsets.len() * 4
@@ -136,12 +140,7 @@ impl SpmmMaterial {
 
     /// Builds the evaluation data a render with these settings needs.
     pub fn prepare(&self, request: &PrepareRequest) -> PreparedSpmm {
-        let used = |c: usize| {
-            request
-                .used_clusters
-                .as_ref()
-                .is_none_or(|u| u.get(c).copied().unwrap_or(false))
-        };
+        let used = |c: usize| request.uses_cluster(c);
         let residual = match (request.residual, self.residual(), self.residual_tables()) {
             (true, Some(r), Some((lights, views))) => {
                 let (nl, nv, npca) = (r.light_dirs.len(), r.view_dirs.len(), r.npca);

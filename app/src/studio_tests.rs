@@ -872,3 +872,105 @@ fn a_pack_dropped_on_the_window_goes_on_the_object_and_other_files_are_named() {
         .expect("a BTF is refused with a reason");
     assert!(e.contains("some.btf") && e.contains("meso fit"), "{e}");
 }
+
+fn pack_path(h: &Harness<'_, Studio>) -> Option<(usize, std::path::PathBuf)> {
+    h.state()
+        .doc
+        .as_ref()
+        .and_then(|d| d.pack.as_ref())
+        .map(|p| (p.material, p.path.clone().expect("a pack from a file")))
+}
+
+/// A real click on a library thumbnail puts that pack on the edited object (one undo
+/// step, the pack's file follows); with the floor selected, a pack makes the floor the
+/// edited SPMM object and a dropped MERL table makes it a MERL material; undo brings
+/// back the exact previous materials and edited pack.
+#[test]
+fn a_click_in_the_library_assigns_the_pack_and_undo_restores_the_object() {
+    let cache = tempfile::tempdir().expect("temp dir");
+    let settings = Settings {
+        show_library: true,
+        thumbnail_cache: Some(cache.path().to_path_buf()),
+        ..Settings::default()
+    };
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1280.0, 800.0))
+        .build_ui_state(
+            |ui, s: &mut Studio| s.show(ui),
+            Studio::new(None, None, settings),
+        );
+    loaded(&mut h);
+    h.run_steps(2);
+    let original = material(&h);
+    let (slot, leather) = pack_path(&h).expect("the default scene edits a pack");
+    let floor = 1 - slot;
+    let metal = library::shipped_dir().join("brushed_metal.spmm");
+
+    h.get_by_label("brushed_metal").click();
+    h.step();
+    loaded(&mut h);
+    let now = material(&h);
+    let expected = meso_core::spmm::pack::read_pack(&metal).expect("shipped pack");
+    assert!(now.stores_same(&expected));
+    assert_eq!(pack_path(&h), Some((slot, metal.clone())));
+    assert!(!h.state().doc.as_ref().expect("doc").dirty());
+    wait_for_current_frame(&mut h);
+    h.state_mut().undo();
+    h.step();
+    assert!(Arc::ptr_eq(&material(&h), &original));
+    assert_eq!(pack_path(&h), Some((slot, leather.clone())));
+
+    // The floor selected: the pack goes there and the floor becomes the edited pack.
+    let floor_before = h.state().doc.as_ref().expect("doc").scene.materials[floor].clone();
+    assert!(matches!(floor_before, Material::Brdf { .. }));
+    h.state_mut().selected_material = Some(floor);
+    h.run_steps(2);
+    h.get_by_label("woven_wool").click();
+    h.step();
+    loaded(&mut h);
+    let doc = h.state().doc.as_ref().expect("doc");
+    assert!(matches!(doc.scene.materials[floor], Material::Spmm { .. }));
+    assert!(
+        Arc::ptr_eq(&spmm(&doc.scene.materials[slot]), &original),
+        "the bunny keeps its pack"
+    );
+    assert_eq!(pack_path(&h).map(|p| p.0), Some(floor));
+
+    // A MERL table dropped on the window goes on the selected floor too.
+    let dir = tempfile::tempdir().expect("temp dir");
+    let table = dir.path().join("grey.binary");
+    meso_core::merl::tabulate(
+        &meso_core::brdf::AnalyticBrdf::with_defaults(meso_core::brdf::BrdfModel::Lambertian),
+        glam::DVec3::splat(0.5),
+    )
+    .expect("tabulates")
+    .write(&table)
+    .expect("write");
+    h.input_mut().dropped_files.push(Arc::new(Dropped(table)));
+    h.step();
+    loaded(&mut h);
+    let doc = h.state().doc.as_ref().expect("doc");
+    assert!(matches!(doc.scene.materials[floor], Material::Merl { .. }));
+    assert!(
+        doc.pack.is_none(),
+        "no SPMM pack on the edited slot any more"
+    );
+    wait_for_current_frame(&mut h);
+
+    // Two undos: the floor's pack, then its original BRDF and the bunny's pack edited.
+    h.state_mut().undo();
+    h.state_mut().undo();
+    h.step();
+    let doc = h.state().doc.as_ref().expect("doc");
+    assert!(matches!(doc.scene.materials[floor], Material::Brdf { .. }));
+    assert_eq!(pack_path(&h), Some((slot, leather)));
+    assert!(Arc::ptr_eq(&material(&h), &original));
+    wait_for_current_frame(&mut h);
+}
+
+fn spmm(m: &Material) -> Arc<SpmmMaterial> {
+    match m {
+        Material::Spmm { material, .. } => Arc::clone(material),
+        _ => panic!("not an SPMM material"),
+    }
+}

@@ -50,6 +50,11 @@ pub struct SpmmMode {
     frames: u32,
     pub(super) moving: bool,
     preparation: PreparationReport,
+    /// Pixels a material edit restarted, traced alone by the next frame so the edit
+    /// shows after a few hundred samples rather than a whole frame (a brush stroke).
+    catch_up: Vec<u32>,
+    /// Whether edits queue `catch_up` (off: the next frame is a whole frame, as before).
+    restarted_first: bool,
 }
 
 /// The per-sample state threaded through a path.
@@ -166,6 +171,8 @@ impl SpmmMode {
             frames: 0,
             moving: false,
             preparation: report,
+            catch_up: Vec::new(),
+            restarted_first: true,
             scene,
         })
     }
@@ -177,6 +184,70 @@ impl SpmmMode {
 
     pub fn bvh(&self) -> &SceneBvh {
         &self.bvh
+    }
+
+    /// Whether the frame after a material edit traces only the pixels it restarted
+    /// (on by default; off gives the previous behaviour, for comparisons).
+    pub fn set_restarted_first(&mut self, on: bool) {
+        self.restarted_first = on;
+        if !on {
+            self.catch_up.clear();
+        }
+    }
+
+    /// Pixels queued for the next frame to trace alone.
+    pub fn pending_restarted(&self) -> usize {
+        self.catch_up.len()
+    }
+
+    /// One sample per pixel of `pixels` (row-major) at the next sample index, the
+    /// rest of the image untouched: the frame after a material edit.
+    fn render_pixels(&mut self, pixels: &[u32]) -> FrameStats {
+        use rayon::prelude::*;
+        let start = Instant::now();
+        let first = self.next_sample;
+        let k = u64::from(self.samples_per_frame);
+        let layers = self.film.layers();
+        let active = self.layers.active(&self.scene);
+        let width = self.film.width();
+        let dropped_before = self.film.dropped();
+        let mut totals = Counters::default();
+        for index in first..first + k {
+            let samples: Vec<(Vec<DVec3>, u64, UvBox, RayCounts, u64)> = pixels
+                .par_iter()
+                .map(|&p| {
+                    let (x, y) = (p % width, p / width);
+                    let mut out = vec![DVec3::ZERO; layers];
+                    let (mut mask, mut reached) = (0, EMPTY_UV_BOX);
+                    let (mut counts, mut shading_points) = (RayCounts::default(), 0);
+                    self.sample_into(
+                        (x, y, width),
+                        index,
+                        &mut out,
+                        (&mut mask, &mut reached),
+                        &mut counts,
+                        &mut shading_points,
+                    );
+                    (out, mask, reached, counts, shading_points)
+                })
+                .collect();
+            for (&p, (out, mask, reached, counts, shading_points)) in pixels.iter().zip(samples) {
+                self.film.add_pixel_sample(p, &active, &out, mask, &reached);
+                totals = totals
+                    + Counters {
+                        samples: 1,
+                        shading_points,
+                        rays: counts,
+                    };
+            }
+        }
+        self.next_sample += k;
+        self.frames += 1;
+        FrameStats {
+            counters: totals,
+            seconds: start.elapsed().as_secs_f64(),
+            dropped: self.film.dropped() - dropped_before,
+        }
     }
 
     /// The weight of each film layer: the current emissions.
@@ -300,6 +371,7 @@ impl SpmmMode {
     /// Forgets every sample and starts the sample indices again, so the image from
     /// here on equals a fresh render of the edited scene, bit for bit.
     fn restart_all(&mut self) -> Invalidation {
+        self.catch_up.clear();
         self.film.reset();
         self.frames = 0;
         self.next_sample = 0;
@@ -321,6 +393,13 @@ impl RenderMode for SpmmMode {
     }
 
     fn render_frame(&mut self) -> FrameStats {
+        let pixels = std::mem::take(&mut self.catch_up);
+        // Half the image or more: a whole frame costs little more.
+        if !pixels.is_empty()
+            && pixels.len() * 2 <= self.film.width() as usize * self.film.height() as usize
+        {
+            return self.render_pixels(&pixels);
+        }
         let start = Instant::now();
         let first = self.next_sample;
         let k = u64::from(self.samples_per_frame);
@@ -456,15 +535,24 @@ impl RenderMode for SpmmMode {
             }
             SceneEdit::Material { index, .. } => {
                 let after = &self.scene.materials[index];
-                self.shaders[index] = Shader::new(after);
-                // Only pixels whose shading reached a changed texel restart.
+                self.shaders[index] = match &material_before {
+                    Some(before) => self.shaders[index].after_edit(before, after),
+                    None => Shader::new(after),
+                };
+                // Only pixels whose shading reached a changed texel restart; the next
+                // frame traces them first.
                 let bit = material_bit(index);
-                Invalidation::Pixels(
-                    match material_before.and_then(|b| EditedTexels::between(&b, after)) {
-                        Some(texels) => self.film.reset_reaching(bit, |b| texels.reaches(b)),
-                        None => self.film.reset_touching(bit),
-                    },
-                )
+                let pixels = match material_before.and_then(|b| EditedTexels::between(&b, after)) {
+                    Some(texels) => self.film.reset_reaching_pixels(bit, |b| texels.reaches(b)),
+                    None => self.film.reset_reaching_pixels(bit, |_| true),
+                };
+                let n = pixels.len();
+                if self.restarted_first {
+                    self.catch_up.extend(pixels);
+                    self.catch_up.sort_unstable();
+                    self.catch_up.dedup();
+                }
+                Invalidation::Pixels(n)
             }
             SceneEdit::Moving(moving) if moving == self.moving => Invalidation::Nothing,
             SceneEdit::Moving(moving) => {

@@ -64,6 +64,49 @@ impl Shader {
         }
     }
 
+    /// The shader of `after`, which replaced `before` (shaded by `self`): an SPMM
+    /// pack with the same residual reuses the prepared residual tables.
+    pub(super) fn after_edit(&self, before: &Material, after: &Material) -> Self {
+        if let (
+            Shader::Spmm { prepared, .. },
+            Material::Spmm { material: old, .. },
+            Material::Spmm {
+                material,
+                uv_scale,
+                residual,
+                npca,
+            },
+        ) = (self, before, after)
+            && let Material::Spmm {
+                residual: old_residual,
+                npca: old_npca,
+                ..
+            } = before
+            && (old_residual, old_npca) == (residual, npca)
+        {
+            let still = EvalSettings {
+                residual: *residual,
+                max_npca: *npca,
+                filter: TexelFilter::Nearest,
+                uv_scale: *uv_scale,
+            };
+            let request = PrepareRequest {
+                used_clusters: None,
+                residual: *residual,
+                max_npca: *npca,
+            };
+            return Shader::Spmm {
+                prepared: Box::new(material.prepare_after_edit(&request, old, prepared)),
+                still,
+                moving: EvalSettings {
+                    residual: false,
+                    ..still
+                },
+            };
+        }
+        Self::new(after)
+    }
+
     /// True if moving changes this material's evaluation (it has a residual in use).
     pub(super) fn skips_residual_when_moving(&self) -> bool {
         matches!(self, Shader::Spmm { prepared, still, .. } if still.residual && prepared.has_residual())

@@ -974,3 +974,135 @@ fn spmm(m: &Material) -> Arc<SpmmMaterial> {
         _ => panic!("not an SPMM material"),
     }
 }
+
+/// Saves the part `(x, y, w, h)` (points = pixels at scale 1) of the window's render
+/// as a PNG in `dir`.
+fn save_crop(h: &mut Harness<'_, Studio>, dir: &std::path::Path, name: &str, r: [u32; 4]) {
+    let img = h.render().expect("the window renders");
+    let [x, y, w, hgt] = r;
+    let crop = image::imageops::crop_imm(&img, x, y, w, hgt).to_image();
+    crop.save(dir.join(name)).expect("write the screenshot");
+}
+
+/// The illustrations of docs/app.md: the real window (wgpu, lavapipe under CI)
+/// driven through its UI: a basis's multiplier, a solo, a painted stroke and the
+/// material library. Run on purpose:
+/// `MESO_DOC_SHOTS=docs/images WGPU_BACKEND=vulkan cargo test -p meso-studio
+/// docs_screenshots -- --ignored`, then look at each image.
+#[test]
+#[ignore = "writes the documentation's screenshots when asked"]
+fn docs_screenshots() {
+    use meso_core::geometry::{Brush, BrushUnits};
+    use meso_core::spmm::Falloff;
+
+    let dir = std::path::PathBuf::from(
+        std::env::var_os("MESO_DOC_SHOTS").expect("MESO_DOC_SHOTS names the folder"),
+    );
+    let cache = tempfile::tempdir().expect("temp dir");
+    let spp = 16;
+    let settings = Settings {
+        max_samples: spp,
+        show_timings: false,
+        thumbnail_cache: Some(cache.path().to_path_buf()),
+        ..Settings::default()
+    };
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1280.0, 800.0))
+        .wgpu()
+        .build_ui_state(
+            |ui, s: &mut Studio| s.show(ui),
+            Studio::new(None, None, settings),
+        );
+    loaded(&mut h);
+    rested_frame(&mut h, spp);
+    let viewport = |h: &Harness<'_, Studio>| {
+        let r = h.state().viewport.rect.expect("the viewport was shown");
+        [
+            r.min.x as u32,
+            r.min.y as u32,
+            r.width() as u32,
+            r.height() as u32,
+        ]
+    };
+
+    // Per-basis scaling: basis 1 of the chosen cluster tripled.
+    h.get_by_role_and_label(Role::SpinButton, "×1")
+        .set_value_accesskit(3.0);
+    h.run_steps(2);
+    rested_frame(&mut h, spp);
+    h.run_steps(2);
+    let panel = h.get_by_label("solo 0").rect();
+    save_crop(
+        &mut h,
+        &dir,
+        "studio_basis_rows.png",
+        [918, (panel.min.y as u32).saturating_sub(260), 362, 420],
+    );
+
+    // Solo basis 0: the object shows that lobe alone.
+    h.get_by_label("solo 0").click();
+    h.run_steps(2);
+    rested_frame(&mut h, spp);
+    h.run_steps(2);
+    let v = viewport(&h);
+    save_crop(&mut h, &dir, "studio_solo.png", v);
+    h.get_by_label("solo 0").click();
+    h.run_steps(2);
+    h.state_mut().undo();
+    h.run_steps(2);
+
+    // A painted stroke: red boosted, green and blue dimmed, across the object.
+    h.get_by_label("Paint weights").click();
+    h.run_steps(2);
+    {
+        let p = &mut h.state_mut().material_panel.paint;
+        p.brush = Brush {
+            radius: 6.0,
+            units: BrushUnits::Texels,
+            strength: 1.0,
+            falloff: Falloff::Smooth,
+        };
+        p.amount = [2.5, 0.4, 0.4];
+    }
+    rested_frame(&mut h, spp);
+    let rect = h.state().viewport.rect.expect("the viewport was shown");
+    let (w, hgt) = h.state().full_size;
+    let (a, b) = two_points_on_the_pack(&h, 40);
+    let to_pos = |(x, y): (u32, u32)| {
+        rect.min
+            + egui::vec2(
+                (x as f32 + 0.5) / w as f32 * rect.width(),
+                (y as f32 + 0.5) / hgt as f32 * rect.height(),
+            )
+    };
+    h.hover_at(to_pos(a));
+    h.step();
+    h.drag_at(to_pos(a));
+    h.step();
+    for k in 1..=8 {
+        let x = a.0 + (b.0 - a.0) * k / 8;
+        h.hover_at(to_pos((x, a.1)));
+        h.step();
+    }
+    h.drop_at(to_pos(b));
+    h.run_steps(2);
+    rested_frame(&mut h, spp);
+    h.run_steps(2);
+    let v = viewport(&h);
+    save_crop(&mut h, &dir, "studio_painted.png", v);
+
+    // The material library with its thumbnails.
+    h.state_mut().settings.show_library = true;
+    let deadline = Instant::now() + Duration::from_secs(300);
+    loop {
+        h.step();
+        if h.state_mut().library().pending() == 0 {
+            break;
+        }
+        assert!(Instant::now() < deadline, "thumbnails did not finish");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    h.run_steps(3);
+    // The window opens at (290, 60), 420 points wide.
+    save_crop(&mut h, &dir, "studio_library.png", [282, 52, 440, 420]);
+}

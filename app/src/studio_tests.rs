@@ -1106,3 +1106,34 @@ fn docs_screenshots() {
     // The window opens at (290, 60), 420 points wide.
     save_crop(&mut h, &dir, "studio_library.png", [282, 52, 440, 420]);
 }
+
+/// The residual notice names only clusters whose mixture was edited: after a basis
+/// edit in cluster 0 of a fitted pack, cluster 0 shows it and cluster 1 does not.
+#[test]
+fn the_residual_notice_shows_only_for_an_edited_cluster() {
+    let fitted = default_scene_path().with_file_name("fitted.toml");
+    let mut h = resting_studio(Some(fitted), 1);
+    h.run_steps(2);
+    let m = material(&h);
+    assert!(m.cluster_has_residual(0) && m.cluster_has_residual(1));
+    let notice = "residual was fitted for the original mixture";
+    assert!(
+        h.query_by_label_contains(notice).is_none(),
+        "nothing edited yet"
+    );
+    h.get_by_role_and_label(Role::Slider, "normal θ (deg)")
+        .set_value_accesskit(15.0);
+    h.run_steps(2);
+    assert_eq!(material(&h).edited_clusters(), vec![0]);
+    assert!(
+        h.query_by_label_contains("Cluster 0's residual was fitted")
+            .is_some(),
+        "the edited cluster asks"
+    );
+    h.state_mut().material_panel.cluster = 1;
+    h.run_steps(2);
+    assert!(
+        h.query_by_label_contains(notice).is_none(),
+        "cluster 1 was not edited"
+    );
+}

@@ -697,7 +697,7 @@ mod tests {
         let only_mine = |lib: &Library| lib.entries().filter(|e| e.path == pack).count();
 
         let mut first = Library::open(
-            &[folder.clone()],
+            std::slice::from_ref(&folder),
             ThumbnailCache::new(cache_dir.clone()),
             None,
         );
@@ -731,7 +731,7 @@ mod tests {
         drop(first);
 
         let mut second = Library::open(
-            &[folder.clone()],
+            std::slice::from_ref(&folder),
             ThumbnailCache::new(cache_dir.clone()),
             None,
         );

@@ -103,6 +103,10 @@ impl Default for Settings {
     }
 }
 
+/// A library file read for a material slot: its path, the material, and (for a
+/// pack) its residual precision.
+type Assigned = (PathBuf, Material, ResidualPrecision);
+
 /// "loading default.toml": what a background job does, for the status bar.
 fn job_name(verb: &str, path: &Path) -> String {
     let file = path.file_name().unwrap_or(path.as_os_str());
@@ -245,7 +249,7 @@ pub struct Studio {
     /// The material library (made when first shown) and a library file being read to
     /// go on material slot `.0`.
     library: Option<Library>,
-    assign_job: Option<(usize, Job<(PathBuf, Material, ResidualPrecision)>)>,
+    assign_job: Option<(usize, Job<Assigned>)>,
     /// The material of the object last clicked in the viewport: what the library
     /// assigns to (the edited pack's object until a click).
     pub selected_material: Option<usize>,

@@ -50,9 +50,14 @@ pub struct SpmmMode {
     frames: u32,
     pub(super) moving: bool,
     preparation: PreparationReport,
-    /// Pixels a material edit restarted, traced alone by the next frame so the edit
-    /// shows after a few hundred samples rather than a whole frame (a brush stroke).
+    /// Pixels a material edit restarted, traced alone by the next `render_frame` so
+    /// the edit shows after a few hundred samples rather than a whole frame (a brush
+    /// stroke): the first part of the next frame, done early.
     catch_up: Vec<u32>,
+    /// Per pixel, whether the next frame's samples were already taken early (empty:
+    /// none); the frame that completes skips them, so every pixel gets exactly the
+    /// samples a frame without the early part would give it.
+    done_early: Vec<bool>,
     /// Whether edits queue `catch_up` (off: the next frame is a whole frame, as before).
     restarted_first: bool,
 }
@@ -172,6 +177,7 @@ impl SpmmMode {
             moving: false,
             preparation: report,
             catch_up: Vec::new(),
+            done_early: Vec::new(),
             restarted_first: true,
             scene,
         })
@@ -191,7 +197,7 @@ impl SpmmMode {
     pub fn set_restarted_first(&mut self, on: bool) {
         self.restarted_first = on;
         if !on {
-            self.catch_up.clear();
+            self.drop_catch_up();
         }
     }
 
@@ -200,8 +206,18 @@ impl SpmmMode {
         self.catch_up.len()
     }
 
-    /// One sample per pixel of `pixels` (row-major) at the next sample index, the
-    /// rest of the image untouched: the frame after a material edit.
+    /// Forgets the queued pixels: the next frame renders them with the others.
+    fn drop_catch_up(&mut self) {
+        for p in std::mem::take(&mut self.catch_up) {
+            if let Some(d) = self.done_early.get_mut(p as usize) {
+                *d = false;
+            }
+        }
+    }
+
+    /// The next frame's samples of `pixels` (row-major) only, the rest of the image
+    /// untouched: the early part of the frame after a material edit. The frame count
+    /// and the sample index move on when the frame completes.
     fn render_pixels(&mut self, pixels: &[u32]) -> FrameStats {
         use rayon::prelude::*;
         let start = Instant::now();
@@ -241,8 +257,13 @@ impl SpmmMode {
                     };
             }
         }
-        self.next_sample += k;
-        self.frames += 1;
+        let n = self.film.width() as usize * self.film.height() as usize;
+        if self.done_early.len() != n {
+            self.done_early = vec![false; n];
+        }
+        for &p in pixels {
+            self.done_early[p as usize] = true;
+        }
         FrameStats {
             counters: totals,
             seconds: start.elapsed().as_secs_f64(),
@@ -372,6 +393,7 @@ impl SpmmMode {
     /// here on equals a fresh render of the edited scene, bit for bit.
     fn restart_all(&mut self) -> Invalidation {
         self.catch_up.clear();
+        self.done_early.clear();
         self.film.reset();
         self.frames = 0;
         self.next_sample = 0;
@@ -393,11 +415,12 @@ impl RenderMode for SpmmMode {
     }
 
     fn render_frame(&mut self) -> FrameStats {
+        // Half the image or more: the whole frame costs little more.
+        if self.catch_up.len() * 2 > self.film.width() as usize * self.film.height() as usize {
+            self.drop_catch_up();
+        }
         let pixels = std::mem::take(&mut self.catch_up);
-        // Half the image or more: a whole frame costs little more.
-        if !pixels.is_empty()
-            && pixels.len() * 2 <= self.film.width() as usize * self.film.height() as usize
-        {
+        if !pixels.is_empty() {
             return self.render_pixels(&pixels);
         }
         let start = Instant::now();
@@ -413,7 +436,13 @@ impl RenderMode for SpmmMode {
             let mut counts = RayCounts::default();
             let mut shading_points = 0;
             let mut out = vec![DVec3::ZERO; layers];
+            let mut taken = 0;
             for x in 0..width {
+                let pixel = row.y as usize * width as usize + x as usize;
+                if self.done_early.get(pixel).copied().unwrap_or(false) {
+                    continue;
+                }
+                taken += k;
                 for index in first..first + k {
                     out.iter_mut().for_each(|o| *o = DVec3::ZERO);
                     let mut mask = 0;
@@ -434,12 +463,13 @@ impl RenderMode for SpmmMode {
                 }
             }
             Counters {
-                samples: u64::from(width) * k,
+                samples: taken,
                 shading_points,
                 rays: counts,
             }
         });
         self.film = film;
+        self.done_early.clear();
         self.next_sample += k;
         self.frames += 1;
         FrameStats {
@@ -506,6 +536,11 @@ impl RenderMode for SpmmMode {
             .layers
             .apply(&mut self.film, &before, &edit, &self.scene)
         {
+            if invalidation != Invalidation::Nothing {
+                // A restarted layer must get this frame's samples everywhere (at
+                // worst a pixel done early takes its sample twice).
+                self.done_early.clear();
+            }
             if let SceneEdit::Environment(Some(e)) = &edit
                 && invalidation != Invalidation::Nothing
             {
@@ -557,6 +592,7 @@ impl RenderMode for SpmmMode {
             SceneEdit::Moving(moving) if moving == self.moving => Invalidation::Nothing,
             SceneEdit::Moving(moving) => {
                 self.moving = moving;
+                self.done_early.clear();
                 // Samples taken with and without the residual must not mix.
                 Invalidation::Pixels(self.film.reset_touching(self.residual_mask()))
             }

@@ -198,8 +198,8 @@ fn a_stroke_changes_only_the_texels_under_the_brush_and_restarts_only_pixels_tha
         n < panel_pixels,
         "a stroke restarts fewer pixels than the whole panel ({n} of {panel_pixels})"
     );
-    // The next frame traces the restarted pixels alone and fills them again; every
-    // other pixel keeps exactly its value.
+    // The next call traces the restarted pixels alone (the early part of the next
+    // frame) and fills them again; every other pixel keeps exactly its value.
     assert_eq!(mode.pending_restarted(), n);
     let stats = mode.render_frame();
     assert_eq!(stats.counters.samples, n as u64);
@@ -212,9 +212,15 @@ fn a_stroke_changes_only_the_texels_under_the_brush_and_restarts_only_pixels_tha
             }
         }
     }
-    // Then whole frames again.
+    // The frame completes with the other pixels' samples; then whole frames again.
     assert_eq!(mode.pending_restarted(), 0);
+    assert_eq!(
+        mode.render_frame().counters.samples,
+        u64::from(SIZE * SIZE) - n as u64
+    );
+    assert_eq!(mode.progress().min_samples, 1);
     assert_eq!(mode.render_frame().counters.samples, u64::from(SIZE * SIZE));
+    assert_eq!(mode.progress().min_samples, 2);
 }
 
 /// With the catch-up off, the frame after an edit is a whole frame (the previous

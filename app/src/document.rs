@@ -18,6 +18,8 @@ use meso_core::spmm::pack::{self, ResidualPrecision};
 /// What undo restores.
 #[derive(Clone, Debug)]
 pub struct Snapshot {
+    /// Which material is the edited pack, and its file (a library assignment moves it).
+    pack: Option<EditedPack>,
     materials: Vec<Material>,
     lights: Vec<Light>,
     ambient: Option<Ambient>,
@@ -60,6 +62,9 @@ fn same_material(a: &Material, b: &Material) -> bool {
         (Material::Mirror { reflectance }, Material::Mirror { reflectance: r2 }) => {
             reflectance == r2
         }
+        (Material::Merl { brdf, tint }, Material::Merl { brdf: b2, tint: t2 }) => {
+            Arc::ptr_eq(brdf, b2) && tint == t2
+        }
         _ => false,
     }
 }
@@ -74,8 +79,9 @@ fn same_background(a: &Background, b: &Background) -> bool {
 }
 
 impl Snapshot {
-    fn of(scene: &Scene) -> Self {
+    fn of(scene: &Scene, pack: &Option<EditedPack>) -> Self {
         Self {
+            pack: pack.clone(),
             materials: scene.materials.clone(),
             lights: scene.lights.clone(),
             ambient: scene.ambient,
@@ -179,7 +185,7 @@ impl Document {
 
     /// Applies an edit as part of the open undo group (opening one if none is).
     pub fn apply(&mut self, edit: &SceneEdit) -> Result<(), EditError> {
-        let before = (!self.group_open).then(|| Snapshot::of(&self.scene));
+        let before = (!self.group_open).then(|| Snapshot::of(&self.scene, &self.pack));
         edit.apply_to(&mut self.scene)?;
         if let Some(s) = before {
             self.undo.push(s);
@@ -229,7 +235,7 @@ impl Document {
         let Some(target) = from.pop() else {
             return Vec::new();
         };
-        let current = Snapshot::of(&self.scene);
+        let current = Snapshot::of(&self.scene, &self.pack);
         to.push(current.clone());
         let edits = current.edits_to(&target);
         for e in &edits {
@@ -237,6 +243,14 @@ impl Document {
             e.apply_to(&mut self.scene)
                 .expect("a snapshot's edits apply to the scene");
         }
+        // The edited pack follows; the same file keeps what was saved since.
+        self.pack = match (target.pack, &current.pack) {
+            (Some(mut t), Some(c)) if t.material == c.material && t.path == c.path => {
+                t.saved = Arc::clone(&c.saved);
+                Some(t)
+            }
+            (t, _) => t,
+        };
         self.version += 1;
         edits
     }
@@ -309,6 +323,40 @@ impl Document {
         p.path = Some(path.to_path_buf());
         p.precision = precision;
         p.saved = material;
+        Ok(edit)
+    }
+}
+
+impl Document {
+    /// Puts `material` (read from `path`) on material slot `index`, as one undo step:
+    /// an SPMM pack becomes the edited pack (its file `path`); another kind put on the
+    /// edited pack's slot leaves no pack to edit. Returns the edit for the renderer.
+    pub fn assign(
+        &mut self,
+        index: usize,
+        material: Material,
+        path: &Path,
+        precision: ResidualPrecision,
+    ) -> Result<SceneEdit, String> {
+        let edit = SceneEdit::Material {
+            index,
+            material: material.clone(),
+        };
+        self.close_group();
+        self.apply(&edit).map_err(|e| e.to_string())?;
+        self.close_group();
+        match &material {
+            Material::Spmm { material: m, .. } => {
+                self.pack = Some(EditedPack {
+                    material: index,
+                    path: Some(path.to_path_buf()),
+                    precision,
+                    saved: Arc::clone(m),
+                })
+            }
+            _ if self.pack.as_ref().is_some_and(|p| p.material == index) => self.pack = None,
+            _ => {}
+        }
         Ok(edit)
     }
 }

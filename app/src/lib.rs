@@ -9,6 +9,7 @@ pub mod disabled;
 pub mod document;
 pub mod explorer;
 pub mod jobs;
+pub mod library;
 pub mod lobe_plot;
 pub mod material_panel;
 pub mod mode_maker;

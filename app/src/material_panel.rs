@@ -593,8 +593,9 @@ impl MaterialPanel {
         }
     }
 
-    /// After an edit, a cluster whose fitted residual adds something: it was fitted
-    /// for the original mixture, so ask whether to keep it (never dropped silently).
+    /// A cluster whose dictionary or weights were edited and whose fitted residual adds
+    /// something: it was fitted for the original mixture, so ask whether to keep it
+    /// (never dropped silently). Clusters left alone keep their residual unasked.
     fn residual_notice(
         &mut self,
         ui: &mut Ui,
@@ -604,7 +605,7 @@ impl MaterialPanel {
         edits: &mut Vec<SceneEdit>,
     ) {
         let c = self.cluster;
-        if !(m.edited() && m.cluster_has_residual(c)) || self.residual_kept.contains(&c) {
+        if !(m.cluster_edited(c) && m.cluster_has_residual(c)) || self.residual_kept.contains(&c) {
             return;
         }
         ui.horizontal_wrapped(|ui| {

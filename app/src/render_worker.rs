@@ -278,11 +278,15 @@ fn run(
         };
         let image = Arc::new(m.image());
         let progress = m.progress();
+        // A frame that traced only the pixels an edit restarted (a brush stroke step)
+        // is shown as it is: denoising the whole image would cost far more than it.
+        let pixels = u64::from(progress.width) * u64::from(progress.height);
+        let partial = stats.counters.samples > 0 && stats.counters.samples * 2 <= pixels;
         let frame = Frame {
             version,
             mode: m.kind(),
             device: m.device(),
-            shown: if denoise {
+            shown: if denoise && !partial {
                 shown(m.as_ref(), &image, progress.min_samples, &mut guides)
             } else {
                 Arc::clone(&image)

@@ -27,6 +27,7 @@ use crate::disabled::Disabled;
 use crate::document::{Document, read_pack_file};
 use crate::explorer::Explorer;
 use crate::jobs::Job;
+use crate::library::{self, Entry, EntryKind, Library, LibraryRequest, ThumbnailCache};
 use crate::material_panel::MaterialPanel;
 use crate::mode_maker::{ModeMaker, core_modes, mode_name};
 use crate::reference::{Reference, ReferenceRenderer};
@@ -75,6 +76,12 @@ pub struct Settings {
     /// The first frames through the viewport denoiser (saved images and the compare
     /// view's figures are always the unfiltered estimate).
     pub denoise: bool,
+    /// The material library window is open.
+    pub show_library: bool,
+    /// The designer's own library folders (the shipped packs are always listed).
+    pub library_folders: Vec<PathBuf>,
+    /// Where library thumbnails are cached (`None`: `library::default_cache_dir`).
+    pub thumbnail_cache: Option<PathBuf>,
 }
 
 impl Default for Settings {
@@ -89,9 +96,16 @@ impl Default for Settings {
             compare: false,
             reference_spp: 256,
             denoise: true,
+            show_library: false,
+            library_folders: Vec::new(),
+            thumbnail_cache: None,
         }
     }
 }
+
+/// A library file read for a material slot: its path, the material, and (for a
+/// pack) its residual precision.
+type Assigned = (PathBuf, Material, ResidualPrecision);
 
 /// "loading default.toml": what a background job does, for the status bar.
 fn job_name(verb: &str, path: &Path) -> String {
@@ -236,6 +250,13 @@ pub struct Studio {
     /// Loads in progress: a scene (with its BVH), a pack.
     scene_job: Option<Job<(PathBuf, Scene, SceneBvh)>>,
     pack_job: Option<Job<(PathBuf, Arc<SpmmMaterial>, ResidualPrecision)>>,
+    /// The material library (made when first shown) and a library file being read to
+    /// go on material slot `.0`.
+    library: Option<Library>,
+    assign_job: Option<(usize, Job<Assigned>)>,
+    /// The material of the object last clicked in the viewport: what the library
+    /// assigns to (the edited pack's object until a click).
+    pub selected_material: Option<usize>,
 }
 
 impl Studio {
@@ -291,6 +312,9 @@ impl Studio {
             dirty_cache: ((0, 0), false),
             scene_job: None,
             pack_job: None,
+            library: None,
+            assign_job: None,
+            selected_material: None,
         };
         s.set_max_samples(s.settings.max_samples);
         s.worker.send(Command::Denoise(s.settings.denoise));
@@ -323,7 +347,10 @@ impl Studio {
 
     /// Whether a load is in progress.
     pub fn busy(&self) -> bool {
-        self.scene_job.is_some() || self.pack_job.is_some() || self.env_job.is_some()
+        self.scene_job.is_some()
+            || self.pack_job.is_some()
+            || self.env_job.is_some()
+            || self.assign_job.is_some()
     }
 
     /// The mode rendering now.
@@ -551,6 +578,7 @@ impl Studio {
                     self.doc = Some(doc);
                     self.in_flight.clear();
                     self.material_panel = MaterialPanel::default();
+                    self.selected_material = None;
                     // A new scene opens in the spmm mode, which renders everything; the
                     // mode the scene names is asked for once it is loaded (below).
                     self.scene_mode = Some(doc_scene_mode(self.doc.as_ref()))
@@ -563,6 +591,25 @@ impl Studio {
                     self.disabled = Disabled::default();
                     // The viewport loads it into the renderer at its size.
                     self.render_size = (0, 0);
+                }
+                Err(e) => self.error = Some(e),
+            }
+        }
+        if let Some(r) = self.assign_job.as_ref().and_then(|(_, j)| j.poll()) {
+            let (index, _) = self.assign_job.take().expect("polled above");
+            let assigned = r.and_then(|(path, material, precision)| {
+                let doc = self.doc.as_mut().ok_or("no scene is open")?;
+                let is_pack = matches!(material, Material::Spmm { .. });
+                let edit = doc.assign(index, material, &path, precision)?;
+                Ok((path, edit, is_pack))
+            });
+            match assigned {
+                Ok((path, edit, is_pack)) => {
+                    if is_pack {
+                        remember(&mut self.settings.recent_packs, &path);
+                    }
+                    self.material_panel = MaterialPanel::default();
+                    self.send(edit);
                 }
                 Err(e) => self.error = Some(e),
             }
@@ -739,33 +786,141 @@ impl Studio {
         }));
     }
 
-    /// A file dropped on the window: a `.spmm` pack goes on the edited object, a scene
-    /// `.toml` opens; BTFs and MERL tables are named with what to do instead.
+    /// A file dropped on the window: a scene `.toml` opens; a `.spmm` pack or a MERL
+    /// `.binary` goes on the selected object (`assign_file`); a BTF is named with what
+    /// to do instead.
     pub fn open_dropped(&mut self, path: &Path) {
         let ext = path
             .extension()
             .map(|e| e.to_string_lossy().to_ascii_lowercase());
         match ext.as_deref() {
-            Some("spmm") => self.open_pack(path),
             Some("toml") => self.open_scene(path),
-            Some("btf") => {
-                self.error = Some(format!(
-                    "`{}` is a BTF: fit it to a pack first (`meso fit {} -o PACK.spmm`), then drop the pack",
-                    path.display(),
-                    path.display()
-                ))
+            _ => match EntryKind::of(path) {
+                Some(kind) => self.assign_file(kind, path),
+                None => {
+                    self.error = Some(format!(
+                        "`{}`: drop a .spmm pack, a MERL .binary or a scene .toml",
+                        path.display()
+                    ))
+                }
+            },
+        }
+    }
+
+    /// The material slot the library and dropped materials go on: the object last
+    /// clicked, else the edited pack's, else the first.
+    pub fn target_material(&self) -> Option<usize> {
+        let doc = self.doc.as_ref()?;
+        let count = doc.scene.materials.len();
+        self.selected_material
+            .filter(|&i| i < count)
+            .or(doc.pack.as_ref().map(|p| p.material))
+            .or((count > 0).then_some(0))
+    }
+
+    /// "leather (material 0)": the target as the library names it.
+    fn target_name(&self) -> String {
+        match (self.doc.as_ref(), self.target_material()) {
+            (Some(doc), Some(i)) => {
+                let name = doc.scene.material_names.get(i).map_or("?", |n| n.as_str());
+                format!(
+                    "{name} (material {i}, {})",
+                    doc.scene.materials[i].kind_name()
+                )
             }
-            Some("binary") => {
-                self.error = Some(format!(
-                    "`{}` is a MERL table: name it in a scene file (`kind = \"merl\"`, docs/scenes.md) and drop the scene",
-                    path.display()
-                ))
-            }
-            _ => {
-                self.error = Some(format!(
-                    "`{}`: drop a .spmm pack or a scene .toml",
-                    path.display()
-                ))
+            _ => "no object (open a scene)".into(),
+        }
+    }
+
+    /// Reads a library file in the background and puts its material on the target
+    /// slot when ready (one undo step); a BTF is refused with what to do instead.
+    pub fn assign_file(&mut self, kind: EntryKind, path: &Path) {
+        if kind == EntryKind::Btf {
+            self.error = Some(library::btf_message(path));
+            return;
+        }
+        let (Some(doc), Some(index)) = (self.doc.as_ref(), self.target_material()) else {
+            self.error = Some("open a scene first: a material goes on one of its objects".into());
+            return;
+        };
+        let slot = doc.scene.materials[index].clone();
+        let path = path.to_path_buf();
+        let name = job_name("reading", &path);
+        let job = Job::spawn(name, self.repaint.clone(), move || {
+            let bytes = std::fs::read(&path).map_err(|e| format!("`{}`: {e}", path.display()))?;
+            let (material, precision) = library::material_from(kind, &path, &bytes, Some(&slot))?;
+            Ok((path, material, precision))
+        });
+        self.assign_job = Some((index, job));
+    }
+
+    /// The library's cache of thumbnails.
+    fn thumbnail_cache(&self) -> ThumbnailCache {
+        ThumbnailCache::new(
+            self.settings
+                .thumbnail_cache
+                .clone()
+                .unwrap_or_else(library::default_cache_dir),
+        )
+    }
+
+    /// The shipped folder, then the designer's.
+    fn library_folders(&self) -> Vec<PathBuf> {
+        std::iter::once(library::shipped_dir())
+            .chain(self.settings.library_folders.iter().cloned())
+            .collect()
+    }
+
+    /// The material library (opened, listing its folders and starting thumbnails).
+    pub fn library(&mut self) -> &mut Library {
+        if self.library.is_none() {
+            let lib = Library::open(
+                &self.library_folders(),
+                self.thumbnail_cache(),
+                self.repaint.clone(),
+            );
+            self.library = Some(lib);
+        }
+        self.library.as_mut().expect("made above")
+    }
+
+    /// Adds a folder to the library (remembered across runs).
+    pub fn add_library_folder(&mut self, dir: &Path) {
+        if !self.settings.library_folders.iter().any(|f| f == dir) {
+            self.settings.library_folders.push(dir.to_path_buf());
+        }
+        let folders = self.library_folders();
+        self.library().rescan(&folders);
+    }
+
+    fn library_window(&mut self, ctx: &egui::Context) {
+        if !self.settings.show_library {
+            return;
+        }
+        let target = self.target_name();
+        let mut open = true;
+        let mut requests = Vec::new();
+        let lib = self.library();
+        egui::Window::new("Material library")
+            .open(&mut open)
+            .default_pos([290.0, 60.0])
+            .default_size([420.0, 520.0])
+            .vscroll(true)
+            .show(ctx, |ui| requests = lib.show(ui, &target));
+        self.settings.show_library &= open;
+        for r in requests {
+            match r {
+                LibraryRequest::Assign(Entry { kind, path, .. }) => self.assign_file(kind, &path),
+                LibraryRequest::AddFolderDialog => {
+                    if let Some(dir) = rfd::FileDialog::new().pick_folder() {
+                        self.add_library_folder(&dir);
+                    }
+                }
+                LibraryRequest::RemoveFolder(dir) => {
+                    self.settings.library_folders.retain(|f| *f != dir);
+                    let folders = self.library_folders();
+                    self.library().rescan(&folders);
+                }
             }
         }
     }
@@ -977,6 +1132,7 @@ impl Studio {
                 if ui.button("BRDF explorer").clicked() {
                     self.explorer = Some(Explorer::default());
                 }
+                ui.checkbox(&mut self.settings.show_library, "Material library");
                 ui.add(
                     egui::Slider::new(&mut self.settings.exposure, -8.0..=8.0)
                         .text("exposure (stops)"),
@@ -1039,6 +1195,7 @@ impl Studio {
             for job in [
                 self.scene_job.as_ref().map(|j| (&j.name, j.started)),
                 self.pack_job.as_ref().map(|j| (&j.name, j.started)),
+                self.assign_job.as_ref().map(|(_, j)| (&j.name, j.started)),
                 self.env_job.as_ref().map(|j| (&j.name, j.started)),
                 self.switch.as_ref().map(|s| (&s.job.name, s.job.started)),
             ]
@@ -1223,6 +1380,7 @@ impl Studio {
         {
             doc.close_group();
         }
+        self.library_window(&ui.ctx().clone());
         self.dialogs(ui);
         let title = self.title();
         if title != self.shown_title {
@@ -1425,7 +1583,10 @@ impl Studio {
             h.max(1),
             x * f64::from(w),
             y * f64::from(h),
-        ) && doc
+        ) && {
+            self.selected_material = Some(p.material);
+            true
+        } && doc
             .pack
             .as_ref()
             .is_some_and(|pk| pk.material == p.material)

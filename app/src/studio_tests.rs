@@ -872,3 +872,268 @@ fn a_pack_dropped_on_the_window_goes_on_the_object_and_other_files_are_named() {
         .expect("a BTF is refused with a reason");
     assert!(e.contains("some.btf") && e.contains("meso fit"), "{e}");
 }
+
+fn pack_path(h: &Harness<'_, Studio>) -> Option<(usize, std::path::PathBuf)> {
+    h.state()
+        .doc
+        .as_ref()
+        .and_then(|d| d.pack.as_ref())
+        .map(|p| (p.material, p.path.clone().expect("a pack from a file")))
+}
+
+/// A real click on a library thumbnail puts that pack on the edited object (one undo
+/// step, the pack's file follows); with the floor selected, a pack makes the floor the
+/// edited SPMM object and a dropped MERL table makes it a MERL material; undo brings
+/// back the exact previous materials and edited pack.
+#[test]
+fn a_click_in_the_library_assigns_the_pack_and_undo_restores_the_object() {
+    let cache = tempfile::tempdir().expect("temp dir");
+    let settings = Settings {
+        show_library: true,
+        thumbnail_cache: Some(cache.path().to_path_buf()),
+        ..Settings::default()
+    };
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1280.0, 800.0))
+        .build_ui_state(
+            |ui, s: &mut Studio| s.show(ui),
+            Studio::new(None, None, settings),
+        );
+    loaded(&mut h);
+    h.run_steps(2);
+    let original = material(&h);
+    let (slot, leather) = pack_path(&h).expect("the default scene edits a pack");
+    let floor = 1 - slot;
+    let metal = library::shipped_dir().join("brushed_metal.spmm");
+
+    h.get_by_label("brushed_metal").click();
+    h.step();
+    loaded(&mut h);
+    let now = material(&h);
+    let expected = meso_core::spmm::pack::read_pack(&metal).expect("shipped pack");
+    assert!(now.stores_same(&expected));
+    assert_eq!(pack_path(&h), Some((slot, metal.clone())));
+    assert!(!h.state().doc.as_ref().expect("doc").dirty());
+    wait_for_current_frame(&mut h);
+    h.state_mut().undo();
+    h.step();
+    assert!(Arc::ptr_eq(&material(&h), &original));
+    assert_eq!(pack_path(&h), Some((slot, leather.clone())));
+
+    // The floor selected: the pack goes there and the floor becomes the edited pack.
+    let floor_before = h.state().doc.as_ref().expect("doc").scene.materials[floor].clone();
+    assert!(matches!(floor_before, Material::Brdf { .. }));
+    h.state_mut().selected_material = Some(floor);
+    h.run_steps(2);
+    h.get_by_label("woven_wool").click();
+    h.step();
+    loaded(&mut h);
+    let doc = h.state().doc.as_ref().expect("doc");
+    assert!(matches!(doc.scene.materials[floor], Material::Spmm { .. }));
+    assert!(
+        Arc::ptr_eq(&spmm(&doc.scene.materials[slot]), &original),
+        "the bunny keeps its pack"
+    );
+    assert_eq!(pack_path(&h).map(|p| p.0), Some(floor));
+
+    // A MERL table dropped on the window goes on the selected floor too.
+    let dir = tempfile::tempdir().expect("temp dir");
+    let table = dir.path().join("grey.binary");
+    meso_core::merl::tabulate(
+        &meso_core::brdf::AnalyticBrdf::with_defaults(meso_core::brdf::BrdfModel::Lambertian),
+        glam::DVec3::splat(0.5),
+    )
+    .expect("tabulates")
+    .write(&table)
+    .expect("write");
+    h.input_mut().dropped_files.push(Arc::new(Dropped(table)));
+    h.step();
+    loaded(&mut h);
+    let doc = h.state().doc.as_ref().expect("doc");
+    assert!(matches!(doc.scene.materials[floor], Material::Merl { .. }));
+    assert!(
+        doc.pack.is_none(),
+        "no SPMM pack on the edited slot any more"
+    );
+    wait_for_current_frame(&mut h);
+
+    // Two undos: the floor's pack, then its original BRDF and the bunny's pack edited.
+    h.state_mut().undo();
+    h.state_mut().undo();
+    h.step();
+    let doc = h.state().doc.as_ref().expect("doc");
+    assert!(matches!(doc.scene.materials[floor], Material::Brdf { .. }));
+    assert_eq!(pack_path(&h), Some((slot, leather)));
+    assert!(Arc::ptr_eq(&material(&h), &original));
+    wait_for_current_frame(&mut h);
+}
+
+fn spmm(m: &Material) -> Arc<SpmmMaterial> {
+    match m {
+        Material::Spmm { material, .. } => Arc::clone(material),
+        _ => panic!("not an SPMM material"),
+    }
+}
+
+/// Saves the part `(x, y, w, h)` (points = pixels at scale 1) of the window's render
+/// as a PNG in `dir`.
+fn save_crop(h: &mut Harness<'_, Studio>, dir: &std::path::Path, name: &str, r: [u32; 4]) {
+    let img = h.render().expect("the window renders");
+    let [x, y, w, hgt] = r;
+    let crop = image::imageops::crop_imm(&img, x, y, w, hgt).to_image();
+    crop.save(dir.join(name)).expect("write the screenshot");
+}
+
+/// The illustrations of docs/app.md: the real window (wgpu, lavapipe under CI)
+/// driven through its UI: a basis's multiplier, a solo, a painted stroke and the
+/// material library. Run on purpose:
+/// `MESO_DOC_SHOTS=docs/images WGPU_BACKEND=vulkan cargo test -p meso-studio
+/// docs_screenshots -- --ignored`, then look at each image.
+#[test]
+#[ignore = "writes the documentation's screenshots when asked"]
+fn docs_screenshots() {
+    use meso_core::geometry::{Brush, BrushUnits};
+    use meso_core::spmm::Falloff;
+
+    let dir = std::path::PathBuf::from(
+        std::env::var_os("MESO_DOC_SHOTS").expect("MESO_DOC_SHOTS names the folder"),
+    );
+    let cache = tempfile::tempdir().expect("temp dir");
+    let spp = 16;
+    let settings = Settings {
+        max_samples: spp,
+        show_timings: false,
+        thumbnail_cache: Some(cache.path().to_path_buf()),
+        ..Settings::default()
+    };
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1280.0, 800.0))
+        .wgpu()
+        .build_ui_state(
+            |ui, s: &mut Studio| s.show(ui),
+            Studio::new(None, None, settings),
+        );
+    loaded(&mut h);
+    rested_frame(&mut h, spp);
+    let viewport = |h: &Harness<'_, Studio>| {
+        let r = h.state().viewport.rect.expect("the viewport was shown");
+        [
+            r.min.x as u32,
+            r.min.y as u32,
+            r.width() as u32,
+            r.height() as u32,
+        ]
+    };
+
+    // Per-basis scaling: basis 1 of the chosen cluster tripled.
+    h.get_by_role_and_label(Role::SpinButton, "×1")
+        .set_value_accesskit(3.0);
+    h.run_steps(2);
+    rested_frame(&mut h, spp);
+    h.run_steps(2);
+    let panel = h.get_by_label("solo 0").rect();
+    save_crop(
+        &mut h,
+        &dir,
+        "studio_basis_rows.png",
+        [918, (panel.min.y as u32).saturating_sub(260), 362, 420],
+    );
+
+    // Solo basis 0: the object shows that lobe alone.
+    h.get_by_label("solo 0").click();
+    h.run_steps(2);
+    rested_frame(&mut h, spp);
+    h.run_steps(2);
+    let v = viewport(&h);
+    save_crop(&mut h, &dir, "studio_solo.png", v);
+    h.get_by_label("solo 0").click();
+    h.run_steps(2);
+    h.state_mut().undo();
+    h.run_steps(2);
+
+    // A painted stroke: red boosted, green and blue dimmed, across the object.
+    h.get_by_label("Paint weights").click();
+    h.run_steps(2);
+    {
+        let p = &mut h.state_mut().material_panel.paint;
+        p.brush = Brush {
+            radius: 6.0,
+            units: BrushUnits::Texels,
+            strength: 1.0,
+            falloff: Falloff::Smooth,
+        };
+        p.amount = [2.5, 0.4, 0.4];
+    }
+    rested_frame(&mut h, spp);
+    let rect = h.state().viewport.rect.expect("the viewport was shown");
+    let (w, hgt) = h.state().full_size;
+    let (a, b) = two_points_on_the_pack(&h, 40);
+    let to_pos = |(x, y): (u32, u32)| {
+        rect.min
+            + egui::vec2(
+                (x as f32 + 0.5) / w as f32 * rect.width(),
+                (y as f32 + 0.5) / hgt as f32 * rect.height(),
+            )
+    };
+    h.hover_at(to_pos(a));
+    h.step();
+    h.drag_at(to_pos(a));
+    h.step();
+    for k in 1..=8 {
+        let x = a.0 + (b.0 - a.0) * k / 8;
+        h.hover_at(to_pos((x, a.1)));
+        h.step();
+    }
+    h.drop_at(to_pos(b));
+    h.run_steps(2);
+    rested_frame(&mut h, spp);
+    h.run_steps(2);
+    let v = viewport(&h);
+    save_crop(&mut h, &dir, "studio_painted.png", v);
+
+    // The material library with its thumbnails.
+    h.state_mut().settings.show_library = true;
+    let deadline = Instant::now() + Duration::from_secs(300);
+    loop {
+        h.step();
+        if h.state_mut().library().pending() == 0 {
+            break;
+        }
+        assert!(Instant::now() < deadline, "thumbnails did not finish");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    h.run_steps(3);
+    // The window opens at (290, 60), 420 points wide.
+    save_crop(&mut h, &dir, "studio_library.png", [282, 52, 440, 420]);
+}
+
+/// The residual notice names only clusters whose mixture was edited: after a basis
+/// edit in cluster 0 of a fitted pack, cluster 0 shows it and cluster 1 does not.
+#[test]
+fn the_residual_notice_shows_only_for_an_edited_cluster() {
+    let fitted = default_scene_path().with_file_name("fitted.toml");
+    let mut h = resting_studio(Some(fitted), 1);
+    h.run_steps(2);
+    let m = material(&h);
+    assert!(m.cluster_has_residual(0) && m.cluster_has_residual(1));
+    let notice = "residual was fitted for the original mixture";
+    assert!(
+        h.query_by_label_contains(notice).is_none(),
+        "nothing edited yet"
+    );
+    h.get_by_role_and_label(Role::Slider, "normal θ (deg)")
+        .set_value_accesskit(15.0);
+    h.run_steps(2);
+    assert_eq!(material(&h).edited_clusters(), vec![0]);
+    assert!(
+        h.query_by_label_contains("Cluster 0's residual was fitted")
+            .is_some(),
+        "the edited cluster asks"
+    );
+    h.state_mut().material_panel.cluster = 1;
+    h.run_steps(2);
+    assert!(
+        h.query_by_label_contains(notice).is_none(),
+        "cluster 1 was not edited"
+    );
+}

@@ -1940,7 +1940,19 @@ fn bench_stroke_times_each_step_and_restarts_fewer_pixels_than_the_material() {
             "stroke to frame"
         ]
     );
-    for p in v["ms"].as_array().expect("parts") {
+    let whole: Vec<&str> = v["whole_frame_ms"]
+        .as_array()
+        .expect("the whole-frame parts")
+        .iter()
+        .map(|p| p["part"].as_str().expect("name"))
+        .collect();
+    assert_eq!(whole, parts);
+    for p in v["ms"]
+        .as_array()
+        .expect("parts")
+        .iter()
+        .chain(v["whole_frame_ms"].as_array().expect("parts"))
+    {
         let (med, max) = (
             p["median"].as_f64().expect("ms"),
             p["max"].as_f64().expect("ms"),

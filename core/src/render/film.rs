@@ -235,6 +235,37 @@ impl Film {
         rows.into_iter().map(|(r, _)| r).collect()
     }
 
+    /// Adds one sample of pixel `p` (row-major): `out[l]` to each of the `active`
+    /// layers, the materials it shaded and their texture-coordinate box (what a row
+    /// worker records, for one pixel rendered outside a whole frame).
+    pub fn add_pixel_sample(
+        &mut self,
+        p: u32,
+        active: &[usize],
+        out: &[DVec3],
+        mask: u64,
+        reached: &UvBox,
+    ) {
+        let (w, l) = (self.width as usize, self.layers);
+        let (y, x) = (p as usize / w, p as usize % w);
+        let mut row = FilmRow {
+            y: y as u32,
+            layers: l,
+            sum: &mut self.sum[y * w * l..(y + 1) * w * l],
+            count: &mut self.count[y * w * l..(y + 1) * w * l],
+            touched: &mut self.touched[y * w..(y + 1) * w],
+            reached: &mut self.reached[y * w..(y + 1) * w],
+            dropped: 0,
+        };
+        for &layer in active {
+            row.add(x as u32, layer, out[layer]);
+        }
+        row.touch(x as u32, mask);
+        row.reach_box(x as u32, reached);
+        let dropped = row.dropped;
+        self.dropped += dropped;
+    }
+
     /// Samples dropped for being NaN or infinite since the film was made.
     pub fn dropped(&self) -> u64 {
         self.dropped
@@ -284,12 +315,21 @@ impl Film {
     /// and whose box of shaded texture coordinates passes `reaches` (a conservative
     /// test against the edited texels); returns how many pixels restart.
     pub fn reset_reaching(&mut self, mask: u64, reaches: impl Fn(&UvBox) -> bool) -> usize {
-        let mut n = 0;
+        self.reset_reaching_pixels(mask, reaches).len()
+    }
+
+    /// `reset_reaching`, returning the restarted pixels (row-major indices, in order).
+    pub fn reset_reaching_pixels(
+        &mut self,
+        mask: u64,
+        reaches: impl Fn(&UvBox) -> bool,
+    ) -> Vec<u32> {
+        let mut n = Vec::new();
         for (p, t) in self.touched.iter_mut().enumerate() {
             if *t & mask != 0 && reaches(&self.reached[p]) {
                 *t = 0;
                 self.reached[p] = EMPTY_UV_BOX;
-                n += 1;
+                n.push(p as u32);
                 let r = p * self.layers..(p + 1) * self.layers;
                 self.sum[r.clone()].iter_mut().for_each(|s| *s = [0.0; 3]);
                 self.count[r].iter_mut().for_each(|c| *c = 0);

@@ -10,6 +10,7 @@ impl SpmmMaterial {
         self.name() == other.name()
             && self.provenance() == other.provenance()
             && self.edited() == other.edited()
+            && self.edited_clusters() == other.edited_clusters()
             && (self.width(), self.height()) == (other.width(), other.height())
             && self.texel_cluster() == other.texel_cluster()
             && self.clusters() == other.clusters()

@@ -470,6 +470,7 @@ impl SpmmMaterial {
         let changed = clusters != self.clusters()
             || &weights != self.weights()
             || residual.as_ref() != self.residual();
+        let mixture_changed = self.clusters_with_new_mixture(&clusters, &weights);
         let mut m = SpmmMaterial::new(
             self.name().to_string(),
             self.provenance().to_string(),
@@ -481,10 +482,40 @@ impl SpmmMaterial {
             residual,
         )?;
         if changed || self.edited() {
-            m.mark_edited();
+            m.mark_clusters_edited(
+                (0..self.clusters().len())
+                    .filter(|&c| self.cluster_edited(c) || mixture_changed[c]),
+            );
         }
         m.set_view(view);
         Ok(m)
+    }
+
+    /// Per cluster, whether `clusters` and `weights` (same texel grid and cluster map)
+    /// change its dictionary or the weights of one of its texels: the mixture its
+    /// residual was fitted for. A residual switched off is not such a change.
+    fn clusters_with_new_mixture(
+        &self,
+        clusters: &[Cluster],
+        weights: &SparseWeights,
+    ) -> Vec<bool> {
+        let mut changed: Vec<bool> = (0..self.clusters().len())
+            .map(|c| clusters.get(c) != Some(&self.clusters()[c]))
+            .collect();
+        let old = self.weights();
+        for (t, &c) in self.texel_cluster().iter().enumerate() {
+            let c = c as usize;
+            if changed[c] {
+                continue;
+            }
+            let (a, b) = (
+                old.offsets[t] as usize..old.offsets[t + 1] as usize,
+                weights.offsets[t] as usize..weights.offsets[t + 1] as usize,
+            );
+            changed[c] =
+                old.basis[a.clone()] != weights.basis[b.clone()] || old.rgb[a] != weights.rgb[b];
+        }
+        changed
     }
 }
 
@@ -804,5 +835,54 @@ mod tests {
         let plain = sample_material(4, 4, 2, None);
         assert!(!plain.cluster_has_residual(0));
         assert_eq!(plain.with_cluster_residual_off(0).expect("valid"), plain);
+    }
+    #[test]
+    fn only_clusters_whose_mixture_changed_are_marked_edited_and_the_marks_are_saved() {
+        let m = sample_material(4, 4, 3, Some(2));
+        assert!(m.edited_clusters().is_empty());
+        // A basis scale in cluster 1 marks cluster 1 alone.
+        let scaled = m
+            .with_weight_scale(&WeightTarget::basis(1, 0), [2.0, 1.0, 1.0])
+            .expect("valid");
+        assert!(scaled.edited());
+        assert_eq!(scaled.edited_clusters(), vec![1]);
+        // A dictionary edit of cluster 2 adds it; the earlier mark stays.
+        let basis = AnalyticBrdf::with_defaults(BrdfModel::Lambertian);
+        let added = scaled
+            .with_basis_added(2, BasisFunction::new(basis, DVec3::Z).expect("valid"))
+            .expect("valid")
+            .0;
+        assert_eq!(added.edited_clusters(), vec![1, 2]);
+        // A residual switched off changes no mixture: edited, no cluster marked.
+        let off = m.with_cluster_residual_off(0).expect("valid");
+        assert!(off.edited() && off.edited_clusters().is_empty());
+        // A unit scale changes nothing at all.
+        let same = m
+            .with_weight_scale(&WeightTarget::cluster(0), [1.0; 3])
+            .expect("valid");
+        assert!(!same.edited() && same.edited_clusters().is_empty());
+        // The marks survive the pack; an edited pack without them marks every cluster.
+        for e in [&added, &off] {
+            let read = crate::spmm::pack::decode_pack(&encode(e)).expect("valid pack");
+            assert_eq!(read.edited_clusters(), e.edited_clusters());
+            assert!(read.stores_same(e));
+        }
+        let mut legacy = m.clone();
+        legacy.mark_edited();
+        assert_eq!(legacy.edited_clusters(), vec![0, 1, 2]);
+        assert!(!legacy.stores_same(&added));
+        // A bad list is refused naming the key and the item.
+        let mut bad = encode(&added);
+        let key = b"\"edited_clusters\":\"1,2\"";
+        let at = bad
+            .windows(key.len())
+            .position(|w| w == key)
+            .expect("the key is in the header");
+        bad[at + key.len() - 2] = b'9';
+        let err = crate::spmm::pack::decode_pack(&bad).unwrap_err();
+        assert!(
+            err.to_string().contains("edited_clusters") && err.to_string().contains("`9`"),
+            "{err}"
+        );
     }
 }

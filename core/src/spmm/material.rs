@@ -45,6 +45,10 @@ pub struct SpmmMaterial {
     name: String,
     provenance: String,
     edited: bool,
+    /// Per cluster, whether an edit changed its dictionary or its texels' weights
+    /// (its fitted residual no longer matches the mixture); all set for a pack marked
+    /// edited before clusters were tracked.
+    edited_clusters: Vec<bool>,
     width: u32,
     height: u32,
     clusters: Vec<Cluster>,
@@ -272,6 +276,7 @@ impl SpmmMaterial {
             name,
             provenance,
             edited: false,
+            edited_clusters: vec![false; clusters.len()],
             width,
             height,
             clusters,
@@ -293,8 +298,30 @@ impl SpmmMaterial {
     pub fn edited(&self) -> bool {
         self.edited
     }
+    /// Marks the material edited, every cluster with it (which ones changed is not
+    /// known: the conservative answer for the residual notice).
     pub fn mark_edited(&mut self) {
         self.edited = true;
+        self.edited_clusters.fill(true);
+    }
+    /// Whether an edit changed cluster `c`'s dictionary or weights since the material
+    /// was made (false for a cluster that does not exist).
+    pub fn cluster_edited(&self, c: usize) -> bool {
+        self.edited_clusters.get(c).copied().unwrap_or(false)
+    }
+    /// The clusters `cluster_edited` says were changed, in order.
+    pub fn edited_clusters(&self) -> Vec<usize> {
+        (0..self.edited_clusters.len())
+            .filter(|&c| self.edited_clusters[c])
+            .collect()
+    }
+    /// Marks the material edited and these clusters (indices checked by the caller)
+    /// changed, keeping the clusters marked before.
+    pub(crate) fn mark_clusters_edited(&mut self, clusters: impl IntoIterator<Item = usize>) {
+        self.edited = true;
+        for c in clusters {
+            self.edited_clusters[c] = true;
+        }
     }
     pub fn width(&self) -> u32 {
         self.width

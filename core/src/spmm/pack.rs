@@ -241,7 +241,7 @@ pub fn encode_pack(m: &SpmmMaterial, precision: ResidualPrecision) -> Vec<u8> {
         );
     }
 
-    let metadata = [
+    let mut metadata = vec![
         ("format", FORMAT.to_string()),
         ("version", VERSION.to_string()),
         ("name", m.name().to_string()),
@@ -255,6 +255,10 @@ pub fn encode_pack(m: &SpmmMaterial, precision: ResidualPrecision) -> Vec<u8> {
         ("clusters", m.clusters().len().to_string()),
         ("npca", m.npca().to_string()),
     ];
+    if m.edited() {
+        let list: Vec<String> = m.edited_clusters().iter().map(|c| c.to_string()).collect();
+        metadata.push(("edited_clusters", list.join(",")));
+    }
     container::encode(&metadata, &tensors)
 }
 
@@ -555,10 +559,39 @@ pub fn decode_pack(bytes: &[u8]) -> Result<SpmmMaterial, PackErrorKind> {
         },
         residual,
     )?;
-    if edited {
-        material.mark_edited();
+    match (edited, meta.get("edited_clusters")) {
+        (false, None) => {}
+        // Written before clusters were tracked: any cluster may have changed.
+        (true, None) => material.mark_edited(),
+        (true, Some(list)) => {
+            let clusters = edited_cluster_list(list, n_clusters)?;
+            material.mark_clusters_edited(clusters);
+        }
+        (false, Some(_)) => {
+            return Err(PackErrorKind::Metadata {
+                key: "edited_clusters",
+                problem: "present in a pack whose `edited` is false".into(),
+            });
+        }
     }
     Ok(material)
+}
+
+/// The `edited_clusters` metadata: comma-separated cluster indices below `clusters`
+/// (empty: an edit that changed no cluster's mixture, such as a residual switched off).
+fn edited_cluster_list(list: &str, clusters: usize) -> Result<Vec<usize>, PackErrorKind> {
+    if list.is_empty() {
+        return Ok(Vec::new());
+    }
+    list.split(',')
+        .map(|item| match item.parse::<usize>() {
+            Ok(c) if c < clusters => Ok(c),
+            _ => Err(PackErrorKind::Metadata {
+                key: "edited_clusters",
+                problem: format!("`{item}` is not a cluster index below {clusters}"),
+            }),
+        })
+        .collect()
 }
 
 /// The precision a pack's residual tables were stored in (F32 when it has none).

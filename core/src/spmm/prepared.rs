@@ -4,6 +4,8 @@
 //! residual tables are re-laid out cell-major ([cluster][light][view][mean, b_1..b_K]
 //! x RGB) so one interpolation cell is one contiguous read.
 
+use std::sync::Arc;
+
 use glam::{DVec2, DVec3};
 
 use super::directions::DirectionTable;
@@ -64,7 +66,9 @@ pub struct PreparedSpmm {
     offsets: Vec<u32>,
     basis: Vec<u16>,
     rgb: Vec<[f32; 3]>,
-    residual: Option<PreparedResidual>,
+    /// Shared with the data prepared after a weight or dictionary edit that kept the
+    /// residual (a brush stroke step re-lays out no tables).
+    residual: Option<Arc<PreparedResidual>>,
     clusters_used: usize,
 }
 
@@ -138,6 +142,28 @@ impl SpmmMaterial {
         }
     }
 
+    /// `prepare`, reusing the residual tables of `previous` (prepared with the same
+    /// request from `before`) when this material has the same residual and shows it
+    /// for the same clusters: what an edit of weights or bases leaves, so a stroke step
+    /// copies only the weights.
+    pub fn prepare_after_edit(
+        &self,
+        request: &PrepareRequest,
+        before: &SpmmMaterial,
+        previous: &PreparedSpmm,
+    ) -> PreparedSpmm {
+        let clusters = self.clusters().len();
+        let same_residual = clusters == before.clusters().len()
+            && self.texel_cluster().len() == before.texel_cluster().len()
+            && (0..clusters)
+                .all(|c| self.view().shows_residual(c) == before.view().shows_residual(c))
+            && self.residual() == before.residual();
+        if !same_residual {
+            return self.prepare(request);
+        }
+        self.prepared_with(request, previous.residual.clone())
+    }
+
     /// Builds the evaluation data a render with these settings needs.
     pub fn prepare(&self, request: &PrepareRequest) -> PreparedSpmm {
         let used = |c: usize| request.uses_cluster(c);
@@ -172,16 +198,30 @@ impl SpmmMaterial {
                     .flat_map(|row| &row[..k])
                     .copied()
                     .collect();
-                Some(PreparedResidual {
+                Some(Arc::new(PreparedResidual {
                     lights: lights.clone(),
                     views: views.clone(),
                     k,
                     cluster_offset,
                     cells,
                     coefficients,
-                })
+                }))
             }
             _ => None,
+        };
+        self.prepared_with(request, residual)
+    }
+
+    fn prepared_with(
+        &self,
+        request: &PrepareRequest,
+        residual: Option<Arc<PreparedResidual>>,
+    ) -> PreparedSpmm {
+        let used = |c: usize| {
+            request
+                .used_clusters
+                .as_ref()
+                .is_none_or(|u| u.get(c).copied().unwrap_or(false))
         };
         PreparedSpmm {
             grid: TexelGrid::of(self),

@@ -225,6 +225,9 @@ fn a_material_edit_restarts_only_the_pixels_that_shaded_it() {
         .filter(|(a, b)| a == b)
         .count();
     assert!(equal >= total - n, "{equal} equal pixels, {n} restarted");
+    // The first call traces the restarted pixels early; the next two complete two
+    // frames, the first of them begun by it.
+    assert_eq!(m.render_frame().counters.samples, n as u64);
     for _ in 0..2 {
         m.render_frame();
     }

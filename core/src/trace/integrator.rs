@@ -50,6 +50,16 @@ pub struct SpmmMode {
     frames: u32,
     pub(super) moving: bool,
     preparation: PreparationReport,
+    /// Pixels a material edit restarted, traced alone by the next `render_frame` so
+    /// the edit shows after a few hundred samples rather than a whole frame (a brush
+    /// stroke): the first part of the next frame, done early.
+    catch_up: Vec<u32>,
+    /// Per pixel, whether the next frame's samples were already taken early (empty:
+    /// none); the frame that completes skips them, so every pixel gets exactly the
+    /// samples a frame without the early part would give it.
+    done_early: Vec<bool>,
+    /// Whether edits queue `catch_up` (off: the next frame is a whole frame, as before).
+    restarted_first: bool,
 }
 
 /// The per-sample state threaded through a path.
@@ -171,6 +181,9 @@ impl SpmmMode {
             frames: 0,
             moving: false,
             preparation: report,
+            catch_up: Vec::new(),
+            done_early: Vec::new(),
+            restarted_first: true,
             scene,
         })
     }
@@ -190,6 +203,85 @@ impl SpmmMode {
 
     pub fn bvh(&self) -> &SceneBvh {
         &self.bvh
+    }
+
+    /// Whether the frame after a material edit traces only the pixels it restarted
+    /// (on by default; off gives the previous behaviour, for comparisons).
+    pub fn set_restarted_first(&mut self, on: bool) {
+        self.restarted_first = on;
+        if !on {
+            self.drop_catch_up();
+        }
+    }
+
+    /// Pixels queued for the next frame to trace alone.
+    pub fn pending_restarted(&self) -> usize {
+        self.catch_up.len()
+    }
+
+    /// Forgets the queued pixels: the next frame renders them with the others.
+    fn drop_catch_up(&mut self) {
+        for p in std::mem::take(&mut self.catch_up) {
+            if let Some(d) = self.done_early.get_mut(p as usize) {
+                *d = false;
+            }
+        }
+    }
+
+    /// The next frame's samples of `pixels` (row-major) only, the rest of the image
+    /// untouched: the early part of the frame after a material edit. The frame count
+    /// and the sample index move on when the frame completes.
+    fn render_pixels(&mut self, pixels: &[u32]) -> FrameStats {
+        use rayon::prelude::*;
+        let start = Instant::now();
+        let first = self.next_sample;
+        let k = u64::from(self.samples_per_frame);
+        let layers = self.film.layers();
+        let active = self.layers.active(&self.scene);
+        let width = self.film.width();
+        let dropped_before = self.film.dropped();
+        let mut totals = Counters::default();
+        for index in first..first + k {
+            let samples: Vec<(Vec<DVec3>, u64, UvBox, RayCounts, u64)> = pixels
+                .par_iter()
+                .map(|&p| {
+                    let (x, y) = (p % width, p / width);
+                    let mut out = vec![DVec3::ZERO; layers];
+                    let (mut mask, mut reached) = (0, EMPTY_UV_BOX);
+                    let (mut counts, mut shading_points) = (RayCounts::default(), 0);
+                    self.sample_into(
+                        (x, y, width),
+                        index,
+                        &mut out,
+                        (&mut mask, &mut reached),
+                        &mut counts,
+                        &mut shading_points,
+                    );
+                    (out, mask, reached, counts, shading_points)
+                })
+                .collect();
+            for (&p, (out, mask, reached, counts, shading_points)) in pixels.iter().zip(samples) {
+                self.film.add_pixel_sample(p, &active, &out, mask, &reached);
+                totals = totals
+                    + Counters {
+                        samples: 1,
+                        shading_points,
+                        rays: counts,
+                    };
+            }
+        }
+        let n = self.film.width() as usize * self.film.height() as usize;
+        if self.done_early.len() != n {
+            self.done_early = vec![false; n];
+        }
+        for &p in pixels {
+            self.done_early[p as usize] = true;
+        }
+        FrameStats {
+            counters: totals,
+            seconds: start.elapsed().as_secs_f64(),
+            dropped: self.film.dropped() - dropped_before,
+        }
     }
 
     /// The weight of each film layer: the current emissions.
@@ -313,6 +405,8 @@ impl SpmmMode {
     /// Forgets every sample and starts the sample indices again, so the image from
     /// here on equals a fresh render of the edited scene, bit for bit.
     fn restart_all(&mut self) -> Invalidation {
+        self.catch_up.clear();
+        self.done_early.clear();
         self.film.reset();
         self.frames = 0;
         self.next_sample = 0;
@@ -334,6 +428,14 @@ impl RenderMode for SpmmMode {
     }
 
     fn render_frame(&mut self) -> FrameStats {
+        // Half the image or more: the whole frame costs little more.
+        if self.catch_up.len() * 2 > self.film.width() as usize * self.film.height() as usize {
+            self.drop_catch_up();
+        }
+        let pixels = std::mem::take(&mut self.catch_up);
+        if !pixels.is_empty() {
+            return self.render_pixels(&pixels);
+        }
         let start = Instant::now();
         let first = self.next_sample;
         let k = u64::from(self.samples_per_frame);
@@ -347,7 +449,13 @@ impl RenderMode for SpmmMode {
             let mut counts = RayCounts::default();
             let mut shading_points = 0;
             let mut out = vec![DVec3::ZERO; layers];
+            let mut taken = 0;
             for x in 0..width {
+                let pixel = row.y as usize * width as usize + x as usize;
+                if self.done_early.get(pixel).copied().unwrap_or(false) {
+                    continue;
+                }
+                taken += k;
                 for index in first..first + k {
                     out.iter_mut().for_each(|o| *o = DVec3::ZERO);
                     let mut mask = 0;
@@ -368,12 +476,13 @@ impl RenderMode for SpmmMode {
                 }
             }
             Counters {
-                samples: u64::from(width) * k,
+                samples: taken,
                 shading_points,
                 rays: counts,
             }
         });
         self.film = film;
+        self.done_early.clear();
         self.next_sample += k;
         self.frames += 1;
         FrameStats {
@@ -448,6 +557,11 @@ impl RenderMode for SpmmMode {
             .layers
             .apply(&mut self.film, &before, &edit, &self.scene)
         {
+            if invalidation != Invalidation::Nothing {
+                // A restarted layer must get this frame's samples everywhere (at
+                // worst a pixel done early takes its sample twice).
+                self.done_early.clear();
+            }
             if let SceneEdit::Environment(Some(e)) = &edit
                 && invalidation != Invalidation::Nothing
             {
@@ -477,19 +591,29 @@ impl RenderMode for SpmmMode {
             }
             SceneEdit::Material { index, .. } => {
                 let after = &self.scene.materials[index];
-                self.shaders[index] = Shader::new(after);
-                // Only pixels whose shading reached a changed texel restart.
+                self.shaders[index] = match &material_before {
+                    Some(before) => self.shaders[index].after_edit(before, after),
+                    None => Shader::new(after),
+                };
+                // Only pixels whose shading reached a changed texel restart; the next
+                // frame traces them first.
                 let bit = material_bit(index);
-                Invalidation::Pixels(
-                    match material_before.and_then(|b| EditedTexels::between(&b, after)) {
-                        Some(texels) => self.film.reset_reaching(bit, |b| texels.reaches(b)),
-                        None => self.film.reset_touching(bit),
-                    },
-                )
+                let pixels = match material_before.and_then(|b| EditedTexels::between(&b, after)) {
+                    Some(texels) => self.film.reset_reaching_pixels(bit, |b| texels.reaches(b)),
+                    None => self.film.reset_reaching_pixels(bit, |_| true),
+                };
+                let n = pixels.len();
+                if self.restarted_first {
+                    self.catch_up.extend(pixels);
+                    self.catch_up.sort_unstable();
+                    self.catch_up.dedup();
+                }
+                Invalidation::Pixels(n)
             }
             SceneEdit::Moving(moving) if moving == self.moving => Invalidation::Nothing,
             SceneEdit::Moving(moving) => {
                 self.moving = moving;
+                self.done_early.clear();
                 // Samples taken with and without the residual must not mix.
                 Invalidation::Pixels(self.film.reset_touching(self.residual_mask()))
             }

@@ -198,8 +198,72 @@ fn a_stroke_changes_only_the_texels_under_the_brush_and_restarts_only_pixels_tha
         n < panel_pixels,
         "a stroke restarts fewer pixels than the whole panel ({n} of {panel_pixels})"
     );
-    // The next frame fills the restarted pixels again.
-    mode.render_frame();
+    // The next call traces the restarted pixels alone (the early part of the next
+    // frame) and fills them again; every other pixel keeps exactly its value.
+    assert_eq!(mode.pending_restarted(), n);
+    let stats = mode.render_frame();
+    assert_eq!(stats.counters.samples, n as u64);
     let filled = mode.image();
     assert!((0..SIZE).all(|y| (0..SIZE).all(|x| filled.get(x, y) != [0.0; 3])));
+    for y in 0..SIZE {
+        for x in 0..SIZE {
+            if !restarted(x, y) {
+                assert_eq!(filled.get(x, y), after.get(x, y), "pixel ({x}, {y}) kept");
+            }
+        }
+    }
+    // The frame completes with the other pixels' samples; then whole frames again.
+    assert_eq!(mode.pending_restarted(), 0);
+    assert_eq!(
+        mode.render_frame().counters.samples,
+        u64::from(SIZE * SIZE) - n as u64
+    );
+    assert_eq!(mode.progress().min_samples, 1);
+    assert_eq!(mode.render_frame().counters.samples, u64::from(SIZE * SIZE));
+    assert_eq!(mode.progress().min_samples, 2);
+}
+
+/// With the catch-up off, the frame after an edit is a whole frame (the previous
+/// behaviour, kept for comparisons); with it on, a camera move drops the queue.
+#[test]
+fn restarted_pixels_first_can_be_turned_off_and_a_full_restart_drops_the_queue() {
+    let scene = edit_test_scene();
+    let Material::Spmm {
+        material,
+        uv_scale,
+        residual,
+        npca,
+    } = scene.materials[1].clone()
+    else {
+        panic!("material 1 is the SPMM panel");
+    };
+    let edit = SceneEdit::Material {
+        index: 1,
+        material: Material::Spmm {
+            material: Arc::new(
+                material
+                    .with_weight_scale(&WeightTarget::cluster(0), [2.0; 3])
+                    .expect("valid"),
+            ),
+            uv_scale,
+            residual,
+            npca,
+        },
+    };
+    let mut old = SpmmMode::new(scene.clone(), SIZE, SIZE).expect("size");
+    old.set_restarted_first(false);
+    old.render_frame();
+    let Ok(Invalidation::Pixels(n)) = old.apply(edit.clone()) else {
+        panic!("pixels restart");
+    };
+    assert!(n > 0 && old.pending_restarted() == 0);
+    assert_eq!(old.render_frame().counters.samples, u64::from(SIZE * SIZE));
+
+    let mut new = SpmmMode::new(scene.clone(), SIZE, SIZE).expect("size");
+    new.render_frame();
+    new.apply(edit).expect("applies");
+    assert_eq!(new.pending_restarted(), n);
+    new.apply(SceneEdit::Camera(scene.camera)).expect("applies");
+    assert_eq!(new.pending_restarted(), 0);
+    assert_eq!(new.render_frame().counters.samples, u64::from(SIZE * SIZE));
 }

@@ -72,6 +72,54 @@ impl Shader {
         }
     }
 
+    /// The shader of `after`, which replaced `before` (shaded by `self`): an SPMM
+    /// pack with the same residual reuses the prepared residual tables (if they were
+    /// prepared; otherwise it stays unprepared until a ray reaches it).
+    pub(super) fn after_edit(&self, before: &Material, after: &Material) -> Self {
+        if let (
+            Shader::Spmm { prepared, .. },
+            Material::Spmm { material: old, .. },
+            Material::Spmm {
+                material,
+                uv_scale,
+                residual,
+                npca,
+            },
+        ) = (self, before, after)
+            && let Material::Spmm {
+                residual: old_residual,
+                npca: old_npca,
+                ..
+            } = before
+            && (old_residual, old_npca) == (residual, npca)
+            && let Some(prepared) = prepared.get()
+        {
+            let still = EvalSettings {
+                residual: *residual,
+                max_npca: *npca,
+                filter: TexelFilter::Nearest,
+                uv_scale: *uv_scale,
+            };
+            let request = PrepareRequest {
+                used_clusters: None,
+                residual: *residual,
+                max_npca: *npca,
+            };
+            let data = Box::new(material.prepare_after_edit(&request, old, prepared));
+            return Shader::Spmm {
+                material: Arc::clone(material),
+                request,
+                prepared: OnceLock::from(data),
+                still,
+                moving: EvalSettings {
+                    residual: false,
+                    ..still
+                },
+            };
+        }
+        Self::new(after)
+    }
+
     /// True if moving changes this material's evaluation (it has a residual in use).
     pub(super) fn skips_residual_when_moving(&self) -> bool {
         matches!(self, Shader::Spmm { material, request, still, .. } if still.residual && material.prepares_residual(request))

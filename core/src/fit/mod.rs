@@ -10,6 +10,7 @@
 //! direction pairs; the weights and the residual use every pair.
 
 pub mod dictionary;
+pub mod fidelity;
 pub mod kmeans;
 pub mod lasso;
 pub mod report;

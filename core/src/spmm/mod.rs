@@ -18,6 +18,7 @@ mod view;
 pub(crate) mod tests;
 
 pub use edit::{Contributions, WeightTarget};
+pub(crate) use eval::TexelGrid;
 pub use eval::{EvalSettings, TexelFilter};
 pub use material::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial};
 pub use prepared::{PrepareRequest, PreparedBytes, PreparedSpmm};

@@ -92,6 +92,7 @@ impl SpmmMode {
             Material::Brdf { .. }
                 | Material::Merl { .. }
                 | Material::Spmm { .. }
+                | Material::Btf { .. }
                 | Material::Mirror { .. }
         );
         (!shaded).then(|| Unrenderable::Material {

@@ -276,6 +276,12 @@ pub fn fit_btf(
     let mut clusters: Vec<Cluster> = vec![Cluster { bases: Vec::new() }; n_clusters];
     for ((c, _), bases) in jobs.iter().zip(fitted) {
         for b in bases.into_iter().flatten() {
+            // The lobe bound (spmm::lobe_bound): a basis peaking between the tabulated
+            // directions far above its values there is dropped; the weights and the
+            // residual are fitted without it.
+            if !crate::spmm::lobe_bound::within_bound(&b, btf.light_dirs(), btf.view_dirs()) {
+                continue;
+            }
             if !clusters[*c]
                 .bases
                 .iter()

@@ -7,6 +7,7 @@ mod change;
 pub mod directions;
 mod edit;
 mod eval;
+pub mod lobe_bound;
 mod material;
 pub mod pack;
 mod prepared;

@@ -102,6 +102,8 @@ pub fn run(command: PackCommand) -> Result<(), CliError> {
         }
         PackCommand::Validate { file, json } => {
             let m = load(&file)?;
+            meso_core::spmm::lobe_bound::check_lobes(&m)
+                .map_err(|e| CliError::bad_input(anyhow::anyhow!("`{}`: {e}", file.display())))?;
             if json {
                 return crate::print_json(
                     &json!({"file": file.display().to_string(), "valid": true, "name": m.name()}),

@@ -1752,8 +1752,8 @@ fn regress_bad_input_exits_2_naming_the_place() {
         &meso(&["regress", ms], ""),
         &[
             "case `default.velvet.spmm-cpu`",
-            "materials.velvet.kind",
-            "BTF materials cannot be substituted yet",
+            "line 25, `materials.velvet.path`",
+            "velvet.btf",
         ],
     );
     let m = regress_manifest(dir.path(), 24, 2, "");

@@ -76,7 +76,7 @@ pub fn run(args: &FitReportArgs) -> Result<(), CliError> {
     if args.frames == 0 {
         return Err(CliError::bad_input(anyhow!("--frames must be at least 1")));
     }
-    if !(args.diff_gain.is_finite() && args.diff_gain > 0.0) || !args.exposure.is_finite() {
+    if !(args.diff_gain.is_finite() && args.diff_gain > 0.0 && args.exposure.is_finite()) {
         return Err(CliError::bad_input(anyhow!(
             "--diff-gain must be positive and --exposure finite"
         )));

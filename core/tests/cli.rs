@@ -1752,8 +1752,8 @@ fn regress_bad_input_exits_2_naming_the_place() {
         &meso(&["regress", ms], ""),
         &[
             "case `default.velvet.spmm-cpu`",
-            "materials.velvet.kind",
-            "BTF materials cannot be substituted yet",
+            "line 25, `materials.velvet.path`",
+            "velvet.btf",
         ],
     );
     let m = regress_manifest(dir.path(), 24, 2, "");
@@ -2065,5 +2065,168 @@ strength = 1.0
     assert_bad_input(
         &meso(&["precompute", default, "--mode", "biscale"], ""),
         &["biscale", "without [environment]"],
+    );
+}
+
+#[test]
+fn report_fit_measures_a_pack_against_its_btf_as_compare_does() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let recipe = dir.path().join("weave.toml");
+    std::fs::write(&recipe, SMALL_BTF_RECIPE).expect("write recipe");
+    let btf = dir.path().join("weave.btf");
+    let pack = dir.path().join("weave.spmm");
+    let (r, b, p) = (
+        recipe.to_str().expect("utf-8"),
+        btf.to_str().expect("utf-8"),
+        pack.to_str().expect("utf-8"),
+    );
+    assert_eq!(
+        meso(&["btf", "synth", r, "-o", b], "").status.code(),
+        Some(0)
+    );
+    let o = meso(
+        &[
+            "fit",
+            b,
+            "-o",
+            p,
+            "--clusters",
+            "2",
+            "--subclusters",
+            "2",
+            "--npca",
+            "2",
+        ],
+        "",
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let out = dir.path().join("report");
+    let o_arg = out.to_str().expect("utf-8");
+    let o = meso(
+        &[
+            "report", "fit", b, p, "-o", o_arg, "--width", "24", "--height", "24", "--frames", "2",
+            "--json",
+        ],
+        "",
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("one JSON object");
+    assert_eq!(
+        v["pack_bytes"].as_u64(),
+        Some(std::fs::metadata(&pack).expect("pack").len())
+    );
+    for key in [
+        "image_relative_rmse",
+        "image_mssim",
+        "table_relative_rmse",
+        "table_grazing_relative_rmse",
+        "table_elsewhere_relative_rmse",
+        "table_basis_relative_rmse",
+    ] {
+        let x = v[key].as_f64().unwrap_or_else(|| panic!("{key} in {v}"));
+        assert!(x.is_finite() && x >= 0.0, "{key} = {x}");
+    }
+    // The residual is fitted to the table: it is closer than the basis sum alone.
+    assert!(v["table_relative_rmse"].as_f64() < v["table_basis_relative_rmse"].as_f64());
+    let scenes = v["scenes"].as_array().expect("scenes");
+    assert_eq!(scenes.len(), 2);
+    let mut worst_mssim = 1.0f64;
+    for s in scenes {
+        let file = |k: &str| out.join(s[k].as_str().expect("file name"));
+        assert!(file("side_by_side").is_file());
+        let c = meso(
+            &[
+                "compare",
+                file("btf_image").to_str().expect("utf-8"),
+                file("pack_image").to_str().expect("utf-8"),
+                "--json",
+            ],
+            "",
+        );
+        assert_eq!(
+            c.status.code(),
+            Some(0),
+            "{}",
+            String::from_utf8_lossy(&c.stderr)
+        );
+        let c: serde_json::Value = serde_json::from_str(&stdout(&c)).expect("JSON");
+        assert_eq!(c["mssim"], s["image_mssim"], "{}", s["scene"]);
+        assert_eq!(c["rmse"], s["image_rmse"], "{}", s["scene"]);
+        assert_eq!(c["psnr_db"], s["image_psnr_db"], "{}", s["scene"]);
+        worst_mssim = worst_mssim.min(s["image_mssim"].as_f64().expect("mssim"));
+    }
+    assert_eq!(v["image_mssim"].as_f64(), Some(worst_mssim));
+    let saved: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).expect("report"))
+            .expect("JSON");
+    assert_eq!(saved["table_relative_rmse"], v["table_relative_rmse"]);
+
+    // A pack fitted to another BTF (another texel grid) is refused, naming the pack.
+    let other = concat!(env!("CARGO_MANIFEST_DIR"), "/../materials/leather.spmm");
+    let o = meso(&["report", "fit", b, other, "-o", o_arg], "");
+    assert_eq!(o.status.code(), Some(2));
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        e.contains("leather.spmm") && e.contains("texel grid"),
+        "{e}"
+    );
+    // A scene without the material to replace is named.
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/default.toml");
+    let o = meso(
+        &[
+            "report", "fit", b, p, "-o", o_arg, "--scene", scene, "--width", "16", "--height", "16",
+        ],
+        "",
+    );
+    assert_eq!(o.status.code(), Some(2));
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(e.contains("no material `sample`"), "{e}");
+}
+
+#[test]
+fn a_shipped_pack_over_the_lobe_bound_validates_with_a_warning_and_fails_strict() {
+    // woven_cloth's cluster 0 basis 11 (Ward) peaks 11.8x above its largest value at
+    // the tabulated directions: consistent, so valid, but said; --strict refuses it.
+    let pack = concat!(env!("CARGO_MANIFEST_DIR"), "/../materials/woven_cloth.spmm");
+    let o = meso(&["pack", "validate", pack, "--json"], "");
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("one JSON object");
+    let warnings = v["warnings"].as_array().expect("warnings");
+    assert_eq!(warnings.len(), 1);
+    assert!(
+        warnings[0]
+            .as_str()
+            .is_some_and(|w| w.contains("cluster 0 basis 11 (ward)")),
+        "{warnings:?}"
+    );
+    assert!(String::from_utf8_lossy(&o.stderr).starts_with("warning: "));
+    let o = meso(&["pack", "validate", pack, "--strict"], "");
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("cluster 0 basis 11 (ward)") && err.lines().count() == 1,
+        "{err}"
+    );
+    let corduroy = concat!(env!("CARGO_MANIFEST_DIR"), "/../materials/corduroy.spmm");
+    let o = meso(&["pack", "validate", corduroy, "--strict", "--json"], "");
+    assert_eq!(o.status.code(), Some(0));
+    assert_eq!(
+        serde_json::from_str::<serde_json::Value>(&stdout(&o)).expect("JSON")["warnings"],
+        serde_json::json!([])
     );
 }

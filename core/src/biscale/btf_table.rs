@@ -91,7 +91,7 @@ impl Tabulation {
         s / (STRATA * STRATA) as f64
     }
 
-    /// `None` for materials the mode refuses (mirror, merl).
+    /// `None` for materials the mode refuses (mirror, merl, btf).
     pub fn table(&self, material: &Material) -> Option<BtfTable> {
         match material {
             Material::Brdf { brdf, albedo } => Some(self.brdf_table(brdf, *albedo)),
@@ -103,7 +103,7 @@ impl Tabulation {
             } => Some(BtfTable::Spmm(Box::new(
                 self.spmm_table(material, *uv_scale, *residual, *npca),
             ))),
-            Material::Mirror { .. } | Material::Merl { .. } => None,
+            Material::Mirror { .. } | Material::Merl { .. } | Material::Btf { .. } => None,
         }
     }
 

@@ -122,12 +122,14 @@ impl BiscaleMode {
     }
 
     fn unrenderable(scene: &Scene, index: usize, m: &Material) -> Option<Unrenderable> {
-        matches!(m, Material::Mirror { .. } | Material::Merl { .. }).then(|| {
-            Unrenderable::Material {
-                index,
-                name: name_of(scene, index),
-                kind: m.kind_name(),
-            }
+        matches!(
+            m,
+            Material::Mirror { .. } | Material::Merl { .. } | Material::Btf { .. }
+        )
+        .then(|| Unrenderable::Material {
+            index,
+            name: name_of(scene, index),
+            kind: m.kind_name(),
         })
     }
 

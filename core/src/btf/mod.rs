@@ -3,12 +3,14 @@
 //! foreshortening cosine included (the convention of an SPMM basis function rho_j,
 //! spec/brdf.md). `synth.rs` makes BTFs by ray tracing a height-field mesostructure
 //! (Sloan et al. 2003, section 4.2), `import.rs` reads measured image sets, `file.rs`
-//! is the `.btf` container (docs/formats/btf.md). Fitting them lives in `fit`.
+//! is the `.btf` container (docs/formats/btf.md), `table.rs` the BTF as the spmm mode
+//! shades it (the scene's `btf` material). Fitting them lives in `fit`.
 
 pub mod directions;
 pub mod file;
 pub mod import;
 pub mod synth;
+pub mod table;
 
 use glam::DVec3;
 
@@ -175,5 +177,38 @@ impl Btf {
     /// Mean of every value (all texels, pairs and channels), in f64.
     pub fn mean_value(&self) -> f64 {
         self.data.iter().map(|&x| f64::from(x)).sum::<f64>() / self.data.len() as f64
+    }
+
+    /// A uniform BTF tabulating an analytic BRDF: every texel holds
+    /// `albedo * f(l, v) * cos_l` (the foreshortening cosine of the light) at every
+    /// pair of the direction sets. The closed-form reference of the `btf` material.
+    pub fn from_brdf(
+        brdf: &crate::brdf::AnalyticBrdf,
+        albedo: DVec3,
+        width: u32,
+        height: u32,
+        light_dirs: Vec<DVec3>,
+        view_dirs: Vec<DVec3>,
+    ) -> Result<Self, BtfError> {
+        if !(1..=MAX_SIDE).contains(&width) || !(1..=MAX_SIDE).contains(&height) {
+            return Err(BtfError::GridSize { width, height });
+        }
+        let mut texel = Vec::with_capacity(light_dirs.len() * view_dirs.len() * 3);
+        for l in &light_dirs {
+            for v in &view_dirs {
+                let f = albedo * (brdf.eval(*l, *v) * l.z);
+                texel.extend(f.to_array().map(|x| x as f32));
+            }
+        }
+        let data = texel.repeat(width as usize * height as usize);
+        Self::new(
+            format!("{:?}", brdf.model()).to_lowercase(),
+            "tabulated analytic BRDF".into(),
+            width,
+            height,
+            light_dirs,
+            view_dirs,
+            data,
+        )
     }
 }

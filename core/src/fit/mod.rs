@@ -10,6 +10,7 @@
 //! direction pairs; the weights and the residual use every pair.
 
 pub mod dictionary;
+pub mod fidelity;
 pub mod kmeans;
 pub mod lasso;
 pub mod report;
@@ -275,6 +276,12 @@ pub fn fit_btf(
     let mut clusters: Vec<Cluster> = vec![Cluster { bases: Vec::new() }; n_clusters];
     for ((c, _), bases) in jobs.iter().zip(fitted) {
         for b in bases.into_iter().flatten() {
+            // The lobe bound (spmm::lobe_bound): a basis peaking between the tabulated
+            // directions far above its values there is dropped; the weights and the
+            // residual are fitted without it.
+            if !crate::spmm::lobe_bound::within_bound(&b, btf.light_dirs(), btf.view_dirs()) {
+                continue;
+            }
             if !clusters[*c]
                 .bases
                 .iter()

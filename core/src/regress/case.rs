@@ -112,8 +112,8 @@ pub fn check_case_name(name: &str) -> Option<String> {
 }
 
 /// Replaces the scene's material `replace` by `material`. An `spmm` substitution that
-/// sets no `uv_scale` keeps the tiling of the `spmm` material it replaces (a pack is
-/// swapped for another on the same object).
+/// sets no `uv_scale` keeps the tiling of the `spmm` or `btf` material it replaces (a
+/// pack or a BTF is swapped for another on the same object).
 pub fn substitute(
     scene: &mut Scene,
     replace: &str,
@@ -126,23 +126,18 @@ pub fn substitute(
             scene.material_names.join(", ")
         ));
     };
-    let material = match (material, &scene.materials[index]) {
-        (
-            Material::Spmm {
-                material,
-                residual,
-                npca,
-                ..
-            },
-            Material::Spmm { uv_scale, .. },
-        ) if !sets_uv_scale => Material::Spmm {
-            material,
-            uv_scale: *uv_scale,
-            residual,
-            npca,
-        },
-        (m, _) => m,
+    let kept_tiling = match &scene.materials[index] {
+        Material::Spmm { uv_scale, .. } | Material::Btf { uv_scale, .. } if !sets_uv_scale => {
+            Some(*uv_scale)
+        }
+        _ => None,
     };
+    let mut material = material;
+    if let (Some(kept), Material::Spmm { uv_scale, .. } | Material::Btf { uv_scale, .. }) =
+        (kept_tiling, &mut material)
+    {
+        *uv_scale = kept;
+    }
     scene.materials[index] = material;
     if let Some(file) = scene.material_files.get_mut(index) {
         *file = None;
@@ -155,7 +150,7 @@ mod tests {
     use glam::DVec2;
 
     use super::*;
-    use crate::scene::test_scenes::{edit_test_scene, tilted_spmm};
+    use crate::scene::test_scenes::{edit_test_scene, tabulated_btf, tilted_spmm};
 
     #[test]
     fn a_pack_keeps_the_tiling_it_replaces_unless_it_sets_its_own() {
@@ -177,6 +172,19 @@ mod tests {
         substitute(&mut scene, "floor", tilted_spmm(), false).expect("floor exists");
         assert!(
             matches!(scene.materials[0], Material::Spmm { uv_scale, .. } if uv_scale == DVec2::ONE)
+        );
+        // A BTF swapped for the pack keeps its tiling too.
+        let mut scene = edit_test_scene();
+        let lambert = crate::brdf::AnalyticBrdf::with_defaults(crate::brdf::BrdfModel::Lambertian);
+        let btf = tabulated_btf(&lambert, glam::DVec3::ONE, DVec2::splat(5.0));
+        substitute(&mut scene, "panel", btf.clone(), false).expect("panel exists");
+        assert!(
+            matches!(scene.materials[1], Material::Btf { uv_scale, .. } if uv_scale == DVec2::splat(2.0))
+        );
+        let mut scene = edit_test_scene();
+        substitute(&mut scene, "panel", btf, true).expect("panel exists");
+        assert!(
+            matches!(scene.materials[1], Material::Btf { uv_scale, .. } if uv_scale == DVec2::splat(5.0))
         );
         let e = substitute(&mut scene, "wall", tilted_spmm(), false).expect_err("no wall");
         assert_eq!(e, "the scene has no material `wall` (it has: floor, panel)");

@@ -127,8 +127,7 @@ impl Manifest {
         self.path.parent().unwrap_or(Path::new("."))
     }
 
-    /// Builds the substituted material `name` (a key of `[materials]`). A `btf`
-    /// table is refused by name until a mode renders BTF materials (issue 17).
+    /// Builds the substituted material `name` (a key of `[materials]`).
     pub fn material(&self, name: &str) -> Result<(Material, bool), ManifestError> {
         let table = self.materials.get(name).ok_or_else(|| ManifestError {
             file: self.path.clone(),
@@ -139,21 +138,11 @@ impl Manifest {
         let key = format!("materials.{name}");
         scene::material_from_table(&self.path, &self.text, &key, table, self.folder())
             .map(|m| (m, table.sets_uv_scale()))
-            .map_err(|e| {
-                let btf = table.kind() == "btf";
-                ManifestError {
-                    file: e.file,
-                    line: e.line,
-                    key: e.key,
-                    message: if btf {
-                        format!(
-                            "{}: BTF materials cannot be substituted yet: no render mode shades a `btf` material (issue 17)",
-                            e.message
-                        )
-                    } else {
-                        e.message
-                    },
-                }
+            .map_err(|e| ManifestError {
+                file: e.file,
+                line: e.line,
+                key: e.key,
+                message: e.message,
             })
     }
 

@@ -356,7 +356,7 @@ fn file_level_errors() {
 }
 
 #[test]
-fn substituted_materials_build_like_scene_materials_and_btf_is_refused_by_name() {
+fn substituted_materials_build_like_scene_materials_and_a_missing_btf_is_named() {
     let dir = tempfile::tempdir().expect("temp dir");
     let path = dir.path().join("manifest.toml");
     let text = format!(
@@ -374,14 +374,14 @@ fn substituted_materials_build_like_scene_materials_and_btf_is_refused_by_name()
     let e = m.material("bad_ward").expect_err("ax < 0");
     assert_eq!(e.key.as_deref(), Some("materials.bad_ward.params"));
     assert!(e.message.contains("ax"), "{e}");
-    let e = m.material("velvet").expect_err("no btf material yet");
-    assert_eq!(e.key.as_deref(), Some("materials.velvet.kind"));
-    assert!(
-        e.message
-            .contains("BTF materials cannot be substituted yet"),
-        "{e}"
+    // A BTF that is not there: named like the missing pack.
+    let e = m.material("velvet").expect_err("no such BTF file");
+    assert_eq!(e.key.as_deref(), Some("materials.velvet.path"));
+    assert_eq!(
+        e.line,
+        Some(line_of_text(&text[BASE.len()..], "path = \"velvet.btf\""))
     );
-    assert!(e.message.contains("issue 17"), "{e}");
+    assert!(e.message.contains("velvet.btf"), "{e}");
     assert_eq!(
         m.material_line("velvet"),
         Some(line_of_text(&text[BASE.len()..], "[materials.velvet]"))

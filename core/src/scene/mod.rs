@@ -23,6 +23,7 @@ use glam::{DMat3, DVec2, DVec3};
 use toml::Spanned;
 
 use crate::brdf::{AnalyticBrdf, BrdfModel};
+use crate::btf::{self, table::BtfTable};
 use crate::image::{self, Image};
 use crate::merl::{self, MerlBrdf};
 use crate::rng::Sampler;
@@ -185,6 +186,11 @@ pub enum Material {
         brdf: Arc<MerlBrdf>,
         tint: DVec3,
     },
+    /// A BTF shaded directly (nearest texel, directions interpolated), tiled.
+    Btf {
+        table: Arc<BtfTable>,
+        uv_scale: DVec2,
+    },
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -278,6 +284,7 @@ impl Material {
             Material::Spmm { .. } => "spmm",
             Material::Mirror { .. } => "mirror",
             Material::Merl { .. } => "merl",
+            Material::Btf { .. } => "btf",
         }
     }
 }
@@ -909,6 +916,7 @@ fn build_material(
         "spmm" => &["pack", "uv_scale", "residual", "npca"],
         "mirror" => &["reflectance"],
         "merl" => &["path", "tabulate", "tint"],
+        "btf" => &["path", "uv_scale"],
         _ => &[],
     };
     if !accepted.is_empty()
@@ -949,20 +957,7 @@ fn build_material(
             };
             let material = pack::read_pack(&folder.join(pack_path.get_ref()))
                 .or_else(|e| ctx.err(&pack_path.span(), key("pack"), e.to_string()))?;
-            let uv_scale = match &m.uv_scale {
-                Some(s) => {
-                    let v = DVec2::from_array(*s.get_ref());
-                    if !(v.is_finite() && v.min_element() > 0.0) {
-                        return ctx.err(
-                            &s.span(),
-                            key("uv_scale"),
-                            format!("{v} must be positive and finite"),
-                        );
-                    }
-                    v
-                }
-                None => DVec2::ONE,
-            };
+            let uv_scale = uv_scale_of(ctx, &key("uv_scale"), m.uv_scale.as_ref())?;
             let npca = match &m.npca {
                 Some(n) if *n.get_ref() as usize > material.npca() => {
                     return ctx.err(
@@ -1032,10 +1027,50 @@ fn build_material(
                 tint,
             })
         }
+        "btf" => {
+            let Some(path) = &m.path else {
+                return ctx.err(&span, key("path"), "a `btf` material needs `path`");
+            };
+            let btf = btf::file::read_btf(&folder.join(path.get_ref()))
+                .or_else(|e| ctx.err(&path.span(), key("path"), e.to_string()))?;
+            let table = BtfTable::new(&btf).or_else(|e| {
+                ctx.err(
+                    &path.span(),
+                    key("path"),
+                    format!("`{}`: {e}", path.get_ref().display()),
+                )
+            })?;
+            Ok(Material::Btf {
+                table: Arc::new(table),
+                uv_scale: uv_scale_of(ctx, &key("uv_scale"), m.uv_scale.as_ref())?,
+            })
+        }
         other => ctx.err(
             &m.kind.span(),
             key("kind"),
-            format!("`{other}`: materials are `brdf`, `spmm`, `mirror` or `merl`"),
+            format!("`{other}`: materials are `brdf`, `spmm`, `mirror`, `merl` or `btf`"),
         ),
+    }
+}
+
+/// A material's texture tiling (`uv_scale`, default 1 x 1): positive and finite.
+fn uv_scale_of(
+    ctx: &Ctx,
+    key: &str,
+    given: Option<&Spanned<[f64; 2]>>,
+) -> Result<DVec2, SceneError> {
+    match given {
+        Some(s) => {
+            let v = DVec2::from_array(*s.get_ref());
+            if !(v.is_finite() && v.min_element() > 0.0) {
+                return ctx.err(
+                    &s.span(),
+                    key.to_string(),
+                    format!("{v} must be positive and finite"),
+                );
+            }
+            Ok(v)
+        }
+        None => Ok(DVec2::ONE),
     }
 }

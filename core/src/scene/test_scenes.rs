@@ -204,3 +204,15 @@ pub(crate) fn tilted_spmm() -> Material {
         npca: 0,
     }
 }
+
+/// A `btf` material tabulating `albedo * brdf` on the Bonn 81 x 81 directions, 1 x 1
+/// texel, tiled by `uv_scale`.
+pub(crate) fn tabulated_btf(brdf: &AnalyticBrdf, albedo: DVec3, uv_scale: DVec2) -> Material {
+    let dirs = crate::btf::directions::bonn81();
+    let btf =
+        crate::btf::Btf::from_brdf(brdf, albedo, 1, 1, dirs.clone(), dirs).expect("valid BTF");
+    Material::Btf {
+        table: Arc::new(crate::btf::table::BtfTable::new(&btf).expect("shadeable")),
+        uv_scale,
+    }
+}

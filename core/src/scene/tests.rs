@@ -545,3 +545,73 @@ fn the_sampler_is_read_and_a_wrong_one_is_named() {
         "{e}"
     );
 }
+
+#[test]
+fn btf_materials_load_tiled_and_bad_ones_name_the_material() {
+    let dir = setup();
+    let dirs = crate::btf::directions::bonn81();
+    let lambert = AnalyticBrdf::with_defaults(BrdfModel::Lambertian);
+    let btf = crate::btf::Btf::from_brdf(&lambert, DVec3::splat(0.5), 2, 2, dirs.clone(), dirs)
+        .expect("valid BTF");
+    crate::btf::file::write_btf(
+        &dir.path().join("lambert.btf"),
+        &btf,
+        crate::btf::file::BtfPrecision::F32,
+    )
+    .expect("write BTF");
+    let with_btf = |table: &str| {
+        EXAMPLE.replace(
+            "[materials.chrome]",
+            &format!("[materials.velvet]\nkind = \"btf\"\n{table}\n[materials.chrome]"),
+        )
+    };
+    let s = load_scene(&write(
+        dir.path(),
+        &with_btf("path = \"lambert.btf\"\nuv_scale = [3.0, 2.0]\n"),
+    ))
+    .expect("valid scene");
+    let velvet = s
+        .material_names
+        .iter()
+        .position(|n| n == "velvet")
+        .expect("velvet");
+    match &s.materials[velvet] {
+        Material::Btf { table, uv_scale } => {
+            assert_eq!(*uv_scale, DVec2::new(3.0, 2.0));
+            assert_eq!((table.width(), table.height()), (2, 2));
+            let v = table.eval_texel(3, DVec3::Z, DVec3::Z);
+            assert!((v.x - 0.5 / std::f64::consts::PI).abs() < 1e-6, "{v}");
+        }
+        other => panic!("velvet is a btf material, got {other:?}"),
+    }
+    std::fs::write(dir.path().join("junk.btf"), b"not a btf").expect("write junk");
+    for (table, needles) in [
+        ("", vec!["materials.velvet.path", "needs `path`"]),
+        (
+            "path = \"missing.btf\"\n",
+            vec!["materials.velvet.path", "missing.btf"],
+        ),
+        (
+            "path = \"junk.btf\"\n",
+            vec!["materials.velvet.path", "junk.btf", "safetensors"],
+        ),
+        (
+            "path = \"lambert.btf\"\nuv_scale = [0.0, 1.0]\n",
+            vec!["materials.velvet.uv_scale", "positive"],
+        ),
+        (
+            "path = \"lambert.btf\"\ntint = [1.0, 1.0, 1.0]\n",
+            vec![
+                "materials.velvet.tint",
+                "does not belong to a `btf` material",
+            ],
+        ),
+    ] {
+        let err = load_scene(&write(dir.path(), &with_btf(table)))
+            .expect_err("bad btf material")
+            .to_string();
+        for n in needles {
+            assert!(err.contains(n), "`{n}` missing from: {err}");
+        }
+    }
+}

@@ -127,7 +127,7 @@ impl SpmmMaterial {
 
 /// UV to texel mapping, shared by the reference and the prepared evaluation.
 #[derive(Clone, Copy, Debug)]
-pub(super) struct TexelGrid {
+pub(crate) struct TexelGrid {
     pub width: u32,
     pub height: u32,
 }

@@ -7,6 +7,7 @@ mod change;
 pub mod directions;
 mod edit;
 mod eval;
+pub mod lobe_bound;
 mod material;
 pub mod pack;
 mod prepared;
@@ -18,6 +19,7 @@ mod view;
 pub(crate) mod tests;
 
 pub use edit::{Contributions, WeightTarget};
+pub(crate) use eval::TexelGrid;
 pub use eval::{EvalSettings, TexelFilter};
 pub use material::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial};
 pub use prepared::{PrepareRequest, PreparedBytes, PreparedSpmm};

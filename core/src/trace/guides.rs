@@ -15,13 +15,13 @@ use crate::scene::Material;
 impl SpmmMode {
     /// A colour material `index` reflects, for guiding the denoiser only: the albedo
     /// of an analytic BRDF, a MERL table's albedo at normal view times its tint, a
-    /// mirror's reflectance; `None` for packs, whose colour varies per texel.
+    /// mirror's reflectance; `None` for packs and BTFs, whose colour varies per texel.
     fn uniform_albedo(&self, index: usize) -> Option<DVec3> {
         match &self.scene.materials[index] {
             Material::Brdf { albedo, .. } => Some(*albedo),
             Material::Merl { brdf, tint } => Some(*tint * brdf.albedo_at_normal()),
             Material::Mirror { reflectance } => Some(*reflectance),
-            Material::Spmm { .. } => None,
+            Material::Spmm { .. } | Material::Btf { .. } => None,
         }
     }
 
@@ -47,7 +47,7 @@ impl SpmmMode {
                 let albedo =
                     albedos[s.material].unwrap_or_else(|| match &self.shaders[s.material] {
                         // The pack's texel seen and lit along the normal: pi x BTF(n, n).
-                        Shader::Spmm { .. } => self.response(&s, s.n, s.n) * PI,
+                        Shader::Spmm { .. } | Shader::Table => self.response(&s, s.n, s.n) * PI,
                         Shader::Scene => DVec3::ZERO,
                     });
                 (

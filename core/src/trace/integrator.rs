@@ -102,6 +102,7 @@ impl SpmmMode {
             Material::Brdf { .. }
                 | Material::Merl { .. }
                 | Material::Spmm { .. }
+                | Material::Btf { .. }
                 | Material::Mirror { .. }
         );
         (!shaded).then(|| Unrenderable::Material {

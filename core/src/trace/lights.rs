@@ -284,7 +284,7 @@ impl SpmmMode {
         // 1 / pdf, written as the cosine case always was (pi / cos) to keep its bits.
         let weight = match shader {
             Shader::Scene => PI / local.z,
-            Shader::Spmm { .. } => 1.0 / pdf,
+            Shader::Spmm { .. } | Shader::Table => 1.0 / pdf,
         };
         let wi = s.to_world(local);
         path.counts.ambient += 1;

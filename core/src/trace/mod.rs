@@ -14,6 +14,8 @@ use integrator::Path;
 pub use integrator::SpmmMode;
 
 #[cfg(test)]
+mod btf_tests;
+#[cfg(test)]
 mod edit_tests;
 #[cfg(test)]
 mod environment_tests;

@@ -2,7 +2,8 @@
 //! along +u as the SPMM convention needs), each material's response to light (albedo
 //! f cos_i for analytic BRDFs, tint f cos_i for MERL tables (nearest cell, as the
 //! reference reader looks them up), the BTF for SPMM packs, with the residual skipped
-//! while the camera moves), and the sampling that suits each material.
+//! while the camera moves, and the interpolated table for `btf` materials), and the
+//! sampling that suits each material.
 
 use std::f64::consts::PI;
 
@@ -20,6 +21,8 @@ use crate::spmm::{EvalSettings, PrepareRequest, PreparedSpmm, SpmmMaterial, Texe
 pub(super) enum Shader {
     /// Analytic BRDFs, MERL tables and mirrors read the scene's material directly.
     Scene,
+    /// A BTF read from the scene's material: sampled like a pack.
+    Table,
     /// An SPMM pack, prepared for this render the first time a ray shades it (or
     /// before the first frame if a primary ray sees it: `SpmmMode::prepare`), with its
     /// settings when still and moving. Packs no ray reaches hold nothing.
@@ -68,6 +71,7 @@ impl Shader {
                 brdf.sampler();
                 Shader::Scene
             }
+            Material::Btf { .. } => Shader::Table,
             _ => Shader::Scene,
         }
     }
@@ -135,7 +139,7 @@ impl Shader {
                 prepared,
                 ..
             } => Some(prepared.get_or_init(|| Box::new(material.prepare(request)))),
-            Shader::Scene => None,
+            Shader::Scene | Shader::Table => None,
         }
     }
 
@@ -143,7 +147,7 @@ impl Shader {
     pub(super) fn resident_bytes(&self) -> usize {
         match self {
             Shader::Spmm { prepared, .. } => prepared.get().map_or(0, |p| p.bytes().total()),
-            Shader::Scene => 0,
+            Shader::Scene | Shader::Table => 0,
         }
     }
 
@@ -153,19 +157,19 @@ impl Shader {
             Shader::Spmm {
                 material, request, ..
             } => material.prepared_bytes(request).total(),
-            Shader::Scene => 0,
+            Shader::Scene | Shader::Table => 0,
         }
     }
 
     /// A direction of the upper hemisphere (shading frame) for sampling light over it,
     /// and its pdf. Analytic BRDFs use cosine-distributed directions: their response
-    /// carries cos_i. An SPMM's BTF does not vanish with the shading cosine (each basis
+    /// carries cos_i. A BTF (a pack's or a `btf` material's) does not vanish with the shading cosine (each basis
     /// has its own normal), and dividing it by a cosine pdf has infinite variance; it
     /// gets a defensive half-cosine, half-uniform mixture whose pdf is at least
     /// 1 / 4 pi (docs/rendering.md has the measured difference).
     pub(super) fn hemisphere_sample(&self, u: DVec2) -> (DVec3, f64) {
         match self {
-            Shader::Spmm { .. } => {
+            Shader::Spmm { .. } | Shader::Table => {
                 let local = if u.x < 0.5 {
                     warp::cosine_hemisphere(DVec2::new(2.0 * u.x, u.y))
                 } else {
@@ -273,7 +277,7 @@ impl SpmmMode {
 
     /// The material's response to light from `wi` seen from `wo`, cosine included:
     /// albedo f cos_i for BRDFs, tint f cos_i for MERL tables, the BTF for SPMM packs
-    /// (world-space unit vectors).
+    /// and `btf` materials (world-space unit vectors).
     pub(super) fn response(&self, s: &Shading, wi: DVec3, wo: DVec3) -> DVec3 {
         let (li, lo) = (s.to_local(wi), s.to_local(wo));
         match (&self.scene.materials[s.material], &self.shaders[s.material]) {
@@ -284,6 +288,7 @@ impl SpmmMode {
                     p.eval_uv(s.uv, li, lo, if self.moving { moving } else { still })
                 })
             }
+            (Material::Btf { table, uv_scale }, _) => table.eval_uv(s.uv, *uv_scale, li, lo),
             // `supports` refused every other material before the mode was made.
             _ => DVec3::ZERO,
         }
@@ -303,7 +308,7 @@ impl SpmmMode {
         match (&self.scene.materials[s.material], &self.shaders[s.material]) {
             (Material::Brdf { brdf, .. }, _) => brdf.pdf(lo, li),
             (Material::Merl { brdf, .. }, _) => brdf.pdf(lo, li),
-            (_, Shader::Spmm { .. }) => Shader::defensive_pdf(li),
+            (_, Shader::Spmm { .. } | Shader::Table) => Shader::defensive_pdf(li),
             _ => 0.0,
         }
     }
@@ -322,7 +327,7 @@ impl SpmmMode {
             (Material::Merl { brdf, .. }, _) => brdf
                 .sample(s.to_local(wo), u)
                 .map(|b| (s.to_world(b.wi), b.pdf)),
-            (_, shader @ Shader::Spmm { .. }) => {
+            (_, shader @ (Shader::Spmm { .. } | Shader::Table)) => {
                 let (local, pdf) = shader.hemisphere_sample(u);
                 Some((s.to_world(local), pdf))
             }

@@ -19,6 +19,7 @@ mod progress;
 mod regress_cmd;
 mod render_cmd;
 mod report_cmd;
+mod report_fit_cmd;
 mod svg_chart;
 
 use std::process::ExitCode;

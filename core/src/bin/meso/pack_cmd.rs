@@ -23,11 +23,15 @@ pub enum PackCommand {
         #[arg(long)]
         json: bool,
     },
-    /// Full consistency check: exit 0 if valid, 2 with the first fault named.
+    /// Full consistency check: exit 0 if valid, 2 with the first fault named. A basis
+    /// over the lobe bound is a warning, or a fault with --strict.
     Validate {
         file: PathBuf,
         #[arg(long)]
         json: bool,
+        /// Refuse a pack whose basis peaks over the lobe bound (exit 2).
+        #[arg(long)]
+        strict: bool,
     },
     /// Build a pack from a TOML recipe (clusters, dictionaries, weight maps); no residual.
     New {
@@ -100,12 +104,31 @@ pub fn run(command: PackCommand) -> Result<(), CliError> {
         PackCommand::Edit(args) => {
             crate::pack_edit_cmd::run(&args, &std::env::args().collect::<Vec<_>>())
         }
-        PackCommand::Validate { file, json } => {
+        PackCommand::Validate { file, json, strict } => {
             let m = load(&file)?;
+            // The bound is about the fit's quality, not the file's consistency: a pack
+            // over it renders as written (possibly with fireflies where the lobe
+            // peaks), so it is a warning unless the caller asks for refusal.
+            let warning = match meso_core::spmm::lobe_bound::check_lobes(&m) {
+                Ok(()) => None,
+                Err(e) if strict => {
+                    return Err(CliError::bad_input(anyhow::anyhow!(
+                        "`{}`: {e}",
+                        file.display()
+                    )));
+                }
+                Err(e) => Some(format!("`{}`: {e}", file.display())),
+            };
+            if let Some(w) = &warning {
+                eprintln!("warning: {w}");
+            }
             if json {
-                return crate::print_json(
-                    &json!({"file": file.display().to_string(), "valid": true, "name": m.name()}),
-                );
+                return crate::print_json(&json!({
+                    "file": file.display().to_string(),
+                    "valid": true,
+                    "name": m.name(),
+                    "warnings": warning.into_iter().collect::<Vec<_>>(),
+                }));
             }
             println!(
                 "{}: valid SPMM pack `{}` ({}x{} texels, {} clusters)",

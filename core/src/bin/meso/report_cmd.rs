@@ -24,6 +24,9 @@ pub enum ReportCommand {
     /// The adaptive mode against the spmm brute force: speed-up at equal PSNR, the
     /// bandwidth pass, n_b 16 against 256, the pre-convolved variant.
     Adaptive(AdaptiveArgs),
+    /// A fitted pack against its BTF: table-space error and the same scenes rendered
+    /// with each (image RMSE, PSNR, MSSIM, side-by-side images).
+    Fit(crate::report_fit_cmd::FitReportArgs),
 }
 
 #[derive(Args, Debug)]
@@ -83,6 +86,7 @@ pub fn run(command: ReportCommand) -> Result<(), CliError> {
     match command {
         ReportCommand::Convergence(args) => convergence(&args),
         ReportCommand::Adaptive(args) => adaptive(&args),
+        ReportCommand::Fit(args) => crate::report_fit_cmd::run(&args),
     }
 }
 

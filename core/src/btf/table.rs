@@ -1,0 +1,330 @@
+//! A BTF ready to shade with (the scene's `btf` material): the reflectance of the
+//! nearest texel (tiled like an SPMM pack), interpolated over the light and the view
+//! direction sets exactly as an SPMM residual is (`spmm::directions`: each set
+//! projected onto the unit disk, Delaunay-triangulated, barycentric weights in the
+//! triangle holding the query's projection, the nearest hull point outside the hull),
+//! so BTF(t, wi, wo) = sum_l sum_v w_l(wi) w_v(wo) table(t, l, v): at most 3 x 3 reads,
+//! exact at tabulated pairs, continuous everywhere, values include the foreshortening
+//! cosine like every SPMM basis. Values are held as f16 when that is lossless (every
+//! value of the file is an f16, as `meso btf synth` writes them), halving the memory
+//! (a 64x64 x 81x81 BTF: 161 MB instead of 322 MB); otherwise as f32.
+
+use glam::{DVec2, DVec3};
+use half::f16;
+
+use super::Btf;
+use crate::spmm::TexelGrid;
+use crate::spmm::directions::{DirectionTable, DirectionTableError};
+
+/// Precision the values are held in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Storage {
+    F16,
+    F32,
+}
+
+#[derive(Clone, Debug)]
+enum Values {
+    F16(Vec<f16>),
+    F32(Vec<f32>),
+}
+
+/// Why a BTF cannot be shaded with.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum BtfTableError {
+    #[error("{part}: {source} (a BTF needs at least 3 directions per set to interpolate)")]
+    Directions {
+        part: &'static str,
+        source: DirectionTableError,
+    },
+}
+
+/// A BTF prepared for shading: values, texel grid and the two interpolation tables.
+#[derive(Clone, Debug)]
+pub struct BtfTable {
+    name: String,
+    grid: TexelGrid,
+    lights: DirectionTable,
+    views: DirectionTable,
+    light_dirs: Vec<DVec3>,
+    view_dirs: Vec<DVec3>,
+    values: Values,
+}
+
+impl BtfTable {
+    /// Builds the interpolation tables; values become f16 when every one is exactly
+    /// an f16 (no value changes), else stay f32.
+    pub fn new(btf: &Btf) -> Result<Self, BtfTableError> {
+        let table = |part, dirs: &[DVec3]| {
+            DirectionTable::new(dirs).map_err(|source| BtfTableError::Directions { part, source })
+        };
+        let lights = table("light_dirs", btf.light_dirs())?;
+        let views = table("view_dirs", btf.view_dirs())?;
+        let lossless = btf.data().iter().all(|&x| f16::from_f32(x).to_f32() == x);
+        let values = if lossless {
+            Values::F16(btf.data().iter().map(|&x| f16::from_f32(x)).collect())
+        } else {
+            Values::F32(btf.data().to_vec())
+        };
+        Ok(Self {
+            name: btf.name().to_string(),
+            grid: TexelGrid {
+                width: btf.width(),
+                height: btf.height(),
+            },
+            lights,
+            views,
+            light_dirs: btf.light_dirs().to_vec(),
+            view_dirs: btf.view_dirs().to_vec(),
+            values,
+        })
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+    pub fn width(&self) -> u32 {
+        self.grid.width
+    }
+    pub fn height(&self) -> u32 {
+        self.grid.height
+    }
+    pub fn light_dirs(&self) -> &[DVec3] {
+        &self.light_dirs
+    }
+    pub fn view_dirs(&self) -> &[DVec3] {
+        &self.view_dirs
+    }
+    pub fn storage(&self) -> Storage {
+        match self.values {
+            Values::F16(_) => Storage::F16,
+            Values::F32(_) => Storage::F32,
+        }
+    }
+    /// Bytes of the values held.
+    pub fn bytes(&self) -> usize {
+        match &self.values {
+            Values::F16(v) => v.len() * 2,
+            Values::F32(v) => v.len() * 4,
+        }
+    }
+
+    fn rgb(&self, i: usize) -> DVec3 {
+        match &self.values {
+            Values::F16(v) => DVec3::new(v[i].to_f64(), v[i + 1].to_f64(), v[i + 2].to_f64()),
+            Values::F32(v) => DVec3::new(v[i] as f64, v[i + 1] as f64, v[i + 2] as f64),
+        }
+    }
+
+    /// BTF(t, wi, wo), RGB, for texel `t` (row-major), unit `wi`, `wo` in the tangent
+    /// frame; 0 unless both lie above the surface.
+    pub fn eval_texel(&self, t: usize, wi: DVec3, wo: DVec3) -> DVec3 {
+        if wi.z <= 0.0 || wo.z <= 0.0 {
+            return DVec3::ZERO;
+        }
+        let (nl, nv) = (self.lights.len(), self.views.len());
+        let vw = self.views.weights(wo);
+        let mut rgb = DVec3::ZERO;
+        for (l, wl) in self.lights.weights(wi) {
+            if wl == 0.0 {
+                continue;
+            }
+            for &(v, wv) in &vw {
+                let w = wl * wv;
+                if w != 0.0 {
+                    rgb += w * self.rgb(((t * nl + l as usize) * nv + v as usize) * 3);
+                }
+            }
+        }
+        rgb
+    }
+
+    /// BTF at a surface UV position: nearest texel after tiling by `uv_scale`
+    /// (wrapping, row 0 at the top, as SPMM packs); 0 for a non-finite UV.
+    pub fn eval_uv(&self, uv: DVec2, uv_scale: DVec2, wi: DVec3, wo: DVec3) -> DVec3 {
+        if !uv.is_finite() {
+            return DVec3::ZERO;
+        }
+        self.eval_texel(self.grid.nearest(uv, uv_scale), wi, wo)
+    }
+
+    /// The interpolation weights of a light direction (index into `light_dirs`,
+    /// weight): for error bounds and tests.
+    pub fn light_weights(&self, wi: DVec3) -> [(u32, f64); 3] {
+        self.lights.weights(wi)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::f64::consts::PI;
+
+    use super::*;
+    use crate::btf::directions::{bonn81, rings};
+    use crate::rng::SampleStream;
+
+    /// A 2x1 BTF: texel 0 is Lambertian `albedo / pi * cos_i`, texel 1 is
+    /// twice that, on the given direction set (same for light and view).
+    fn lambertian_btf(dirs: Vec<DVec3>, albedo: f64) -> Btf {
+        let mut data = Vec::new();
+        for t in 0..2 {
+            for l in &dirs {
+                for _ in &dirs {
+                    let f = (t + 1) as f64 * albedo / PI * l.z;
+                    data.extend([f as f32, (0.5 * f) as f32, (0.25 * f) as f32]);
+                }
+            }
+        }
+        Btf::new(
+            "lambert".into(),
+            "test".into(),
+            2,
+            1,
+            dirs.clone(),
+            dirs,
+            data,
+        )
+        .expect("valid BTF")
+    }
+
+    #[test]
+    fn exact_at_tabulated_pairs_and_zero_below_the_surface() {
+        let dirs = bonn81();
+        let btf = lambertian_btf(dirs.clone(), 0.8);
+        let table = BtfTable::new(&btf).expect("shadeable");
+        for t in 0..2 {
+            for (l, wl) in dirs.iter().enumerate().step_by(7) {
+                for (v, wv) in dirs.iter().enumerate().step_by(5) {
+                    let got = table.eval_texel(t, *wl, *wv);
+                    let want = btf.value(t, l, v);
+                    for c in 0..3 {
+                        assert_eq!(got[c] as f32, want[c], "t {t} l {l} v {v}");
+                    }
+                }
+            }
+        }
+        let below = DVec3::new(0.0, 0.6, -0.8);
+        assert_eq!(table.eval_texel(0, below, DVec3::Z), DVec3::ZERO);
+        assert_eq!(table.eval_texel(0, DVec3::Z, below), DVec3::ZERO);
+    }
+
+    /// The derived bound of linear interpolation: with barycentric weights lambda_i
+    /// of vertices p_i at p, e(p) = sum_i lambda_i (f(p_i) - f(p)); Taylor at p and
+    /// sum_i lambda_i (p_i - p) = 0 leave |e(p)| <= M/2 sum_i lambda_i |p_i - p|^2, M
+    /// the largest Hessian norm on the triangle. For f = sqrt(1 - x^2 - y^2) = cos_i
+    /// the Hessian is -(I/z + p p^T / z^3) with norm 1/z^3, largest at the vertex of
+    /// smallest z (the triangle is convex and z falls with |p|).
+    fn cosine_interpolation_bound(table: &BtfTable, wi: DVec3) -> f64 {
+        let p = DVec2::new(wi.x, wi.y);
+        let w = table.light_weights(wi);
+        let z_min = w
+            .iter()
+            .map(|&(i, _)| table.light_dirs()[i as usize].z)
+            .fold(f64::INFINITY, f64::min);
+        let spread: f64 = w
+            .iter()
+            .map(|&(i, l)| {
+                let q = table.light_dirs()[i as usize];
+                l * DVec2::new(q.x, q.y).distance_squared(p)
+            })
+            .sum();
+        0.5 * spread / z_min.powi(3)
+    }
+
+    #[test]
+    fn a_lambertian_btf_is_the_lambertian_brdf_within_the_derived_interpolation_bound() {
+        let albedo = 0.8;
+        let btf = lambertian_btf(bonn81(), albedo);
+        let table = BtfTable::new(&btf).expect("shadeable");
+        let mut worst = 0.0f64;
+        for k in 0..4000u64 {
+            let mut s = SampleStream::new(&[41, k]);
+            // Inside the hull of the Bonn set (theta <= 75 degrees).
+            let theta_i = 74.9f64.to_radians() * s.next().sqrt();
+            let wi = crate::brdf::warp::spherical(theta_i.cos(), 2.0 * PI * s.next());
+            let wo = crate::brdf::warp::spherical(0.2 + 0.8 * s.next(), 2.0 * PI * s.next());
+            let got = table.eval_texel(1, wi, wo);
+            let want = 2.0 * albedo / PI * wi.z;
+            let bound = 2.0 * albedo / PI * cosine_interpolation_bound(&table, wi);
+            // f32 storage of the table adds at most 2^-24 relative.
+            let e = (got.x - want).abs();
+            assert!(
+                e <= bound + want * 1e-7 + 1e-12,
+                "wi {wi}: {} vs {want}, bound {bound}",
+                got.x
+            );
+            assert!((got.y - 0.5 * got.x).abs() < 1e-6 && (got.z - 0.25 * got.x).abs() < 1e-6);
+            worst = worst.max(e / want);
+            // The view does not matter for a Lambertian table.
+            let other = table.eval_texel(1, wi, DVec3::Z);
+            assert!((other.x - got.x).abs() < 1e-6 * want.max(1e-3));
+        }
+        // The bound is not vacuous: interpolation is visibly inexact between rings.
+        assert!(worst > 1e-4, "worst relative error {worst}");
+    }
+
+    #[test]
+    fn tiles_like_an_spmm_pack_and_stores_f16_only_when_lossless() {
+        let btf = lambertian_btf(bonn81(), 0.5);
+        let table = BtfTable::new(&btf).expect("shadeable");
+        // 0.5/pi * z is not an f16 in general: kept as f32.
+        assert_eq!(table.storage(), Storage::F32);
+        assert_eq!(table.bytes(), btf.data().len() * 4);
+        // u in [0, 0.5) is texel 0, [0.5, 1) texel 1; uv_scale 2 repeats it twice.
+        let (wi, wo) = (DVec3::Z, DVec3::Z);
+        let t0 = table.eval_uv(DVec2::new(0.2, 0.5), DVec2::ONE, wi, wo);
+        let t1 = table.eval_uv(DVec2::new(0.7, 0.5), DVec2::ONE, wi, wo);
+        assert!((t1.x - 2.0 * t0.x).abs() < 1e-6);
+        let tiled = table.eval_uv(DVec2::new(0.3, 0.5), DVec2::splat(2.0), wi, wo);
+        assert_eq!(tiled, t1);
+        let wrapped = table.eval_uv(DVec2::new(-0.8, 3.5), DVec2::ONE, wi, wo);
+        assert_eq!(wrapped, t0);
+        assert_eq!(
+            table.eval_uv(DVec2::new(f64::NAN, 0.0), DVec2::ONE, wi, wo),
+            DVec3::ZERO
+        );
+        // Values that are f16 already are held as f16, unchanged.
+        let dirs = bonn81();
+        let n = 2 * dirs.len() * dirs.len() * 3;
+        let data: Vec<f32> = (0..n)
+            .map(|i| half::f16::from_f32(0.001 * (i % 977) as f32).to_f32())
+            .collect();
+        let halves = Btf::new(
+            "h".into(),
+            "t".into(),
+            2,
+            1,
+            dirs.clone(),
+            dirs.clone(),
+            data,
+        )
+        .expect("valid");
+        let table = BtfTable::new(&halves).expect("shadeable");
+        assert_eq!(table.storage(), Storage::F16);
+        assert_eq!(table.bytes(), n * 2);
+        assert_eq!(
+            table
+                .eval_texel(1, dirs[30], dirs[60])
+                .to_array()
+                .map(|x| x as f32),
+            halves.value(1, 30, 60)
+        );
+    }
+
+    #[test]
+    fn too_few_directions_are_refused_naming_the_set() {
+        let few = rings(&[(0.0, 1), (30.0, 2)]);
+        let btf = Btf::new(
+            "few".into(),
+            "t".into(),
+            1,
+            1,
+            few.clone(),
+            bonn81(),
+            vec![0.1; few.len() * 81 * 3],
+        )
+        .expect("a valid BTF");
+        let e = BtfTable::new(&btf).expect_err("cannot interpolate 3 collinear lights");
+        assert!(e.to_string().starts_with("light_dirs:"), "{e}");
+    }
+}

@@ -1,0 +1,286 @@
+//! How well a fitted pack reproduces its BTF (`meso report fit`): in table space (the
+//! pack evaluated at the BTF's tabulated direction pairs, split into grazing pairs,
+//! where light or view is more than 60 degrees from the normal, and the rest) and in
+//! images (one scene rendered by the spmm mode once with the BTF as a `btf` material
+//! and once with the pack in its place, the same random numbers for both: the two
+//! materials sample alike, so the difference is the material's, not the noise's).
+
+use std::sync::Arc;
+
+use glam::DVec3;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::btf::Btf;
+use crate::btf::table::BtfTable;
+use crate::image::Image;
+use crate::metrics::{MetricsError, compare};
+use crate::regress::case::substitute;
+use crate::render::{ModeError, RenderMode};
+use crate::scene::{Material, Scene};
+use crate::spmm::SpmmMaterial;
+use crate::trace::SpmmMode;
+
+/// Polar angle beyond which a direction counts as grazing, degrees.
+pub const GRAZING_DEG: f64 = 60.0;
+
+/// The pack against the BTF at the BTF's direction pairs (every texel, every pair,
+/// RGB), RMSE relative to the BTF's mean value.
+#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
+pub struct TableErrors {
+    pub mean_reflectance: f64,
+    pub relative_rmse: f64,
+    /// Pairs with light or view beyond `GRAZING_DEG`.
+    pub grazing_relative_rmse: f64,
+    pub elsewhere_relative_rmse: f64,
+    /// Fraction of the pairs that are grazing.
+    pub grazing_fraction: f64,
+    /// Same without the residual (the basis sum alone).
+    pub basis_relative_rmse: f64,
+}
+
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum FidelityError {
+    #[error(
+        "the pack's texel grid {pack_width}x{pack_height} differs from the BTF's {btf_width}x{btf_height}: it was not fitted to this BTF"
+    )]
+    GridMismatch {
+        btf_width: u32,
+        btf_height: u32,
+        pack_width: u32,
+        pack_height: u32,
+    },
+    #[error("{0}")]
+    Scene(String),
+    #[error("{0}")]
+    Mode(String),
+    #[error("{0}")]
+    Metrics(String),
+}
+
+fn grazing(d: DVec3) -> bool {
+    d.z < GRAZING_DEG.to_radians().cos()
+}
+
+/// Table-space errors of `pack` against `btf` (same texel grid).
+pub fn table_errors(btf: &Btf, pack: &SpmmMaterial) -> Result<TableErrors, FidelityError> {
+    if (btf.width(), btf.height()) != (pack.width(), pack.height()) {
+        return Err(FidelityError::GridMismatch {
+            btf_width: btf.width(),
+            btf_height: btf.height(),
+            pack_width: pack.width(),
+            pack_height: pack.height(),
+        });
+    }
+    let (lights, views) = (btf.light_dirs(), btf.view_dirs());
+    // Per texel: squared errors (grazing, elsewhere, basis only).
+    let sums = (0..btf.texels())
+        .into_par_iter()
+        .map(|t| {
+            let mut s = [0.0f64; 3];
+            for (l, &wi) in lights.iter().enumerate() {
+                for (v, &wo) in views.iter().enumerate() {
+                    let want = DVec3::from_array(btf.value(t, l, v).map(f64::from));
+                    let full = pack.eval_texel(t, wi, wo, true, usize::MAX);
+                    let basis = pack.eval_texel(t, wi, wo, false, 0);
+                    let e = (full - want).length_squared();
+                    s[if grazing(wi) || grazing(wo) { 0 } else { 1 }] += e;
+                    s[2] += (basis - want).length_squared();
+                }
+            }
+            s
+        })
+        .reduce(|| [0.0; 3], |a, b| [a[0] + b[0], a[1] + b[1], a[2] + b[2]]);
+    let graze_pairs = lights
+        .iter()
+        .flat_map(|&l| views.iter().map(move |&v| grazing(l) || grazing(v)))
+        .filter(|&g| g)
+        .count();
+    let pairs = btf.pairs();
+    let values = |pairs: usize| (btf.texels() * pairs * 3).max(1) as f64;
+    let mean = btf.mean_value();
+    let rel = |sum: f64, pairs: usize| (sum / values(pairs)).sqrt() / mean;
+    Ok(TableErrors {
+        mean_reflectance: mean,
+        relative_rmse: rel(sums[0] + sums[1], pairs),
+        grazing_relative_rmse: if graze_pairs > 0 {
+            rel(sums[0], graze_pairs)
+        } else {
+            0.0
+        },
+        elsewhere_relative_rmse: if graze_pairs < pairs {
+            rel(sums[1], pairs - graze_pairs)
+        } else {
+            0.0
+        },
+        grazing_fraction: graze_pairs as f64 / pairs as f64,
+        basis_relative_rmse: rel(sums[2], pairs),
+    })
+}
+
+/// Image error of the pack's render against the BTF's.
+#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
+pub struct ImageErrors {
+    /// RMSE over pixels and channels divided by the BTF image's mean value.
+    pub relative_rmse: f64,
+    pub rmse: f64,
+    /// `meso compare`'s PSNR (peak 1); `None` for identical images.
+    pub psnr_db: Option<f64>,
+    pub mssim: f64,
+}
+
+/// `meso compare` of `pack` against the reference `btf`, plus the relative RMSE.
+pub fn image_errors(btf: &Image, pack: &Image) -> Result<ImageErrors, MetricsError> {
+    let c = compare(btf, pack, 0.0)?;
+    let n = btf.pixels().len().max(1) as f64 * 3.0;
+    let mean: f64 = btf
+        .pixels()
+        .iter()
+        .flat_map(|p| p.iter().map(|&x| f64::from(x)))
+        .sum::<f64>()
+        / n;
+    Ok(ImageErrors {
+        relative_rmse: if mean > 0.0 {
+            c.rmse / mean
+        } else {
+            f64::INFINITY
+        },
+        rmse: c.rmse,
+        psnr_db: c.psnr_db.is_finite().then_some(c.psnr_db),
+        mssim: c.mssim,
+    })
+}
+
+/// How the two renders are made.
+#[derive(Clone, Debug)]
+pub struct RenderRequest {
+    pub width: u32,
+    pub height: u32,
+    pub frames: u32,
+    /// The scene material the BTF and then the pack replace.
+    pub material: String,
+}
+
+fn render(scene: &Scene, r: &RenderRequest) -> Result<Image, FidelityError> {
+    let mut mode = SpmmMode::new(scene.clone(), r.width, r.height)
+        .map_err(|e: ModeError| FidelityError::Mode(e.to_string()))?;
+    for _ in 0..r.frames {
+        mode.render_frame();
+    }
+    Ok(mode.image())
+}
+
+/// Renders `scene` with material `r.material` replaced by the BTF, then by the pack
+/// (residual on, all its components); each keeps the replaced material's tiling when
+/// that was a pack or a BTF. Returns (BTF image, pack image).
+pub fn render_pair(
+    scene: &Scene,
+    btf: Arc<BtfTable>,
+    pack: Arc<SpmmMaterial>,
+    r: &RenderRequest,
+) -> Result<(Image, Image), FidelityError> {
+    let with = |m: Material| {
+        let mut s = scene.clone();
+        substitute(&mut s, &r.material, m, false).map_err(FidelityError::Scene)?;
+        Ok::<_, FidelityError>(s)
+    };
+    let npca = pack.npca();
+    let a = render(
+        &with(Material::Btf {
+            table: btf,
+            uv_scale: glam::DVec2::ONE,
+        })?,
+        r,
+    )?;
+    let b = render(
+        &with(Material::Spmm {
+            material: pack,
+            uv_scale: glam::DVec2::ONE,
+            residual: true,
+            npca,
+        })?,
+        r,
+    )?;
+    Ok((a, b))
+}
+
+/// Three panels left to right: `a`, `b` and `|a - b| * gain` per channel.
+pub fn side_by_side(a: &Image, b: &Image, gain: f32) -> Image {
+    let (w, h) = (a.width(), a.height());
+    let mut out = Image::new(3 * w, h);
+    for y in 0..h {
+        for x in 0..w {
+            let (pa, pb) = (a.get(x, y), b.get(x, y));
+            out.set(x, y, pa);
+            out.set(w + x, y, pb);
+            out.set(
+                2 * w + x,
+                y,
+                [0, 1, 2].map(|c| (pa[c] - pb[c]).abs() * gain),
+            );
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::spmm::tests::sample_material;
+
+    /// A BTF made by tabulating a pack at its own residual directions: the pack is
+    /// exact there, so the table error is the f32 rounding; scaling the BTF's grazing
+    /// values shows up only in the grazing error.
+    #[test]
+    fn a_pack_tabulated_into_a_btf_has_no_table_error_and_grazing_errors_stay_grazing() {
+        let pack = sample_material(4, 3, 2, Some(2));
+        let r = pack.residual().expect("a residual");
+        let (lights, views) = (r.light_dirs.clone(), r.view_dirs.clone());
+        let mut data = Vec::new();
+        let mut bumped = Vec::new();
+        for t in 0..12 {
+            for &wi in &lights {
+                for &wo in &views {
+                    let v = pack.eval_texel(t, wi, wo, true, usize::MAX);
+                    data.extend(v.to_array().map(|x| x as f32));
+                    let k = if grazing(wi) || grazing(wo) { 1.5 } else { 1.0 };
+                    bumped.extend(v.to_array().map(|x| (x * k) as f32));
+                }
+            }
+        }
+        let btf = Btf::new(
+            "t".into(),
+            "t".into(),
+            4,
+            3,
+            lights.clone(),
+            views.clone(),
+            data,
+        )
+        .expect("valid");
+        let e = table_errors(&btf, &pack).expect("same grid");
+        assert!(e.relative_rmse < 1e-6, "{e:?}");
+        assert!(
+            e.basis_relative_rmse > 1e-3,
+            "the residual matters here: {e:?}"
+        );
+        let bumped = Btf::new("b".into(), "b".into(), 4, 3, lights, views, bumped).expect("valid");
+        let e = table_errors(&bumped, &pack).expect("same grid");
+        assert!(
+            e.grazing_fraction > 0.0 && e.grazing_fraction < 1.0,
+            "{e:?}"
+        );
+        assert!(e.elsewhere_relative_rmse < 1e-6, "{e:?}");
+        assert!(e.grazing_relative_rmse > 0.05, "{e:?}");
+        // Overall = the pair-weighted mix of the two parts.
+        let mix = (e.grazing_fraction * e.grazing_relative_rmse.powi(2)
+            + (1.0 - e.grazing_fraction) * e.elsewhere_relative_rmse.powi(2))
+        .sqrt();
+        assert!((mix - e.relative_rmse).abs() < 1e-9 * mix.max(1.0), "{e:?}");
+        let small = sample_material(2, 2, 1, None);
+        assert!(matches!(
+            table_errors(&btf, &small),
+            Err(FidelityError::GridMismatch { .. })
+        ));
+    }
+}

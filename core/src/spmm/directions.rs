@@ -108,6 +108,16 @@ impl DirectionTable {
         })
     }
 
+    /// The grid's side: `cells()` has `GRID x GRID` lists, row-major by the projected y.
+    pub const GRID: usize = GRID;
+
+    /// The directions projected on the tangent plane, the triangles over them, the
+    /// triangle list of each grid cell and the hull (counter-clockwise): what a device
+    /// needs to interpolate as `weights` does.
+    pub fn parts(&self) -> (&[DVec2], &[[u32; 3]], &[Vec<u32>], &[u32]) {
+        (&self.points, &self.triangles, &self.cells, &self.hull)
+    }
+
     pub fn len(&self) -> usize {
         self.points.len()
     }

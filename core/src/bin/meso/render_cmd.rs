@@ -146,6 +146,14 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
             "rays_per_second": rays_per_s,
             "nonfinite_dropped": dropped,
             "film_bytes": mode.progress().film_bytes,
+            "ms_per_frame": trace_s * 1e3 / f64::from(frames),
+            "adapter": mode.adapter(),
+            "device_bytes": mode
+                .device_memory()
+                .into_iter()
+                .map(|(kind, bytes)| (kind.to_string(), json!(bytes)))
+                .collect::<serde_json::Map<String, serde_json::Value>>(),
+            "traversal_overflows": mode.traversal_overflows(),
             "denoised": args.denoise,
         }));
     }

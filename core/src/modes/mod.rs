@@ -90,6 +90,7 @@ mod tests {
             assert!(err.to_string().contains(kind.name()), "{err}");
         }
         assert!(create(ModeKind::Spmm, Device::Cpu, scene, 8, 8, Prepare::quietly()).is_ok());
+        assert!(is_built(ModeKind::Spmm, Device::Gpu));
     }
 
     #[test]

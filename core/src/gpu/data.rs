@@ -91,7 +91,9 @@ impl Words {
     /// A direction table: `[points, points_at, triangles_at, cell_starts_at,
     /// cell_triangles_at, hull_len, hull_at]` and its arrays.
     fn push_direction_table(&mut self, table: &DirectionTable) -> u32 {
-        let (points, triangles, cells, hull) = table.parts();
+        let parts = table.parts();
+        let (points, triangles, cells, hull) =
+            (parts.points, parts.triangles, parts.cells, parts.hull);
         let points_at = self.push_f32s(points.iter().flat_map(|p| [p.x as f32, p.y as f32]));
         let triangles_at = self.push_u32s(triangles.iter().flatten().copied());
         let mut starts = Vec::with_capacity(cells.len() + 1);

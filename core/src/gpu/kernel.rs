@@ -107,7 +107,7 @@ impl Kernel {
 /// readable by copies too.
 pub(super) fn storage(ctx: &GpuContext, label: &str, bytes: &[u8]) -> wgpu::Buffer {
     let mut padded;
-    let contents = if bytes.len() < 16 || bytes.len() % 4 != 0 {
+    let contents = if bytes.len() < 16 || !bytes.len().is_multiple_of(4) {
         padded = bytes.to_vec();
         padded.resize(bytes.len().next_multiple_of(4).max(16), 0);
         &padded[..]

@@ -2119,3 +2119,53 @@ fn render_on_the_gpu_reports_device_memory_and_no_adapter_is_exit_2() {
     assert!(v["rays"]["shadow"].as_u64().expect("count") > 0);
     assert!(out.exists());
 }
+
+#[test]
+fn bench_frames_measures_both_devices_side_by_side() {
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/cornell.toml");
+    let o = meso(
+        &[
+            "bench", "frames", scene, "--size", "8", "--frames", "1", "--json",
+        ],
+        "",
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    let runs = v["runs"].as_array().expect("runs");
+    // As it is and with AO off (the brushed metal has no residual), on both devices.
+    let names: Vec<(&str, &str)> = runs
+        .iter()
+        .map(|r| {
+            (
+                r["variant"].as_str().expect("variant"),
+                r["device"].as_str().expect("device"),
+            )
+        })
+        .collect();
+    assert_eq!(
+        names,
+        [
+            ("as_is", "cpu"),
+            ("as_is", "gpu"),
+            ("ao_off", "cpu"),
+            ("ao_off", "gpu")
+        ]
+    );
+    for r in runs {
+        assert!(r["ms_per_frame"].as_f64().expect("measured") > 0.0, "{r}");
+        assert!(
+            r["edit_to_frame_ms"].as_f64().expect("a light") > 0.0,
+            "{r}"
+        );
+        assert_eq!(r["traversal_overflows"], 0, "{r}");
+    }
+    assert_bad_input(
+        &meso(&["bench", "frames", scene, "--devices", "cpu,tpu"], ""),
+        &["--devices", "tpu"],
+    );
+}

@@ -204,8 +204,9 @@ fn response(s: Shading, wi: vec3<f32>, wo: vec3<f32>) -> vec3<f32> {
 }
 
 @compute @workgroup_size(64)
-fn render(@builtin(global_invocation_id) id: vec3<u32>) {
-    let pixel = id.x;
+fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    // Rows of workgroups beyond 65,535 (core/src/gpu/kernel.rs, `groups`).
+    let pixel = id.x + id.y * groups.x * 64u;
     if pixel >= params.width * params.height {
         return;
     }

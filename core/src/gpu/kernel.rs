@@ -94,13 +94,26 @@ impl Kernel {
         })
     }
 
-    /// Records a dispatch of `threads` invocations (rounded up to whole workgroups).
+    /// Records a dispatch of `threads` invocations (rounded up to whole workgroups),
+    /// in rows of at most `MAX_GROUPS_X` workgroups: a shader's invocation index is
+    /// `id.x + id.y * num_workgroups.x * WORKGROUP`.
     pub fn record(&self, encoder: &mut wgpu::CommandEncoder, bind: &wgpu::BindGroup, threads: u32) {
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, bind, &[]);
-        pass.dispatch_workgroups(threads.div_ceil(WORKGROUP).max(1), 1, 1);
+        let (x, y) = groups(threads);
+        pass.dispatch_workgroups(x, y, 1);
     }
+}
+
+/// WebGPU's guaranteed limit of workgroups along one dimension.
+pub(super) const MAX_GROUPS_X: u32 = 65_535;
+
+/// The workgroup grid of `threads` invocations: (x, y) with x at most `MAX_GROUPS_X`.
+pub(super) fn groups(threads: u32) -> (u32, u32) {
+    let groups = threads.div_ceil(WORKGROUP).max(1);
+    let x = groups.min(MAX_GROUPS_X);
+    (x, groups.div_ceil(x))
 }
 
 /// A storage buffer holding `bytes` (at least 16 bytes: empty bindings are invalid),

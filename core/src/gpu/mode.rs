@@ -86,6 +86,22 @@ struct Params {
     cam_up: [f32; 4],
 }
 
+/// Why one sample's layers at `width` x `height` would not fit in one buffer of the
+/// device (`None` if they fit): refused before anything is allocated.
+fn device_size_problem(ctx: &GpuContext, width: u32, height: u32, layers: usize) -> Option<String> {
+    let bytes = u64::from(width) * u64::from(height) * layers as u64 * 12;
+    let limits = ctx.limits();
+    let limit = limits
+        .max_buffer_size
+        .min(limits.max_storage_buffer_binding_size);
+    (bytes > limit).then(|| {
+        format!(
+            "{width} x {height} with {layers} film layers needs a {bytes}-byte buffer on the GPU; `{}` allows {limit}",
+            ctx.adapter_name()
+        )
+    })
+}
+
 /// The scene's materials and lights as data words, with where their tables start.
 struct SceneData {
     words: Words,
@@ -288,6 +304,9 @@ impl GpuSpmmMode {
             layers.layer_count(&scene),
             memory_limit_bytes(),
         )?;
+        if let Some(p) = device_size_problem(&ctx, width, height, film.layers()) {
+            return Err(ModeError::Size(p));
+        }
         let mut report = PreparationReport::default();
         let mut stage = |name: &str, start: Instant| {
             report.stages.push(PreparationStage {
@@ -668,6 +687,15 @@ impl RenderMode for GpuSpmmMode {
                 self.film.layers(),
                 memory_limit_bytes() + self.film.bytes(),
             )?;
+            if let Some(p) = device_size_problem(&self.ctx, width, height, self.film.layers()) {
+                return Err(EditError::Size(p));
+            }
+        }
+        if let SceneEdit::AddLight(_) = edit {
+            let (w, h) = (self.film.width(), self.film.height());
+            if let Some(p) = device_size_problem(&self.ctx, w, h, self.film.layers() + 1) {
+                return Err(EditError::Size(p));
+            }
         }
         let before = Before::of(&self.scene, &edit);
         let material_before = match &edit {

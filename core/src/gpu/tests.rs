@@ -606,7 +606,10 @@ fn dispatch_grids_cover_every_pixel_within_the_limit() {
     use super::kernel::{MAX_GROUPS_X, WORKGROUP, groups};
     for pixels in [1, 64, 65, 2048 * 2048, 4096 * 4096, 16384 * 16384] {
         let (x, y) = groups(pixels);
-        assert!(x <= MAX_GROUPS_X && x >= 1 && y >= 1, "{pixels}: {x} x {y}");
+        assert!(
+            (1..=MAX_GROUPS_X).contains(&x) && y >= 1,
+            "{pixels}: {x} x {y}"
+        );
         let threads = u64::from(x) * u64::from(y) * u64::from(WORKGROUP);
         assert!(threads >= u64::from(pixels), "{pixels}: {threads}");
         // At most one partial row of workgroups beyond the pixels.

@@ -12,7 +12,7 @@ use std::time::Instant;
 use anyhow::anyhow;
 use clap::Args;
 use meso_core::modes;
-use meso_core::render::{Device, ModeKind, Prepare, RenderMode, SceneEdit, run_frames};
+use meso_core::render::{Device, ModeKind, Prepare, SceneEdit, run_frames};
 use meso_core::scene::{Material, Scene, load_scene};
 use serde_json::json;
 

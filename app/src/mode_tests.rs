@@ -327,8 +327,9 @@ fn a_mode_that_cannot_render_a_light_asks_and_renders_without_it() {
 
 #[test]
 fn a_mode_that_is_not_built_says_so_and_the_old_mode_keeps_rendering() {
-    // (Every mode is built on the CPU now; none on the GPU yet.)
-    let mut h = harness_with(Arc::new(CoreModes), small());
+    // The test modes build nothing on the GPU (core builds the spmm mode there).
+    let (_, _, maker) = test_modes();
+    let mut h = harness_with(maker, small());
     wait_for_current_frame(&mut h);
     h.get_by_role_and_label(Role::ComboBox, "Device").click();
     h.run_steps(2);

@@ -907,7 +907,13 @@ fn a_click_in_the_library_assigns_the_pack_and_undo_restores_the_object() {
     let metal = library::shipped_dir().join("brushed_metal.spmm");
 
     h.get_by_label("brushed_metal").click();
-    h.step();
+    // The pack is read on a background job: wait for it to land.
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while pack_path(&h) != Some((slot, metal.clone())) {
+        assert!(Instant::now() < deadline, "the assignment within 60 s");
+        h.step();
+        std::thread::sleep(Duration::from_millis(5));
+    }
     loaded(&mut h);
     let now = material(&h);
     let expected = meso_core::spmm::pack::read_pack(&metal).expect("shipped pack");

@@ -16,6 +16,7 @@ pub mod container;
 pub mod environment;
 pub mod fit;
 pub mod geometry;
+pub mod gpu;
 pub mod image;
 pub mod merl;
 pub mod metrics;

@@ -1391,9 +1391,14 @@ fn render_modes_devices_and_unsupported_scenes_exit_2_naming_why() {
             "without [environment]",
         ],
     );
+    // The spmm mode on the GPU names what it does not render yet.
     assert_bad_input(
         &render(&["--device", "gpu"]),
-        &["spmm", "gpu", "not built yet"],
+        &["spmm", "gpu", "[environment] lighting"],
+    );
+    assert_bad_input(
+        &render(&["--mode", "biscale", "--device", "gpu"]),
+        &["biscale", "gpu", "not built yet"],
     );
     assert_bad_input(
         &render(&["--mode", "fast"]),
@@ -2199,6 +2204,74 @@ fn a_shipped_pack_over_the_lobe_bound_validates_with_a_warning_and_fails_strict(
     // the tabulated directions: consistent, so valid, but said; --strict refuses it.
     let pack = concat!(env!("CARGO_MANIFEST_DIR"), "/../materials/woven_cloth.spmm");
     let o = meso(&["pack", "validate", pack, "--json"], "");
+/// `meso render` with `env` added to its environment.
+fn meso_with_env(args: &[&str], env: &[(&str, &str)]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_meso"))
+        .args(args)
+        .envs(env.iter().copied())
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .output()
+        .expect("meso runs to completion")
+}
+
+#[test]
+fn render_on_the_gpu_reports_device_memory_and_no_adapter_is_exit_2() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let out = dir.path().join("g.exr");
+    let out_arg = out.to_str().expect("utf-8");
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/default.toml");
+    let args = [
+        "render", scene, "-o", out_arg, "--width", "16", "--height", "16", "--frames", "2",
+        "--device", "gpu", "--json",
+    ];
+    // A backend that does not exist on this system: no adapter, one line, exit 2,
+    // nothing written.
+    let o = meso_with_env(&args, &[("WGPU_BACKEND", "metal")]);
+    if cfg!(target_os = "linux") {
+        assert_bad_input(&o, &["no GPU adapter", "WGPU_BACKEND=metal"]);
+        assert!(!out.exists());
+    }
+    // Lavapipe (CI) or any adapter wgpu finds: ms per frame, device bytes by kind,
+    // no traversal overflow.
+    let o = meso_with_env(&args, &[]);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    assert_eq!(
+        (v["mode"].as_str(), v["device"].as_str()),
+        (Some("spmm"), Some("gpu"))
+    );
+    assert_eq!(v["samples"], 2 * 16 * 16);
+    assert_eq!(v["traversal_overflows"], 0);
+    assert!(v["adapter"].as_str().is_some_and(|a| !a.is_empty()));
+    assert!(v["ms_per_frame"].as_f64().expect("ms") > 0.0);
+    for kind in ["bvh", "triangles", "spmm_bases", "spmm_weights", "film"] {
+        assert!(
+            v["device_bytes"][kind].as_u64().expect("bytes") > 0,
+            "{kind}: {v}"
+        );
+    }
+    // The shipped leather has no residual: nothing of it is uploaded.
+    assert_eq!(v["device_bytes"]["residual_tables"], 0);
+    assert!(v["rays"]["shadow"].as_u64().expect("count") > 0);
+    assert!(out.exists());
+}
+
+#[test]
+fn bench_frames_measures_both_devices_side_by_side() {
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/cornell.toml");
+    let o = meso(
+        &[
+            "bench", "frames", scene, "--size", "8", "--frames", "1", "--json",
+        ],
+        "",
+    );
     assert_eq!(
         o.status.code(),
         Some(0),
@@ -2228,5 +2301,37 @@ fn a_shipped_pack_over_the_lobe_bound_validates_with_a_warning_and_fails_strict(
     assert_eq!(
         serde_json::from_str::<serde_json::Value>(&stdout(&o)).expect("JSON")["warnings"],
         serde_json::json!([])
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    let runs = v["runs"].as_array().expect("runs");
+    // As it is and with AO off (the brushed metal has no residual), on both devices.
+    let names: Vec<(&str, &str)> = runs
+        .iter()
+        .map(|r| {
+            (
+                r["variant"].as_str().expect("variant"),
+                r["device"].as_str().expect("device"),
+            )
+        })
+        .collect();
+    assert_eq!(
+        names,
+        [
+            ("as_is", "cpu"),
+            ("as_is", "gpu"),
+            ("ao_off", "cpu"),
+            ("ao_off", "gpu")
+        ]
+    );
+    for r in runs {
+        assert!(r["ms_per_frame"].as_f64().expect("measured") > 0.0, "{r}");
+        assert!(
+            r["edit_to_frame_ms"].as_f64().expect("a light") > 0.0,
+            "{r}"
+        );
+        assert_eq!(r["traversal_overflows"], 0, "{r}");
+    }
+    assert_bad_input(
+        &meso(&["bench", "frames", scene, "--devices", "cpu,tpu"], ""),
+        &["--devices", "tpu"],
     );
 }

@@ -113,6 +113,20 @@ impl SceneBvh {
         self.refitted
     }
 
+    /// The wide BVH's nodes, as obvhs lays them out (80-byte `Pod` records).
+    pub fn nodes(&self) -> &[obvhs::cwbvh::node::CwBvhNode] {
+        &self.bvh.nodes
+    }
+
+    /// Per BVH primitive (leaf slot), the f32 triangle it tests and the scene's
+    /// (mesh, triangle within the mesh): what a device traversal reads, in leaf order.
+    pub fn primitives(&self) -> impl ExactSizeIterator<Item = (&Triangle, (u32, u32))> + '_ {
+        self.bvh.primitive_indices.iter().map(|&i| {
+            let i = i as usize;
+            (&self.triangles[i], self.refs[i])
+        })
+    }
+
     /// Triangles in the BVH and zero-area triangles left out.
     pub fn triangle_counts(&self) -> (usize, usize) {
         (self.triangles.len(), self.degenerate)

@@ -7,6 +7,7 @@ pub mod convergence;
 
 use crate::adaptive::AdaptiveMode;
 use crate::biscale::BiscaleMode;
+use crate::gpu::{GpuContext, GpuSpmmMode};
 use crate::render::{Device, ModeError, ModeKind, Prepare, RenderMode};
 use crate::scene::Scene;
 use crate::trace::SpmmMode;
@@ -16,6 +17,7 @@ pub fn is_built(kind: ModeKind, device: Device) -> bool {
     matches!(
         (kind, device),
         (ModeKind::Spmm, Device::Cpu)
+            | (ModeKind::Spmm, Device::Gpu)
             | (ModeKind::Biscale, Device::Cpu)
             | (ModeKind::Adaptive, Device::Cpu)
     )
@@ -26,6 +28,7 @@ pub fn is_built(kind: ModeKind, device: Device) -> bool {
 pub fn supports(kind: ModeKind, device: Device, scene: &Scene) -> Result<(), ModeError> {
     match (kind, device) {
         (ModeKind::Spmm, Device::Cpu) => Ok(SpmmMode::supports(scene)?),
+        (ModeKind::Spmm, Device::Gpu) => Ok(GpuSpmmMode::supports(scene)?),
         (ModeKind::Biscale, Device::Cpu) => Ok(BiscaleMode::supports(scene)?),
         (ModeKind::Adaptive, Device::Cpu) => Ok(AdaptiveMode::supports(scene)?),
         _ => Err(ModeError::NotBuilt { mode: kind, device }),
@@ -45,6 +48,15 @@ pub fn create(
     match (kind, device) {
         (ModeKind::Spmm, Device::Cpu) => {
             Ok(Box::new(SpmmMode::prepare(scene, width, height, prepare)?))
+        }
+        (ModeKind::Spmm, Device::Gpu) => {
+            // The scene is checked before a device is looked for, so a scene at fault
+            // is named whether or not this machine has an adapter.
+            GpuSpmmMode::supports(&scene)?;
+            let ctx = GpuContext::new().map_err(|e| ModeError::NoDevice(e.to_string()))?;
+            Ok(Box::new(GpuSpmmMode::prepare(
+                ctx, scene, width, height, prepare,
+            )?))
         }
         (ModeKind::Biscale, Device::Cpu) => {
             Ok(Box::new(BiscaleMode::new(scene, width, height, prepare)?))
@@ -70,7 +82,6 @@ mod tests {
         for (kind, device) in [
             (ModeKind::Adaptive, Device::Gpu),
             (ModeKind::Biscale, Device::Gpu),
-            (ModeKind::Spmm, Device::Gpu),
         ] {
             let err = create(kind, device, scene.clone(), 8, 8, Prepare::quietly())
                 .err()
@@ -79,6 +90,7 @@ mod tests {
             assert!(err.to_string().contains(kind.name()), "{err}");
         }
         assert!(create(ModeKind::Spmm, Device::Cpu, scene, 8, 8, Prepare::quietly()).is_ok());
+        assert!(is_built(ModeKind::Spmm, Device::Gpu));
     }
 
     #[test]

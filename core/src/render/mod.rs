@@ -178,6 +178,10 @@ pub enum Unrenderable {
     Ambient,
     /// The mode needs an `[environment]` and the scene has none.
     NoEnvironment,
+    /// The mode cannot light with the scene's `[environment]`.
+    Environment,
+    /// The mode cannot show the scene's `[background]` image.
+    BackgroundImage,
 }
 
 impl std::fmt::Display for Unrenderable {
@@ -187,6 +191,8 @@ impl std::fmt::Display for Unrenderable {
             Unrenderable::Light { index, kind } => write!(f, "light[{index}] ({kind})"),
             Unrenderable::Ambient => write!(f, "the [ambient] term"),
             Unrenderable::NoEnvironment => write!(f, "a scene without [environment]"),
+            Unrenderable::Environment => write!(f, "the [environment] lighting"),
+            Unrenderable::BackgroundImage => write!(f, "the [background] image"),
         }
     }
 }
@@ -246,6 +252,9 @@ pub enum ModeError {
     TooLarge(#[from] FilmTooLarge),
     #[error(transparent)]
     Cancelled(#[from] Cancelled),
+    /// No device to run the mode on (e.g. no GPU adapter), in one line.
+    #[error("{0}")]
+    NoDevice(String),
 }
 
 /// A progressive render mode.
@@ -276,6 +285,20 @@ pub trait RenderMode: Send {
     /// biclusters and light-change time); `None` where a mode has nothing to add.
     fn summary(&self) -> Option<String> {
         None
+    }
+    /// Device memory by kind (`bvh`, `triangles`, `spmm_bases`, ...) for a mode on a
+    /// GPU; empty where the mode runs on the CPU.
+    fn device_memory(&self) -> Vec<(&'static str, u64)> {
+        Vec::new()
+    }
+    /// The GPU adapter a mode runs on (`None` on the CPU).
+    fn adapter(&self) -> Option<String> {
+        None
+    }
+    /// Ray traversals that ran past a device's bounds (stack or steps) and so may have
+    /// missed a hit; always 0 on the CPU. A correct render keeps it at 0.
+    fn traversal_overflows(&self) -> u64 {
+        0
     }
     /// Debug images of the mode's own decisions, by name (the adaptive mode's
     /// bandwidth-buffer level and samples per pixel, as colour maps); none by default.

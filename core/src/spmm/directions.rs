@@ -31,6 +31,16 @@ pub enum DirectionTableError {
     Duplicate { first: usize, second: usize },
 }
 
+/// A read-only view of a table's arrays (`DirectionTable::parts`).
+pub struct DirectionTableParts<'a> {
+    pub points: &'a [DVec2],
+    pub triangles: &'a [[u32; 3]],
+    /// `GRID x GRID` triangle lists, row-major by the projected y.
+    pub cells: &'a [Vec<u32>],
+    /// Counter-clockwise.
+    pub hull: &'a [u32],
+}
+
 fn cell_of(p: DVec2) -> (usize, usize) {
     let f =
         |v: f64| (((v + 1.0) * 0.5 * GRID as f64) as isize).clamp(0, GRID as isize - 1) as usize;
@@ -106,6 +116,21 @@ impl DirectionTable {
             hull,
             cells,
         })
+    }
+
+    /// The grid's side: `cells()` has `GRID x GRID` lists, row-major by the projected y.
+    pub const GRID: usize = GRID;
+
+    /// The directions projected on the tangent plane, the triangles over them, the
+    /// triangle list of each grid cell and the hull (counter-clockwise): what a device
+    /// needs to interpolate as `weights` does.
+    pub fn parts(&self) -> DirectionTableParts<'_> {
+        DirectionTableParts {
+            points: &self.points,
+            triangles: &self.triangles,
+            cells: &self.cells,
+            hull: &self.hull,
+        }
     }
 
     pub fn len(&self) -> usize {

@@ -22,6 +22,8 @@ pub use edit::{Contributions, WeightTarget};
 pub(crate) use eval::TexelGrid;
 pub use eval::{EvalSettings, TexelFilter};
 pub use material::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial};
-pub use prepared::{PrepareRequest, PreparedBytes, PreparedSpmm};
+pub use prepared::{
+    PrepareRequest, PreparedBytes, PreparedParts, PreparedResidualParts, PreparedSpmm,
+};
 pub use texel_mask::{Falloff, TexelMask};
 pub use view::BasisView;

@@ -58,6 +58,32 @@ struct PreparedResidual {
     coefficients: Vec<f32>,
 }
 
+/// A read-only view of prepared data, laid out as `PreparedSpmm` holds it.
+pub struct PreparedParts<'a> {
+    pub width: u32,
+    pub height: u32,
+    /// Per cluster, its basis functions.
+    pub bases: &'a [Vec<BasisFunction>],
+    pub texel_cluster: &'a [u32],
+    /// Per texel, the start of its weights in `basis` and `rgb` (one more than texels).
+    pub offsets: &'a [u32],
+    pub basis: &'a [u16],
+    pub rgb: &'a [[f32; 3]],
+    pub residual: Option<PreparedResidualParts<'a>>,
+}
+
+/// The prepared residual: cell-major tables `[used cluster][light][view][1 + k][3]`.
+pub struct PreparedResidualParts<'a> {
+    pub lights: &'a DirectionTable,
+    pub views: &'a DirectionTable,
+    pub k: usize,
+    /// Per cluster, the offset of its tables in `cells` (`None`: not prepared).
+    pub cluster_offset: &'a [Option<usize>],
+    pub cells: &'a [f32],
+    /// `[texel][k]`.
+    pub coefficients: &'a [f32],
+}
+
 /// Evaluation data of one material for one render.
 pub struct PreparedSpmm {
     grid: TexelGrid,
@@ -310,6 +336,27 @@ impl PreparedSpmm {
     /// Clusters whose residual tables were kept.
     pub fn clusters_used(&self) -> usize {
         self.clusters_used
+    }
+
+    /// The prepared arrays as they are, for a device that uploads them (`gpu`).
+    pub fn parts(&self) -> PreparedParts<'_> {
+        PreparedParts {
+            width: self.grid.width,
+            height: self.grid.height,
+            bases: &self.bases,
+            texel_cluster: &self.texel_cluster,
+            offsets: &self.offsets,
+            basis: &self.basis,
+            rgb: &self.rgb,
+            residual: self.residual.as_ref().map(|r| PreparedResidualParts {
+                lights: &r.lights,
+                views: &r.views,
+                k: r.k,
+                cluster_offset: &r.cluster_offset,
+                cells: &r.cells,
+                coefficients: &r.coefficients,
+            }),
+        }
     }
 
     /// Memory held, by part.

@@ -29,6 +29,8 @@ pub enum BenchCommand {
     Rays(RaysArgs),
     /// Weight-brush stroke to updated frame latency on a scene's SPMM material.
     Stroke(crate::bench_stroke::StrokeArgs),
+    /// The spmm mode's frame time on the CPU and the GPU side by side.
+    Frames(crate::bench_frames::FramesArgs),
 }
 
 #[derive(Args, Debug)]
@@ -49,6 +51,7 @@ pub fn run(command: BenchCommand) -> Result<(), CliError> {
     match command {
         BenchCommand::Rays(args) => rays(&args),
         BenchCommand::Stroke(args) => crate::bench_stroke::run(&args),
+        BenchCommand::Frames(args) => crate::bench_frames::run(&args),
     }
 }
 

@@ -148,6 +148,14 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
             "film_bytes": mode.progress().film_bytes,
             "material_bytes_resident": mode.material_bytes().map(|b| b.resident),
             "material_bytes_full": mode.material_bytes().map(|b| b.full),
+            "ms_per_frame": trace_s * 1e3 / f64::from(frames),
+            "adapter": mode.adapter(),
+            "device_bytes": mode
+                .device_memory()
+                .into_iter()
+                .map(|(kind, bytes)| (kind.to_string(), json!(bytes)))
+                .collect::<serde_json::Map<String, serde_json::Value>>(),
+            "traversal_overflows": mode.traversal_overflows(),
             "denoised": args.denoise,
         }));
     }

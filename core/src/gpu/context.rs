@@ -1,0 +1,87 @@
+//! The wgpu instance, adapter and device the GPU mode runs on. The backends come from
+//! `WGPU_BACKEND` (wgpu's own variable; CI sets `vulkan` for Mesa's lavapipe), so a
+//! backend that does not exist on this system yields no adapter and a one-line error.
+
+use std::sync::Arc;
+
+/// Why there is no device to render on.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum GpuError {
+    #[error("no GPU adapter found for the backends {backends} (WGPU_BACKEND={env})")]
+    NoAdapter { backends: String, env: String },
+    #[error("the GPU adapter `{adapter}` refused a device: {reason}")]
+    NoDevice { adapter: String, reason: String },
+}
+
+/// One adapter's device and queue, shareable between modes (cloning shares them).
+#[derive(Clone)]
+pub struct GpuContext {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    info: Arc<wgpu::AdapterInfo>,
+    limits: wgpu::Limits,
+}
+
+impl std::fmt::Debug for GpuContext {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuContext")
+            .field("adapter", &self.adapter_name())
+            .finish()
+    }
+}
+
+impl GpuContext {
+    /// The first adapter of the backends `WGPU_BACKEND` names (all by default),
+    /// preferring a high-performance one, with a device of the adapter's own limits.
+    pub fn new() -> Result<Self, GpuError> {
+        let desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        let backends = desc.backends;
+        let instance = wgpu::Instance::new(desc);
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            ..Default::default()
+        }))
+        .map_err(|_| GpuError::NoAdapter {
+            backends: format!("{backends:?}"),
+            env: std::env::var("WGPU_BACKEND").unwrap_or_else(|_| "unset".into()),
+        })?;
+        Self::from_adapter(&adapter)
+    }
+
+    /// A device on `adapter` (the studio passes the one its window uses).
+    pub fn from_adapter(adapter: &wgpu::Adapter) -> Result<Self, GpuError> {
+        let info = adapter.get_info();
+        // Storage buffers and their sizes are what the mode needs beyond the defaults;
+        // the adapter's own limits allow whatever it offers.
+        let limits = adapter.limits();
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("meso gpu"),
+            required_limits: limits.clone(),
+            ..Default::default()
+        }))
+        .map_err(|e| GpuError::NoDevice {
+            adapter: info.name.clone(),
+            reason: e.to_string(),
+        })?;
+        Ok(Self {
+            device,
+            queue,
+            info: Arc::new(info),
+            limits,
+        })
+    }
+
+    /// The adapter's name and backend, for status lines (`llvmpipe (vulkan)`).
+    pub fn adapter_name(&self) -> String {
+        format!("{} ({})", self.info.name, self.info.backend)
+    }
+
+    /// True for a software rasteriser (lavapipe/llvmpipe, WARP): correct, not fast.
+    pub fn is_software(&self) -> bool {
+        self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
+    pub fn limits(&self) -> &wgpu::Limits {
+        &self.limits
+    }
+}

@@ -1,0 +1,20 @@
+//! The `spmm` mode on the GPU (wgpu compute; WGSL in the workspace's `shaders/`):
+//! the device and its adapter (`context.rs`), the WGSL sources and how they are put
+//! together (`shaders.rs`), the words a shader reads (`data.rs`: BRDFs, SPMM packs,
+//! materials), the scene's geometry on the device (`geometry.rs`: the obvhs CWBVH's
+//! nodes as they are, the leaf-ordered triangles and their shading data), one compute
+//! dispatch with its buffers (`kernel.rs`) and the mode itself (`mode.rs`). The CPU's
+//! `trace::SpmmMode` is the reference every part here is tested against.
+
+mod context;
+mod data;
+mod geometry;
+mod kernel;
+mod mode;
+mod shaders;
+
+pub use context::{GpuContext, GpuError};
+pub use mode::{DeviceBytes, GpuSpmmMode};
+
+#[cfg(test)]
+mod tests;

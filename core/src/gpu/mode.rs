@@ -1,0 +1,759 @@
+//! `GpuSpmmMode`: the spmm mode with its per-pixel work on a wgpu device. Each frame
+//! dispatches `shaders/integrator.wgsl` once per sample (one invocation per pixel),
+//! reads back the sample's layers and adds them to the same f64 `Film` the CPU mode
+//! uses, so the film semantics (layers per light, edits that keep samples, the moving
+//! flag, per-pixel invalidation) are the CPU's own code. Geometry (BVH nodes and
+//! triangles), the prepared SPMM data, BRDFs, materials and lights live on the device.
+
+use std::time::Instant;
+
+use bytemuck::{Pod, Zeroable};
+use glam::DVec3;
+
+use super::GpuContext;
+use super::data::{DataBytes, Words};
+use super::geometry::GeometryBuffers;
+use super::kernel::{self, Kernel, Slot};
+use super::shaders;
+use crate::geometry::SceneBvh;
+use crate::image::Image;
+use crate::render::film::{EMPTY_UV_BOX, material_bit, memory_limit_bytes};
+use crate::render::layers::{Before, Layers, MANY_LIGHTS};
+use crate::render::reach::EditedTexels;
+use crate::render::{
+    Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind,
+    PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit,
+    Unrenderable, Unsupported,
+};
+use crate::scene::{Background, Light, Material, RenderSettings, Scene};
+use crate::spmm::PrepareRequest;
+
+const MATERIAL_WORDS: usize = 8;
+const LIGHT_WORDS: usize = 12;
+const AUX_WORDS: usize = 6;
+/// Counter slots of `shaders/integrator.wgsl` (two traversal overflows, then rays).
+const COUNTERS: usize = 8;
+
+/// Device memory by kind, in bytes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct DeviceBytes {
+    pub bvh: u64,
+    pub triangles: u64,
+    pub spmm_bases: u64,
+    /// Per-texel weights, basis indices and texel clusters.
+    pub spmm_weights: u64,
+    pub residual_tables: u64,
+    /// BRDF records, the material and light tables.
+    pub materials: u64,
+    /// One sample's layers and per-pixel masks (the f64 film itself is on the host).
+    pub film: u64,
+}
+
+impl DeviceBytes {
+    pub fn total(&self) -> u64 {
+        self.bvh
+            + self.triangles
+            + self.spmm_bases
+            + self.spmm_weights
+            + self.residual_tables
+            + self.materials
+            + self.film
+    }
+}
+
+/// The uniform block of `shaders/integrator.wgsl` (`Params`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct Params {
+    width: u32,
+    height: u32,
+    layers: u32,
+    seed: u32,
+    sample_lo: u32,
+    sample_hi: u32,
+    max_depth: u32,
+    moving: u32,
+    lights: u32,
+    light_table: u32,
+    material_table: u32,
+    background: u32,
+    ambient_radius: f32,
+    materials: u32,
+    pad: [u32; 2],
+    cam_origin: [f32; 4],
+    cam_forward: [f32; 4],
+    cam_right: [f32; 4],
+    cam_up: [f32; 4],
+}
+
+/// Why one sample's layers at `width` x `height` would not fit in one buffer of the
+/// device (`None` if they fit): refused before anything is allocated.
+fn device_size_problem(ctx: &GpuContext, width: u32, height: u32, layers: usize) -> Option<String> {
+    let bytes = u64::from(width) * u64::from(height) * layers as u64 * 12;
+    let limits = ctx.limits();
+    let limit = limits
+        .max_buffer_size
+        .min(limits.max_storage_buffer_binding_size);
+    (bytes > limit).then(|| {
+        format!(
+            "{width} x {height} with {layers} film layers needs a {bytes}-byte buffer on the GPU; `{}` allows {limit}",
+            ctx.adapter_name()
+        )
+    })
+}
+
+/// The scene's materials and lights as data words, with where their tables start.
+struct SceneData {
+    words: Words,
+    material_table: u32,
+    light_table: u32,
+    /// Per material: its SPMM residual is in use (the moving flag changes it).
+    residual: Vec<bool>,
+}
+
+fn f(v: f64) -> u32 {
+    (v as f32).to_bits()
+}
+
+fn light_words(light: &Light) -> [u32; LIGHT_WORDS] {
+    let mut w = [0u32; LIGHT_WORDS];
+    let (kind, a, b, c) = match *light {
+        Light::Point { position, .. } => (0, position, DVec3::ZERO, DVec3::ZERO),
+        Light::Area {
+            corner,
+            edge_u,
+            edge_v,
+            ..
+        } => (1, corner, edge_u, edge_v),
+    };
+    w[0] = kind;
+    for (i, v) in [a, b, c].iter().enumerate() {
+        w[1 + 3 * i..4 + 3 * i].copy_from_slice(&[f(v.x), f(v.y), f(v.z)]);
+    }
+    w
+}
+
+impl SceneData {
+    /// Every material (SPMM packs prepared as the CPU mode prepares them) and a light
+    /// table with room for `MANY_LIGHTS`, so light edits rewrite it in place.
+    fn build(scene: &Scene) -> Self {
+        let mut words = Words::default();
+        let mut table = Vec::with_capacity(scene.materials.len() * MATERIAL_WORDS);
+        let mut residual = Vec::with_capacity(scene.materials.len());
+        for m in &scene.materials {
+            let mut rec = [0u32; MATERIAL_WORDS];
+            let mut uses_residual = false;
+            match m {
+                Material::Brdf { brdf, albedo } => {
+                    rec[0] = 0;
+                    rec[1] = words.push_brdf(brdf);
+                    rec[4..7].copy_from_slice(&[f(albedo.x), f(albedo.y), f(albedo.z)]);
+                }
+                Material::Spmm {
+                    material,
+                    uv_scale,
+                    residual: wanted,
+                    npca,
+                } => {
+                    let prepared = material.prepare(&PrepareRequest {
+                        used_clusters: None,
+                        residual: *wanted,
+                        max_npca: *npca,
+                    });
+                    uses_residual = *wanted && prepared.has_residual();
+                    rec[0] = 1;
+                    rec[1] = words.push_spmm(&prepared, *uv_scale);
+                    rec[2] = u32::from(uses_residual);
+                }
+                Material::Mirror { reflectance } => {
+                    rec[0] = 2;
+                    rec[4..7].copy_from_slice(&[
+                        f(reflectance.x),
+                        f(reflectance.y),
+                        f(reflectance.z),
+                    ]);
+                }
+                // `supports` refuses MERL tables; a zero record shades nothing.
+                Material::Merl { .. } | Material::Btf { .. } => rec[0] = u32::MAX,
+            }
+            table.extend_from_slice(&rec);
+            residual.push(uses_residual);
+        }
+        let before = words.words.len();
+        let material_table = words.at();
+        words.words.extend_from_slice(&table);
+        let light_table = words.at();
+        words
+            .words
+            .resize(words.words.len() + MANY_LIGHTS * LIGHT_WORDS, 0);
+        for (k, l) in scene.lights.iter().take(MANY_LIGHTS).enumerate() {
+            let at = light_table as usize + k * LIGHT_WORDS;
+            words.words[at..at + LIGHT_WORDS].copy_from_slice(&light_words(l));
+        }
+        // BRDF records sit among the SPMM data; count the tables as materials.
+        words.bytes.materials += 4 * (words.words.len() - before) as u64;
+        Self {
+            words,
+            material_table,
+            light_table,
+            residual,
+        }
+    }
+}
+
+/// The device side of a prepared scene.
+struct Resources {
+    geometry: GeometryBuffers,
+    data: wgpu::Buffer,
+    data_bytes: DataBytes,
+    params: wgpu::Buffer,
+    frame: wgpu::Buffer,
+    aux: wgpu::Buffer,
+    counters: wgpu::Buffer,
+    bind: wgpu::BindGroup,
+}
+
+/// The `spmm` mode on a wgpu device.
+pub struct GpuSpmmMode {
+    ctx: GpuContext,
+    scene: Scene,
+    bvh: SceneBvh,
+    film: Film,
+    layers: Layers,
+    kernel: Kernel,
+    res: Resources,
+    scene_data: SceneData,
+    samples_per_frame: u32,
+    next_sample: u64,
+    frames: u32,
+    moving: bool,
+    preparation: PreparationReport,
+    /// Traversals that overflowed the stack or the step bound (should stay zero).
+    overflows: [u64; 2],
+}
+
+const SLOTS: [Slot; 8] = [
+    Slot::Uniform,
+    Slot::Read,
+    Slot::Read,
+    Slot::Read,
+    Slot::Read,
+    Slot::ReadWrite,
+    Slot::ReadWrite,
+    Slot::ReadWrite,
+];
+
+impl GpuSpmmMode {
+    /// What this mode cannot render in `scene`, each by name: MERL materials, lights
+    /// beyond the 16 of the exact per-light path, environment lighting and background
+    /// images (not yet on the device; the CPU mode renders them).
+    pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
+        let mut parts: Vec<Unrenderable> = scene
+            .materials
+            .iter()
+            .enumerate()
+            .filter_map(|(i, m)| Self::unrenderable(scene, i, m))
+            .collect();
+        for (index, l) in scene.lights.iter().enumerate().skip(MANY_LIGHTS) {
+            parts.push(Unrenderable::Light {
+                index,
+                kind: match l {
+                    Light::Point { .. } => "point",
+                    Light::Area { .. } => "area",
+                },
+            });
+        }
+        if scene.environment.is_some() {
+            parts.push(Unrenderable::Environment);
+        }
+        if matches!(scene.background, Background::Environment(_)) {
+            parts.push(Unrenderable::BackgroundImage);
+        }
+        Unsupported::check(ModeKind::Spmm, Device::Gpu, parts)
+    }
+
+    fn unrenderable(scene: &Scene, index: usize, m: &Material) -> Option<Unrenderable> {
+        matches!(m, Material::Merl { .. } | Material::Btf { .. }).then(|| Unrenderable::Material {
+            index,
+            name: scene
+                .material_names
+                .get(index)
+                .cloned()
+                .unwrap_or_else(|| format!("#{index}")),
+            kind: m.kind_name(),
+        })
+    }
+
+    /// Prepares `scene` on the device `ctx` at `width` x `height`: the BVH, the
+    /// materials and lights, the device buffers, each a reported, cancellable stage.
+    pub fn prepare(
+        ctx: GpuContext,
+        scene: Scene,
+        width: u32,
+        height: u32,
+        prepare: Prepare,
+    ) -> Result<Self, ModeError> {
+        if let Some(p) = RenderSettings::size_problem(width, height) {
+            return Err(ModeError::Size(p));
+        }
+        Self::supports(&scene)?;
+        let layers = Layers::new(&scene);
+        let film = Film::try_new(
+            width,
+            height,
+            layers.layer_count(&scene),
+            memory_limit_bytes(),
+        )?;
+        if let Some(p) = device_size_problem(&ctx, width, height, film.layers()) {
+            return Err(ModeError::Size(p));
+        }
+        let mut report = PreparationReport::default();
+        let mut stage = |name: &str, start: Instant| {
+            report.stages.push(PreparationStage {
+                name: name.into(),
+                seconds: start.elapsed().as_secs_f64(),
+            })
+        };
+        prepare.report("bvh", 0.0)?;
+        let start = Instant::now();
+        let bvh = SceneBvh::build(&scene.meshes);
+        stage("bvh", start);
+        prepare.report("materials", 0.0)?;
+        let start = Instant::now();
+        let scene_data = SceneData::build(&scene);
+        stage("materials", start);
+        prepare.report("device", 0.0)?;
+        let start = Instant::now();
+        let kernel = Kernel::new(&ctx, &shaders::integrator(), "render", &SLOTS);
+        let res = Resources::upload(&ctx, &kernel, &bvh, &scene, &scene_data, width, height);
+        stage("device", start);
+        prepare.report("device", 1.0)?;
+        Ok(Self {
+            ctx,
+            scene,
+            bvh,
+            film,
+            layers,
+            kernel,
+            res,
+            scene_data,
+            samples_per_frame: 1,
+            next_sample: 0,
+            frames: 0,
+            moving: false,
+            preparation: report,
+            overflows: [0; 2],
+        })
+    }
+
+    /// Device memory by kind.
+    pub fn device_bytes(&self) -> DeviceBytes {
+        let d = self.res.data_bytes;
+        DeviceBytes {
+            bvh: self.res.geometry.bvh_bytes,
+            triangles: self.res.geometry.triangle_bytes,
+            spmm_bases: d.spmm_bases,
+            spmm_weights: d.spmm_weights,
+            residual_tables: d.residual_tables,
+            materials: d.materials,
+            film: self.res.frame.size() + self.res.aux.size(),
+        }
+    }
+
+    /// Traversals that ran out of stack, and out of steps, since the mode was made.
+    /// Either would be a wrong image, so tests require zero.
+    pub fn overflows(&self) -> (u64, u64) {
+        (self.overflows[0], self.overflows[1])
+    }
+
+    pub fn film(&self) -> &Film {
+        &self.film
+    }
+
+    fn params(&self, sample: u64) -> Params {
+        let cam = &self.scene.camera;
+        let (w, h) = (self.film.width(), self.film.height());
+        let forward = (cam.look_at - cam.position).normalize();
+        let right = forward.cross(cam.up).normalize();
+        let up = right.cross(forward);
+        let half_h = (cam.fov_y_deg.to_radians() * 0.5).tan();
+        let half_w = half_h * w as f64 / h as f64;
+        let v4 = |v: DVec3, w: f64| [v.x as f32, v.y as f32, v.z as f32, w as f32];
+        Params {
+            width: w,
+            height: h,
+            layers: self.film.layers() as u32,
+            seed: self.scene.render.seed as u32,
+            sample_lo: sample as u32,
+            sample_hi: (sample >> 32) as u32,
+            max_depth: self.scene.render.max_specular_depth,
+            moving: u32::from(self.moving),
+            lights: self.scene.lights.len().min(MANY_LIGHTS) as u32,
+            light_table: self.scene_data.light_table,
+            material_table: self.scene_data.material_table,
+            background: u32::from(matches!(self.scene.background, Background::Color(_))),
+            ambient_radius: self
+                .scene
+                .ambient
+                .map_or(-1.0, |a| a.radius.min(3.0e38) as f32),
+            materials: self.scene.materials.len() as u32,
+            pad: [0; 2],
+            cam_origin: v4(cam.position, 0.0),
+            cam_forward: v4(forward, half_w),
+            cam_right: v4(right, half_h),
+            cam_up: v4(up, 0.0),
+        }
+    }
+
+    /// One sample per pixel: dispatch, read back, add to the film.
+    fn render_sample(&mut self, sample: u64) -> Counters {
+        let ctx = &self.ctx;
+        ctx.queue.write_buffer(
+            &self.res.params,
+            0,
+            bytemuck::bytes_of(&self.params(sample)),
+        );
+        let mut enc = kernel::encoder(ctx);
+        enc.clear_buffer(&self.res.counters, 0, None);
+        let (w, h) = (self.film.width(), self.film.height());
+        self.kernel.record(&mut enc, &self.res.bind, w * h);
+        let layers = self.film.layers();
+        let frame_size = u64::from(w) * u64::from(h) * layers as u64 * 12;
+        let aux_size = u64::from(w) * u64::from(h) * AUX_WORDS as u64 * 4;
+        let bytes = kernel::submit_and_read(
+            ctx,
+            enc,
+            &[
+                (&self.res.frame, frame_size),
+                (&self.res.aux, aux_size),
+                (&self.res.counters, COUNTERS as u64 * 4),
+            ],
+        );
+        let frame: &[f32] = bytemuck::cast_slice(&bytes[0]);
+        let aux: &[u32] = bytemuck::cast_slice(&bytes[1]);
+        let counters: &[u32] = bytemuck::cast_slice(&bytes[2]);
+        self.overflows[0] += u64::from(counters[0]);
+        self.overflows[1] += u64::from(counters[1]);
+        let active = self.layers.active(&self.scene);
+        let width = w as usize;
+        self.film.par_rows(|row| {
+            for x in 0..w {
+                let p = row.y as usize * width + x as usize;
+                for &l in &active {
+                    let at = (p * layers + l) * 3;
+                    let v =
+                        DVec3::new(frame[at] as f64, frame[at + 1] as f64, frame[at + 2] as f64);
+                    row.add(x, l, v);
+                }
+                let a = &aux[p * AUX_WORDS..(p + 1) * AUX_WORDS];
+                row.touch(x, u64::from(a[0]) | (u64::from(a[1]) << 32));
+                let b = [a[2], a[3], a[4], a[5]].map(f32::from_bits);
+                if b[0] <= b[2] && b[1] <= b[3] {
+                    row.reach_box(x, &b);
+                } else {
+                    row.reach_box(x, &EMPTY_UV_BOX);
+                }
+            }
+        });
+        Counters {
+            samples: u64::from(w) * u64::from(h),
+            shading_points: u64::from(counters[6]),
+            rays: RayCounts {
+                primary: u64::from(counters[2]),
+                shadow: u64::from(counters[3]),
+                ambient: u64::from(counters[4]),
+                environment: 0,
+                specular: u64::from(counters[5]),
+            },
+        }
+    }
+
+    fn residual_mask(&self) -> u64 {
+        self.scene_data
+            .residual
+            .iter()
+            .enumerate()
+            .filter(|(_, r)| **r)
+            .fold(0, |m, (i, _)| m | material_bit(i))
+    }
+
+    fn restart_all(&mut self) -> Invalidation {
+        self.film.reset();
+        self.frames = 0;
+        self.next_sample = 0;
+        Invalidation::All
+    }
+
+    /// Rebuilds the data words (materials, lights) and rebinds.
+    fn reupload_data(&mut self) {
+        self.scene_data = SceneData::build(&self.scene);
+        self.rebind();
+    }
+
+    fn rebind(&mut self) {
+        self.res = Resources::upload(
+            &self.ctx,
+            &self.kernel,
+            &self.bvh,
+            &self.scene,
+            &self.scene_data,
+            self.film.width(),
+            self.film.height(),
+        );
+    }
+
+    /// Rewrites the light table in place (light edits keep every other buffer).
+    fn write_lights(&mut self) {
+        let mut table = vec![0u32; MANY_LIGHTS * LIGHT_WORDS];
+        for (k, l) in self.scene.lights.iter().take(MANY_LIGHTS).enumerate() {
+            table[k * LIGHT_WORDS..(k + 1) * LIGHT_WORDS].copy_from_slice(&light_words(l));
+        }
+        let at = self.scene_data.light_table as usize;
+        self.scene_data.words.words[at..at + table.len()].copy_from_slice(&table);
+        self.ctx
+            .queue
+            .write_buffer(&self.res.data, at as u64 * 4, bytemuck::cast_slice(&table));
+    }
+
+    /// `Some` if the scene after `edit` would hold something this mode cannot render.
+    fn refused(&self, edit: &SceneEdit) -> Option<Unsupported> {
+        let parts: Vec<Unrenderable> = match edit {
+            SceneEdit::Material { index, material } => {
+                Self::unrenderable(&self.scene, *index, material)
+                    .into_iter()
+                    .collect()
+            }
+            SceneEdit::AddLight(l) if self.scene.lights.len() >= MANY_LIGHTS => {
+                vec![Unrenderable::Light {
+                    index: self.scene.lights.len(),
+                    kind: match l {
+                        Light::Point { .. } => "point",
+                        Light::Area { .. } => "area",
+                    },
+                }]
+            }
+            SceneEdit::Environment(Some(_)) => vec![Unrenderable::Environment],
+            SceneEdit::Background(Background::Environment(_)) => {
+                vec![Unrenderable::BackgroundImage]
+            }
+            _ => Vec::new(),
+        };
+        (!parts.is_empty()).then_some(Unsupported {
+            mode: ModeKind::Spmm,
+            device: Device::Gpu,
+            parts,
+        })
+    }
+}
+
+impl Resources {
+    fn upload(
+        ctx: &GpuContext,
+        kernel: &Kernel,
+        bvh: &SceneBvh,
+        scene: &Scene,
+        data: &SceneData,
+        width: u32,
+        height: u32,
+    ) -> Self {
+        let geometry = GeometryBuffers::upload(ctx, bvh, &scene.meshes);
+        let data_buf = kernel::storage(ctx, "data", bytemuck::cast_slice(&data.words.words));
+        let params = kernel::uniform(ctx, "params", bytemuck::bytes_of(&Params::default()));
+        let pixels = u64::from(width) * u64::from(height);
+        let layers = crate::render::layers::layer_count(scene) as u64;
+        let frame = kernel::zeroed(ctx, "frame", pixels * layers * 12);
+        let aux = kernel::zeroed(ctx, "aux", pixels * AUX_WORDS as u64 * 4);
+        let counters = kernel::zeroed(ctx, "counters", COUNTERS as u64 * 4);
+        let bind = kernel.bind(
+            ctx,
+            &[
+                &params,
+                &geometry.nodes,
+                &geometry.tris,
+                &geometry.shade,
+                &data_buf,
+                &frame,
+                &aux,
+                &counters,
+            ],
+        );
+        Self {
+            geometry,
+            data: data_buf,
+            data_bytes: data.words.bytes,
+            params,
+            frame,
+            aux,
+            counters,
+            bind,
+        }
+    }
+}
+
+impl RenderMode for GpuSpmmMode {
+    fn kind(&self) -> ModeKind {
+        ModeKind::Spmm
+    }
+
+    fn device(&self) -> Device {
+        Device::Gpu
+    }
+
+    fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    fn render_frame(&mut self) -> FrameStats {
+        let start = Instant::now();
+        let dropped_before = self.film.dropped();
+        let mut counters = Counters::default();
+        for i in 0..u64::from(self.samples_per_frame) {
+            counters = counters + self.render_sample(self.next_sample + i);
+        }
+        self.next_sample += u64::from(self.samples_per_frame);
+        self.frames += 1;
+        FrameStats {
+            counters,
+            seconds: start.elapsed().as_secs_f64(),
+            dropped: self.film.dropped() - dropped_before,
+        }
+    }
+
+    fn image(&self) -> Image {
+        self.film.resolve(&self.layers.weights(&self.scene))
+    }
+
+    fn progress(&self) -> Progress {
+        Progress {
+            frames: self.frames,
+            min_samples: self.film.min_samples(&self.layers.active(&self.scene)),
+            dropped: self.film.dropped(),
+            width: self.film.width(),
+            height: self.film.height(),
+            film_bytes: self.film.bytes(),
+        }
+    }
+
+    fn set_samples_per_frame(&mut self, samples: u32) {
+        self.samples_per_frame = samples.max(1);
+    }
+
+    fn preparation(&self) -> PreparationReport {
+        self.preparation.clone()
+    }
+
+    fn device_memory(&self) -> Vec<(&'static str, u64)> {
+        let b = self.device_bytes();
+        vec![
+            ("bvh", b.bvh),
+            ("triangles", b.triangles),
+            ("spmm_bases", b.spmm_bases),
+            ("spmm_weights", b.spmm_weights),
+            ("residual_tables", b.residual_tables),
+            ("materials", b.materials),
+            ("film", b.film),
+        ]
+    }
+
+    fn adapter(&self) -> Option<String> {
+        Some(self.ctx.adapter_name())
+    }
+
+    fn traversal_overflows(&self) -> u64 {
+        self.overflows[0] + self.overflows[1]
+    }
+
+    fn summary(&self) -> Option<String> {
+        let (stack, steps) = self.overflows();
+        let mut s = format!(
+            "{} · {:.1} MB on the device",
+            self.ctx.adapter_name(),
+            self.device_bytes().total() as f64 / 1e6
+        );
+        if stack + steps > 0 {
+            s.push_str(&format!(" · {stack} stack and {steps} step overflows"));
+        }
+        Some(s)
+    }
+
+    fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
+        if let Some(u) = self.refused(&edit) {
+            return Err(u.into());
+        }
+        if let SceneEdit::Resize { width, height } = edit {
+            Film::check(
+                width,
+                height,
+                self.film.layers(),
+                memory_limit_bytes() + self.film.bytes(),
+            )?;
+            if let Some(p) = device_size_problem(&self.ctx, width, height, self.film.layers()) {
+                return Err(EditError::Size(p));
+            }
+        }
+        if let SceneEdit::AddLight(_) = edit {
+            let (w, h) = (self.film.width(), self.film.height());
+            if let Some(p) = device_size_problem(&self.ctx, w, h, self.film.layers() + 1) {
+                return Err(EditError::Size(p));
+            }
+        }
+        let before = Before::of(&self.scene, &edit);
+        let material_before = match &edit {
+            SceneEdit::Material { index, .. } => self.scene.materials.get(*index).cloned(),
+            _ => None,
+        };
+        let layer_count = self.film.layers();
+        edit.apply_to(&mut self.scene)?;
+        if let Some(invalidation) = self
+            .layers
+            .apply(&mut self.film, &before, &edit, &self.scene)
+        {
+            if matches!(
+                edit,
+                SceneEdit::Light { .. } | SceneEdit::AddLight(_) | SceneEdit::RemoveLight(_)
+            ) {
+                self.write_lights();
+            }
+            if self.film.layers() != layer_count {
+                // A light added or removed: the device's frame buffer follows the film.
+                self.rebind();
+            }
+            return Ok(invalidation);
+        }
+        Ok(match edit {
+            SceneEdit::Camera(_) => self.restart_all(),
+            SceneEdit::Resize { width, height } => {
+                self.film.resize(width, height);
+                self.rebind();
+                self.restart_all()
+            }
+            SceneEdit::Meshes(_) => {
+                self.bvh.update(&self.scene.meshes);
+                self.rebind();
+                self.restart_all()
+            }
+            SceneEdit::Material { index, .. } => {
+                self.reupload_data();
+                let after = &self.scene.materials[index];
+                let bit = material_bit(index);
+                Invalidation::Pixels(
+                    match material_before.and_then(|b| EditedTexels::between(&b, after)) {
+                        Some(texels) => self.film.reset_reaching(bit, |b| texels.reaches(b)),
+                        None => self.film.reset_touching(bit),
+                    },
+                )
+            }
+            SceneEdit::Moving(moving) if moving == self.moving => Invalidation::Nothing,
+            SceneEdit::Moving(moving) => {
+                self.moving = moving;
+                Invalidation::Pixels(self.film.reset_touching(self.residual_mask()))
+            }
+            SceneEdit::Light { .. }
+            | SceneEdit::AddLight(_)
+            | SceneEdit::RemoveLight(_)
+            | SceneEdit::Ambient(_)
+            | SceneEdit::Environment(_)
+            | SceneEdit::Background(_) => unreachable!("emitter edits are the layers' to handle"),
+        })
+    }
+}

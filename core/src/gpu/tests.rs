@@ -1,0 +1,618 @@
+//! The GPU path against the CPU reference: BRDFs, basis functions and SPMM texels in
+//! WGSL against core's f64 evaluation, closest hits against the CPU's traversal, and
+//! the mode's images against the CPU mode's. They need a wgpu adapter (CI: Mesa's
+//! lavapipe with WGPU_BACKEND=vulkan) and fail without one, naming the cause.
+
+use std::sync::OnceLock;
+
+use glam::DVec3;
+
+use super::GpuContext;
+use super::data::Words;
+use super::kernel::{Kernel, Slot, encoder, storage, submit_and_read, zeroed};
+use super::shaders;
+use crate::brdf::{AnalyticBrdf, BasisFunction, BrdfModel, warp::spherical};
+use crate::rng::SampleStream;
+
+pub(super) fn context() -> &'static GpuContext {
+    static CONTEXT: OnceLock<GpuContext> = OnceLock::new();
+    CONTEXT.get_or_init(|| {
+        GpuContext::new().unwrap_or_else(|e| {
+            panic!("the GPU tests need a wgpu adapter (CI: lavapipe, WGPU_BACKEND=vulkan): {e}")
+        })
+    })
+}
+
+const CASE_WORDS: usize = 10;
+
+/// One evaluation request of the test kernel.
+#[derive(Clone, Copy)]
+struct Case {
+    kind: u32,
+    record: u32,
+    wi: DVec3,
+    wo: DVec3,
+    texel: u32,
+    residual: bool,
+}
+
+fn f32s(v: DVec3) -> [u32; 3] {
+    [
+        (v.x as f32).to_bits(),
+        (v.y as f32).to_bits(),
+        (v.z as f32).to_bits(),
+    ]
+}
+
+/// The directions as the GPU sees them (rounded to f32), back in f64 for the reference.
+fn rounded(v: DVec3) -> DVec3 {
+    DVec3::new(v.x as f32 as f64, v.y as f32 as f64, v.z as f32 as f64)
+}
+
+fn test_module() -> String {
+    shaders::module(&[
+        shaders::TEST_KERNELS,
+        shaders::TRAVERSAL,
+        shaders::BRDF,
+        shaders::SPMM,
+    ])
+}
+
+const TEST_SLOTS: [Slot; 6] = [
+    Slot::Read,
+    Slot::Read,
+    Slot::ReadWrite,
+    Slot::Read,
+    Slot::Read,
+    Slot::ReadWrite,
+];
+
+/// Runs `eval_cases` over `cases` with `data`; RGB per case.
+fn evaluate(data: &[u32], cases: &[Case]) -> Vec<[f32; 3]> {
+    let ctx = context();
+    let kernel = Kernel::new(ctx, &test_module(), "eval_cases", &TEST_SLOTS);
+    let mut words = Vec::with_capacity(cases.len() * CASE_WORDS);
+    for c in cases {
+        words.extend([c.kind, c.record]);
+        words.extend(f32s(c.wi));
+        words.extend(f32s(c.wo));
+        words.extend([c.texel, u32::from(c.residual)]);
+    }
+    let data_buf = storage(ctx, "data", bytemuck::cast_slice(data));
+    let case_buf = storage(ctx, "cases", bytemuck::cast_slice(&words));
+    let out_size = (cases.len() * 12) as u64;
+    let out = zeroed(ctx, "results", out_size);
+    let empty = zeroed(ctx, "empty", 16);
+    let counters = zeroed(ctx, "counters", 16);
+    let bind = kernel.bind(
+        ctx,
+        &[&data_buf, &case_buf, &out, &empty, &empty, &counters],
+    );
+    let mut enc = encoder(ctx);
+    kernel.record(&mut enc, &bind, cases.len() as u32);
+    let bytes = submit_and_read(ctx, enc, &[(&out, out_size)]);
+    bytemuck::cast_slice::<u8, [f32; 3]>(&bytes[0][..cases.len() * 12]).to_vec()
+}
+
+/// Direction pairs: random over the hemisphere, and grazing ones (cos down to 1e-7)
+/// including mirror and retro-reflection configurations.
+fn direction_pairs(seed: u64, count: usize) -> Vec<(DVec3, DVec3)> {
+    let mut pairs = Vec::with_capacity(count);
+    for k in 0..count as u64 {
+        let mut s = SampleStream::new(&[seed, k]);
+        let phi_i = std::f64::consts::TAU * s.next();
+        let phi_o = std::f64::consts::TAU * s.next();
+        let (ci, co) = match k % 4 {
+            // Random over the hemisphere.
+            0 | 1 => (s.next().max(1e-3), s.next().max(1e-3)),
+            // One grazing direction, cosines from 1e-7 to 1e-2.
+            2 => (10f64.powf(-7.0 + 5.0 * s.next()), s.next().max(1e-3)),
+            // Both grazing.
+            _ => (
+                10f64.powf(-7.0 + 5.0 * s.next()),
+                10f64.powf(-7.0 + 5.0 * s.next()),
+            ),
+        };
+        let wi = spherical(ci, phi_i);
+        // Every 8th pair: the mirror direction (the peak of specular lobes).
+        let wo = if k % 8 == 1 {
+            DVec3::new(-wi.x, -wi.y, wi.z)
+        } else {
+            spherical(co, phi_o)
+        };
+        pairs.push((rounded(wi), rounded(wo)));
+    }
+    pairs
+}
+
+/// A model with parameters drawn across its whole spec range (log-uniform where the
+/// editor's slider is).
+fn random_brdf(model: BrdfModel, s: &mut SampleStream) -> AnalyticBrdf {
+    let params: Vec<(&str, f64)> = model
+        .param_specs()
+        .iter()
+        .map(|p| {
+            let u = s.next();
+            let v = if p.log_scale && p.min > 0.0 {
+                p.min * (p.max / p.min).powf(u)
+            } else if p.log_scale {
+                // Exponents from 0: log-uniform over [1, max], and 0 itself sometimes.
+                if u < 0.05 { 0.0 } else { p.max.powf(u) }
+            } else {
+                p.min + (p.max - p.min) * u
+            };
+            (p.name, v.clamp(p.min, p.max))
+        })
+        .collect();
+    AnalyticBrdf::new(model, &params).expect("parameters inside the spec ranges")
+}
+
+/// The error of a GPU value `g` against the f64 reference `c` in units of the
+/// tolerance: within 1 passes. `rel` is the relative tolerance; `floor` an absolute
+/// one for values near zero (where the f32 rounding of the inputs dominates).
+fn excess(g: f32, c: f64, rel: f64, floor: f64) -> f64 {
+    let g = g as f64;
+    (g - c).abs() / (rel * c.abs() + floor)
+}
+
+#[test]
+fn every_brdf_model_matches_the_f64_reference() {
+    let pairs = direction_pairs(1, 600);
+    let mut words = Words::default();
+    let mut cases = Vec::new();
+    let mut reference = Vec::new();
+    for (mi, model) in BrdfModel::ALL.into_iter().enumerate() {
+        for set in 0..6u64 {
+            let mut s = SampleStream::new(&[2, mi as u64, set]);
+            let brdf = if set == 0 {
+                AnalyticBrdf::with_defaults(model)
+            } else {
+                random_brdf(model, &mut s)
+            };
+            let record = words.push_brdf(&brdf);
+            for &(wi, wo) in &pairs {
+                cases.push(Case {
+                    kind: 0,
+                    record,
+                    wi,
+                    wo,
+                    texel: 0,
+                    residual: false,
+                });
+                reference.push((model, brdf, brdf.eval(wi, wo), wi, wo));
+            }
+        }
+    }
+    let got = evaluate(&words.words, &cases);
+    let mut worst: Vec<(f64, String)> = vec![(0.0, String::new()); BrdfModel::ALL.len()];
+    for (g, (model, brdf, c, wi, wo)) in got.iter().zip(&reference) {
+        let g = g[0];
+        assert!(
+            g.is_finite() && g >= 0.0,
+            "{model:?} {brdf:?} at {wi} {wo}: {g}"
+        );
+        // f32 carries 6e-8 relative; 1e-4 leaves room for the transcendental functions
+        // of WGSL (a few ulp). Lafortune's s^n is exp2(n log2 s): the rounding of
+        // log2 s (|s| up to 1e3 x 3) is amplified by n up to 1e4, so its tolerance grows
+        // with n |log2 s|.
+        let rel = match brdf {
+            AnalyticBrdf::Lafortune(b) => {
+                let s = wi.dot(DVec3::new(b.cx(), b.cy(), b.cz()) * *wo);
+                1e-4 + 1e-6 * b.n() * s.abs().log2().abs().max(1.0)
+            }
+            _ => 1e-4,
+        };
+        if *c > f32::MAX as f64 {
+            continue;
+        }
+        let e = excess(g, *c, rel, 1e-6 * (1.0 + c.abs()));
+        let slot = &mut worst[BrdfModel::ALL
+            .iter()
+            .position(|m| m == model)
+            .expect("a model")];
+        if e > slot.0 {
+            *slot = (e, format!("{brdf:?} at wi {wi} wo {wo}: gpu {g}, f64 {c}"));
+        }
+    }
+    for (model, (e, at)) in BrdfModel::ALL.iter().zip(&worst) {
+        eprintln!("{model:?}: worst error {e:.3} of the tolerance ({at})");
+    }
+    for (model, (e, at)) in BrdfModel::ALL.iter().zip(&worst) {
+        assert!(*e <= 1.0, "{model:?}: {e:.3} x the tolerance at {at}");
+    }
+}
+
+#[test]
+fn basis_functions_and_spmm_texels_match_the_f64_reference() {
+    let pairs = direction_pairs(3, 400);
+    let mut words = Words::default();
+    let mut cases = Vec::new();
+    let mut reference: Vec<(String, DVec3)> = Vec::new();
+    // Basis functions with tilted normals (the spec's frame rule, both branches).
+    for normal in [
+        DVec3::Z,
+        DVec3::new(0.3, -0.2, 0.9).normalize(),
+        DVec3::new(0.0, 0.999, 0.0447).normalize(),
+        DVec3::new(0.6, 0.0, 0.8),
+    ]
+    .into_iter()
+    {
+        for model in BrdfModel::ALL {
+            // The models' own ranges are covered above; here the tilt and the cosine.
+            let basis = BasisFunction::new(AnalyticBrdf::with_defaults(model), normal)
+                .expect("unit normal");
+            let record = words.push_basis(&basis);
+            for &(wi, wo) in &pairs {
+                cases.push(Case {
+                    kind: 1,
+                    record,
+                    wi,
+                    wo,
+                    texel: 0,
+                    residual: false,
+                });
+                reference.push((format!("{basis:?}"), DVec3::splat(basis.eval(wi, wo))));
+            }
+        }
+    }
+    // SPMM texels: the basis sum, with and without the interpolated residual.
+    let material = crate::spmm::tests::sample_material(4, 3, 3, Some(3));
+    for residual in [false, true] {
+        let prepared = material.prepare(&crate::spmm::PrepareRequest {
+            used_clusters: None,
+            residual,
+            max_npca: usize::MAX,
+        });
+        assert_eq!(prepared.has_residual(), residual);
+        let record = words.push_spmm(&prepared, glam::DVec2::ONE);
+        for t in 0..12u32 {
+            for &(wi, wo) in pairs.iter().step_by(4) {
+                cases.push(Case {
+                    kind: 2,
+                    record,
+                    wi,
+                    wo,
+                    texel: t,
+                    residual: true,
+                });
+                reference.push((
+                    format!("texel {t}, residual {residual}"),
+                    prepared.eval_texel(t as usize, wi, wo),
+                ));
+            }
+        }
+    }
+    let got = evaluate(&words.words, &cases);
+    let mut worst = (0.0f64, String::new());
+    for (g, (what, c)) in got.iter().zip(&reference) {
+        for ch in 0..3 {
+            assert!(g[ch].is_finite(), "{what}: {g:?}");
+            // The residual may be negative; the scale of the texel's value sets the floor.
+            let e = excess(g[ch], c[ch], 1e-4, 1e-5 * (1.0 + c.abs().max_element()));
+            if e > worst.0 {
+                worst = (e, format!("{what}: gpu {g:?}, f64 {c}"));
+            }
+        }
+    }
+    eprintln!(
+        "basis functions and SPMM texels: worst {:.3} of the tolerance ({})",
+        worst.0, worst.1
+    );
+    assert!(
+        worst.0 <= 1.0,
+        "{:.3} x the tolerance: {}",
+        worst.0,
+        worst.1
+    );
+}
+
+pub(super) fn test_scene(name: &str) -> crate::scene::Scene {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../tests/scenes")
+        .join(name);
+    crate::scene::load_scene(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// Every pixel centre's primary ray on the device and on the CPU: the same hit or
+/// miss, the same distance, the same triangle (or one at the same distance: a tie),
+/// and no traversal past the stack or step bounds.
+fn primary_hits_match(scene_file: &str, size: u32) {
+    let scene = test_scene(scene_file);
+    let bvh = crate::geometry::SceneBvh::build(&scene.meshes);
+    let camera = crate::geometry::PinholeCamera::new(&scene.camera, size, size);
+    let rays: Vec<_> = (0..size * size)
+        .map(|p| camera.ray(p % size, p / size, glam::DVec2::splat(0.5)))
+        .collect();
+    let mut words = Vec::with_capacity(rays.len() * 8);
+    for r in &rays {
+        words.extend(f32s(r.origin));
+        words.extend(f32s(r.dir));
+        // The shader clamps its rays at 3e38 ("infinity"; WGSL may assume no inf).
+        words.extend([0f32.to_bits(), 3.0e38f32.to_bits()]);
+    }
+    let ctx = context();
+    let kernel = Kernel::new(ctx, &test_module(), "trace_rays", &TEST_SLOTS);
+    let geometry = super::geometry::GeometryBuffers::upload(ctx, &bvh, &scene.meshes);
+    let cases = storage(ctx, "rays", bytemuck::cast_slice(&words));
+    let out_size = (rays.len() * 8) as u64;
+    let out = zeroed(ctx, "results", out_size);
+    let data = zeroed(ctx, "data", 16);
+    let counters = zeroed(ctx, "counters", 16);
+    let bind = kernel.bind(
+        ctx,
+        &[
+            &data,
+            &cases,
+            &out,
+            &geometry.nodes,
+            &geometry.tris,
+            &counters,
+        ],
+    );
+    let mut enc = encoder(ctx);
+    kernel.record(&mut enc, &bind, rays.len() as u32);
+    let bytes = submit_and_read(ctx, enc, &[(&out, out_size), (&counters, 16)]);
+    let results: &[[f32; 2]] = bytemuck::cast_slice(&bytes[0]);
+    let overflows: &[u32] = bytemuck::cast_slice(&bytes[1]);
+    assert_eq!(
+        &overflows[..2],
+        &[0, 0],
+        "{scene_file}: stack and step overflows"
+    );
+    let prims: Vec<(u32, u32)> = bvh.primitives().map(|(_, r)| r).collect();
+    let (mut hits, mut ties) = (0, 0);
+    for (i, (r, g)) in rays.iter().zip(results).enumerate() {
+        let cpu = bvh.closest_hit(&scene.meshes, r.origin, r.dir, 0.0, f64::INFINITY);
+        let prim = if g[1] < 0.0 { u32::MAX } else { g[1] as u32 };
+        match cpu {
+            None => assert_eq!(
+                prim,
+                u32::MAX,
+                "{scene_file} pixel {i}: the CPU misses, the GPU hits at {}",
+                g[0]
+            ),
+            Some(h) => {
+                assert_ne!(
+                    prim,
+                    u32::MAX,
+                    "{scene_file} pixel {i}: the GPU misses, the CPU hits {h:?}"
+                );
+                hits += 1;
+                let t = g[0] as f64;
+                assert!(
+                    (t - h.t).abs() <= 1e-6 * h.t,
+                    "{scene_file} pixel {i}: distance {t} on the GPU, {} on the CPU",
+                    h.t
+                );
+                let (m, tri) = prims[prim as usize];
+                if (m as usize, tri as usize) != (h.mesh, h.triangle) {
+                    // A tie: two triangles at the same distance (a shared edge).
+                    assert_eq!(
+                        t as f32, h.t as f32,
+                        "{scene_file} pixel {i}: another triangle, nearer"
+                    );
+                    ties += 1;
+                }
+            }
+        }
+    }
+    eprintln!(
+        "{scene_file}: {hits} of {} rays hit, {ties} ties",
+        rays.len()
+    );
+    assert!(
+        hits > rays.len() / 3,
+        "{scene_file}: the camera sees the scene"
+    );
+    assert!(ties * 100 <= hits, "{scene_file}: {ties} ties of {hits}");
+}
+
+#[test]
+fn primary_hits_equal_the_cpus_on_the_bunny() {
+    primary_hits_match("default.toml", 96);
+}
+
+#[test]
+fn primary_hits_equal_the_cpus_in_the_cornell_box() {
+    primary_hits_match("cornell.toml", 96);
+}
+
+fn rmse(a: &crate::image::Image, b: &crate::image::Image) -> f64 {
+    let n = a.pixels().len() as f64 * 3.0;
+    let sum: f64 = a
+        .pixels()
+        .iter()
+        .zip(b.pixels())
+        .flat_map(|(p, q)| (0..3).map(move |c| (p[c] as f64 - q[c] as f64).powi(2)))
+        .sum();
+    (sum / n).sqrt()
+}
+
+fn mean(a: &crate::image::Image) -> f64 {
+    a.pixels().iter().flatten().map(|&v| v as f64).sum::<f64>() / (a.pixels().len() * 3) as f64
+}
+
+fn gpu_mode(scene: crate::scene::Scene, size: u32) -> super::GpuSpmmMode {
+    super::GpuSpmmMode::prepare(
+        context().clone(),
+        scene,
+        size,
+        size,
+        crate::render::Prepare::quietly(),
+    )
+    .expect("the GPU mode renders the scene")
+}
+
+/// The GPU image after `frames` frames against the CPU's converged one: an error no
+/// larger than the CPU's own after as many frames (independent samples, as the GPU
+/// draws them) times 1.25 plus a floor of 1% of the image's mean, the same mean within
+/// 2%, no non-finite pixel and no traversal past its bounds.
+fn image_agrees_with_the_cpu(scene_file: &str, size: u32, frames: u32) {
+    image_of_scene_agrees_with_the_cpu(scene_file, test_scene(scene_file), size, frames);
+}
+
+fn image_of_scene_agrees_with_the_cpu(
+    scene_file: &str,
+    mut scene: crate::scene::Scene,
+    size: u32,
+    frames: u32,
+) {
+    use crate::render::{RenderMode, run_frames};
+    scene.render.sampler = crate::rng::Sampler::Independent;
+    let mut reference = crate::trace::SpmmMode::new(scene.clone(), size, size).expect("CPU mode");
+    run_frames(&mut reference, 16 * frames, |_, _| {});
+    let reference = reference.image();
+    // Another seed than the reference's, so the two are independent.
+    let mut other = scene.clone();
+    other.render.seed += 1;
+    let mut cpu = crate::trace::SpmmMode::new(other, size, size).expect("CPU mode");
+    run_frames(&mut cpu, frames, |_, _| {});
+    let mut gpu = gpu_mode(scene, size);
+    let run = run_frames(&mut gpu, frames, |_, _| {});
+    let image = gpu.image();
+    assert!(
+        image.pixels().iter().flatten().all(|v| v.is_finite()),
+        "{scene_file}: non-finite pixels"
+    );
+    assert_eq!(run.dropped, 0, "{scene_file}: non-finite samples");
+    assert_eq!(gpu.overflows(), (0, 0), "{scene_file}: traversal overflows");
+    assert!(run.counters.rays.shadow > 0);
+    let (e_gpu, e_cpu) = (rmse(&image, &reference), rmse(&cpu.image(), &reference));
+    let (m_gpu, m_ref) = (mean(&image), mean(&reference));
+    eprintln!(
+        "{scene_file} {size}x{size}, {frames} frames: RMSE gpu {e_gpu:.5}, cpu {e_cpu:.5}; mean gpu {m_gpu:.5}, reference {m_ref:.5}"
+    );
+    assert!(
+        e_gpu <= 1.25 * e_cpu + 0.01 * m_ref,
+        "{scene_file}: GPU RMSE {e_gpu} against the CPU's {e_cpu}"
+    );
+    assert!(
+        (m_gpu - m_ref).abs() <= 0.02 * m_ref,
+        "{scene_file}: mean {m_gpu} against {m_ref}"
+    );
+}
+
+#[test]
+fn the_default_scene_on_the_gpu_agrees_with_the_cpu() {
+    image_agrees_with_the_cpu("default.toml", 40, 16);
+}
+
+#[test]
+fn the_cornell_box_on_the_gpu_agrees_with_the_cpu() {
+    image_agrees_with_the_cpu("cornell.toml", 40, 16);
+}
+
+/// A light-colour edit keeps every sample, as on the CPU: with the light alone
+/// lighting the scene, doubling its radiance doubles the image exactly and the
+/// sample count stays.
+#[test]
+fn a_light_colour_edit_keeps_the_gpus_samples() {
+    use crate::render::{Invalidation, RenderMode, SceneEdit, run_frames};
+    let mut scene = test_scene("cornell.toml");
+    scene.ambient = None;
+    scene.background = crate::scene::Background::Color(DVec3::ZERO);
+    let mut gpu = gpu_mode(scene.clone(), 24);
+    run_frames(&mut gpu, 3, |_, _| {});
+    let before = gpu.image();
+    let samples = gpu.progress().min_samples;
+    let light = scene.lights[0].with_emission(scene.lights[0].emission() * 2.0);
+    assert_eq!(
+        gpu.apply(SceneEdit::Light { index: 0, light })
+            .expect("edit"),
+        Invalidation::Nothing
+    );
+    assert_eq!(gpu.progress().min_samples, samples);
+    let after = gpu.image();
+    assert!(mean(&before) > 0.0);
+    for (a, b) in after.pixels().iter().zip(before.pixels()) {
+        for c in 0..3 {
+            assert!(
+                (a[c] - 2.0 * b[c]).abs() <= 1e-6 * b[c].abs().max(1e-6),
+                "{a:?} {b:?}"
+            );
+        }
+    }
+    // Moving the light restarts its layer only: the samples of the frame after it.
+    let mut moved = light;
+    if let crate::scene::Light::Area { corner, .. } = &mut moved {
+        corner.y -= 0.1;
+    }
+    assert_eq!(
+        gpu.apply(SceneEdit::Light {
+            index: 0,
+            light: moved
+        })
+        .expect("edit"),
+        Invalidation::Layer(crate::render::layers::FIRST_LIGHT)
+    );
+    run_frames(&mut gpu, 1, |_, _| {});
+    assert_eq!(gpu.progress().min_samples, 1);
+}
+
+/// The mode refuses by name what it does not render yet, and an edit that brings it.
+#[test]
+fn unsupported_parts_are_named() {
+    use crate::render::{RenderMode, SceneEdit, Unrenderable};
+    let env = test_scene("env.toml");
+    let err = super::GpuSpmmMode::supports(&env).expect_err("environment");
+    assert!(err.parts.contains(&Unrenderable::Environment), "{err}");
+    let mut gpu = gpu_mode(test_scene("cornell.toml"), 8);
+    let gold = crate::scene::Material::Merl {
+        brdf: std::sync::Arc::new(
+            crate::merl::tabulate(
+                &AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
+                DVec3::ONE,
+            )
+            .expect("tabulates"),
+        ),
+        tint: DVec3::ONE,
+    };
+    let err = gpu
+        .apply(SceneEdit::Material {
+            index: 0,
+            material: gold,
+        })
+        .expect_err("MERL refused");
+    assert!(err.to_string().contains("(merl)"), "{err}");
+}
+
+/// The code-built edit scene: an SPMM panel with a PCA residual under an area and a
+/// point light with AO; while moving, the pixels that shaded the residual restart
+/// and render without it, as on the CPU.
+#[test]
+fn the_residual_panel_and_the_moving_flag_agree_with_the_cpu() {
+    use crate::render::{Invalidation, RenderMode, SceneEdit, run_frames};
+    let scene = crate::scene::test_scenes::edit_test_scene();
+    image_of_scene_agrees_with_the_cpu("edit_test_scene", scene.clone(), 24, 16);
+    let mut gpu = gpu_mode(scene, 24);
+    run_frames(&mut gpu, 2, |_, _| {});
+    let still = gpu.image();
+    let Invalidation::Pixels(n) = gpu.apply(SceneEdit::Moving(true)).expect("edit") else {
+        panic!("moving restarts pixels")
+    };
+    assert!(n > 0 && n < 24 * 24, "{n} pixels shaded the residual");
+    run_frames(&mut gpu, 2, |_, _| {});
+    let moving = gpu.image();
+    assert_ne!(rmse(&still, &moving), 0.0, "the residual changes the image");
+    assert_eq!(
+        gpu.apply(SceneEdit::Moving(true)).expect("edit"),
+        Invalidation::Nothing
+    );
+}
+
+/// Large images dispatch in rows of workgroups: every pixel gets one invocation.
+#[test]
+fn dispatch_grids_cover_every_pixel_within_the_limit() {
+    use super::kernel::{MAX_GROUPS_X, WORKGROUP, groups};
+    for pixels in [1, 64, 65, 2048 * 2048, 4096 * 4096, 16384 * 16384] {
+        let (x, y) = groups(pixels);
+        assert!(
+            (1..=MAX_GROUPS_X).contains(&x) && y >= 1,
+            "{pixels}: {x} x {y}"
+        );
+        let threads = u64::from(x) * u64::from(y) * u64::from(WORKGROUP);
+        assert!(threads >= u64::from(pixels), "{pixels}: {threads}");
+        // At most one partial row of workgroups beyond the pixels.
+        assert!(threads - u64::from(pixels) < u64::from(x) * u64::from(WORKGROUP) + 64);
+    }
+}

@@ -1,0 +1,93 @@
+// Light sampling of the spmm mode (Silva & Santos 2013 eq. 4-7), as
+// core/src/trace/lights.rs does it on the exact per-light path (up to 16 lights):
+// each point light one shadow ray, each area light one shadow ray to a point drawn
+// uniformly on it (A L_e f cos_i cos_l / r^2, one-sided), and one ambient-occlusion
+// ray limited to the ambient radius. Each adds to its own film layer for unit emission.
+
+const LIGHT_WORDS: u32 = 12u;
+const LIGHT_POINT: u32 = 0u;
+
+// Light record in `data` (12 words): kind, position or corner, edge_u, edge_v, pad x2.
+fn light_vec(at: u32) -> vec3<f32> {
+    return vec3<f32>(f32_at(at), f32_at(at + 1u), f32_at(at + 2u));
+}
+
+fn sample_lights(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f32>, pixel: u32, rng: ptr<function, Rng>) {
+    let count = min(params.lights, 16u);
+    for (var k = 0u; k < count; k++) {
+        let u = rand2(rng);
+        let at = params.light_table + k * LIGHT_WORDS;
+        let kind = data[at];
+        var q = light_vec(at + 1u);
+        var falloff = 0.0;
+        var to = q - s.p;
+        if kind == LIGHT_POINT {
+            let d2 = dot(to, to);
+            falloff = 1.0 / d2;
+        } else {
+            let edge_u = light_vec(at + 4u);
+            let edge_v = light_vec(at + 7u);
+            q = q + edge_u * u.x + edge_v * u.y;
+            to = q - s.p;
+            let d2 = dot(to, to);
+            let c = cross(edge_u, edge_v);
+            let area = length(c);
+            let cos_l = -dot(to / sqrt(d2), c / area);
+            if cos_l <= 0.0 {
+                continue;
+            }
+            falloff = cos_l * area / d2;
+        }
+        let wi = normalize(to);
+        let cos_i = dot(wi, s.n);
+        if !(cos_i > 0.0) {
+            continue;
+        }
+        counts.shadow += 1u;
+        if !occluded(lift, wi, length(q - lift) * (1.0 - 1e-6)) {
+            add_layer(pixel, LAYER_FIRST_LIGHT + k, throughput * response(s, wi, wo) * falloff);
+        }
+    }
+}
+
+// The SPMM's defensive half-cosine, half-uniform mixture, or the cosine hemisphere
+// (core/src/trace/shading.rs, `hemisphere_sample`): the local direction and 1 / pdf.
+fn hemisphere_sample(spmm: bool, u: vec2<f32>) -> vec4<f32> {
+    if spmm {
+        var local: vec3<f32>;
+        if u.x < 0.5 {
+            local = cosine_hemisphere(vec2<f32>(2.0 * u.x, u.y));
+        } else {
+            let z = 1.0 - u.y;
+            let r = sqrt(max(1.0 - z * z, 0.0));
+            let phi = 2.0 * PI * (2.0 * u.x - 1.0);
+            local = vec3<f32>(r * cos(phi), r * sin(phi), z);
+        }
+        let pdf = select(0.0, 0.5 * local.z / PI + 0.25 / PI, local.z > 0.0);
+        return vec4<f32>(local, 1.0 / pdf);
+    }
+    let local = cosine_hemisphere(u);
+    return vec4<f32>(local, PI / local.z);
+}
+
+fn cosine_hemisphere(u: vec2<f32>) -> vec3<f32> {
+    let r = sqrt(u.x);
+    let phi = 2.0 * PI * u.y;
+    return vec3<f32>(r * cos(phi), r * sin(phi), sqrt(max(1.0 - u.x, 0.0)));
+}
+
+fn sample_ambient(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f32>, pixel: u32, rng: ptr<function, Rng>) {
+    let u = rand2(rng);
+    if params.ambient_radius < 0.0 {
+        return;
+    }
+    let sample = hemisphere_sample(material_kind(s.material) == MATERIAL_SPMM, u);
+    if sample.z <= 0.0 {
+        return;
+    }
+    let wi = s.t * sample.x + s.b * sample.y + s.n * sample.z;
+    counts.ambient += 1u;
+    if !occluded(lift, wi, params.ambient_radius) {
+        add_layer(pixel, LAYER_AMBIENT, throughput * response(s, wi, wo) * sample.w);
+    }
+}

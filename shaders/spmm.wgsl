@@ -1,0 +1,162 @@
+// SPMM evaluation (Silva & Santos 2013 eq. 1-3) in f32, mirroring
+// core/src/spmm/prepared.rs: the sparse basis sum of a texel plus its cluster's PCA
+// residual, interpolated over the tabulated light and view directions
+// (core/src/spmm/directions.rs: a 16 x 16 grid of triangle lists over the projected
+// directions, barycentric weights, the nearest hull edge outside the hull).
+// Every loop is bounded by a count read from the data (llvmpipe ends loops silently).
+
+// Header of one prepared SPMM material in `data` (word offsets are absolute).
+const SPMM_WIDTH: u32 = 0u;
+const SPMM_HEIGHT: u32 = 1u;
+const SPMM_TEXEL_CLUSTER: u32 = 2u;
+const SPMM_OFFSETS: u32 = 3u;
+const SPMM_BASIS: u32 = 4u;
+const SPMM_RGB: u32 = 5u;
+const SPMM_CLUSTER_BASES: u32 = 6u;
+const SPMM_HAS_RESIDUAL: u32 = 7u;
+const SPMM_K: u32 = 8u;
+const SPMM_CLUSTER_CELLS: u32 = 9u;
+const SPMM_COEFFICIENTS: u32 = 10u;
+const SPMM_LIGHT_TABLE: u32 = 11u;
+const SPMM_VIEW_TABLE: u32 = 12u;
+const SPMM_UV_SCALE_X: u32 = 13u;
+const SPMM_UV_SCALE_Y: u32 = 14u;
+const SPMM_HEADER_WORDS: u32 = 16u;
+
+const NO_CLUSTER: u32 = 0xffffffffu;
+const DIRECTION_GRID: u32 = 16u;
+
+fn f32_at(i: u32) -> f32 {
+    return bitcast<f32>(data[i]);
+}
+
+fn rgb_at(i: u32) -> vec3<f32> {
+    return vec3<f32>(f32_at(i), f32_at(i + 1u), f32_at(i + 2u));
+}
+
+struct DirectionWeights {
+    index: vec3<u32>,
+    weight: vec3<f32>,
+}
+
+fn grid_cell(v: f32) -> u32 {
+    return u32(clamp(i32((v + 1.0) * 0.5 * f32(DIRECTION_GRID)), 0, i32(DIRECTION_GRID) - 1));
+}
+
+fn cross2(a: vec2<f32>, b: vec2<f32>) -> f32 {
+    return a.x * b.y - a.y * b.x;
+}
+
+// Table record: [points, points_at, triangles_at, cell_starts_at (257 words),
+// cell_triangles_at, hull_len, hull_at].
+fn direction_weights(table: u32, d: vec3<f32>) -> DirectionWeights {
+    let points = data[table + 1u];
+    let tris = data[table + 2u];
+    let starts = data[table + 3u];
+    let cell_tris = data[table + 4u];
+    let p = d.xy;
+    let cell = grid_cell(p.y) * DIRECTION_GRID + grid_cell(p.x);
+    let first = data[starts + cell];
+    let last = min(data[starts + cell + 1u], first + 4096u);
+    for (var i = first; i < last; i++) {
+        let ti = data[cell_tris + i];
+        let a = data[tris + 3u * ti];
+        let b = data[tris + 3u * ti + 1u];
+        let c = data[tris + 3u * ti + 2u];
+        let pa = vec2<f32>(f32_at(points + 2u * a), f32_at(points + 2u * a + 1u));
+        let pb = vec2<f32>(f32_at(points + 2u * b), f32_at(points + 2u * b + 1u));
+        let pc = vec2<f32>(f32_at(points + 2u * c), f32_at(points + 2u * c + 1u));
+        let area = cross2(pb - pa, pc - pa);
+        let wa = cross2(pb - p, pc - p) / area;
+        let wb = cross2(pc - p, pa - p) / area;
+        let wc = 1.0 - wa - wb;
+        // f32 barycentrics of a point on a shared edge can miss both triangles by an
+        // ulp; the interpolant is continuous there, so a small tolerance is exact enough.
+        let eps = -1e-5;
+        if wa >= eps && wb >= eps && wc >= eps {
+            let w = max(vec3<f32>(wa, wb, wc), vec3<f32>(0.0));
+            return DirectionWeights(vec3<u32>(a, b, c), w / (w.x + w.y + w.z));
+        }
+    }
+    // Outside the hull: the nearest point on its boundary.
+    let hull_len = min(data[table + 5u], 4096u);
+    let hull = data[table + 6u];
+    var best = 3.4e38;
+    var result = DirectionWeights(vec3<u32>(0u), vec3<f32>(1.0, 0.0, 0.0));
+    for (var i = 0u; i < hull_len; i++) {
+        let a = data[hull + i];
+        let b = data[hull + (i + 1u) % hull_len];
+        let pa = vec2<f32>(f32_at(points + 2u * a), f32_at(points + 2u * a + 1u));
+        let pb = vec2<f32>(f32_at(points + 2u * b), f32_at(points + 2u * b + 1u));
+        let ab = pb - pa;
+        let s = clamp(dot(p - pa, ab) / dot(ab, ab), 0.0, 1.0);
+        let q = p - (pa + ab * s);
+        let dist = dot(q, q);
+        if dist < best {
+            best = dist;
+            result = DirectionWeights(vec3<u32>(a, b, b), vec3<f32>(1.0 - s, s, 0.0));
+        }
+    }
+    return result;
+}
+
+// BTF(t, wi, wo), RGB, of texel `t` of the material whose header is at `m`;
+// `residual` false skips the residual (the moving camera).
+fn spmm_eval_texel(m: u32, t: u32, wi: vec3<f32>, wo: vec3<f32>, residual: bool) -> vec3<f32> {
+    if wi.z <= 0.0 || wo.z <= 0.0 {
+        return vec3<f32>(0.0);
+    }
+    let c = data[data[m + SPMM_TEXEL_CLUSTER] + t];
+    let bases = data[data[m + SPMM_CLUSTER_BASES] + c];
+    let offsets = data[m + SPMM_OFFSETS];
+    let first = data[offsets + t];
+    let last = min(data[offsets + t + 1u], first + 1024u);
+    var rgb = vec3<f32>(0.0);
+    for (var i = first; i < last; i++) {
+        let j = data[data[m + SPMM_BASIS] + i];
+        let w = rgb_at(data[m + SPMM_RGB] + 3u * i);
+        rgb += w * basis_eval(bases + j * BASIS_WORDS, wi, wo);
+    }
+    if !residual || data[m + SPMM_HAS_RESIDUAL] == 0u {
+        return rgb;
+    }
+    let base = data[data[m + SPMM_CLUSTER_CELLS] + c];
+    if base == NO_CLUSTER {
+        return rgb;
+    }
+    let k = min(data[m + SPMM_K], 256u);
+    let stride = (1u + k) * 3u;
+    let views = data[m + SPMM_VIEW_TABLE];
+    let nv = data[views];
+    let coef = data[m + SPMM_COEFFICIENTS] + t * k;
+    let lw = direction_weights(data[m + SPMM_LIGHT_TABLE], wi);
+    let vw = direction_weights(views, wo);
+    for (var a = 0u; a < 3u; a++) {
+        for (var b = 0u; b < 3u; b++) {
+            let w = lw.weight[a] * vw.weight[b];
+            if w == 0.0 {
+                continue;
+            }
+            let cell = base + (lw.index[a] * nv + vw.index[b]) * stride;
+            var e = rgb_at(cell);
+            for (var kk = 0u; kk < k; kk++) {
+                e += f32_at(coef + kk) * rgb_at(cell + 3u + 3u * kk);
+            }
+            rgb += w * e;
+        }
+    }
+    return rgb;
+}
+
+// The row-major texel a UV position falls in (nearest, tiled by the material's scale).
+fn spmm_texel_at(m: u32, uv: vec2<f32>) -> u32 {
+    let w = data[m + SPMM_WIDTH];
+    let h = data[m + SPMM_HEIGHT];
+    let su = uv.x * f32_at(m + SPMM_UV_SCALE_X);
+    let sv = uv.y * f32_at(m + SPMM_UV_SCALE_Y);
+    let u = su - floor(su);
+    let v = sv - floor(sv);
+    let x = u32(clamp(i32(floor(u * f32(w))), 0, i32(w) - 1));
+    let y = u32(clamp(i32(floor((1.0 - v) * f32(h))), 0, i32(h) - 1));
+    return y * w + x;
+}

@@ -1,0 +1,56 @@
+// Test kernels (core's gpu tests only): BRDF, basis-function and SPMM-texel
+// evaluations, and closest hits of given rays, read back and compared with the CPU.
+
+@group(0) @binding(0) var<storage, read> data: array<u32>;
+// eval_cases: per case 8 words: kind (0 BRDF, 1 basis, 2 SPMM texel), record offset,
+// wi, wo (f32 bits); SPMM cases: texel in word 8, residual flag in word 9 (10 words).
+// trace_rays: per ray 8 words: origin, direction (f32 bits), tmin, tmax.
+@group(0) @binding(1) var<storage, read> cases: array<u32>;
+@group(0) @binding(2) var<storage, read_write> results: array<f32>;
+@group(0) @binding(3) var<storage, read> nodes: array<u32>;
+@group(0) @binding(4) var<storage, read> tris: array<u32>;
+@group(0) @binding(5) var<storage, read_write> counters: array<atomic<u32>>;
+
+const CASE_WORDS: u32 = 10u;
+
+fn case_vec(at: u32) -> vec3<f32> {
+    return vec3<f32>(bitcast<f32>(cases[at]), bitcast<f32>(cases[at + 1u]), bitcast<f32>(cases[at + 2u]));
+}
+
+@compute @workgroup_size(64)
+fn eval_cases(@builtin(global_invocation_id) id: vec3<u32>) {
+    let n = arrayLength(&cases) / CASE_WORDS;
+    if id.x >= n {
+        return;
+    }
+    let at = id.x * CASE_WORDS;
+    let kind = cases[at];
+    let record = cases[at + 1u];
+    let wi = case_vec(at + 2u);
+    let wo = case_vec(at + 5u);
+    var v = vec3<f32>(0.0);
+    if kind == 0u {
+        v = vec3<f32>(brdf_eval(load_brdf(record), wi, wo));
+    } else if kind == 1u {
+        v = vec3<f32>(basis_eval(record, wi, wo));
+    } else {
+        v = spmm_eval_texel(record, cases[at + 8u], wi, wo, cases[at + 9u] != 0u);
+    }
+    results[3u * id.x] = v.x;
+    results[3u * id.x + 1u] = v.y;
+    results[3u * id.x + 2u] = v.z;
+}
+
+@compute @workgroup_size(64)
+fn trace_rays(@builtin(global_invocation_id) id: vec3<u32>) {
+    let n = arrayLength(&cases) / 8u;
+    if id.x >= n {
+        return;
+    }
+    let at = id.x * 8u;
+    let ray = make_ray(case_vec(at), case_vec(at + 3u), bitcast<f32>(cases[at + 6u]), bitcast<f32>(cases[at + 7u]));
+    let hit = traverse(ray, false);
+    results[2u * id.x] = hit.t;
+    // As a float (exact below 2^24): a bit pattern of NaN may not survive a store.
+    results[2u * id.x + 1u] = select(f32(hit.prim), -1.0, hit.prim == NO_HIT);
+}

@@ -2204,6 +2204,38 @@ fn a_shipped_pack_over_the_lobe_bound_validates_with_a_warning_and_fails_strict(
     // the tabulated directions: consistent, so valid, but said; --strict refuses it.
     let pack = concat!(env!("CARGO_MANIFEST_DIR"), "/../materials/woven_cloth.spmm");
     let o = meso(&["pack", "validate", pack, "--json"], "");
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("one JSON object");
+    let warnings = v["warnings"].as_array().expect("warnings");
+    assert_eq!(warnings.len(), 1);
+    assert!(
+        warnings[0]
+            .as_str()
+            .is_some_and(|w| w.contains("cluster 0 basis 11 (ward)")),
+        "{warnings:?}"
+    );
+    assert!(String::from_utf8_lossy(&o.stderr).starts_with("warning: "));
+    let o = meso(&["pack", "validate", pack, "--strict"], "");
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("cluster 0 basis 11 (ward)") && err.lines().count() == 1,
+        "{err}"
+    );
+    let corduroy = concat!(env!("CARGO_MANIFEST_DIR"), "/../materials/corduroy.spmm");
+    let o = meso(&["pack", "validate", corduroy, "--strict", "--json"], "");
+    assert_eq!(o.status.code(), Some(0));
+    assert_eq!(
+        serde_json::from_str::<serde_json::Value>(&stdout(&o)).expect("JSON")["warnings"],
+        serde_json::json!([])
+    );
+}
+
 /// `meso render` with `env` added to its environment.
 fn meso_with_env(args: &[&str], env: &[(&str, &str)]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_meso"))
@@ -2278,29 +2310,6 @@ fn bench_frames_measures_both_devices_side_by_side() {
         "{}",
         String::from_utf8_lossy(&o.stderr)
     );
-    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("one JSON object");
-    let warnings = v["warnings"].as_array().expect("warnings");
-    assert_eq!(warnings.len(), 1);
-    assert!(
-        warnings[0]
-            .as_str()
-            .is_some_and(|w| w.contains("cluster 0 basis 11 (ward)")),
-        "{warnings:?}"
-    );
-    assert!(String::from_utf8_lossy(&o.stderr).starts_with("warning: "));
-    let o = meso(&["pack", "validate", pack, "--strict"], "");
-    assert_eq!(o.status.code(), Some(2));
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        err.contains("cluster 0 basis 11 (ward)") && err.lines().count() == 1,
-        "{err}"
-    );
-    let corduroy = concat!(env!("CARGO_MANIFEST_DIR"), "/../materials/corduroy.spmm");
-    let o = meso(&["pack", "validate", corduroy, "--strict", "--json"], "");
-    assert_eq!(o.status.code(), Some(0));
-    assert_eq!(
-        serde_json::from_str::<serde_json::Value>(&stdout(&o)).expect("JSON")["warnings"],
-        serde_json::json!([])
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
     let runs = v["runs"].as_array().expect("runs");
     // As it is and with AO off (the brushed metal has no residual), on both devices.

@@ -1,8 +1,10 @@
-//! The editor's responsiveness (issue 7's measure), side by side in one process:
-//! - edit to first updated frame at a 256x256 preview: a material edit (a basis normal
-//!   tilted, which re-prepares the pack and restarts the pixels that show it) and a
-//!   light-colour edit (which keeps every sample), from sending the versioned edit to
-//!   the render thread until a frame of that version is published;
+//! The editor's responsiveness (issues 7 and 16), side by side in one process:
+//! - edit to first updated frame at 256, 512 and 1024 pixels square: a material edit
+//!   (a basis normal tilted, which re-prepares the pack and restarts the pixels that
+//!   show it), a light-colour edit (which keeps every sample) and a camera edit (which
+//!   restarts every pixel), from sending the versioned edit to the render thread until
+//!   a frame of that version is published; each with the frame in flight yielding to
+//!   the edit between tiles and without (the edit waits for the whole frame);
 //! - the studio's UI frame (all panels, headless egui) while the renderer works.
 
 use std::sync::Arc;
@@ -16,16 +18,20 @@ use meso_core::scene::{Material, load_scene};
 use meso_studio::render_worker::{Command, RenderWorker};
 use meso_studio::studio::{Settings, Studio, default_scene_path};
 
-fn wait_for(worker: &RenderWorker, version: u64) {
+/// Waits for a frame of `version` or newer and returns its render time (ms).
+fn wait_for(worker: &RenderWorker, version: u64) -> f64 {
     let deadline = Instant::now() + Duration::from_secs(30);
     loop {
-        if worker.take_frame().is_some_and(|f| f.version >= version) {
-            return;
+        if let Some(f) = worker.take_frame().filter(|f| f.version >= version) {
+            return f.frame_ms;
         }
         assert!(Instant::now() < deadline, "no frame of version {version}");
         std::thread::sleep(Duration::from_micros(200));
     }
 }
+
+/// The edits timed: each returns the edit for an iteration number.
+type EditFor<'a> = Box<dyn Fn(u64) -> SceneEdit + 'a>;
 
 fn bench_latency(c: &mut Criterion) {
     let scene = load_scene(&default_scene_path()).expect("default scene");
@@ -59,61 +65,89 @@ fn bench_latency(c: &mut Criterion) {
     })
     .collect();
     let light = scene.lights[0];
+    let camera = scene.camera;
+    let edits: Vec<(&str, EditFor)> = vec![
+        (
+            "material edit (basis normal)",
+            Box::new(|v| SceneEdit::Material {
+                index,
+                material: variants[(v % 2) as usize].clone(),
+            }),
+        ),
+        (
+            "light colour edit (samples kept)",
+            Box::new(|v| SceneEdit::Light {
+                index: 0,
+                light: light.with_emission(light.emission() * if v % 2 == 0 { 1.0 } else { 0.8 }),
+            }),
+        ),
+        (
+            "camera edit (every pixel restarts)",
+            Box::new(|v| {
+                let mut moved = camera;
+                moved.position.x += if v % 2 == 0 { 0.0 } else { 0.05 };
+                SceneEdit::Camera(moved)
+            }),
+        ),
+    ];
 
-    let worker = RenderWorker::spawn(None);
-    worker.send(Command::Load {
-        version: 1,
-        scene: Box::new(scene.clone()),
-        mode: ModeKind::Spmm,
-        device: meso_core::render::Device::Cpu,
-        width: 256,
-        height: 256,
-    });
-    wait_for(&worker, 1);
-    let mut version = 1u64;
-    let mut group = c.benchmark_group("edit to first frame 256x256");
-    group.sample_size(30);
-    group.bench_function("material edit (basis normal)", |b| {
-        b.iter_custom(|iters| {
-            let mut total = Duration::ZERO;
-            for _ in 0..iters {
-                version += 1;
-                let start = Instant::now();
-                worker.send(Command::Edit {
-                    version,
-                    edit: Box::new(SceneEdit::Material {
-                        index,
-                        material: variants[(version % 2) as usize].clone(),
-                    }),
+    // Each size, each edit, with the frame in flight yielding to the edit (tiles) and
+    // without (the edit waits for the whole frame), alternated in one process. An edit
+    // is sent at a pseudo-random point of a frame: after a pause of a random fraction of
+    // the last frame's time, as a user's edit falls anywhere in the frame in flight.
+    for size in [256u32, 512, 1024] {
+        let worker = RenderWorker::spawn(None);
+        worker.send(Command::Load {
+            version: 1,
+            scene: Box::new(scene.clone()),
+            mode: ModeKind::Spmm,
+            device: meso_core::render::Device::Cpu,
+            width: size,
+            height: size,
+        });
+        let mut frame_ms = wait_for(&worker, 1);
+        let mut version = 1u64;
+        let mut phase = 0x9e37_79b9_7f4a_7c15u64;
+        let mut group = c.benchmark_group(format!("edit to first frame {size}x{size}"));
+        group.sample_size(10);
+        for (name, edit) in &edits {
+            for yielding in [true, false] {
+                worker.send(Command::YieldToEdits(yielding));
+                let label = if yielding {
+                    "tiles yield"
+                } else {
+                    "whole frames"
+                };
+                group.bench_function(format!("{name}, {label}"), |b| {
+                    b.iter_custom(|iters| {
+                        let mut total = Duration::ZERO;
+                        for _ in 0..iters {
+                            phase = phase
+                                .wrapping_mul(6_364_136_223_846_793_005)
+                                .wrapping_add(1);
+                            let fraction = (phase >> 11) as f64 / (1u64 << 53) as f64;
+                            std::thread::sleep(Duration::from_secs_f64(
+                                fraction * frame_ms.max(1.0) * 1e-3,
+                            ));
+                            version += 1;
+                            let start = Instant::now();
+                            worker.send(Command::Edit {
+                                version,
+                                edit: Box::new(edit(version)),
+                            });
+                            let ms = wait_for(&worker, version);
+                            total += start.elapsed();
+                            if ms > 0.0 {
+                                frame_ms = ms;
+                            }
+                        }
+                        total
+                    })
                 });
-                wait_for(&worker, version);
-                total += start.elapsed();
             }
-            total
-        })
-    });
-    group.bench_function("light colour edit (samples kept)", |b| {
-        b.iter_custom(|iters| {
-            let mut total = Duration::ZERO;
-            for _ in 0..iters {
-                version += 1;
-                let e = if version.is_multiple_of(2) { 1.0 } else { 0.8 };
-                let start = Instant::now();
-                worker.send(Command::Edit {
-                    version,
-                    edit: Box::new(SceneEdit::Light {
-                        index: 0,
-                        light: light.with_emission(light.emission() * e),
-                    }),
-                });
-                wait_for(&worker, version);
-                total += start.elapsed();
-            }
-            total
-        })
-    });
-    group.finish();
-    drop(worker);
+        }
+        group.finish();
+    }
 
     // The whole window, headless, while its render thread renders the default scene.
     let ctx = egui::Context::default();

@@ -48,6 +48,9 @@ pub enum Command {
     /// Show the first frames through the viewport denoiser (fading out by
     /// `denoise::FADE_SAMPLES`); the estimate itself is never filtered.
     Denoise(bool),
+    /// Let a command stop the frame in flight between tiles (on by default); off, a
+    /// command waits for the whole frame (the behaviour the latency bench compares).
+    YieldToEdits(bool),
 }
 
 /// A finished frame.
@@ -178,24 +181,73 @@ fn shown(
         )
 }
 
+/// The frame to publish of `m`'s film now, after a call that did `stats`.
+fn frame_of(
+    m: &dyn RenderMode,
+    stats: meso_core::render::FrameStats,
+    version: u64,
+    denoise: bool,
+    guides: &mut Option<Option<Guides>>,
+) -> Frame {
+    let image = Arc::new(m.image());
+    let progress = m.progress();
+    // A frame that traced only the pixels an edit restarted (a brush stroke step)
+    // is shown as it is: denoising the whole image would cost far more than it.
+    let pixels = u64::from(progress.width) * u64::from(progress.height);
+    let partial = stats.counters.samples > 0 && stats.counters.samples * 2 <= pixels;
+    Frame {
+        version,
+        mode: m.kind(),
+        device: m.device(),
+        shown: if denoise && !partial {
+            shown(m, &image, progress.min_samples, guides)
+        } else {
+            Arc::clone(&image)
+        },
+        image,
+        progress,
+        overlays: m
+            .debug_overlays()
+            .into_iter()
+            .map(|(name, img)| (name, Arc::new(img)))
+            .collect(),
+        frame_ms: stats.seconds * 1e3,
+        rays_per_second: stats.counters.rays.total() as f64 / stats.seconds.max(1e-9),
+        finished: Instant::now(),
+        summary: m.summary(),
+        material_bytes: m.material_bytes(),
+    }
+}
+
 fn run(
     rx: Receiver<Command>,
     shared: Arc<Mutex<Shared>>,
     repaint: Option<egui::Context>,
     maker: &dyn ModeMaker,
 ) {
+    let publish = |frame: Frame| {
+        if let Ok(mut s) = shared.lock() {
+            s.frame = Some(frame);
+        }
+        if let Some(ctx) = &repaint {
+            ctx.request_repaint();
+        }
+    };
     let mut mode: Option<Box<dyn RenderMode>> = None;
     let mut version = 0;
     let mut max_samples = 4096u32;
     let mut denoise = true;
+    let mut yield_to_edits = true;
     let mut guides: Option<Option<Guides>> = None;
+    // Commands that arrived during a frame and stopped it: applied first next time.
+    let mut early: Vec<Command> = Vec::new();
     loop {
         let idle = mode
             .as_ref()
             .is_none_or(|m| m.progress().min_samples >= max_samples);
         // Idle: wait for work (waking now and then to notice a closed channel).
-        let mut pending = Vec::new();
-        if idle {
+        let mut pending = std::mem::take(&mut early);
+        if idle && pending.is_empty() {
             match rx.recv_timeout(Duration::from_millis(200)) {
                 Ok(c) => pending.push(c),
                 Err(RecvTimeoutError::Timeout) => continue,
@@ -213,8 +265,11 @@ fn run(
         // the film is already converged (an emission edit re-weights it).
         let mut changed = false;
         for command in pending {
-            changed |= !matches!(command, Command::MaxSamples(_));
-            if !matches!(command, Command::MaxSamples(_) | Command::Denoise(_)) {
+            changed |= !matches!(command, Command::MaxSamples(_) | Command::YieldToEdits(_));
+            if !matches!(
+                command,
+                Command::MaxSamples(_) | Command::Denoise(_) | Command::YieldToEdits(_)
+            ) {
                 guides = None;
             }
             let result = match command {
@@ -259,6 +314,10 @@ fn run(
                     denoise = on;
                     Ok(())
                 }
+                Command::YieldToEdits(on) => {
+                    yield_to_edits = on;
+                    Ok(())
+                }
             };
             if let Err((version, message)) = result
                 && let Ok(mut s) = shared.lock()
@@ -271,44 +330,46 @@ fn run(
         if converged && !changed {
             continue;
         }
-        let stats = if converged {
-            Default::default()
+        if converged {
+            publish(frame_of(
+                m.as_ref(),
+                Default::default(),
+                version,
+                denoise,
+                &mut guides,
+            ));
+            continue;
+        }
+        // Every pixel keeps a sample (an emission edit re-weights, a stopped frame
+        // left its rows): show the edit now, then go on with the frame.
+        let shows_whole = m.progress().min_samples > 0;
+        if changed && shows_whole && yield_to_edits {
+            publish(frame_of(
+                m.as_ref(),
+                Default::default(),
+                version,
+                denoise,
+                &mut guides,
+            ));
+        }
+        let stats = if shows_whole && yield_to_edits {
+            // A command stops the frame between tiles; it is applied at once and the
+            // frame resumes after it. A film with unsampled pixels renders its frame
+            // whole, so a stream of edits (a camera drag) still shows frames.
+            m.render_frame_yielding(&mut || match rx.try_recv() {
+                Ok(c) => {
+                    early.push(c);
+                    true
+                }
+                Err(mpsc::TryRecvError::Empty) => false,
+                Err(mpsc::TryRecvError::Disconnected) => true,
+            })
         } else {
             m.render_frame()
         };
-        let image = Arc::new(m.image());
-        let progress = m.progress();
-        // A frame that traced only the pixels an edit restarted (a brush stroke step)
-        // is shown as it is: denoising the whole image would cost far more than it.
-        let pixels = u64::from(progress.width) * u64::from(progress.height);
-        let partial = stats.counters.samples > 0 && stats.counters.samples * 2 <= pixels;
-        let frame = Frame {
-            version,
-            mode: m.kind(),
-            device: m.device(),
-            shown: if denoise && !partial {
-                shown(m.as_ref(), &image, progress.min_samples, &mut guides)
-            } else {
-                Arc::clone(&image)
-            },
-            image,
-            progress,
-            overlays: m
-                .debug_overlays()
-                .into_iter()
-                .map(|(name, img)| (name, Arc::new(img)))
-                .collect(),
-            frame_ms: stats.seconds * 1e3,
-            rays_per_second: stats.counters.rays.total() as f64 / stats.seconds.max(1e-9),
-            finished: Instant::now(),
-            summary: m.summary(),
-            material_bytes: m.material_bytes(),
-        };
-        if let Ok(mut s) = shared.lock() {
-            s.frame = Some(frame);
+        if !early.is_empty() {
+            continue;
         }
-        if let Some(ctx) = &repaint {
-            ctx.request_repaint();
-        }
+        publish(frame_of(m.as_ref(), stats, version, denoise, &mut guides));
     }
 }

@@ -205,21 +205,32 @@ impl Film {
         R: Send,
         F: Fn(&mut FilmRow<'_>) -> R + Sync + Send,
     {
+        self.par_rows_in(0..self.height, f)
+    }
+
+    /// `par_rows` over the rows `rows` only (a tile of a frame that yields between
+    /// tiles); rows past the film's height are ignored.
+    pub fn par_rows_in<R, F>(&mut self, rows: std::ops::Range<u32>, f: F) -> Vec<R>
+    where
+        R: Send,
+        F: Fn(&mut FilmRow<'_>) -> R + Sync + Send,
+    {
         let w = self.width as usize;
         let l = self.layers;
-        if w == 0 || l == 0 {
+        let end = rows.end.min(self.height) as usize;
+        let start = (rows.start as usize).min(end);
+        if w == 0 || l == 0 || start == end {
             return Vec::new();
         }
-        let rows: Vec<(R, u64)> = self
-            .sum
+        let rows: Vec<(R, u64)> = self.sum[start * w * l..end * w * l]
             .par_chunks_mut(w * l)
-            .zip(self.count.par_chunks_mut(w * l))
-            .zip(self.touched.par_chunks_mut(w))
-            .zip(self.reached.par_chunks_mut(w))
+            .zip(self.count[start * w * l..end * w * l].par_chunks_mut(w * l))
+            .zip(self.touched[start * w..end * w].par_chunks_mut(w))
+            .zip(self.reached[start * w..end * w].par_chunks_mut(w))
             .enumerate()
-            .map(|(y, (((sum, count), touched), reached))| {
+            .map(|(i, (((sum, count), touched), reached))| {
                 let mut row = FilmRow {
-                    y: y as u32,
+                    y: (start + i) as u32,
                     layers: l,
                     sum,
                     count,

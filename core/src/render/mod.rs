@@ -265,6 +265,15 @@ pub trait RenderMode: Send {
     fn scene(&self) -> &Scene;
     /// Adds one frame (`samples_per_frame` samples per pixel) to the film.
     fn render_frame(&mut self) -> FrameStats;
+    /// `render_frame`, asking `stop` between parts of the frame (tiles of rows) and
+    /// returning early, the frame unfinished, once it says yes: the next call (of
+    /// either) finishes that frame, so an edit need not wait for a whole frame and
+    /// the samples are those an uninterrupted frame would take. Modes that cannot
+    /// stop mid-frame render the whole frame.
+    fn render_frame_yielding(&mut self, stop: &mut dyn FnMut() -> bool) -> FrameStats {
+        let _ = stop;
+        self.render_frame()
+    }
     /// The image accumulated so far, with the current emissions.
     fn image(&self) -> Image;
     fn progress(&self) -> Progress;

@@ -459,3 +459,61 @@ fn added_removed_lights_and_a_new_ambient_radius_keep_exactly_the_right_layers()
         &frames_between(&ambient_only(4), 4, &ambient_only(2), 2),
     );
 }
+
+/// A frame asked to stop between tiles keeps the rows it finished; the next call
+/// finishes it with exactly the samples an uninterrupted frame takes, across an
+/// emission edit applied while it was stopped; a camera edit restarts as always.
+#[test]
+fn a_frame_stopped_between_tiles_finishes_with_an_uninterrupted_frames_samples() {
+    // 200 x 200 = 40,000 pixels: three tiles of `TILE_PIXELS` rows' worth.
+    const W: u32 = 200;
+    let brighter = SceneEdit::Light {
+        index: 0,
+        light: scene().lights[0].with_emission(DVec3::new(4.0, 2.0, 1.0)),
+    };
+    let mut whole = SpmmMode::new(scene(), W, W).expect("size");
+    let mut stopped = SpmmMode::new(scene(), W, W).expect("size");
+    let mut asked = 0;
+    for frame in 0..3u32 {
+        whole.render_frame();
+        let part = stopped.render_frame_yielding(&mut || {
+            asked += 1;
+            true
+        });
+        let taken = part.counters.samples;
+        assert!(
+            taken > 0 && taken < u64::from(W * W),
+            "frame {frame}: {taken} samples"
+        );
+        assert_eq!(stopped.progress().frames, frame, "the frame is unfinished");
+        if frame == 1 {
+            assert_eq!(stopped.apply(brighter.clone()), Ok(Invalidation::Nothing));
+        }
+        let rest = stopped.render_frame_yielding(&mut || false);
+        assert_eq!(taken + rest.counters.samples, u64::from(W * W));
+        assert_eq!(stopped.progress().frames, frame + 1);
+    }
+    assert_eq!(
+        asked, 3,
+        "asked once per stopped frame, never after the last tile"
+    );
+    assert_eq!(whole.apply(brighter), Ok(Invalidation::Nothing));
+    assert!(
+        whole.image().pixels() == stopped.image().pixels(),
+        "stopped frames differ from uninterrupted ones"
+    );
+
+    // A camera edit while a frame is stopped restarts everything: a fresh render.
+    let mut camera = scene().camera;
+    camera.position += DVec3::new(0.3, 0.1, 0.0);
+    stopped.render_frame_yielding(&mut || true);
+    assert_eq!(
+        stopped.apply(SceneEdit::Camera(camera)),
+        Ok(Invalidation::All)
+    );
+    stopped.render_frame_yielding(&mut || false);
+    // (A fresh render of the edited scene: the brighter light, the moved camera.)
+    let mut fresh = SpmmMode::new(stopped.scene().clone(), W, W).expect("size");
+    fresh.render_frame();
+    assert!(stopped.image().pixels() == fresh.image().pixels());
+}

@@ -62,6 +62,10 @@ pub struct SpmmMode {
     restarted_first: bool,
 }
 
+/// Pixels per tile of a frame that yields (`render_frame_yielding`): a few
+/// milliseconds of work on two cores, the longest an edit waits for the frame in flight.
+const TILE_PIXELS: u32 = 16_384;
+
 /// The per-sample state threaded through a path.
 pub(super) struct Path<'a> {
     pub out: &'a mut [DVec3],
@@ -285,6 +289,96 @@ impl SpmmMode {
         }
     }
 
+    /// One frame, or the rest of one: in a single pass, or in tiles of rows asking
+    /// `stop` between them. A stopped frame marks its finished rows done early, so the
+    /// call that completes it skips them and the samples are an uninterrupted frame's.
+    fn render_tiles(&mut self, mut stop: Option<&mut dyn FnMut() -> bool>) -> FrameStats {
+        // Half the image or more: the whole frame costs little more.
+        if self.catch_up.len() * 2 > self.film.width() as usize * self.film.height() as usize {
+            self.drop_catch_up();
+        }
+        let pixels = std::mem::take(&mut self.catch_up);
+        if !pixels.is_empty() {
+            return self.render_pixels(&pixels);
+        }
+        let start = Instant::now();
+        let first = self.next_sample;
+        let k = u64::from(self.samples_per_frame);
+        let layers = self.film.layers();
+        let active = self.layers.active(&self.scene);
+        let (width, height) = (self.film.width(), self.film.height());
+        let tile_rows = match stop {
+            Some(_) => (TILE_PIXELS / width.max(1)).max(1),
+            None => height.max(1),
+        };
+        let dropped_before = self.film.dropped();
+        // The film is moved out while rows borrow it mutably and `self` immutably.
+        let mut film = std::mem::replace(&mut self.film, Film::new(0, 0, 0));
+        let mut totals = Counters::default();
+        let mut y = 0;
+        while y < height {
+            let rows = y..(y + tile_rows).min(height);
+            y = rows.end;
+            let tile = film.par_rows_in(rows, |row| {
+                let mut counts = RayCounts::default();
+                let mut shading_points = 0;
+                let mut out = vec![DVec3::ZERO; layers];
+                let mut taken = 0;
+                for x in 0..width {
+                    let pixel = row.y as usize * width as usize + x as usize;
+                    if self.done_early.get(pixel).copied().unwrap_or(false) {
+                        continue;
+                    }
+                    taken += k;
+                    for index in first..first + k {
+                        out.iter_mut().for_each(|o| *o = DVec3::ZERO);
+                        let mut mask = 0;
+                        let mut reached = EMPTY_UV_BOX;
+                        self.sample_into(
+                            (x, row.y, width),
+                            index,
+                            &mut out,
+                            (&mut mask, &mut reached),
+                            &mut counts,
+                            &mut shading_points,
+                        );
+                        for &l in &active {
+                            row.add(x, l, out[l]);
+                        }
+                        row.touch(x, mask);
+                        row.reach_box(x, &reached);
+                    }
+                }
+                Counters {
+                    samples: taken,
+                    shading_points,
+                    rays: counts,
+                }
+            });
+            totals = tile.into_iter().fold(totals, |a, c| a + c);
+            if y < height && stop.as_mut().is_some_and(|s| s()) {
+                break;
+            }
+        }
+        self.film = film;
+        if y < height {
+            let n = width as usize * height as usize;
+            if self.done_early.len() != n {
+                self.done_early = vec![false; n];
+            }
+            self.done_early[..y as usize * width as usize].fill(true);
+        } else {
+            self.done_early.clear();
+            self.next_sample += k;
+            self.frames += 1;
+        }
+        FrameStats {
+            counters: totals,
+            seconds: start.elapsed().as_secs_f64(),
+            dropped: self.film.dropped() - dropped_before,
+        }
+    }
+
     /// The weight of each film layer: the current emissions.
     pub fn layer_weights(&self) -> Vec<DVec3> {
         self.layers.weights(&self.scene)
@@ -429,68 +523,11 @@ impl RenderMode for SpmmMode {
     }
 
     fn render_frame(&mut self) -> FrameStats {
-        // Half the image or more: the whole frame costs little more.
-        if self.catch_up.len() * 2 > self.film.width() as usize * self.film.height() as usize {
-            self.drop_catch_up();
-        }
-        let pixels = std::mem::take(&mut self.catch_up);
-        if !pixels.is_empty() {
-            return self.render_pixels(&pixels);
-        }
-        let start = Instant::now();
-        let first = self.next_sample;
-        let k = u64::from(self.samples_per_frame);
-        let layers = self.film.layers();
-        let active = self.layers.active(&self.scene);
-        let width = self.film.width();
-        let dropped_before = self.film.dropped();
-        // The film is moved out while rows borrow it mutably and `self` immutably.
-        let mut film = std::mem::replace(&mut self.film, Film::new(0, 0, 0));
-        let rows = film.par_rows(|row| {
-            let mut counts = RayCounts::default();
-            let mut shading_points = 0;
-            let mut out = vec![DVec3::ZERO; layers];
-            let mut taken = 0;
-            for x in 0..width {
-                let pixel = row.y as usize * width as usize + x as usize;
-                if self.done_early.get(pixel).copied().unwrap_or(false) {
-                    continue;
-                }
-                taken += k;
-                for index in first..first + k {
-                    out.iter_mut().for_each(|o| *o = DVec3::ZERO);
-                    let mut mask = 0;
-                    let mut reached = EMPTY_UV_BOX;
-                    self.sample_into(
-                        (x, row.y, width),
-                        index,
-                        &mut out,
-                        (&mut mask, &mut reached),
-                        &mut counts,
-                        &mut shading_points,
-                    );
-                    for &l in &active {
-                        row.add(x, l, out[l]);
-                    }
-                    row.touch(x, mask);
-                    row.reach_box(x, &reached);
-                }
-            }
-            Counters {
-                samples: taken,
-                shading_points,
-                rays: counts,
-            }
-        });
-        self.film = film;
-        self.done_early.clear();
-        self.next_sample += k;
-        self.frames += 1;
-        FrameStats {
-            counters: rows.into_iter().fold(Counters::default(), |a, c| a + c),
-            seconds: start.elapsed().as_secs_f64(),
-            dropped: self.film.dropped() - dropped_before,
-        }
+        self.render_tiles(None)
+    }
+
+    fn render_frame_yielding(&mut self, stop: &mut dyn FnMut() -> bool) -> FrameStats {
+        self.render_tiles(Some(stop))
     }
 
     fn image(&self) -> Image {

@@ -3,8 +3,8 @@
 //! integrate the pdf over the same bins, and reject when the chi^2 statistic is
 //! improbable. Bins live in a frame around the lobe axis with polar edges crowded
 //! near it, so sharp lobes (n = 1e4, roughness 0.02) still spread over many bins.
-//! `histogram` and `p_value` are shared with the MERL sampler's test, which bins
-//! its own way.
+//! `histogram`, `p_value` and `Binning` are shared with the MERL, environment and
+//! SPMM texel samplers' tests.
 
 use std::f64::consts::PI;
 
@@ -15,21 +15,21 @@ use statrs::distribution::{ChiSquared, ContinuousCDF};
 use super::*;
 use crate::rng::SampleStream;
 
-const THETA_BINS: usize = 40;
-const PHI_BINS: usize = 48;
+pub(crate) const THETA_BINS: usize = 40;
+pub(crate) const PHI_BINS: usize = 48;
 pub(crate) const SAMPLES: u64 = 1_000_000;
 const MIN_EXPECTED: f64 = 5.0;
 /// Overall false-alarm rate of the whole suite (Sidak-corrected per test).
 pub(crate) const SIGNIFICANCE: f64 = 0.01;
 
-struct Binning {
+pub(crate) struct Binning {
     frame: Frame,
     theta_edges: Vec<f64>,
 }
 
 impl Binning {
     /// Polar edges theta_k = pi (k/K)^power around `axis`.
-    fn new(axis: DVec3, power: f64) -> Self {
+    pub(crate) fn new(axis: DVec3, power: f64) -> Self {
         let (x, y) = warp::orthonormal_basis(axis);
         let theta_edges = (0..=THETA_BINS)
             .map(|k| PI * (k as f64 / THETA_BINS as f64).powf(power))
@@ -40,7 +40,7 @@ impl Binning {
         }
     }
 
-    fn index(&self, w: DVec3) -> usize {
+    pub(crate) fn index(&self, w: DVec3) -> usize {
         let l = self.frame.to_local(w);
         let theta = l.z.clamp(-1.0, 1.0).acos();
         let phi = l.y.atan2(l.x).rem_euclid(2.0 * PI);
@@ -62,7 +62,7 @@ impl Binning {
     /// that a lobe's edge cuts are refined along the cut. The horizon, where every pdf
     /// drops to 0, is handled exactly (see `gauss_cell`), so a sliver of a bin above the
     /// horizon is integrated as accurately as a whole bin.
-    fn integrate(&self, pdf: impl Fn(DVec3) -> f64 + Sync) -> Vec<f64> {
+    pub(crate) fn integrate(&self, pdf: impl Fn(DVec3) -> f64 + Sync) -> Vec<f64> {
         let f = |theta: f64, phi: f64| pdf(self.direction(theta, phi)) * theta.sin();
         (0..THETA_BINS * PHI_BINS)
             .into_par_iter()

@@ -445,7 +445,8 @@ fn gpu_mode(scene: crate::scene::Scene, size: u32) -> super::GpuSpmmMode {
 
 /// The GPU image after `frames` frames against the CPU's converged one: an error no
 /// larger than the CPU's own after as many frames (independent samples, as the GPU
-/// draws them) times 1.25 plus a floor of 1% of the image's mean, the same mean within
+/// draws them, and packs sampled by the defensive mixture, as the GPU samples them)
+/// times 1.25 plus a floor of 1% of the image's mean, the same mean within
 /// 2%, no non-finite pixel and no traversal past its bounds.
 fn image_agrees_with_the_cpu(scene_file: &str, size: u32, frames: u32) {
     image_of_scene_agrees_with_the_cpu(scene_file, test_scene(scene_file), size, frames);
@@ -466,6 +467,9 @@ fn image_of_scene_agrees_with_the_cpu(
     let mut other = scene.clone();
     other.render.seed += 1;
     let mut cpu = crate::trace::SpmmMode::new(other, size, size).expect("CPU mode");
+    // Packs drawn as the GPU draws them (the defensive mixture), so the noise compared
+    // is the same estimator's.
+    cpu.set_pack_sampling(crate::trace::PackSampling::Defensive);
     run_frames(&mut cpu, frames, |_, _| {});
     let mut gpu = gpu_mode(scene, size);
     let run = run_frames(&mut gpu, frames, |_, _| {});

@@ -23,7 +23,8 @@ pub(crate) use eval::TexelGrid;
 pub use eval::{EvalSettings, TexelFilter};
 pub use material::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial};
 pub use prepared::{
-    PrepareRequest, PreparedBytes, PreparedParts, PreparedResidualParts, PreparedSpmm,
+    DEFENSIVE_SHARE, PrepareRequest, PreparedBytes, PreparedParts, PreparedResidualParts,
+    PreparedSpmm, defensive_pdf, defensive_sample,
 };
 pub use texel_mask::{Falloff, TexelMask};
 pub use view::BasisView;

@@ -13,6 +13,9 @@ use super::eval::TexelGrid;
 use super::{EvalSettings, SpmmMaterial};
 use crate::brdf::BasisFunction;
 
+mod sampling;
+pub use sampling::{DEFENSIVE_SHARE, defensive_pdf, defensive_sample};
+
 /// What a render will evaluate.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PrepareRequest {
@@ -96,6 +99,8 @@ pub struct PreparedSpmm {
     /// residual (a brush stroke step re-lays out no tables).
     residual: Option<Arc<PreparedResidual>>,
     clusters_used: usize,
+    /// Per cluster and basis, the albedo that sets how often sampling chooses it.
+    basis_albedo: Vec<Vec<f64>>,
 }
 
 impl SpmmMaterial {
@@ -249,9 +254,12 @@ impl SpmmMaterial {
                 .as_ref()
                 .is_none_or(|u| u.get(c).copied().unwrap_or(false))
         };
+        let bases: Vec<Vec<BasisFunction>> =
+            self.clusters().iter().map(|c| c.bases.clone()).collect();
         PreparedSpmm {
             grid: TexelGrid::of(self),
-            bases: self.clusters().iter().map(|c| c.bases.clone()).collect(),
+            basis_albedo: sampling::basis_albedos(&bases),
+            bases,
             texel_cluster: self.texel_cluster().to_vec(),
             offsets: self.weights().offsets.clone(),
             basis: self.weights().basis.clone(),

@@ -9,7 +9,7 @@ use std::time::Instant;
 use glam::DVec3;
 
 use super::light_selection::{LightSampling, LightSelection};
-use super::shading::Shader;
+use super::shading::{PackSampling, Shader};
 use crate::environment::EnvironmentSampler;
 use crate::geometry::{PinholeCamera, SceneBvh};
 use crate::image::Image;
@@ -41,6 +41,7 @@ pub struct SpmmMode {
     /// Per light, the film layer its samples go to and their factor.
     pub(super) light_targets: Vec<LightTarget>,
     light_sampling: LightSampling,
+    pub(super) pack_sampling: PackSampling,
     /// The light selection while lights are chosen stochastically
     /// (`light_selection.rs`); `None` on the exact per-light path.
     pub(super) light_selection: Option<LightSelection>,
@@ -180,6 +181,7 @@ impl SpmmMode {
             light_targets: layers.light_targets(&scene),
             light_selection: selection(LightSampling::Auto, &scene.lights),
             light_sampling: LightSampling::Auto,
+            pack_sampling: PackSampling::default(),
             layers,
             samples_per_frame: 1,
             next_sample: 0,
@@ -398,6 +400,12 @@ impl SpmmMode {
     pub fn set_light_sampling(&mut self, sampling: LightSampling) {
         self.light_sampling = sampling;
         self.refresh_lights();
+        self.restart_all();
+    }
+
+    /// How directions are drawn at SPMM packs; a change restarts every sample.
+    pub fn set_pack_sampling(&mut self, sampling: PackSampling) {
+        self.pack_sampling = sampling;
         self.restart_all();
     }
 

@@ -277,16 +277,21 @@ impl SpmmMode {
             return;
         };
         let shader = &self.shaders[s.material];
-        let (local, pdf) = shader.hemisphere_sample(u);
-        if local.z <= 0.0 {
-            return;
-        }
-        // 1 / pdf, written as the cosine case always was (pi / cos) to keep its bits.
-        let weight = match shader {
-            Shader::Scene => PI / local.z,
-            Shader::Spmm { .. } | Shader::Table => 1.0 / pdf,
+        let (wi, weight) = match shader {
+            // 1 / pdf, written as the cosine case always was (pi / cos) to keep its bits.
+            Shader::Scene => {
+                let (local, _) = shader.hemisphere_sample(u);
+                if local.z <= 0.0 {
+                    return;
+                }
+                (s.to_world(local), PI / local.z)
+            }
+            // A pack draws from its texel's bases (and a defensive share).
+            Shader::Spmm { .. } | Shader::Table => match self.material_sample(s, wo, u) {
+                Some((wi, pdf)) if wi.dot(s.n) > 0.0 => (wi, 1.0 / pdf),
+                _ => return,
+            },
         };
-        let wi = s.to_world(local);
         path.counts.ambient += 1;
         if !self.bvh.occluded(lift, wi, 0.0, ambient.radius) {
             path.out[AMBIENT] += throughput * self.response(s, wi, wo) * weight;

@@ -12,6 +12,7 @@ pub(crate) mod shading;
 
 use integrator::Path;
 pub use integrator::SpmmMode;
+pub use shading::PackSampling;
 
 #[cfg(test)]
 mod btf_tests;

@@ -15,7 +15,24 @@ use super::SpmmMode;
 use crate::brdf::warp;
 use crate::geometry::Hit;
 use crate::scene::{Material, Scene};
-use crate::spmm::{EvalSettings, PrepareRequest, PreparedSpmm, SpmmMaterial, TexelFilter};
+use crate::spmm::{
+    EvalSettings, PrepareRequest, PreparedSpmm, SpmmMaterial, TexelFilter, defensive_pdf,
+    defensive_sample,
+};
+
+/// How the spmm mode draws directions over the hemisphere at SPMM packs (ambient
+/// occlusion, environment and material samples in MIS). Both are unbiased; they
+/// differ in noise.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum PackSampling {
+    /// From the texel's basis functions plus a defensive share
+    /// (`PreparedSpmm::sample_texel`).
+    #[default]
+    Bases,
+    /// The defensive half-cosine, half-uniform mixture alone: the sampling before
+    /// the bases were drawn from, and what the GPU path draws (docs/gpu.md).
+    Defensive,
+}
 
 /// What shading a material needs at render time.
 pub(super) enum Shader {
@@ -162,38 +179,22 @@ impl Shader {
     }
 
     /// A direction of the upper hemisphere (shading frame) for sampling light over it,
-    /// and its pdf. Analytic BRDFs use cosine-distributed directions: their response
-    /// carries cos_i. A BTF (a pack's or a `btf` material's) does not vanish with the shading cosine (each basis
-    /// has its own normal), and dividing it by a cosine pdf has infinite variance; it
-    /// gets a defensive half-cosine, half-uniform mixture whose pdf is at least
-    /// 1 / 4 pi (docs/rendering.md has the measured difference).
+    /// and its pdf, where the material has no view-dependent sampler. Analytic BRDFs use
+    /// cosine-distributed directions: their response carries cos_i. A BTF (a `btf`
+    /// material's) does not vanish with the shading cosine (a pack's bases each have
+    /// their own normal), and dividing it by a cosine pdf has infinite variance; it
+    /// gets the defensive half-cosine, half-uniform mixture, whose pdf is at least
+    /// 1 / 4 pi. Packs draw from their bases (`PreparedSpmm::sample_texel`).
     pub(super) fn hemisphere_sample(&self, u: DVec2) -> (DVec3, f64) {
         match self {
             Shader::Spmm { .. } | Shader::Table => {
-                let local = if u.x < 0.5 {
-                    warp::cosine_hemisphere(DVec2::new(2.0 * u.x, u.y))
-                } else {
-                    // Uniform: cos theta = uniform in [0, 1).
-                    let z = 1.0 - u.y;
-                    let r = (1.0 - z * z).max(0.0).sqrt();
-                    let phi = std::f64::consts::TAU * (2.0 * u.x - 1.0);
-                    DVec3::new(r * phi.cos(), r * phi.sin(), z)
-                };
-                (local, Self::defensive_pdf(local))
+                let local = defensive_sample(u);
+                (local, defensive_pdf(local))
             }
             Shader::Scene => {
                 let local = warp::cosine_hemisphere(u);
                 (local, local.z / PI)
             }
-        }
-    }
-
-    /// The pdf of the SPMM's defensive mixture (upper hemisphere, shading frame).
-    pub(super) fn defensive_pdf(local: DVec3) -> f64 {
-        if local.z > 0.0 {
-            0.5 * local.z / PI + 0.25 / PI
-        } else {
-            0.0
         }
     }
 }
@@ -308,7 +309,14 @@ impl SpmmMode {
         match (&self.scene.materials[s.material], &self.shaders[s.material]) {
             (Material::Brdf { brdf, .. }, _) => brdf.pdf(lo, li),
             (Material::Merl { brdf, .. }, _) => brdf.pdf(lo, li),
-            (_, Shader::Spmm { .. } | Shader::Table) => Shader::defensive_pdf(li),
+            (_, shader @ Shader::Spmm { still, .. })
+                if self.pack_sampling == PackSampling::Bases =>
+            {
+                shader
+                    .prepared()
+                    .map_or(0.0, |p| p.pdf_uv(s.uv, still.uv_scale, li, lo))
+            }
+            (_, Shader::Spmm { .. } | Shader::Table) => defensive_pdf(li),
             _ => 0.0,
         }
     }
@@ -327,6 +335,14 @@ impl SpmmMode {
             (Material::Merl { brdf, .. }, _) => brdf
                 .sample(s.to_local(wo), u)
                 .map(|b| (s.to_world(b.wi), b.pdf)),
+            (_, shader @ Shader::Spmm { still, .. })
+                if self.pack_sampling == PackSampling::Bases =>
+            {
+                shader
+                    .prepared()?
+                    .sample_uv(s.uv, still.uv_scale, s.to_local(wo), u)
+                    .map(|(local, pdf)| (s.to_world(local), pdf))
+            }
             (_, shader @ (Shader::Spmm { .. } | Shader::Table)) => {
                 let (local, pdf) = shader.hemisphere_sample(u);
                 Some((s.to_world(local), pdf))

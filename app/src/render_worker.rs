@@ -181,6 +181,27 @@ fn shown(
         )
 }
 
+/// Whether `command` may change what the pixels' centre rays see first (the
+/// denoiser's guides): not settings, and not edits of emitters alone.
+fn changes_guides(command: &Command) -> bool {
+    match command {
+        Command::MaxSamples(_)
+        | Command::Denoise(_)
+        | Command::YieldToEdits(_)
+        | Command::Unchanged { .. } => false,
+        Command::Edit { edit, .. } => !matches!(
+            **edit,
+            SceneEdit::Light { .. }
+                | SceneEdit::AddLight(_)
+                | SceneEdit::RemoveLight(_)
+                | SceneEdit::Ambient(_)
+                | SceneEdit::Environment(_)
+                | SceneEdit::Background(_)
+        ),
+        Command::Load { .. } | Command::Install { .. } => true,
+    }
+}
+
 /// The frame to publish of `m`'s film now, after a call that did `stats`.
 fn frame_of(
     m: &dyn RenderMode,
@@ -266,10 +287,7 @@ fn run(
         let mut changed = false;
         for command in pending {
             changed |= !matches!(command, Command::MaxSamples(_) | Command::YieldToEdits(_));
-            if !matches!(
-                command,
-                Command::MaxSamples(_) | Command::Denoise(_) | Command::YieldToEdits(_)
-            ) {
+            if changes_guides(&command) {
                 guides = None;
             }
             let result = match command {

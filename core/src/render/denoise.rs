@@ -101,9 +101,11 @@ impl Denoiser {
             let step = 1i64 << pass;
             let sigma_c = self.sigma_color / (1u32 << pass) as f32;
             let src = &current;
+            // Each pixel's compressed colour once per pass, not once per neighbour.
+            let compressed: Vec<[f32; 3]> = src.par_iter().map(|&c| compress(c)).collect();
             let next: Vec<[f32; 3]> = (0..(w * h) as usize)
                 .into_par_iter()
-                .map(|p| self.filter_pixel(src, guides, p, step, sigma_c))
+                .map(|p| self.filter_pixel((src, &compressed), guides, p, step, sigma_c))
                 .collect();
             current = next;
         }
@@ -112,7 +114,7 @@ impl Denoiser {
 
     fn filter_pixel(
         &self,
-        src: &[[f32; 3]],
+        (src, compressed): (&[[f32; 3]], &[[f32; 3]]),
         g: &Guides,
         p: usize,
         step: i64,
@@ -120,7 +122,7 @@ impl Denoiser {
     ) -> [f32; 3] {
         let (w, h) = (i64::from(g.width), i64::from(g.height));
         let (x, y) = (p as i64 % w, p as i64 / w);
-        let (cp, np, zp, ap) = (compress(src[p]), g.normal[p], g.depth[p], g.albedo[p]);
+        let (cp, np, zp, ap) = (compressed[p], g.normal[p], g.depth[p], g.albedo[p]);
         let mut sum = [0.0f32; 3];
         let mut total = 0.0f32;
         for (j, ky) in KERNEL.iter().enumerate() {
@@ -134,7 +136,8 @@ impl Denoiser {
                     continue;
                 }
                 let q = (qy * w + qx) as usize;
-                let weight = kx * ky * self.edge_weight(cp, np, zp, ap, src[q], g, q, sigma_c);
+                let weight =
+                    kx * ky * self.edge_weight(cp, np, zp, ap, compressed[q], g, q, sigma_c);
                 for k in 0..3 {
                     sum[k] += weight * src[q][k];
                 }
@@ -152,6 +155,7 @@ impl Denoiser {
         np: [f32; 3],
         zp: f32,
         ap: [f32; 3],
+        // Both colours compressed (`compress`).
         cq: [f32; 3],
         g: &Guides,
         q: usize,
@@ -167,10 +171,14 @@ impl Denoiser {
         let nq = g.normal[q];
         let cos = (np[0] * nq[0] + np[1] * nq[1] + np[2] * nq[2]).max(0.0);
         let w_normal = cos.powi(self.normal_power);
-        let w_depth = (-(zp - zq).abs() / (self.sigma_depth * zp.max(1e-6))).exp();
-        let w_albedo = (-dist2(ap, g.albedo[q]).sqrt() / self.sigma_albedo).exp();
-        let w_color = (-dist2(cp, compress(cq)) / (sigma_c * sigma_c)).exp();
-        w_normal * w_depth * w_albedo * w_color
+        if w_normal == 0.0 {
+            return 0.0;
+        }
+        // The depth, albedo and colour weights are exponentials: one exp of the sum.
+        let depth = (zp - zq).abs() / (self.sigma_depth * zp.max(1e-6));
+        let albedo = dist2(ap, g.albedo[q]).sqrt() / self.sigma_albedo;
+        let color = dist2(cp, cq) / (sigma_c * sigma_c);
+        w_normal * (-(depth + albedo + color)).exp()
     }
 }
 

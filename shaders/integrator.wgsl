@@ -19,7 +19,7 @@ struct Params {
     lights: u32,
     light_table: u32,
     material_table: u32,
-    // 1: rays that leave the scene add to the background layer.
+    // What rays that leave the scene add (environment.wgsl, ESCAPE_*).
     background: u32,
     // Negative: no ambient term.
     ambient_radius: f32,
@@ -45,6 +45,8 @@ struct Params {
 // SPMM texture coordinates shaded (min u, min v, max u, max v as f32 bits).
 @group(0) @binding(6) var<storage, read_write> aux: array<u32>;
 @group(0) @binding(7) var<storage, read_write> counters: array<atomic<u32>>;
+// The environment map, its sampling tables and the background image (environment.wgsl).
+@group(0) @binding(8) var<storage, read> env: array<u32>;
 
 const MAX_LAYERS: u32 = 19u;
 const LAYER_BACKGROUND: u32 = 0u;
@@ -69,6 +71,7 @@ struct Counts {
     ambient: u32,
     specular: u32,
     shading: u32,
+    environment: u32,
 }
 
 var<private> acc: array<vec3<f32>, MAX_LAYERS>;
@@ -215,7 +218,7 @@ fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups)
     for (var l = 0u; l < MAX_LAYERS; l++) {
         acc[l] = vec3<f32>(0.0);
     }
-    counts = Counts(0u, 0u, 0u, 0u);
+    counts = Counts(0u, 0u, 0u, 0u, 0u);
     mask = vec2<u32>(0u);
     uv_box = vec4<f32>(3.4e38, 3.4e38, -3.4e38, -3.4e38);
     var rng = Rng(pcg(pixel + pcg(params.sample_lo + pcg(params.seed ^ pcg(params.sample_hi)))));
@@ -231,8 +234,17 @@ fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups)
     for (var depth = 0u; depth <= max_depth; depth++) {
         let hit = traverse(make_ray(origin, dir, 0.0, FAR), false);
         if hit.prim == NO_HIT {
-            if params.background == 1u {
-                add_layer(pixel, LAYER_BACKGROUND, throughput);
+            switch params.background {
+                case ESCAPE_COLOR: {
+                    add_layer(pixel, LAYER_BACKGROUND, throughput);
+                }
+                case ESCAPE_IMAGE: {
+                    add_layer(pixel, LAYER_BACKGROUND, throughput * background_radiance(dir));
+                }
+                case ESCAPE_ENVIRONMENT: {
+                    add_layer(pixel, LAYER_ENVIRONMENT, throughput * env_radiance(dir));
+                }
+                default: {}
             }
             break;
         }
@@ -263,6 +275,7 @@ fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups)
         counts.shading += 1u;
         sample_lights(s, wo, lift, throughput, pixel, &rng);
         sample_ambient(s, wo, lift, throughput, pixel, &rng);
+        sample_environment(s, wo, lift, throughput, pixel, &rng);
         break;
     }
 
@@ -285,4 +298,5 @@ fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups)
     atomicAdd(&counters[COUNT_AMBIENT], counts.ambient);
     atomicAdd(&counters[COUNT_SPECULAR], counts.specular);
     atomicAdd(&counters[COUNT_SHADING], counts.shading);
+    atomicAdd(&counters[COUNT_ENVIRONMENT], counts.environment);
 }

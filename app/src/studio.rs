@@ -986,6 +986,9 @@ impl Studio {
 
     /// Takes the newest frame and measures how long the edits before it took.
     fn receive(&mut self) {
+        for notice in self.worker.take_notices() {
+            self.error = Some(notice);
+        }
         for r in self.worker.take_rejected() {
             self.error = Some(format!(
                 "the renderer refused edit {}: {}",

@@ -1391,11 +1391,6 @@ fn render_modes_devices_and_unsupported_scenes_exit_2_naming_why() {
             "without [environment]",
         ],
     );
-    // The spmm mode on the GPU names what it does not render yet.
-    assert_bad_input(
-        &render(&["--device", "gpu"]),
-        &["spmm", "gpu", "[environment] lighting"],
-    );
     assert_bad_input(
         &render(&["--mode", "biscale", "--device", "gpu"]),
         &["biscale", "gpu", "not built yet"],
@@ -1449,6 +1444,12 @@ material = "gold"
     )
     .expect("write scene");
     let merl_arg = merl_scene.to_str().expect("utf-8");
+    // The spmm mode on the GPU names what it does not render yet (before it looks
+    // for an adapter).
+    assert_bad_input(
+        &meso(&["render", merl_arg, "-o", out_arg, "--device", "gpu"], ""),
+        &["spmm", "gpu", "material `gold` (merl)"],
+    );
     let shaded = dir.path().join("merl.exr");
     let o = meso(
         &[

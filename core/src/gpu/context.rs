@@ -2,7 +2,7 @@
 //! `WGPU_BACKEND` (wgpu's own variable; CI sets `vulkan` for Mesa's lavapipe), so a
 //! backend that does not exist on this system yields no adapter and a one-line error.
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 /// Why there is no device to render on.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
@@ -11,6 +11,10 @@ pub enum GpuError {
     NoAdapter { backends: String, env: String },
     #[error("the GPU adapter `{adapter}` refused a device: {reason}")]
     NoDevice { adapter: String, reason: String },
+    /// The device stopped working (lost, destroyed, or an error on it): nothing it
+    /// returns from here on can be trusted.
+    #[error("the GPU `{adapter}` failed: {reason}")]
+    Lost { adapter: String, reason: String },
 }
 
 /// One adapter's device and queue, shareable between modes (cloning shares them).
@@ -20,6 +24,9 @@ pub struct GpuContext {
     pub queue: wgpu::Queue,
     info: Arc<wgpu::AdapterInfo>,
     limits: wgpu::Limits,
+    /// The first failure the device reported (lost, or an error no one caught), kept
+    /// here instead of wgpu's default of panicking on the thread that noticed it.
+    failure: Arc<Mutex<Option<String>>>,
 }
 
 impl std::fmt::Debug for GpuContext {
@@ -63,12 +70,41 @@ impl GpuContext {
             adapter: info.name.clone(),
             reason: e.to_string(),
         })?;
+        let failure = Arc::new(Mutex::new(None));
+        let record = |failure: &Arc<Mutex<Option<String>>>, reason: String| {
+            if let Ok(mut f) = failure.lock() {
+                f.get_or_insert(reason);
+            }
+        };
+        let lost = Arc::clone(&failure);
+        device.set_device_lost_callback(move |why, message| {
+            record(&lost, format!("device lost ({why:?}): {message}"));
+        });
+        let errors = Arc::clone(&failure);
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            record(&errors, e.to_string());
+        }));
         Ok(Self {
             device,
             queue,
             info: Arc::new(info),
             limits,
+            failure,
         })
+    }
+
+    /// The device's first failure, if it has failed: every later result is void.
+    pub fn failure(&self) -> Option<GpuError> {
+        let reason = self.failure.lock().ok()?.clone()?;
+        Some(self.lost(reason))
+    }
+
+    /// A failure of this device for `reason`.
+    pub(super) fn lost(&self, reason: impl Into<String>) -> GpuError {
+        GpuError::Lost {
+            adapter: self.adapter_name(),
+            reason: reason.into(),
+        }
     }
 
     /// The adapter's name and backend, for status lines (`llvmpipe (vulkan)`).

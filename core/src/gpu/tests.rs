@@ -90,7 +90,7 @@ fn evaluate(data: &[u32], cases: &[Case]) -> Vec<[f32; 3]> {
     );
     let mut enc = encoder(ctx);
     kernel.record(&mut enc, &bind, cases.len() as u32);
-    let bytes = submit_and_read(ctx, enc, &[(&out, out_size)]);
+    let bytes = submit_and_read(ctx, enc, &[(&out, out_size)]).expect("the device works");
     bytemuck::cast_slice::<u8, [f32; 3]>(&bytes[0][..cases.len() * 12]).to_vec()
 }
 
@@ -351,7 +351,8 @@ fn primary_hits_match(scene_file: &str, size: u32) {
     );
     let mut enc = encoder(ctx);
     kernel.record(&mut enc, &bind, rays.len() as u32);
-    let bytes = submit_and_read(ctx, enc, &[(&out, out_size), (&counters, 16)]);
+    let bytes =
+        submit_and_read(ctx, enc, &[(&out, out_size), (&counters, 16)]).expect("the device works");
     let results: &[[f32; 2]] = bytemuck::cast_slice(&bytes[0]);
     let overflows: &[u32] = bytemuck::cast_slice(&bytes[1]);
     assert_eq!(
@@ -476,11 +477,12 @@ fn image_of_scene_agrees_with_the_cpu(
     );
     assert_eq!(run.dropped, 0, "{scene_file}: non-finite samples");
     assert_eq!(gpu.overflows(), (0, 0), "{scene_file}: traversal overflows");
-    assert!(run.counters.rays.shadow > 0);
+    assert!(run.counters.rays.shadow + run.counters.rays.environment > 0);
     let (e_gpu, e_cpu) = (rmse(&image, &reference), rmse(&cpu.image(), &reference));
     let (m_gpu, m_ref) = (mean(&image), mean(&reference));
     eprintln!(
-        "{scene_file} {size}x{size}, {frames} frames: RMSE gpu {e_gpu:.5}, cpu {e_cpu:.5}; mean gpu {m_gpu:.5}, reference {m_ref:.5}"
+        "{scene_file} {size}x{size}, {frames} frames: RMSE gpu {e_gpu:.5}, cpu {e_cpu:.5}; mean gpu {m_gpu:.5}, cpu {:.5}, reference {m_ref:.5}",
+        mean(&cpu.image())
     );
     assert!(
         e_gpu <= 1.25 * e_cpu + 0.01 * m_ref,
@@ -549,13 +551,58 @@ fn a_light_colour_edit_keeps_the_gpus_samples() {
     assert_eq!(gpu.progress().min_samples, 1);
 }
 
+/// The environment scene (the studio map with MIS, a fitted pack with its residual
+/// on the bunny, a Ward floor; rays that leave see the map): the map's and the
+/// BRDFs' samples on the device, weighted as on the CPU.
+#[test]
+fn the_environment_scene_on_the_gpu_agrees_with_the_cpu() {
+    image_agrees_with_the_cpu("env.toml", 32, 16);
+}
+
+/// The environment lighting alone (no MIS), a lat-long background image seen by
+/// primary rays and by a mirror floor, rotated: what `layers::escaped` adds.
+#[test]
+fn a_background_image_and_map_sampling_alone_agree_with_the_cpu() {
+    let mut scene = test_scene("env.toml");
+    let env = scene.environment.as_mut().expect("an environment");
+    env.mis = false;
+    env.rotate_y_deg = -75.0;
+    let (w, h) = (24, 12);
+    let pixels = (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as f32 / w as f32, (i / w) as f32 / h as f32);
+            [0.2 + x, 0.5 * (1.0 - y), 0.1 + 0.8 * x * y]
+        })
+        .collect();
+    let image = crate::image::Image::from_pixels(w, h, pixels).expect("an image");
+    scene.background = crate::scene::Background::Environment(std::sync::Arc::new(image));
+    let floor = scene
+        .material_names
+        .iter()
+        .position(|n| n == "floor")
+        .expect("the floor");
+    scene.materials[floor] = crate::scene::Material::Mirror {
+        reflectance: DVec3::new(0.8, 0.7, 0.6),
+    };
+    image_of_scene_agrees_with_the_cpu("env.toml with a background image", scene, 32, 16);
+}
+
 /// The mode refuses by name what it does not render yet, and an edit that brings it.
 #[test]
 fn unsupported_parts_are_named() {
     use crate::render::{RenderMode, SceneEdit, Unrenderable};
-    let env = test_scene("env.toml");
-    let err = super::GpuSpmmMode::supports(&env).expect_err("environment");
-    assert!(err.parts.contains(&Unrenderable::Environment), "{err}");
+    let mut many = test_scene("cornell.toml");
+    let light = many.lights[0];
+    many.lights = vec![light; 17];
+    let err = super::GpuSpmmMode::supports(&many).expect_err("17 lights");
+    assert_eq!(
+        err.parts,
+        vec![Unrenderable::Light {
+            index: 16,
+            kind: "area"
+        }],
+        "{err}"
+    );
     let mut gpu = gpu_mode(test_scene("cornell.toml"), 8);
     let gold = crate::scene::Material::Merl {
         brdf: std::sync::Arc::new(
@@ -615,4 +662,140 @@ fn dispatch_grids_cover_every_pixel_within_the_limit() {
         // At most one partial row of workgroups beyond the pixels.
         assert!(threads - u64::from(pixels) < u64::from(x) * u64::from(WORKGROUP) + 64);
     }
+}
+
+/// A device lost while the mode renders (here destroyed on purpose, as a driver reset
+/// would) is an error the mode reports, not a panic: the frame adds nothing, the film
+/// keeps its earlier samples, and later frames add nothing either.
+#[test]
+fn a_lost_device_is_reported_and_keeps_the_film() {
+    use crate::render::{ModeError, RenderMode, run_frames};
+    // A device of its own: the other tests share `context()`.
+    let ctx = GpuContext::new().expect("an adapter");
+    let mut gpu = super::GpuSpmmMode::prepare(
+        ctx.clone(),
+        test_scene("cornell.toml"),
+        16,
+        16,
+        crate::render::Prepare::quietly(),
+    )
+    .expect("prepares");
+    run_frames(&mut gpu, 2, |_, _| {});
+    assert!(gpu.failure().is_none());
+    let before = gpu.image();
+    assert_eq!(gpu.progress().min_samples, 2);
+    ctx.device.destroy();
+    let run = run_frames(&mut gpu, 3, |_, _| {});
+    assert_eq!(run.frames, 1, "stops at the failed frame");
+    assert_eq!(run.counters.samples, 0);
+    let Some(ModeError::DeviceFailed(message)) = gpu.failure() else {
+        panic!("a device failure, got {:?}", gpu.failure())
+    };
+    assert!(message.contains(&ctx.adapter_name()), "{message}");
+    assert_eq!(gpu.progress().min_samples, 2, "the film keeps its samples");
+    assert_eq!(gpu.image().pixels(), before.pixels());
+    assert_eq!(gpu.render_frame().counters.samples, 0);
+}
+
+/// BRDF importance sampling in WGSL (the environment's MIS) against core's f64
+/// `sample` and `pdf`: each model at its defaults and five random parameter sets, the
+/// pdf on the pairs of `direction_pairs`, and directions drawn from the same uniform
+/// numbers. f32 limits: the pdf within 1e-3 relative (plus 1e-6 absolute; Lafortune's
+/// power grows it as in `every_brdf_model_matches_the_f64_reference`), the drawn
+/// direction within 1e-4 per component, drawn or not alike except where the CPU's
+/// direction is within 1e-3 of the horizon (the f32 rounding decides there).
+#[test]
+fn brdf_sampling_matches_the_f64_reference() {
+    use glam::DVec2;
+    let pairs = direction_pairs(5, 400);
+    let mut words = Words::default();
+    let mut cases = Vec::new();
+    let mut reference = Vec::new();
+    for (mi, model) in BrdfModel::ALL.into_iter().enumerate() {
+        for set in 0..6u64 {
+            let mut s = SampleStream::new(&[6, mi as u64, set]);
+            let brdf = if set == 0 {
+                AnalyticBrdf::with_defaults(model)
+            } else {
+                random_brdf(model, &mut s)
+            };
+            let record = words.push_brdf(&brdf);
+            for (k, &(wi, wo)) in pairs.iter().enumerate() {
+                let mut case = Case {
+                    kind: 3,
+                    record,
+                    wi,
+                    wo,
+                    texel: 0,
+                    residual: false,
+                };
+                cases.push(case);
+                reference.push((brdf, wi, wo, None));
+                let u = DVec2::new(s.next(), s.next()).as_vec2().as_dvec2();
+                let u = u.min(DVec2::splat(1.0 - 1e-7));
+                case.kind = 4;
+                case.wi = DVec3::new(u.x, u.y, 0.0);
+                cases.push(case);
+                reference.push((brdf, wi, wo, Some((u, k))));
+            }
+        }
+    }
+    let got = evaluate(&words.words, &cases);
+    let mut worst_pdf: f64 = 0.0;
+    let mut worst_dir: f64 = 0.0;
+    let mut drawn = 0;
+    for (g, (brdf, wi, wo, sample)) in got.iter().zip(&reference) {
+        match sample {
+            None => {
+                let c = brdf.pdf(*wo, *wi);
+                let g = g[0];
+                assert!(g.is_finite() && g >= 0.0, "{brdf:?} pdf at {wi} {wo}: {g}");
+                if c > 1e30 {
+                    continue;
+                }
+                let rel = match brdf {
+                    AnalyticBrdf::Lafortune(b) => {
+                        let s = wi.dot(DVec3::new(b.cx(), b.cy(), b.cz()) * *wo);
+                        1e-3 + 1e-5 * b.n() * s.abs().log2().abs().max(1.0)
+                    }
+                    _ => 1e-3,
+                };
+                let e = excess(g, c, rel, 1e-6 * (1.0 + c));
+                assert!(
+                    e <= 1.0,
+                    "{brdf:?} pdf at wi {wi} wo {wo}: gpu {g}, f64 {c}"
+                );
+                worst_pdf = worst_pdf.max(e);
+            }
+            Some((u, _)) => {
+                let c = brdf.sample(*wo, *u).map(|s| s.wi);
+                let gv = DVec3::new(g[0] as f64, g[1] as f64, g[2] as f64);
+                assert!(gv.is_finite(), "{brdf:?} sample at {wo} {u}: {gv}");
+                match c {
+                    Some(c) if gv != DVec3::ZERO => {
+                        let e = (gv - c).abs().max_element();
+                        assert!(
+                            e <= 1e-4,
+                            "{brdf:?} sample at wo {wo} u {u}: gpu {gv}, f64 {c}"
+                        );
+                        worst_dir = worst_dir.max(e);
+                        drawn += 1;
+                    }
+                    Some(c) => assert!(
+                        c.z < 1e-3,
+                        "{brdf:?} at wo {wo} u {u}: only the CPU draws {c}"
+                    ),
+                    None if gv != DVec3::ZERO => assert!(
+                        gv.z < 1e-3,
+                        "{brdf:?} at wo {wo} u {u}: only the GPU draws {gv}"
+                    ),
+                    None => {}
+                }
+            }
+        }
+    }
+    eprintln!(
+        "pdf: worst {worst_pdf:.3} of the tolerance; directions: {drawn} drawn, worst {worst_dir:.2e}"
+    );
+    assert!(drawn > cases.len() / 4, "most samples are drawn: {drawn}");
 }

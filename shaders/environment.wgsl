@@ -155,6 +155,9 @@ fn material_pdf(s: Shading, wi: vec3<f32>, wo: vec3<f32>) -> f32 {
     if kind == MATERIAL_SPMM && li.z > 0.0 {
         return 0.5 * li.z / PI + 0.25 / PI;
     }
+    if kind == MATERIAL_MERL {
+        return merl_pdf(data[at + 1u], lo, li);
+    }
     return 0.0;
 }
 
@@ -166,6 +169,9 @@ fn material_sample(s: Shading, wo: vec3<f32>, u: vec2<f32>) -> vec4<f32> {
     if kind == MATERIAL_BRDF {
         let lo = vec3<f32>(dot(wo, s.t), dot(wo, s.b), dot(wo, s.n));
         local = brdf_sample(load_brdf(data[at + 1u]), lo, u);
+    } else if kind == MATERIAL_MERL {
+        let lo = vec3<f32>(dot(wo, s.t), dot(wo, s.b), dot(wo, s.n));
+        local = merl_sample(data[at + 1u], lo, u);
     } else if kind == MATERIAL_SPMM {
         let h = hemisphere_sample(true, u);
         if h.z > 0.0 {

@@ -58,6 +58,7 @@ const MATERIAL_WORDS: u32 = 8u;
 const MATERIAL_BRDF: u32 = 0u;
 const MATERIAL_SPMM: u32 = 1u;
 const MATERIAL_MIRROR: u32 = 2u;
+const MATERIAL_MERL: u32 = 3u;
 // Counter slots after the traversal's two.
 const COUNT_PRIMARY: u32 = 2u;
 const COUNT_SHADOW: u32 = 3u;
@@ -202,6 +203,9 @@ fn response(s: Shading, wi: vec3<f32>, wo: vec3<f32>) -> vec3<f32> {
         let m = data[at + 1u];
         let residual = data[at + 2u] != 0u && params.moving == 0u;
         return spmm_eval_texel(m, spmm_texel_at(m, s.uv), li, lo, residual);
+    }
+    if kind == MATERIAL_MERL {
+        return rgb_at(at + 4u) * merl_eval(data[at + 1u], li, lo) * max(li.z, 0.0);
     }
     return vec3<f32>(0.0);
 }

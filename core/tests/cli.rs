@@ -1445,10 +1445,29 @@ material = "gold"
     .expect("write scene");
     let merl_arg = merl_scene.to_str().expect("utf-8");
     // The spmm mode on the GPU names what it does not render yet (before it looks
-    // for an adapter).
+    // for an adapter): here a 17th light.
+    let many = dir.path().join("many.toml");
+    let mut text = std::fs::read_to_string(&merl_scene).expect("the scene");
+    for k in 0..16 {
+        text.push_str(&format!(
+            "[[light]]\nkind = \"point\"\nposition = [{}, 1.0, 0.5]\nintensity = [0.1, 0.1, 0.1]\n",
+            k as f64 * 0.1
+        ));
+    }
+    std::fs::write(&many, text).expect("write scene");
     assert_bad_input(
-        &meso(&["render", merl_arg, "-o", out_arg, "--device", "gpu"], ""),
-        &["spmm", "gpu", "material `gold` (merl)"],
+        &meso(
+            &[
+                "render",
+                many.to_str().expect("utf-8"),
+                "-o",
+                out_arg,
+                "--device",
+                "gpu",
+            ],
+            "",
+        ),
+        &["spmm", "gpu", "light[16] (point)"],
     );
     let shaded = dir.path().join("merl.exr");
     let o = meso(

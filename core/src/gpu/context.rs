@@ -17,6 +17,36 @@ pub enum GpuError {
     Lost { adapter: String, reason: String },
 }
 
+/// True for an adapter that is a GPU (discrete, integrated or virtual), false for a
+/// software rasteriser (lavapipe/llvmpipe, WARP) or an unknown kind.
+pub fn is_hardware(device_type: wgpu::DeviceType) -> bool {
+    matches!(
+        device_type,
+        wgpu::DeviceType::DiscreteGpu
+            | wgpu::DeviceType::IntegratedGpu
+            | wgpu::DeviceType::VirtualGpu
+    )
+}
+
+/// The name of the first hardware adapter of the backends `WGPU_BACKEND` names
+/// (`None`: only software adapters, or none), found once per process: the studio
+/// renders on the GPU by default when there is one.
+pub fn hardware_adapter() -> Option<String> {
+    static FOUND: std::sync::OnceLock<Option<String>> = std::sync::OnceLock::new();
+    FOUND
+        .get_or_init(|| {
+            let desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+            let backends = desc.backends;
+            let instance = wgpu::Instance::new(desc);
+            pollster::block_on(instance.enumerate_adapters(backends))
+                .iter()
+                .map(|a| a.get_info())
+                .find(|i| is_hardware(i.device_type))
+                .map(|i| format!("{} ({})", i.name, i.backend))
+        })
+        .clone()
+}
+
 /// One adapter's device and queue, shareable between modes (cloning shares them).
 #[derive(Clone)]
 pub struct GpuContext {
@@ -115,6 +145,11 @@ impl GpuContext {
     /// True for a software rasteriser (lavapipe/llvmpipe, WARP): correct, not fast.
     pub fn is_software(&self) -> bool {
         self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
+    /// The adapter's kind (discrete, integrated, CPU, ...).
+    pub fn info_type(&self) -> wgpu::DeviceType {
+        self.info.device_type
     }
 
     pub fn limits(&self) -> &wgpu::Limits {

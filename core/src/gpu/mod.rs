@@ -16,7 +16,7 @@ mod kernel;
 mod mode;
 mod shaders;
 
-pub use context::{GpuContext, GpuError};
+pub use context::{GpuContext, GpuError, hardware_adapter, is_hardware};
 pub use mode::{DeviceBytes, GpuSpmmMode};
 
 #[cfg(test)]

@@ -50,6 +50,8 @@ pub struct DeviceBytes {
     pub materials: u64,
     /// The environment map with its sampling tables, and the background image.
     pub environment: u64,
+    /// MERL tables and their sampling tables.
+    pub merl_tables: u64,
     /// One sample's layers and per-pixel masks (the f64 film itself is on the host).
     pub film: u64,
 }
@@ -63,6 +65,7 @@ impl DeviceBytes {
             + self.residual_tables
             + self.materials
             + self.environment
+            + self.merl_tables
             + self.film
     }
 }
@@ -108,9 +111,13 @@ fn device_size_problem(ctx: &GpuContext, width: u32, height: u32, layers: usize)
     })
 }
 
-/// Why the environment and background words would not fit in one buffer of the
-/// device (`None` if they fit).
-fn environment_size_problem(ctx: &GpuContext, words: usize) -> Option<String> {
+const ENVIRONMENT_WORDS: &str =
+    "the [environment] map with its sampling tables and the [background] image";
+const MATERIAL_WORDS_NAME: &str = "the materials (SPMM packs, MERL tables) and lights";
+
+/// Why `words` words of `what` would not fit in one buffer of the device (`None` if
+/// they fit).
+fn words_size_problem(ctx: &GpuContext, what: &str, words: usize) -> Option<String> {
     let bytes = words as u64 * 4;
     let limits = ctx.limits();
     let limit = limits
@@ -118,7 +125,7 @@ fn environment_size_problem(ctx: &GpuContext, words: usize) -> Option<String> {
         .min(limits.max_storage_buffer_binding_size);
     (bytes > limit).then(|| {
         format!(
-            "the [environment] map with its sampling tables and the [background] image need a {bytes}-byte buffer on the GPU; `{}` allows {limit}",
+            "{what} need a {bytes}-byte buffer on the GPU; `{}` allows {limit}",
             ctx.adapter_name()
         )
     })
@@ -162,6 +169,7 @@ impl SceneData {
         let mut words = Words::default();
         let mut table = Vec::with_capacity(scene.materials.len() * MATERIAL_WORDS);
         let mut residual = Vec::with_capacity(scene.materials.len());
+        let mut merl: Vec<(*const crate::merl::MerlBrdf, u32)> = Vec::new();
         for m in &scene.materials {
             let mut rec = [0u32; MATERIAL_WORDS];
             let mut uses_residual = false;
@@ -195,8 +203,22 @@ impl SceneData {
                         f(reflectance.z),
                     ]);
                 }
-                // `supports` refuses MERL tables; a zero record shades nothing.
-                Material::Merl { .. } | Material::Btf { .. } => rec[0] = u32::MAX,
+                Material::Merl { brdf, tint } => {
+                    rec[0] = 3;
+                    // A table shared by several materials goes up once.
+                    let key = std::sync::Arc::as_ptr(brdf);
+                    rec[1] = match merl.iter().find(|(k, _)| *k == key) {
+                        Some(&(_, at)) => at,
+                        None => {
+                            let at = words.push_merl(brdf);
+                            merl.push((key, at));
+                            at
+                        }
+                    };
+                    rec[4..7].copy_from_slice(&[f(tint.x), f(tint.y), f(tint.z)]);
+                }
+                // `supports` refuses BTF tables; a record of no kind shades nothing.
+                Material::Btf { .. } => rec[0] = u32::MAX,
             }
             table.extend_from_slice(&rec);
             residual.push(uses_residual);
@@ -274,9 +296,9 @@ const SLOTS: [Slot; 9] = [
 ];
 
 impl GpuSpmmMode {
-    /// What this mode cannot render in `scene`, each by name: MERL and BTF materials
-    /// and lights beyond the 16 of the exact per-light path (not yet on the device;
-    /// the CPU mode renders them).
+    /// What this mode cannot render in `scene`, each by name: BTF materials and lights
+    /// beyond the 16 of the exact per-light path (not yet on the device; the CPU mode
+    /// renders them).
     pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
         let mut parts: Vec<Unrenderable> = scene
             .materials
@@ -297,7 +319,7 @@ impl GpuSpmmMode {
     }
 
     fn unrenderable(scene: &Scene, index: usize, m: &Material) -> Option<Unrenderable> {
-        matches!(m, Material::Merl { .. } | Material::Btf { .. }).then(|| Unrenderable::Material {
+        matches!(m, Material::Btf { .. }).then(|| Unrenderable::Material {
             index,
             name: scene
                 .material_names
@@ -345,6 +367,10 @@ impl GpuSpmmMode {
         prepare.report("materials", 0.0)?;
         let start = Instant::now();
         let scene_data = SceneData::build(&scene);
+        if let Some(p) = words_size_problem(&ctx, MATERIAL_WORDS_NAME, scene_data.words.words.len())
+        {
+            return Err(ModeError::Size(p));
+        }
         stage("materials", start);
         prepare.report("environment", 0.0)?;
         let start = Instant::now();
@@ -353,7 +379,7 @@ impl GpuSpmmMode {
             .as_ref()
             .and_then(|e| EnvironmentSampler::new(&e.map));
         let env_words = environment::words(&scene, env_sampler.as_ref());
-        if let Some(p) = environment_size_problem(&ctx, env_words.len()) {
+        if let Some(p) = words_size_problem(&ctx, ENVIRONMENT_WORDS, env_words.len()) {
             return Err(ModeError::Size(p));
         }
         stage("environment", start);
@@ -406,6 +432,7 @@ impl GpuSpmmMode {
             residual_tables: d.residual_tables,
             materials: d.materials,
             environment: self.res.env.size(),
+            merl_tables: d.merl_tables,
             film: self.res.frame.size() + self.res.aux.size(),
         }
     }
@@ -725,6 +752,7 @@ impl RenderMode for GpuSpmmMode {
             ("residual_tables", b.residual_tables),
             ("materials", b.materials),
             ("environment", b.environment),
+            ("merl_tables", b.merl_tables),
             ("film", b.film),
         ]
     }
@@ -778,7 +806,7 @@ impl RenderMode for GpuSpmmMode {
             SceneEdit::Background(b) => environment::word_count(self.scene.environment.as_ref(), b),
             _ => 0,
         };
-        if let Some(p) = environment_size_problem(&self.ctx, env_words) {
+        if let Some(p) = words_size_problem(&self.ctx, ENVIRONMENT_WORDS, env_words) {
             return Err(EditError::Size(p));
         }
         if let SceneEdit::AddLight(_) = edit {

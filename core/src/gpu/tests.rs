@@ -55,6 +55,7 @@ fn test_module() -> String {
         shaders::TRAVERSAL,
         shaders::BRDF,
         shaders::SPMM,
+        shaders::MERL,
     ])
 }
 
@@ -447,7 +448,10 @@ fn gpu_mode(scene: crate::scene::Scene, size: u32) -> super::GpuSpmmMode {
 /// The GPU image after `frames` frames against the CPU's converged one: an error no
 /// larger than the CPU's own after as many frames (independent samples, as the GPU
 /// draws them) times 1.25 plus a floor of 1% of the image's mean, the same mean within
-/// 2%, no non-finite pixel and no traversal past its bounds.
+/// 2% plus four standard errors of an image mean after `frames` frames (the CPU's own
+/// RMSE over the square root of the pixel count: sharp MERL lobes make rare, large
+/// samples, whose noise in the mean is far above 2% at 16 frames), no non-finite pixel
+/// and no traversal past its bounds.
 fn image_agrees_with_the_cpu(scene_file: &str, size: u32, frames: u32) {
     image_of_scene_agrees_with_the_cpu(scene_file, test_scene(scene_file), size, frames);
 }
@@ -488,9 +492,10 @@ fn image_of_scene_agrees_with_the_cpu(
         e_gpu <= 1.25 * e_cpu + 0.01 * m_ref,
         "{scene_file}: GPU RMSE {e_gpu} against the CPU's {e_cpu}"
     );
+    let standard_error = e_cpu / f64::from(size);
     assert!(
-        (m_gpu - m_ref).abs() <= 0.02 * m_ref,
-        "{scene_file}: mean {m_gpu} against {m_ref}"
+        (m_gpu - m_ref).abs() <= 0.02 * m_ref + 4.0 * standard_error,
+        "{scene_file}: mean {m_gpu} against {m_ref} (standard error {standard_error})"
     );
 }
 
@@ -603,24 +608,13 @@ fn unsupported_parts_are_named() {
         }],
         "{err}"
     );
-    let mut gpu = gpu_mode(test_scene("cornell.toml"), 8);
-    let gold = crate::scene::Material::Merl {
-        brdf: std::sync::Arc::new(
-            crate::merl::tabulate(
-                &AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
-                DVec3::ONE,
-            )
-            .expect("tabulates"),
-        ),
-        tint: DVec3::ONE,
-    };
+    many.lights.truncate(16);
+    let mut gpu = gpu_mode(many, 8);
     let err = gpu
-        .apply(SceneEdit::Material {
-            index: 0,
-            material: gold,
-        })
-        .expect_err("MERL refused");
-    assert!(err.to_string().contains("(merl)"), "{err}");
+        .apply(SceneEdit::AddLight(light))
+        .expect_err("a 17th light refused");
+    assert!(err.to_string().contains("light[16] (area)"), "{err}");
+    assert_eq!(gpu.scene().lights.len(), 16);
 }
 
 /// The code-built edit scene: an SPMM panel with a PCA residual under an area and a
@@ -798,4 +792,199 @@ fn brdf_sampling_matches_the_f64_reference() {
         "pdf: worst {worst_pdf:.3} of the tolerance; directions: {drawn} drawn, worst {worst_dir:.2e}"
     );
     assert!(drawn > cases.len() / 4, "most samples are drawn: {drawn}");
+}
+
+/// A MERL table (a tabulated Cook-Torrance lobe with every 7th cell's red channel
+/// marked "no data") with its sampling tables in the data words.
+fn merl_test_table() -> (Words, u32, crate::merl::MerlBrdf) {
+    let lobe =
+        AnalyticBrdf::new(BrdfModel::CookTorrance, &[("m", 0.15), ("f0", 0.6)]).expect("a lobe");
+    let tabulated = crate::merl::tabulate(&lobe, DVec3::new(0.9, 0.6, 0.3)).expect("tabulates");
+    let mut stored = tabulated.stored().to_vec();
+    for cell in stored.iter_mut().step_by(7) {
+        cell[0] = -1.0;
+    }
+    let brdf = crate::merl::MerlBrdf::from_stored(stored).expect("a table");
+    let mut words = Words::default();
+    let record = words.push_merl(&brdf);
+    (words, record, brdf)
+}
+
+/// The distance in index units from `c` to the nearest bin edge among `edges`.
+fn edge_distance(c: f64, edges: std::ops::RangeInclusive<i64>) -> f64 {
+    (c - (c.round() as i64).clamp(*edges.start(), *edges.end()) as f64).abs()
+}
+
+/// Where `HalfDiff` puts a pair, in index units: the distance to the nearest bin edge
+/// (f32 directions may land on the other side of an edge closer than this). The
+/// theta indices are clamped at their ends; phi_d's fold makes 0 and 180 edges too.
+fn merl_edge_distance(wi: DVec3, wo: DVec3) -> f64 {
+    use std::f64::consts::{FRAC_PI_2, PI};
+    let h = crate::merl::HalfDiff::from_directions(wi, wo);
+    edge_distance((h.theta_h / FRAC_PI_2).sqrt() * 90.0, 1..=89)
+        .min(edge_distance(h.theta_d / FRAC_PI_2 * 90.0, 1..=89))
+        .min(edge_distance(h.phi_d / PI * 180.0, 0..=180))
+}
+
+/// The same for `MerlSampler::pdf`'s band of `wo`, row and column of `wi`.
+fn merl_sampler_edge_distance(wi: DVec3, wo: DVec3) -> f64 {
+    use std::f64::consts::{FRAC_PI_2, TAU};
+    let theta_o = wo.x.hypot(wo.y).atan2(wo.z);
+    let phi = (wi.y.atan2(wi.x) - wo.y.atan2(wo.x)).rem_euclid(TAU);
+    edge_distance(theta_o / FRAC_PI_2 * 45.0, 1..=44)
+        .min(edge_distance(wi.z * 64.0, 1..=63))
+        .min(edge_distance(phi / TAU * 128.0, 0..=128))
+}
+
+/// MERL in WGSL against core: the nearest-cell value on random and grazing pairs
+/// (equal to the f64 value rounded to f32, cells without data 0), except pairs within
+/// 1e-3 of a bin edge in index units (at most 10% of them); the sampling pdf within
+/// 1e-5 relative except within 1e-3 of a band, row or column edge (at most 15%), and
+/// the drawn direction within 1e-4 per component from the CPU's own tables,
+/// disagreeing on at most 1% of cases (an f32 CDF entry or band edge next to the
+/// number drawn).
+#[test]
+fn merl_lookup_and_sampling_match_the_cpu() {
+    use glam::DVec2;
+    let (words, record, brdf) = merl_test_table();
+    let pairs = direction_pairs(11, 4000);
+    let mut cases = Vec::new();
+    for &(wi, wo) in &pairs {
+        let case = Case {
+            kind: 5,
+            record,
+            wi,
+            wo,
+            texel: 0,
+            residual: false,
+        };
+        cases.push(case);
+        cases.push(Case { kind: 6, ..case });
+    }
+    let mut s = SampleStream::new(&[12]);
+    let mut us = Vec::new();
+    for &(_, wo) in &pairs {
+        let u = DVec2::new(s.next(), s.next()).as_vec2().as_dvec2();
+        us.push(u);
+        cases.push(Case {
+            kind: 7,
+            record,
+            wi: DVec3::new(u.x, u.y, 0.0),
+            wo,
+            texel: 0,
+            residual: false,
+        });
+    }
+    let got = evaluate(&words.words, &cases);
+    let (mut near_edge, mut nonzero, mut pdf_off, mut dir_off, mut drawn) = (0, 0, 0, 0, 0);
+    for (k, &(wi, wo)) in pairs.iter().enumerate() {
+        let (g, gp) = (got[2 * k], got[2 * k + 1][0]);
+        assert!(
+            g.iter().all(|v| v.is_finite() && *v >= 0.0),
+            "{wi} {wo}: {g:?}"
+        );
+        let c = brdf.eval(wi, wo);
+        if merl_edge_distance(wi, wo) < 1e-3 {
+            near_edge += 1;
+        } else {
+            for ch in 0..3 {
+                assert_eq!(g[ch], c[ch] as f32, "channel {ch} at wi {wi} wo {wo}");
+            }
+            nonzero += usize::from(c.x > 0.0);
+        }
+        let cp = brdf.pdf(wo, wi);
+        assert!(gp.is_finite() && gp >= 0.0, "pdf at {wi} {wo}: {gp}");
+        if merl_sampler_edge_distance(wi, wo) < 1e-3 {
+            pdf_off += 1;
+        } else {
+            assert!(
+                (gp as f64 - cp).abs() <= 1e-5 * cp,
+                "pdf at wi {wi} wo {wo}: gpu {gp}, f64 {cp}"
+            );
+        }
+        let g = got[2 * pairs.len() + k];
+        let g = DVec3::new(g[0] as f64, g[1] as f64, g[2] as f64);
+        match brdf.sample(wo, us[k]) {
+            Some(c) => {
+                drawn += 1;
+                if (g - c.wi).abs().max_element() > 1e-4 {
+                    dir_off += 1;
+                }
+            }
+            None => assert_eq!(g, DVec3::ZERO, "only the GPU draws at wo {wo}"),
+        }
+    }
+    eprintln!(
+        "MERL: {near_edge} of {} pairs next to a bin edge, {nonzero} nonzero red values compared; {pdf_off} pdfs next to a sampler edge, direction off on {dir_off} of {drawn}",
+        pairs.len()
+    );
+    // Both-grazing pairs put phi_d at pi/2 within f32 rounding (a bin edge): measured
+    // 6.4% of the pairs.
+    assert!(
+        near_edge * 10 <= pairs.len(),
+        "{near_edge} pairs near an edge"
+    );
+    assert!(nonzero > pairs.len() / 4, "red channel compared: {nonzero}");
+    // The mirror pairs (every 8th) put phi_i - phi_o at pi exactly, a column edge.
+    assert!(
+        pdf_off * 100 <= pairs.len() * 15,
+        "{pdf_off} pdfs near an edge"
+    );
+    assert!(
+        drawn > pairs.len() / 2 && dir_off * 100 <= drawn,
+        "direction off on {dir_off}"
+    );
+}
+
+/// The MERL scene (two tabulated tables, the studio map with MIS, an area light).
+#[test]
+fn the_merl_scene_on_the_gpu_agrees_with_the_cpu() {
+    image_agrees_with_the_cpu("merl_bunny.toml", 32, 16);
+}
+
+/// Only GPUs count as hardware for the studio's default device: the adapter CI has
+/// (lavapipe, a CPU adapter) does not, so there the studio stays on the CPU.
+#[test]
+fn software_adapters_are_not_hardware() {
+    use wgpu::DeviceType;
+    assert!(super::is_hardware(DeviceType::DiscreteGpu));
+    assert!(super::is_hardware(DeviceType::IntegratedGpu));
+    assert!(!super::is_hardware(DeviceType::Cpu));
+    assert!(!super::is_hardware(DeviceType::Other));
+    assert_eq!(
+        context().is_software(),
+        !super::is_hardware(context().info_type())
+    );
+    if context().is_software() {
+        assert_eq!(
+            super::hardware_adapter(),
+            None,
+            "{}",
+            context().adapter_name()
+        );
+    }
+}
+
+/// Diagnostics (not a check): means of the MERL scene's variants after many frames on
+/// both devices. `cargo test -p meso-core --lib merl_means -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn merl_means() {
+    use crate::render::{RenderMode, run_frames};
+    let base = test_scene("merl_bunny.toml");
+    let mut lights_only = base.clone();
+    lights_only.environment = None;
+    let mut env_only = base.clone();
+    env_only.lights.clear();
+    for (name, scene) in [("all", base), ("lights", lights_only), ("env", env_only)] {
+        let mut gpu = gpu_mode(scene.clone(), 32);
+        run_frames(&mut gpu, 256, |_, _| {});
+        let mut cpu = crate::trace::SpmmMode::new(scene, 32, 32).expect("CPU mode");
+        run_frames(&mut cpu, 256, |_, _| {});
+        eprintln!(
+            "{name}: gpu {:.5} cpu {:.5}",
+            mean(&gpu.image()),
+            mean(&cpu.image())
+        );
+    }
 }

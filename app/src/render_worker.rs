@@ -76,6 +76,14 @@ pub struct Frame {
     pub material_bytes: Option<meso_core::render::MaterialBytes>,
 }
 
+/// Something the thread did on its own: a failed device replaced.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Notice {
+    pub message: String,
+    /// The mode and device rendering from now on (`None`: none could take over).
+    pub now: Option<(ModeKind, Device)>,
+}
+
 /// A rejected command: the version it carried and why.
 #[derive(Clone, Debug)]
 pub struct Rejected {
@@ -87,7 +95,7 @@ struct Shared {
     frame: Option<Frame>,
     rejected: Vec<Rejected>,
     /// What the thread did on its own (fell back to the CPU), for the status line.
-    notices: Vec<String>,
+    notices: Vec<Notice>,
 }
 
 pub struct RenderWorker {
@@ -144,7 +152,7 @@ impl RenderWorker {
 
     /// What the thread did on its own since the last call (a failed GPU replaced by
     /// the CPU), one line each.
-    pub fn take_notices(&self) -> Vec<String> {
+    pub fn take_notices(&self) -> Vec<Notice> {
         self.shared
             .lock()
             .map(|mut s| std::mem::take(&mut s.notices))
@@ -304,8 +312,9 @@ fn run(
                 Ok(_) => format!("{failure}; rendering on the CPU"),
                 Err(e) => format!("{failure}; the CPU cannot take over: {e}"),
             };
+            let now = fallback.as_ref().ok().map(|m| (m.kind(), m.device()));
             if let Ok(mut s) = shared.lock() {
-                s.notices.push(message);
+                s.notices.push(Notice { message, now });
             }
             mode = fallback.ok();
             guides = None;
@@ -477,7 +486,10 @@ mod tests {
         assert_eq!(cpu_made.load(Ordering::Relaxed), 1);
         assert_eq!(
             notices,
-            vec!["the GPU `fake` failed; rendering on the CPU".to_string()]
+            vec![Notice {
+                message: "the GPU `fake` failed; rendering on the CPU".into(),
+                now: Some((ModeKind::Spmm, Device::Cpu)),
+            }]
         );
         assert!(worker.take_rejected().is_empty());
         // The CPU renders the edited scene: its image is a fresh CPU render of the

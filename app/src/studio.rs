@@ -1010,7 +1010,11 @@ impl Studio {
     /// Takes the newest frame and measures how long the edits before it took.
     fn receive(&mut self) {
         for notice in self.worker.take_notices() {
-            self.error = Some(notice);
+            // The status bar and the Device switch follow the device now rendering.
+            if let Some(now) = notice.now {
+                self.mode = now;
+            }
+            self.error = Some(notice.message);
         }
         for r in self.worker.take_rejected() {
             self.error = Some(format!(

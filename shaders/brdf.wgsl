@@ -152,3 +152,207 @@ fn basis_eval(at: u32, wi: vec3<f32>, wo: vec3<f32>) -> f32 {
     let lo = vec3<f32>(dot(wo, fx), dot(wo, fy), dot(wo, fz));
     return brdf_eval(load_brdf(at), li, lo) * c;
 }
+
+// Importance sampling of the analytic BRDFs, as core/src/brdf/ draws them (warp.rs and
+// each model's `sample_half`/`pdf_half`): the cosine hemisphere for Lambertian and
+// Oren-Nayar, the half vector for Blinn-Phong, Ward, Cook-Torrance and
+// Ashikhmin-Shirley (p(wi) = p(h) / (4 wo.h)), the Phong lobe about the reflected
+// axis for Lafortune. Local frame (+z the normal). The environment's MIS uses them.
+
+// A direction from its polar cosine and sine: sharp lobes keep theta near 0, where
+// cos rounds to 1 in f32 and sqrt(1 - cos^2) would lose every digit of the sine.
+fn spherical_dir(cos_t: f32, sin_t: f32, phi: f32) -> vec3<f32> {
+    return vec3<f32>(sin_t * cos(phi), sin_t * sin(phi), cos_t);
+}
+
+// e^x - 1 without the cancellation of exp(x) - 1 for small x (Kahan's trick).
+fn expm1_f32(x: f32) -> f32 {
+    let u = exp(x);
+    if u == 1.0 {
+        return x;
+    }
+    let um1 = u - 1.0;
+    if um1 == -1.0 {
+        return -1.0;
+    }
+    return um1 * x / log(u);
+}
+
+// cos and sin of theta where cos theta = (1 - u)^(1 / (n + 1)) (the Phong lobe and
+// Ashikhmin-Shirley's half vector), the sine from 1 - cos^2 = -expm1(2 ln(1 - u) / (n + 1)).
+fn power_cos_sin(u: f32, n: f32) -> vec2<f32> {
+    let x = 2.0 * log1p_f32(-u) / (n + 1.0);
+    return vec2<f32>(exp(0.5 * x), sqrt(max(-expm1_f32(x), 0.0)));
+}
+
+// cos and sin of theta from tan^2 theta (Ward, Beckmann).
+fn tan2_cos_sin(tan2: f32) -> vec2<f32> {
+    let c = 1.0 / sqrt(1.0 + tan2);
+    return vec2<f32>(c, sqrt(tan2) * c);
+}
+
+// Duff et al. 2017: a tangent and bitangent completing the unit `n`.
+fn basis_of(n: vec3<f32>) -> mat3x3<f32> {
+    let sign = select(-1.0, 1.0, n.z >= 0.0);
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    return mat3x3<f32>(
+        vec3<f32>(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
+        vec3<f32>(b, sign + n.y * n.y * a, -n.y),
+        n);
+}
+
+fn phong_lobe(axis: vec3<f32>, n: f32, u: vec2<f32>) -> vec3<f32> {
+    let cs = power_cos_sin(u.x, n);
+    return basis_of(axis) * spherical_dir(cs.x, cs.y, 2.0 * PI * u.y);
+}
+
+fn phong_lobe_pdf(axis: vec3<f32>, n: f32, w: vec3<f32>) -> f32 {
+    let c = dot(axis, w);
+    if c <= 0.0 {
+        return 0.0;
+    }
+    return (n + 1.0) / (2.0 * PI) * exp2(n * log2(c));
+}
+
+fn cosine_dir(u: vec2<f32>) -> vec3<f32> {
+    let r = sqrt(u.x);
+    let phi = 2.0 * PI * u.y;
+    return vec3<f32>(r * cos(phi), r * sin(phi), sqrt(max(1.0 - u.x, 0.0)));
+}
+
+// Lafortune's lobe axis for `wo`, or zero where it vanishes (then the cosine).
+fn lafortune_axis(b: Brdf, wo: vec3<f32>) -> vec3<f32> {
+    let a = b.p.xyz * wo;
+    let l2 = dot(a, a);
+    if l2 > 1e-36 && l2 < 3.0e38 {
+        return a * inverseSqrt(l2);
+    }
+    return vec3<f32>(0.0);
+}
+
+// The half-vector density p(h) of the four microfacet-like models.
+fn pdf_half(b: Brdf, h: vec3<f32>) -> f32 {
+    switch b.model {
+        case 2u: {
+            var p = 1.0;
+            if b.p.x != 0.0 {
+                p = exp(b.p.x * ln_cos(h));
+            }
+            return (b.p.x + 1.0) / (2.0 * PI) * p;
+        }
+        case 3u: {
+            let r = 1.0 / h.z;
+            let x = h.x * r / b.p.x;
+            let y = h.y * r / b.p.y;
+            let e = exp(-(x * x + y * y));
+            if e == 0.0 {
+                return 0.0;
+            }
+            return e / (PI * b.p.x * b.p.y * h.z * h.z * h.z);
+        }
+        case 4u: {
+            let m2 = b.p.x * b.p.x;
+            let e = exp(-(h.x * h.x + h.y * h.y) / (h.z * h.z * m2));
+            if e == 0.0 {
+                return 0.0;
+            }
+            let c2 = h.z * h.z;
+            return e / (PI * m2 * c2 * c2) * h.z;
+        }
+        case 6u: {
+            let t = h.x * h.x + h.y * h.y;
+            var p = 1.0;
+            if t != 0.0 {
+                p = exp((b.p.x * h.x * h.x + b.p.y * h.y * h.y) / t * ln_cos(h));
+            }
+            return sqrt((b.p.x + 1.0) * (b.p.y + 1.0)) / (2.0 * PI) * p;
+        }
+        default: {
+            return 0.0;
+        }
+    }
+}
+
+fn sample_half(b: Brdf, u: vec2<f32>) -> vec3<f32> {
+    switch b.model {
+        case 2u: {
+            return phong_lobe(vec3<f32>(0.0, 0.0, 1.0), b.p.x, u);
+        }
+        case 3u: {
+            let psi = 2.0 * PI * u.y;
+            let phi = atan2(b.p.y * sin(psi), b.p.x * cos(psi));
+            let c = cos(phi);
+            let s = sin(phi);
+            let a = c * c / (b.p.x * b.p.x) + s * s / (b.p.y * b.p.y);
+            let cs = tan2_cos_sin(-log1p_f32(-u.x) / a);
+            return spherical_dir(cs.x, cs.y, phi);
+        }
+        case 4u: {
+            let cs = tan2_cos_sin(-b.p.x * b.p.x * log1p_f32(-u.x));
+            return spherical_dir(cs.x, cs.y, 2.0 * PI * u.y);
+        }
+        default: {
+            let psi = 2.0 * PI * u.y;
+            let phi = atan2(sqrt(b.p.x + 1.0) * sin(psi), sqrt(b.p.y + 1.0) * cos(psi));
+            let c = cos(phi);
+            let s = sin(phi);
+            let e = b.p.x * c * c + b.p.y * s * s;
+            let cs = power_cos_sin(u.x, e);
+            return spherical_dir(cs.x, cs.y, phi);
+        }
+    }
+}
+
+// The solid-angle density with which `brdf_sample(b, wo, .)` returns `wi`.
+fn brdf_pdf(b: Brdf, wo: vec3<f32>, wi: vec3<f32>) -> f32 {
+    if wi.z <= 0.0 || wo.z <= 0.0 {
+        return 0.0;
+    }
+    if b.model == LAMBERTIAN || b.model == OREN_NAYAR {
+        return wi.z * INV_PI;
+    }
+    if b.model == LAFORTUNE {
+        let axis = lafortune_axis(b, wo);
+        if all(axis == vec3<f32>(0.0)) {
+            return wi.z * INV_PI;
+        }
+        return phong_lobe_pdf(axis, b.p.w, wi);
+    }
+    let hv = half_vector(wi, wo);
+    if hv.h.z <= 0.0 {
+        return 0.0;
+    }
+    return pdf_half(b, hv.h) / (4.0 * hv.cos_d);
+}
+
+// A direction drawn for `wo` with its pdf (xyz, w); w = 0 where none is drawn (below
+// the horizon, as the CPU's `None`).
+fn brdf_sample(b: Brdf, wo: vec3<f32>, u: vec2<f32>) -> vec4<f32> {
+    if wo.z <= 0.0 {
+        return vec4<f32>(0.0);
+    }
+    var wi: vec3<f32>;
+    if b.model == LAMBERTIAN || b.model == OREN_NAYAR {
+        wi = cosine_dir(u);
+    } else if b.model == LAFORTUNE {
+        let axis = lafortune_axis(b, wo);
+        if all(axis == vec3<f32>(0.0)) {
+            wi = cosine_dir(u);
+        } else {
+            wi = phong_lobe(axis, b.p.w, u);
+        }
+    } else {
+        let h = sample_half(b, u);
+        let d = dot(wo, h);
+        if d <= 0.0 {
+            return vec4<f32>(0.0);
+        }
+        wi = 2.0 * d * h - wo;
+    }
+    let pdf = brdf_pdf(b, wo, wi);
+    if wi.z > 0.0 && pdf > 0.0 && pdf < F32_MAX {
+        return vec4<f32>(wi, pdf);
+    }
+    return vec4<f32>(0.0);
+}

@@ -19,7 +19,7 @@ struct Params {
     lights: u32,
     light_table: u32,
     material_table: u32,
-    // 1: rays that leave the scene add to the background layer.
+    // What rays that leave the scene add (environment.wgsl, ESCAPE_*).
     background: u32,
     // Negative: no ambient term.
     ambient_radius: f32,
@@ -45,6 +45,8 @@ struct Params {
 // SPMM texture coordinates shaded (min u, min v, max u, max v as f32 bits).
 @group(0) @binding(6) var<storage, read_write> aux: array<u32>;
 @group(0) @binding(7) var<storage, read_write> counters: array<atomic<u32>>;
+// The environment map, its sampling tables and the background image (environment.wgsl).
+@group(0) @binding(8) var<storage, read> env: array<u32>;
 
 const MAX_LAYERS: u32 = 19u;
 const LAYER_BACKGROUND: u32 = 0u;
@@ -56,6 +58,7 @@ const MATERIAL_WORDS: u32 = 8u;
 const MATERIAL_BRDF: u32 = 0u;
 const MATERIAL_SPMM: u32 = 1u;
 const MATERIAL_MIRROR: u32 = 2u;
+const MATERIAL_MERL: u32 = 3u;
 // Counter slots after the traversal's two.
 const COUNT_PRIMARY: u32 = 2u;
 const COUNT_SHADOW: u32 = 3u;
@@ -69,6 +72,7 @@ struct Counts {
     ambient: u32,
     specular: u32,
     shading: u32,
+    environment: u32,
 }
 
 var<private> acc: array<vec3<f32>, MAX_LAYERS>;
@@ -200,6 +204,9 @@ fn response(s: Shading, wi: vec3<f32>, wo: vec3<f32>) -> vec3<f32> {
         let residual = data[at + 2u] != 0u && params.moving == 0u;
         return spmm_eval_texel(m, spmm_texel_at(m, s.uv), li, lo, residual);
     }
+    if kind == MATERIAL_MERL {
+        return rgb_at(at + 4u) * merl_eval(data[at + 1u], li, lo) * max(li.z, 0.0);
+    }
     return vec3<f32>(0.0);
 }
 
@@ -215,7 +222,7 @@ fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups)
     for (var l = 0u; l < MAX_LAYERS; l++) {
         acc[l] = vec3<f32>(0.0);
     }
-    counts = Counts(0u, 0u, 0u, 0u);
+    counts = Counts(0u, 0u, 0u, 0u, 0u);
     mask = vec2<u32>(0u);
     uv_box = vec4<f32>(3.4e38, 3.4e38, -3.4e38, -3.4e38);
     var rng = Rng(pcg(pixel + pcg(params.sample_lo + pcg(params.seed ^ pcg(params.sample_hi)))));
@@ -231,8 +238,17 @@ fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups)
     for (var depth = 0u; depth <= max_depth; depth++) {
         let hit = traverse(make_ray(origin, dir, 0.0, FAR), false);
         if hit.prim == NO_HIT {
-            if params.background == 1u {
-                add_layer(pixel, LAYER_BACKGROUND, throughput);
+            switch params.background {
+                case ESCAPE_COLOR: {
+                    add_layer(pixel, LAYER_BACKGROUND, throughput);
+                }
+                case ESCAPE_IMAGE: {
+                    add_layer(pixel, LAYER_BACKGROUND, throughput * background_radiance(dir));
+                }
+                case ESCAPE_ENVIRONMENT: {
+                    add_layer(pixel, LAYER_ENVIRONMENT, throughput * env_radiance(dir));
+                }
+                default: {}
             }
             break;
         }
@@ -263,6 +279,7 @@ fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups)
         counts.shading += 1u;
         sample_lights(s, wo, lift, throughput, pixel, &rng);
         sample_ambient(s, wo, lift, throughput, pixel, &rng);
+        sample_environment(s, wo, lift, throughput, pixel, &rng);
         break;
     }
 
@@ -285,4 +302,5 @@ fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups)
     atomicAdd(&counters[COUNT_AMBIENT], counts.ambient);
     atomicAdd(&counters[COUNT_SPECULAR], counts.specular);
     atomicAdd(&counters[COUNT_SHADING], counts.shading);
+    atomicAdd(&counters[COUNT_ENVIRONMENT], counts.environment);
 }

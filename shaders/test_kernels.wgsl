@@ -2,7 +2,9 @@
 // evaluations, and closest hits of given rays, read back and compared with the CPU.
 
 @group(0) @binding(0) var<storage, read> data: array<u32>;
-// eval_cases: per case 8 words: kind (0 BRDF, 1 basis, 2 SPMM texel), record offset,
+// eval_cases: per case 8 words: kind (0 BRDF, 1 basis, 2 SPMM texel, 3 BRDF sampling
+// pdf, 4 BRDF sample with the uniform numbers in wi.xy, 5 MERL value, 6 MERL sampling
+// pdf, 7 MERL sample), record offset,
 // wi, wo (f32 bits); SPMM cases: texel in word 8, residual flag in word 9 (10 words).
 // trace_rays: per ray 8 words: origin, direction (f32 bits), tmin, tmax.
 @group(0) @binding(1) var<storage, read> cases: array<u32>;
@@ -33,6 +35,17 @@ fn eval_cases(@builtin(global_invocation_id) id: vec3<u32>) {
         v = vec3<f32>(brdf_eval(load_brdf(record), wi, wo));
     } else if kind == 1u {
         v = vec3<f32>(basis_eval(record, wi, wo));
+    } else if kind == 3u {
+        v = vec3<f32>(brdf_pdf(load_brdf(record), wo, wi));
+    } else if kind == 4u {
+        // wi.xy: the two uniform numbers; the drawn direction (zero: none).
+        v = brdf_sample(load_brdf(record), wo, wi.xy).xyz;
+    } else if kind == 5u {
+        v = merl_eval(record, wi, wo);
+    } else if kind == 6u {
+        v = vec3<f32>(merl_pdf(record, wo, wi));
+    } else if kind == 7u {
+        v = merl_sample(record, wo, wi.xy).xyz;
     } else {
         v = spmm_eval_texel(record, cases[at + 8u], wi, wo, cases[at + 9u] != 0u);
     }

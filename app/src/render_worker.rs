@@ -79,6 +79,14 @@ pub struct Frame {
     pub material_bytes: Option<meso_core::render::MaterialBytes>,
 }
 
+/// Something the thread did on its own: a failed device replaced.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Notice {
+    pub message: String,
+    /// The mode and device rendering from now on (`None`: none could take over).
+    pub now: Option<(ModeKind, Device)>,
+}
+
 /// A rejected command: the version it carried and why.
 #[derive(Clone, Debug)]
 pub struct Rejected {
@@ -89,6 +97,8 @@ pub struct Rejected {
 struct Shared {
     frame: Option<Frame>,
     rejected: Vec<Rejected>,
+    /// What the thread did on its own (fell back to the CPU), for the status line.
+    notices: Vec<Notice>,
 }
 
 pub struct RenderWorker {
@@ -109,6 +119,7 @@ impl RenderWorker {
         let shared = Arc::new(Mutex::new(Shared {
             frame: None,
             rejected: Vec::new(),
+            notices: Vec::new(),
         }));
         let out = Arc::clone(&shared);
         let thread = std::thread::Builder::new()
@@ -139,6 +150,15 @@ impl RenderWorker {
         self.shared
             .lock()
             .map(|mut s| std::mem::take(&mut s.rejected))
+            .unwrap_or_default()
+    }
+
+    /// What the thread did on its own since the last call (a failed GPU replaced by
+    /// the CPU), one line each.
+    pub fn take_notices(&self) -> Vec<Notice> {
+        self.shared
+            .lock()
+            .map(|mut s| std::mem::take(&mut s.notices))
             .unwrap_or_default()
     }
 
@@ -385,9 +405,188 @@ fn run(
         } else {
             m.render_frame()
         };
+        if let Some(failure) = m.failure() {
+            // The device failed (a GPU lost): the same scene, edits included, goes on
+            // on the CPU, and the studio says why.
+            let progress = m.progress();
+            let fallback = maker.create(
+                m.kind(),
+                Device::Cpu,
+                m.scene().clone(),
+                progress.width,
+                progress.height,
+                Prepare::quietly(),
+            );
+            let message = match &fallback {
+                Ok(_) => format!("{failure}; rendering on the CPU"),
+                Err(e) => format!("{failure}; the CPU cannot take over: {e}"),
+            };
+            let now = fallback.as_ref().ok().map(|m| (m.kind(), m.device()));
+            if let Ok(mut s) = shared.lock() {
+                s.notices.push(Notice { message, now });
+            }
+            mode = fallback.ok();
+            guides = None;
+            continue;
+        }
         if !early.is_empty() {
             continue;
         }
         publish(frame_of(m.as_ref(), stats, version, denoise, &mut guides));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::atomic::{AtomicU32, Ordering};
+
+    use meso_core::render::{
+        EditError, FrameStats, Invalidation, ModeError, PreparationReport, SceneEdit,
+    };
+
+    use super::*;
+    use crate::mode_maker::CoreModes;
+
+    /// Core's CPU spmm mode posing as a GPU mode whose device fails on its third
+    /// frame, as a lost GPU does: nothing more is added after it.
+    struct FailsOnThirdFrame {
+        inner: Box<dyn RenderMode>,
+        frames: u32,
+    }
+
+    impl RenderMode for FailsOnThirdFrame {
+        fn kind(&self) -> ModeKind {
+            ModeKind::Spmm
+        }
+        fn device(&self) -> Device {
+            Device::Gpu
+        }
+        fn scene(&self) -> &Scene {
+            self.inner.scene()
+        }
+        fn render_frame(&mut self) -> FrameStats {
+            self.frames += 1;
+            if self.frames >= 3 {
+                return FrameStats::default();
+            }
+            self.inner.render_frame()
+        }
+        fn image(&self) -> Image {
+            self.inner.image()
+        }
+        fn progress(&self) -> Progress {
+            self.inner.progress()
+        }
+        fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
+            self.inner.apply(edit)
+        }
+        fn set_samples_per_frame(&mut self, samples: u32) {
+            self.inner.set_samples_per_frame(samples);
+        }
+        fn preparation(&self) -> PreparationReport {
+            self.inner.preparation()
+        }
+        fn failure(&self) -> Option<ModeError> {
+            (self.frames >= 3).then(|| ModeError::DeviceFailed("the GPU `fake` failed".into()))
+        }
+    }
+
+    /// Core's modes, but the GPU is the failing one; counts CPU modes made.
+    struct FailingGpu {
+        cpu_made: Arc<AtomicU32>,
+    }
+
+    impl ModeMaker for FailingGpu {
+        fn supports(&self, kind: ModeKind, _: Device, scene: &Scene) -> Result<(), ModeError> {
+            CoreModes.supports(kind, Device::Cpu, scene)
+        }
+        fn create(
+            &self,
+            kind: ModeKind,
+            device: Device,
+            scene: Scene,
+            width: u32,
+            height: u32,
+            prepare: Prepare,
+        ) -> Result<Box<dyn RenderMode>, ModeError> {
+            let inner = CoreModes.create(kind, Device::Cpu, scene, width, height, prepare)?;
+            Ok(match device {
+                Device::Gpu => Box::new(FailsOnThirdFrame { inner, frames: 0 }),
+                Device::Cpu => {
+                    self.cpu_made.fetch_add(1, Ordering::Relaxed);
+                    inner
+                }
+            })
+        }
+    }
+
+    /// A GPU that fails mid-render does not end the render thread: it says why, and
+    /// the same scene with its edits renders on the CPU from then on.
+    #[test]
+    fn a_failed_gpu_falls_back_to_the_cpu_with_the_edited_scene() {
+        let cpu_made = Arc::new(AtomicU32::new(0));
+        let worker = RenderWorker::spawn_with(
+            None,
+            Arc::new(FailingGpu {
+                cpu_made: Arc::clone(&cpu_made),
+            }),
+        );
+        let path = crate::studio::default_scene_path().with_file_name("cornell.toml");
+        let scene = meso_core::scene::load_scene(&path).expect("the Cornell scene");
+        assert!(worker.send(Command::Load {
+            version: 1,
+            scene: Box::new(scene.clone()),
+            mode: ModeKind::Spmm,
+            device: Device::Gpu,
+            width: 8,
+            height: 8,
+        }));
+        // An edit the GPU mode takes before it fails: the CPU must keep it.
+        let light = scene.lights[0].with_emission(scene.lights[0].emission() * 3.0);
+        assert!(worker.send(Command::Edit {
+            version: 2,
+            edit: Box::new(SceneEdit::Light { index: 0, light }),
+        }));
+        let deadline = Instant::now() + Duration::from_secs(60);
+        let mut notices = Vec::new();
+        let mut cpu_frame = None;
+        while Instant::now() < deadline && cpu_frame.is_none() {
+            notices.extend(worker.take_notices());
+            if let Some(f) = worker.take_frame()
+                && f.device == Device::Cpu
+            {
+                cpu_frame = Some(f);
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        assert!(worker.is_running(), "the render thread survives");
+        let frame = cpu_frame.expect("frames from the CPU after the failure");
+        assert_eq!(frame.version, 2);
+        assert_eq!(cpu_made.load(Ordering::Relaxed), 1);
+        assert_eq!(
+            notices,
+            vec![Notice {
+                message: "the GPU `fake` failed; rendering on the CPU".into(),
+                now: Some((ModeKind::Spmm, Device::Cpu)),
+            }]
+        );
+        assert!(worker.take_rejected().is_empty());
+        // The CPU renders the edited scene: its image is a fresh CPU render of the
+        // edited scene after as many frames, bit for bit.
+        let mut edited = scene;
+        edited.lights[0] = light;
+        let mut reference = CoreModes
+            .create(
+                ModeKind::Spmm,
+                Device::Cpu,
+                edited,
+                8,
+                8,
+                Prepare::quietly(),
+            )
+            .expect("the CPU mode");
+        meso_core::render::run_frames(reference.as_mut(), frame.progress.frames, |_, _| {});
+        assert!(frame.progress.frames > 0);
+        assert_eq!(frame.image.pixels(), reference.image().pixels());
     }
 }

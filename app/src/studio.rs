@@ -78,6 +78,10 @@ pub struct Settings {
     pub denoise: bool,
     /// The material library window is open.
     pub show_library: bool,
+    /// Scenes that name the spmm mode on the CPU open on the GPU when wgpu offers a
+    /// hardware adapter (not a software one such as llvmpipe) that renders them; the
+    /// Device switch goes back to the CPU on request.
+    pub gpu_by_default: bool,
     /// The designer's own library folders (the shipped packs are always listed).
     pub library_folders: Vec<PathBuf>,
     /// Where library thumbnails are cached (`None`: `library::default_cache_dir`).
@@ -97,6 +101,7 @@ impl Default for Settings {
             reference_spp: 256,
             denoise: true,
             show_library: false,
+            gpu_by_default: true,
             library_folders: Vec::new(),
             thumbnail_cache: None,
         }
@@ -582,6 +587,7 @@ impl Studio {
                     // A new scene opens in the spmm mode, which renders everything; the
                     // mode the scene names is asked for once it is loaded (below).
                     self.scene_mode = Some(doc_scene_mode(self.doc.as_ref()))
+                        .map(|m| self.default_device(m))
                         .filter(|m| *m != (ModeKind::Spmm, Device::Cpu));
                     if let Some(sw) = self.switch.take() {
                         sw.job.cancel();
@@ -629,6 +635,23 @@ impl Studio {
                 }
                 Err(e) => self.error = Some(e),
             }
+        }
+    }
+
+    /// The mode a newly opened scene asks for: the spmm mode on the CPU moves to the
+    /// GPU when `gpu_by_default` is set, wgpu offers a hardware adapter and the GPU
+    /// renders the scene; anything else as the scene names it.
+    fn default_device(&self, named: (ModeKind, Device)) -> (ModeKind, Device) {
+        let Some(doc) = &self.doc else { return named };
+        let gpu = (ModeKind::Spmm, Device::Gpu);
+        if named == (ModeKind::Spmm, Device::Cpu)
+            && self.settings.gpu_by_default
+            && self.maker.supports(gpu.0, gpu.1, &doc.scene).is_ok()
+            && meso_core::gpu::hardware_adapter().is_some()
+        {
+            gpu
+        } else {
+            named
         }
     }
 
@@ -986,6 +1009,13 @@ impl Studio {
 
     /// Takes the newest frame and measures how long the edits before it took.
     fn receive(&mut self) {
+        for notice in self.worker.take_notices() {
+            // The status bar and the Device switch follow the device now rendering.
+            if let Some(now) = notice.now {
+                self.mode = now;
+            }
+            self.error = Some(notice.message);
+        }
         for r in self.worker.take_rejected() {
             self.error = Some(format!(
                 "the renderer refused edit {}: {}",

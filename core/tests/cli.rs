@@ -1391,11 +1391,6 @@ fn render_modes_devices_and_unsupported_scenes_exit_2_naming_why() {
             "without [environment]",
         ],
     );
-    // The spmm mode on the GPU names what it does not render yet.
-    assert_bad_input(
-        &render(&["--device", "gpu"]),
-        &["spmm", "gpu", "[environment] lighting"],
-    );
     assert_bad_input(
         &render(&["--mode", "biscale", "--device", "gpu"]),
         &["biscale", "gpu", "not built yet"],
@@ -1449,6 +1444,31 @@ material = "gold"
     )
     .expect("write scene");
     let merl_arg = merl_scene.to_str().expect("utf-8");
+    // The spmm mode on the GPU names what it does not render yet (before it looks
+    // for an adapter): here a 17th light.
+    let many = dir.path().join("many.toml");
+    let mut text = std::fs::read_to_string(&merl_scene).expect("the scene");
+    for k in 0..16 {
+        text.push_str(&format!(
+            "[[light]]\nkind = \"point\"\nposition = [{}, 1.0, 0.5]\nintensity = [0.1, 0.1, 0.1]\n",
+            k as f64 * 0.1
+        ));
+    }
+    std::fs::write(&many, text).expect("write scene");
+    assert_bad_input(
+        &meso(
+            &[
+                "render",
+                many.to_str().expect("utf-8"),
+                "-o",
+                out_arg,
+                "--device",
+                "gpu",
+            ],
+            "",
+        ),
+        &["spmm", "gpu", "light[16] (point)"],
+    );
     let shaded = dir.path().join("merl.exr");
     let o = meso(
         &[
@@ -2289,8 +2309,11 @@ fn render_on_the_gpu_reports_device_memory_and_no_adapter_is_exit_2() {
             "{kind}: {v}"
         );
     }
-    // The shipped leather has no residual: nothing of it is uploaded.
+    // The shipped leather has no residual: nothing of it is uploaded; no MERL table,
+    // and no environment or background image (the 16-word header alone).
     assert_eq!(v["device_bytes"]["residual_tables"], 0);
+    assert_eq!(v["device_bytes"]["merl_tables"], 0);
+    assert_eq!(v["device_bytes"]["environment"], 64);
     assert!(v["rays"]["shadow"].as_u64().expect("count") > 0);
     assert!(out.exists());
 }

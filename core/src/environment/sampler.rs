@@ -114,6 +114,17 @@ impl EnvironmentSampler {
         }
     }
 
+    /// The tables as they are, for a device that samples with them (the GPU mode):
+    /// the row marginal CDF (`height + 1` entries), the per-row column CDFs (`height`
+    /// rows of `width + 1`) and each pixel's pdf in solid angle, row by row.
+    pub fn tables(&self) -> (&[f64], &[f64], impl Iterator<Item = f64> + '_) {
+        (
+            &self.row_cdf,
+            &self.col_cdf,
+            self.luminance.iter().map(|l| l / self.total),
+        )
+    }
+
     /// The pdf in solid angle of drawing map-space direction `dir`.
     pub fn pdf(&self, dir: DVec3) -> f64 {
         let (x, y) = pixel_of(self.width, self.height, dir);

@@ -2,7 +2,7 @@
 //! `WGPU_BACKEND` (wgpu's own variable; CI sets `vulkan` for Mesa's lavapipe), so a
 //! backend that does not exist on this system yields no adapter and a one-line error.
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 /// Why there is no device to render on.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
@@ -11,6 +11,40 @@ pub enum GpuError {
     NoAdapter { backends: String, env: String },
     #[error("the GPU adapter `{adapter}` refused a device: {reason}")]
     NoDevice { adapter: String, reason: String },
+    /// The device stopped working (lost, destroyed, or an error on it): nothing it
+    /// returns from here on can be trusted.
+    #[error("the GPU `{adapter}` failed: {reason}")]
+    Lost { adapter: String, reason: String },
+}
+
+/// True for an adapter that is a GPU (discrete, integrated or virtual), false for a
+/// software rasteriser (lavapipe/llvmpipe, WARP) or an unknown kind.
+pub fn is_hardware(device_type: wgpu::DeviceType) -> bool {
+    matches!(
+        device_type,
+        wgpu::DeviceType::DiscreteGpu
+            | wgpu::DeviceType::IntegratedGpu
+            | wgpu::DeviceType::VirtualGpu
+    )
+}
+
+/// The name of the first hardware adapter of the backends `WGPU_BACKEND` names
+/// (`None`: only software adapters, or none), found once per process: the studio
+/// renders on the GPU by default when there is one.
+pub fn hardware_adapter() -> Option<String> {
+    static FOUND: std::sync::OnceLock<Option<String>> = std::sync::OnceLock::new();
+    FOUND
+        .get_or_init(|| {
+            let desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+            let backends = desc.backends;
+            let instance = wgpu::Instance::new(desc);
+            pollster::block_on(instance.enumerate_adapters(backends))
+                .iter()
+                .map(|a| a.get_info())
+                .find(|i| is_hardware(i.device_type))
+                .map(|i| format!("{} ({})", i.name, i.backend))
+        })
+        .clone()
 }
 
 /// One adapter's device and queue, shareable between modes (cloning shares them).
@@ -20,6 +54,9 @@ pub struct GpuContext {
     pub queue: wgpu::Queue,
     info: Arc<wgpu::AdapterInfo>,
     limits: wgpu::Limits,
+    /// The first failure the device reported (lost, or an error no one caught), kept
+    /// here instead of wgpu's default of panicking on the thread that noticed it.
+    failure: Arc<Mutex<Option<String>>>,
 }
 
 impl std::fmt::Debug for GpuContext {
@@ -63,12 +100,41 @@ impl GpuContext {
             adapter: info.name.clone(),
             reason: e.to_string(),
         })?;
+        let failure = Arc::new(Mutex::new(None));
+        let record = |failure: &Arc<Mutex<Option<String>>>, reason: String| {
+            if let Ok(mut f) = failure.lock() {
+                f.get_or_insert(reason);
+            }
+        };
+        let lost = Arc::clone(&failure);
+        device.set_device_lost_callback(move |why, message| {
+            record(&lost, format!("device lost ({why:?}): {message}"));
+        });
+        let errors = Arc::clone(&failure);
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            record(&errors, e.to_string());
+        }));
         Ok(Self {
             device,
             queue,
             info: Arc::new(info),
             limits,
+            failure,
         })
+    }
+
+    /// The device's first failure, if it has failed: every later result is void.
+    pub fn failure(&self) -> Option<GpuError> {
+        let reason = self.failure.lock().ok()?.clone()?;
+        Some(self.lost(reason))
+    }
+
+    /// A failure of this device for `reason`.
+    pub(super) fn lost(&self, reason: impl Into<String>) -> GpuError {
+        GpuError::Lost {
+            adapter: self.adapter_name(),
+            reason: reason.into(),
+        }
     }
 
     /// The adapter's name and backend, for status lines (`llvmpipe (vulkan)`).
@@ -79,6 +145,11 @@ impl GpuContext {
     /// True for a software rasteriser (lavapipe/llvmpipe, WARP): correct, not fast.
     pub fn is_software(&self) -> bool {
         self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
+    /// The adapter's kind (discrete, integrated, CPU, ...).
+    pub fn info_type(&self) -> wgpu::DeviceType {
+        self.info.device_type
     }
 
     pub fn limits(&self) -> &wgpu::Limits {

@@ -4,6 +4,7 @@
 //! one `array<u32>` binding serves every kind (adapters offer few storage bindings).
 
 use crate::brdf::{AnalyticBrdf, BasisFunction};
+use crate::merl::MerlBrdf;
 use crate::spmm::PreparedSpmm;
 use crate::spmm::directions::DirectionTable;
 
@@ -21,6 +22,8 @@ pub struct DataBytes {
     pub spmm_weights: u64,
     pub residual_tables: u64,
     pub materials: u64,
+    /// MERL tables (f32, scaled as `MerlBrdf::cell_value`) and their sampling tables.
+    pub merl_tables: u64,
 }
 
 /// A growing word buffer.
@@ -174,6 +177,25 @@ impl Words {
         self.bytes.spmm_bases += 4 * (bases_end - start) as u64;
         self.bytes.spmm_weights += 4 * (weights_end - bases_end + SPMM_HEADER_WORDS) as u64;
         self.bytes.residual_tables += 4 * (residual_end - weights_end) as u64;
+        at
+    }
+
+    /// A MERL table as `shaders/merl.wgsl` reads it: a header of offsets (the table,
+    /// the sampler's cell probabilities, row and column CDFs), the table's cells
+    /// scaled as `MerlBrdf::cell_value` (cells without data 0), and the CPU sampler's
+    /// own tables in f32. Returns the header's offset.
+    pub fn push_merl(&mut self, brdf: &MerlBrdf) -> u32 {
+        let start = self.words.len();
+        let table_at = self.push_f32s((0..crate::merl::CELLS).flat_map(|c| {
+            let v = brdf.cell_value(c);
+            [v.x as f32, v.y as f32, v.z as f32]
+        }));
+        let (prob, rows, cols) = brdf.sampler().tables();
+        let prob_at = self.push_f32s(prob.iter().map(|&p| p as f32));
+        let rows_at = self.push_f32s(rows.iter().map(|&p| p as f32));
+        let cols_at = self.push_f32s(cols.iter().map(|&p| p as f32));
+        let at = self.push_u32s([table_at, prob_at, rows_at, cols_at]);
+        self.bytes.merl_tables += 4 * (self.words.len() - start) as u64;
         at
     }
 }

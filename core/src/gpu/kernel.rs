@@ -2,9 +2,11 @@
 //! order), storage buffers made from bytes, dispatches and read-backs. Explicit
 //! layouts keep a binding that one entry point leaves unused from changing the others.
 
+use std::sync::{Arc, Mutex};
+
 use wgpu::util::DeviceExt;
 
-use super::GpuContext;
+use super::{GpuContext, GpuError};
 
 /// The kind of each binding, in binding order.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -188,27 +190,43 @@ impl ReadBack {
         Self { staging }
     }
 
-    /// Waits for the device and returns each buffer's bytes.
-    pub fn finish(self, ctx: &GpuContext) -> Vec<Vec<u8>> {
-        for (s, _) in &self.staging {
-            s.map_async(wgpu::MapMode::Read, .., |r| {
-                r.expect("a staging buffer maps for reading");
+    /// Waits for the device and returns each buffer's bytes, or why the device
+    /// could not give them (lost, or an error reported while it worked).
+    pub fn finish(self, ctx: &GpuContext) -> Result<Vec<Vec<u8>>, GpuError> {
+        let mapped = Arc::new(Mutex::new(vec![None; self.staging.len()]));
+        for (i, (s, _)) in self.staging.iter().enumerate() {
+            let mapped = Arc::clone(&mapped);
+            s.map_async(wgpu::MapMode::Read, .., move |r| {
+                if let Ok(mut m) = mapped.lock() {
+                    m[i] = Some(r.map_err(|e| e.to_string()));
+                }
             });
         }
         ctx.device
             .poll(wgpu::PollType::wait_indefinitely())
-            .expect("the device finishes its work");
-        self.staging
-            .into_iter()
-            .map(|(s, _)| {
-                let bytes = s
-                    .get_mapped_range(..)
-                    .expect("mapped after the wait")
-                    .to_vec();
-                s.unmap();
-                bytes
-            })
-            .collect()
+            .map_err(|e| ctx.lost(format!("waiting for the device: {e}")))?;
+        if let Some(e) = ctx.failure() {
+            return Err(e);
+        }
+        let mapped = mapped
+            .lock()
+            .map_err(|_| ctx.lost("a read-back callback panicked"))?
+            .clone();
+        let mut out = Vec::with_capacity(self.staging.len());
+        for ((s, _), m) in self.staging.into_iter().zip(mapped) {
+            match m {
+                Some(Ok(())) => {}
+                Some(Err(e)) => return Err(ctx.lost(format!("reading a result back: {e}"))),
+                None => return Err(ctx.lost("a read-back never completed")),
+            }
+            let bytes = s
+                .get_mapped_range(..)
+                .map_err(|e| ctx.lost(format!("reading a result back: {e}")))?
+                .to_vec();
+            s.unmap();
+            out.push(bytes);
+        }
+        Ok(out)
     }
 }
 
@@ -217,7 +235,7 @@ pub(super) fn submit_and_read(
     ctx: &GpuContext,
     mut encoder: wgpu::CommandEncoder,
     buffers: &[(&wgpu::Buffer, u64)],
-) -> Vec<Vec<u8>> {
+) -> Result<Vec<Vec<u8>>, GpuError> {
     let read = ReadBack::record(ctx, &mut encoder, buffers);
     ctx.queue.submit([encoder.finish()]);
     read.finish(ctx)

@@ -2,18 +2,21 @@
 //! the device and its adapter (`context.rs`), the WGSL sources and how they are put
 //! together (`shaders.rs`), the words a shader reads (`data.rs`: BRDFs, SPMM packs,
 //! materials), the scene's geometry on the device (`geometry.rs`: the obvhs CWBVH's
-//! nodes as they are, the leaf-ordered triangles and their shading data), one compute
+//! nodes as they are, the leaf-ordered triangles and their shading data), the
+//! environment map with its sampling tables and the background image
+//! (`environment.rs`), one compute
 //! dispatch with its buffers (`kernel.rs`) and the mode itself (`mode.rs`). The CPU's
 //! `trace::SpmmMode` is the reference every part here is tested against.
 
 mod context;
 mod data;
+mod environment;
 mod geometry;
 mod kernel;
 mod mode;
 mod shaders;
 
-pub use context::{GpuContext, GpuError};
+pub use context::{GpuContext, GpuError, hardware_adapter, is_hardware};
 pub use mode::{DeviceBytes, GpuSpmmMode};
 
 #[cfg(test)]

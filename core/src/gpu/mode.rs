@@ -10,11 +10,13 @@ use std::time::Instant;
 use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
 
-use super::GpuContext;
 use super::data::{DataBytes, Words};
+use super::environment;
 use super::geometry::GeometryBuffers;
 use super::kernel::{self, Kernel, Slot};
 use super::shaders;
+use super::{GpuContext, GpuError};
+use crate::environment::EnvironmentSampler;
 use crate::geometry::SceneBvh;
 use crate::image::Image;
 use crate::render::film::{EMPTY_UV_BOX, material_bit, memory_limit_bytes};
@@ -25,13 +27,14 @@ use crate::render::{
     PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit,
     Unrenderable, Unsupported,
 };
-use crate::scene::{Background, Light, Material, RenderSettings, Scene};
+use crate::scene::{Light, Material, RenderSettings, Scene};
 use crate::spmm::PrepareRequest;
 
 const MATERIAL_WORDS: usize = 8;
 const LIGHT_WORDS: usize = 12;
 const AUX_WORDS: usize = 6;
-/// Counter slots of `shaders/integrator.wgsl` (two traversal overflows, then rays).
+/// Counter slots of `shaders/integrator.wgsl` (two traversal overflows, then rays;
+/// the last is the environment's, `shaders/environment.wgsl`).
 const COUNTERS: usize = 8;
 
 /// Device memory by kind, in bytes.
@@ -45,6 +48,10 @@ pub struct DeviceBytes {
     pub residual_tables: u64,
     /// BRDF records, the material and light tables.
     pub materials: u64,
+    /// The environment map with its sampling tables, and the background image.
+    pub environment: u64,
+    /// MERL tables and their sampling tables.
+    pub merl_tables: u64,
     /// One sample's layers and per-pixel masks (the f64 film itself is on the host).
     pub film: u64,
 }
@@ -57,6 +64,8 @@ impl DeviceBytes {
             + self.spmm_weights
             + self.residual_tables
             + self.materials
+            + self.environment
+            + self.merl_tables
             + self.film
     }
 }
@@ -102,6 +111,26 @@ fn device_size_problem(ctx: &GpuContext, width: u32, height: u32, layers: usize)
     })
 }
 
+const ENVIRONMENT_WORDS: &str =
+    "the [environment] map with its sampling tables and the [background] image";
+const MATERIAL_WORDS_NAME: &str = "the materials (SPMM packs, MERL tables) and lights";
+
+/// Why `words` words of `what` would not fit in one buffer of the device (`None` if
+/// they fit).
+fn words_size_problem(ctx: &GpuContext, what: &str, words: usize) -> Option<String> {
+    let bytes = words as u64 * 4;
+    let limits = ctx.limits();
+    let limit = limits
+        .max_buffer_size
+        .min(limits.max_storage_buffer_binding_size);
+    (bytes > limit).then(|| {
+        format!(
+            "{what} need a {bytes}-byte buffer on the GPU; `{}` allows {limit}",
+            ctx.adapter_name()
+        )
+    })
+}
+
 /// The scene's materials and lights as data words, with where their tables start.
 struct SceneData {
     words: Words,
@@ -140,6 +169,7 @@ impl SceneData {
         let mut words = Words::default();
         let mut table = Vec::with_capacity(scene.materials.len() * MATERIAL_WORDS);
         let mut residual = Vec::with_capacity(scene.materials.len());
+        let mut merl: Vec<(*const crate::merl::MerlBrdf, u32)> = Vec::new();
         for m in &scene.materials {
             let mut rec = [0u32; MATERIAL_WORDS];
             let mut uses_residual = false;
@@ -173,8 +203,22 @@ impl SceneData {
                         f(reflectance.z),
                     ]);
                 }
-                // `supports` refuses MERL tables; a zero record shades nothing.
-                Material::Merl { .. } | Material::Btf { .. } => rec[0] = u32::MAX,
+                Material::Merl { brdf, tint } => {
+                    rec[0] = 3;
+                    // A table shared by several materials goes up once.
+                    let key = std::sync::Arc::as_ptr(brdf);
+                    rec[1] = match merl.iter().find(|(k, _)| *k == key) {
+                        Some(&(_, at)) => at,
+                        None => {
+                            let at = words.push_merl(brdf);
+                            merl.push((key, at));
+                            at
+                        }
+                    };
+                    rec[4..7].copy_from_slice(&[f(tint.x), f(tint.y), f(tint.z)]);
+                }
+                // `supports` refuses BTF tables; a record of no kind shades nothing.
+                Material::Btf { .. } => rec[0] = u32::MAX,
             }
             table.extend_from_slice(&rec);
             residual.push(uses_residual);
@@ -210,6 +254,7 @@ struct Resources {
     frame: wgpu::Buffer,
     aux: wgpu::Buffer,
     counters: wgpu::Buffer,
+    env: wgpu::Buffer,
     bind: wgpu::BindGroup,
 }
 
@@ -223,6 +268,10 @@ pub struct GpuSpmmMode {
     kernel: Kernel,
     res: Resources,
     scene_data: SceneData,
+    /// The environment map's importance sampler (`None`: no environment, or black).
+    env_sampler: Option<EnvironmentSampler>,
+    /// The `env` words (`environment::words`).
+    env_words: Vec<u32>,
     samples_per_frame: u32,
     next_sample: u64,
     frames: u32,
@@ -230,9 +279,11 @@ pub struct GpuSpmmMode {
     preparation: PreparationReport,
     /// Traversals that overflowed the stack or the step bound (should stay zero).
     overflows: [u64; 2],
+    /// Set once the device fails: the mode renders nothing more.
+    failure: Option<GpuError>,
 }
 
-const SLOTS: [Slot; 8] = [
+const SLOTS: [Slot; 9] = [
     Slot::Uniform,
     Slot::Read,
     Slot::Read,
@@ -241,12 +292,13 @@ const SLOTS: [Slot; 8] = [
     Slot::ReadWrite,
     Slot::ReadWrite,
     Slot::ReadWrite,
+    Slot::Read,
 ];
 
 impl GpuSpmmMode {
-    /// What this mode cannot render in `scene`, each by name: MERL materials, lights
-    /// beyond the 16 of the exact per-light path, environment lighting and background
-    /// images (not yet on the device; the CPU mode renders them).
+    /// What this mode cannot render in `scene`, each by name: BTF materials and lights
+    /// beyond the 16 of the exact per-light path (not yet on the device; the CPU mode
+    /// renders them).
     pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
         let mut parts: Vec<Unrenderable> = scene
             .materials
@@ -263,17 +315,11 @@ impl GpuSpmmMode {
                 },
             });
         }
-        if scene.environment.is_some() {
-            parts.push(Unrenderable::Environment);
-        }
-        if matches!(scene.background, Background::Environment(_)) {
-            parts.push(Unrenderable::BackgroundImage);
-        }
         Unsupported::check(ModeKind::Spmm, Device::Gpu, parts)
     }
 
     fn unrenderable(scene: &Scene, index: usize, m: &Material) -> Option<Unrenderable> {
-        matches!(m, Material::Merl { .. } | Material::Btf { .. }).then(|| Unrenderable::Material {
+        matches!(m, Material::Btf { .. }).then(|| Unrenderable::Material {
             index,
             name: scene
                 .material_names
@@ -321,12 +367,38 @@ impl GpuSpmmMode {
         prepare.report("materials", 0.0)?;
         let start = Instant::now();
         let scene_data = SceneData::build(&scene);
+        if let Some(p) = words_size_problem(&ctx, MATERIAL_WORDS_NAME, scene_data.words.words.len())
+        {
+            return Err(ModeError::Size(p));
+        }
         stage("materials", start);
+        prepare.report("environment", 0.0)?;
+        let start = Instant::now();
+        let env_sampler = scene
+            .environment
+            .as_ref()
+            .and_then(|e| EnvironmentSampler::new(&e.map));
+        let env_words = environment::words(&scene, env_sampler.as_ref());
+        if let Some(p) = words_size_problem(&ctx, ENVIRONMENT_WORDS, env_words.len()) {
+            return Err(ModeError::Size(p));
+        }
+        stage("environment", start);
         prepare.report("device", 0.0)?;
         let start = Instant::now();
         let kernel = Kernel::new(&ctx, &shaders::integrator(), "render", &SLOTS);
-        let res = Resources::upload(&ctx, &kernel, &bvh, &scene, &scene_data, width, height);
+        let res = Resources::upload(
+            &ctx,
+            &kernel,
+            &bvh,
+            &scene,
+            (&scene_data, &env_words),
+            width,
+            height,
+        );
         stage("device", start);
+        if let Some(e) = ctx.failure() {
+            return Err(ModeError::DeviceFailed(e.to_string()));
+        }
         prepare.report("device", 1.0)?;
         Ok(Self {
             ctx,
@@ -337,12 +409,15 @@ impl GpuSpmmMode {
             kernel,
             res,
             scene_data,
+            env_sampler,
+            env_words,
             samples_per_frame: 1,
             next_sample: 0,
             frames: 0,
             moving: false,
             preparation: report,
             overflows: [0; 2],
+            failure: None,
         })
     }
 
@@ -356,6 +431,8 @@ impl GpuSpmmMode {
             spmm_weights: d.spmm_weights,
             residual_tables: d.residual_tables,
             materials: d.materials,
+            environment: self.res.env.size(),
+            merl_tables: d.merl_tables,
             film: self.res.frame.size() + self.res.aux.size(),
         }
     }
@@ -391,7 +468,7 @@ impl GpuSpmmMode {
             lights: self.scene.lights.len().min(MANY_LIGHTS) as u32,
             light_table: self.scene_data.light_table,
             material_table: self.scene_data.material_table,
-            background: u32::from(matches!(self.scene.background, Background::Color(_))),
+            background: environment::escape(&self.scene),
             ambient_radius: self
                 .scene
                 .ambient
@@ -405,8 +482,9 @@ impl GpuSpmmMode {
         }
     }
 
-    /// One sample per pixel: dispatch, read back, add to the film.
-    fn render_sample(&mut self, sample: u64) -> Counters {
+    /// One sample per pixel: dispatch, read back, add to the film. A failed device
+    /// adds nothing.
+    fn render_sample(&mut self, sample: u64) -> Result<Counters, GpuError> {
         let ctx = &self.ctx;
         ctx.queue.write_buffer(
             &self.res.params,
@@ -428,7 +506,7 @@ impl GpuSpmmMode {
                 (&self.res.aux, aux_size),
                 (&self.res.counters, COUNTERS as u64 * 4),
             ],
-        );
+        )?;
         let frame: &[f32] = bytemuck::cast_slice(&bytes[0]);
         let aux: &[u32] = bytemuck::cast_slice(&bytes[1]);
         let counters: &[u32] = bytemuck::cast_slice(&bytes[2]);
@@ -455,17 +533,17 @@ impl GpuSpmmMode {
                 }
             }
         });
-        Counters {
+        Ok(Counters {
             samples: u64::from(w) * u64::from(h),
             shading_points: u64::from(counters[6]),
             rays: RayCounts {
                 primary: u64::from(counters[2]),
                 shadow: u64::from(counters[3]),
                 ambient: u64::from(counters[4]),
-                environment: 0,
+                environment: u64::from(counters[7]),
                 specular: u64::from(counters[5]),
             },
-        }
+        })
     }
 
     fn residual_mask(&self) -> u64 {
@@ -496,10 +574,24 @@ impl GpuSpmmMode {
             &self.kernel,
             &self.bvh,
             &self.scene,
-            &self.scene_data,
+            (&self.scene_data, &self.env_words),
             self.film.width(),
             self.film.height(),
         );
+    }
+
+    /// Rebuilds the environment and background words (and the map's sampler when
+    /// `new_map`) and rebinds.
+    fn reupload_environment(&mut self, new_map: bool) {
+        if new_map {
+            self.env_sampler = self
+                .scene
+                .environment
+                .as_ref()
+                .and_then(|e| EnvironmentSampler::new(&e.map));
+        }
+        self.env_words = environment::words(&self.scene, self.env_sampler.as_ref());
+        self.rebind();
     }
 
     /// Rewrites the light table in place (light edits keep every other buffer).
@@ -532,10 +624,6 @@ impl GpuSpmmMode {
                     },
                 }]
             }
-            SceneEdit::Environment(Some(_)) => vec![Unrenderable::Environment],
-            SceneEdit::Background(Background::Environment(_)) => {
-                vec![Unrenderable::BackgroundImage]
-            }
             _ => Vec::new(),
         };
         (!parts.is_empty()).then_some(Unsupported {
@@ -552,7 +640,7 @@ impl Resources {
         kernel: &Kernel,
         bvh: &SceneBvh,
         scene: &Scene,
-        data: &SceneData,
+        (data, env_words): (&SceneData, &[u32]),
         width: u32,
         height: u32,
     ) -> Self {
@@ -564,6 +652,7 @@ impl Resources {
         let frame = kernel::zeroed(ctx, "frame", pixels * layers * 12);
         let aux = kernel::zeroed(ctx, "aux", pixels * AUX_WORDS as u64 * 4);
         let counters = kernel::zeroed(ctx, "counters", COUNTERS as u64 * 4);
+        let env = kernel::storage(ctx, "environment", bytemuck::cast_slice(env_words));
         let bind = kernel.bind(
             ctx,
             &[
@@ -575,6 +664,7 @@ impl Resources {
                 &frame,
                 &aux,
                 &counters,
+                &env,
             ],
         );
         Self {
@@ -585,6 +675,7 @@ impl Resources {
             frame,
             aux,
             counters,
+            env,
             bind,
         }
     }
@@ -607,8 +698,17 @@ impl RenderMode for GpuSpmmMode {
         let start = Instant::now();
         let dropped_before = self.film.dropped();
         let mut counters = Counters::default();
+        if self.failure.is_some() {
+            return FrameStats::default();
+        }
         for i in 0..u64::from(self.samples_per_frame) {
-            counters = counters + self.render_sample(self.next_sample + i);
+            match self.render_sample(self.next_sample + i) {
+                Ok(c) => counters = counters + c,
+                Err(e) => {
+                    self.failure = Some(e);
+                    break;
+                }
+            }
         }
         self.next_sample += u64::from(self.samples_per_frame);
         self.frames += 1;
@@ -651,12 +751,20 @@ impl RenderMode for GpuSpmmMode {
             ("spmm_weights", b.spmm_weights),
             ("residual_tables", b.residual_tables),
             ("materials", b.materials),
+            ("environment", b.environment),
+            ("merl_tables", b.merl_tables),
             ("film", b.film),
         ]
     }
 
     fn adapter(&self) -> Option<String> {
         Some(self.ctx.adapter_name())
+    }
+
+    fn failure(&self) -> Option<ModeError> {
+        self.failure
+            .as_ref()
+            .map(|e| ModeError::DeviceFailed(e.to_string()))
     }
 
     fn traversal_overflows(&self) -> u64 {
@@ -691,6 +799,16 @@ impl RenderMode for GpuSpmmMode {
                 return Err(EditError::Size(p));
             }
         }
+        let env_words = match &edit {
+            SceneEdit::Environment(e) => {
+                environment::word_count(e.as_ref(), &self.scene.background)
+            }
+            SceneEdit::Background(b) => environment::word_count(self.scene.environment.as_ref(), b),
+            _ => 0,
+        };
+        if let Some(p) = words_size_problem(&self.ctx, ENVIRONMENT_WORDS, env_words) {
+            return Err(EditError::Size(p));
+        }
         if let SceneEdit::AddLight(_) = edit {
             let (w, h) = (self.film.width(), self.film.height());
             if let Some(p) = device_size_problem(&self.ctx, w, h, self.film.layers() + 1) {
@@ -714,9 +832,18 @@ impl RenderMode for GpuSpmmMode {
             ) {
                 self.write_lights();
             }
-            if self.film.layers() != layer_count {
-                // A light added or removed: the device's frame buffer follows the film.
-                self.rebind();
+            match &edit {
+                // A new map, rotation or sampling changes the tables; a strength
+                // edit (nothing invalidated) only re-weights the layer.
+                SceneEdit::Environment(_) if invalidation != Invalidation::Nothing => {
+                    self.reupload_environment(true);
+                }
+                SceneEdit::Background(_) => self.reupload_environment(false),
+                _ if self.film.layers() != layer_count => {
+                    // A light added or removed: the device's frame buffer follows.
+                    self.rebind();
+                }
+                _ => {}
             }
             return Ok(invalidation);
         }

@@ -8,6 +8,8 @@ pub(super) const SPMM: &str = include_str!("../../../shaders/spmm.wgsl");
 pub(super) const TRAVERSAL: &str = include_str!("../../../shaders/traversal.wgsl");
 pub(super) const LIGHTS: &str = include_str!("../../../shaders/lights.wgsl");
 pub(super) const INTEGRATOR: &str = include_str!("../../../shaders/integrator.wgsl");
+pub(super) const ENVIRONMENT: &str = include_str!("../../../shaders/environment.wgsl");
+pub(super) const MERL: &str = include_str!("../../../shaders/merl.wgsl");
 
 /// The test kernels: evaluations of BRDFs and SPMM texels, and primary-ray hits.
 #[cfg(test)]
@@ -38,5 +40,5 @@ fn from_disk(embedded: &str) -> String {
 
 /// The integrator: one sample per pixel per dispatch.
 pub(super) fn integrator() -> String {
-    module(&[INTEGRATOR, TRAVERSAL, BRDF, SPMM, LIGHTS])
+    module(&[INTEGRATOR, TRAVERSAL, BRDF, SPMM, LIGHTS, ENVIRONMENT, MERL])
 }

@@ -13,7 +13,7 @@ use super::MerlBrdf;
 use crate::brdf::BrdfSample;
 
 /// Bands of theta_o, uniform in angle (2 degrees each).
-const WO_BANDS: usize = 45;
+pub(crate) const WO_BANDS: usize = 45;
 /// Rows uniform in cos(theta_i): equal solid angle, so the density is constant in a cell.
 pub(crate) const Z_BINS: usize = 64;
 /// Columns of phi_i - phi_o over [0, 2 pi).
@@ -159,6 +159,13 @@ impl MerlSampler {
         let wi = crate::brdf::warp::spherical(z.min(1.0), phi);
         let pdf = self.cell_prob[(band * Z_BINS + row) * PHI_BINS + col] / CELL_SOLID_ANGLE;
         Some(BrdfSample { wi, pdf })
+    }
+
+    /// The tables as they are, for a device that samples with them (the GPU mode):
+    /// each cell's probability [band][row][column], the row CDFs [band][Z_BINS + 1]
+    /// and the column CDFs [band][row][PHI_BINS + 1].
+    pub fn tables(&self) -> (&[f64], &[f64], &[f64]) {
+        (&self.cell_prob, &self.row_cdf, &self.col_cdf)
     }
 
     /// Solid-angle density of `sample(wo, ·)` at `wi`; 0 below the horizon.

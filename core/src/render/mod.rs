@@ -255,6 +255,10 @@ pub enum ModeError {
     /// No device to run the mode on (e.g. no GPU adapter), in one line.
     #[error("{0}")]
     NoDevice(String),
+    /// The device failed while the mode ran (a GPU lost or reset), in one line: the
+    /// mode renders nothing more; its film keeps the samples from before.
+    #[error("{0}")]
+    DeviceFailed(String),
 }
 
 /// A progressive render mode.
@@ -309,6 +313,12 @@ pub trait RenderMode: Send {
     fn traversal_overflows(&self) -> u64 {
         0
     }
+    /// Why the mode stopped rendering (its device failed), if it did: every later
+    /// `render_frame` adds nothing, and callers should report it or switch device.
+    /// Always `None` on the CPU.
+    fn failure(&self) -> Option<ModeError> {
+        None
+    }
     /// Debug images of the mode's own decisions, by name (the adaptive mode's
     /// bandwidth-buffer level and samples per pixel, as colour maps); none by default.
     fn debug_overlays(&self) -> Vec<(&'static str, Image)> {
@@ -340,7 +350,7 @@ pub struct RunStats {
 }
 
 /// Renders `frames` more frames, calling `on_frame(done, stats)` after each (for
-/// progress bars).
+/// progress bars); stops early if the mode fails (`RenderMode::failure`).
 pub fn run_frames(
     mode: &mut dyn RenderMode,
     frames: u32,
@@ -354,6 +364,9 @@ pub fn run_frames(
         total.seconds += s.seconds;
         total.dropped += s.dropped;
         on_frame(f + 1, &s);
+        if mode.failure().is_some() {
+            break;
+        }
     }
     total
 }

@@ -86,6 +86,9 @@ fn measure(
         let _ = mode.image();
         start.elapsed().as_secs_f64() * 1e3
     });
+    if let Some(e) = mode.failure() {
+        return Err(e.to_string());
+    }
     Ok(json!({
         "adapter": mode.adapter(),
         "prepare_seconds": prepare_s,

@@ -41,7 +41,7 @@ impl ModeArgs {
 /// A mode that cannot be made is the input's fault (exit 2), except a cancelled one.
 pub fn mode_error(e: ModeError) -> CliError {
     match e {
-        ModeError::Cancelled(_) => CliError::failure(anyhow!(e)),
+        ModeError::Cancelled(_) | ModeError::DeviceFailed(_) => CliError::failure(anyhow!(e)),
         _ => CliError::bad_input(anyhow!(e)),
     }
 }

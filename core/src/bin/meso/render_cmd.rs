@@ -102,6 +102,10 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
     if progress {
         eprintln!();
     }
+    // A device that failed mid-run (a GPU lost) leaves a partial image: no output.
+    if let Some(e) = mode.failure() {
+        return Err(CliError::failure(anyhow!(e)));
+    }
     let counters = run.counters;
     let rays = counters.rays;
     let trace_s = run.seconds;

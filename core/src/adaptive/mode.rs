@@ -512,19 +512,14 @@ impl AdaptiveMode {
         let visible: Vec<f64> = per_pixel.iter().map(|p| p.visible).collect();
         let mean: Vec<f64> = per_pixel.iter().map(|p| p.moments.mean()).collect();
         let footprint = allocation::footprint_variance(&mean, w, h);
+        // The pre-convolved variant takes the full variant's prediction: eq. 10's
+        // smaller sum assumes an environment convolved with the whole lobe, and
+        // scaling by it (a Lambertian's eq. 10 is 0) starved diffuse pixels that the
+        // ladder, filtered at most to the lobe's rate, still leaves noisy.
         let sigma2: Vec<f64> = per_pixel
             .iter()
             .zip(&footprint)
-            .map(|(p, f)| {
-                // Eq. 10 lowers eq. 9's sum: the pre-convolved variant's variance is
-                // the estimate scaled by the ratio of the two sums.
-                let ratio = if p.eq9[1] > 0.0 {
-                    (p.eq9[0] / p.eq9[1]).min(1.0)
-                } else {
-                    1.0
-                };
-                p.moments.variance() * ratio + f
-            })
+            .map(|(p, f)| p.moments.variance() + f)
             .collect();
         let sigma: Vec<f64> = allocation::box3(&sigma2, w, h)
             .into_iter()

@@ -160,7 +160,9 @@ fn the_first_frame_shades_few_pixels_and_is_already_close() {
     let total = (SIZE * SIZE) as usize;
     let (m, r) = (mean(&mode.image()), mean(&reference));
     eprintln!("two frames shaded {shaded} of {total} pixels; mean {m} against {r}");
-    assert!(shaded < total / 4, "{shaded} of {total}");
+    // The radiance-step guard shades highlight and reflection edges at level 0 (on
+    // this 32 x 32 view they are a large share); still most of the view is up-sampled.
+    assert!(shaded < total / 2, "{shaded} of {total}");
     // Up-sampled from those few (each with about 8 samples, and a bright patch in the
     // sky): the image mean within 15% of the reference's.
     assert!(((m - r) / r).abs().max_element() < 0.15, "{m} {r}");
@@ -339,10 +341,27 @@ fn the_predicted_variance_is_that_of_the_importance_sampled_estimator_on_a_hand_
     let centre = (SIZE / 2 * SIZE + SIZE / 2) as usize;
     let expected = 5.0 / 3.0 * a * a;
     let got = b.sigma[centre] * b.sigma[centre];
+    let measured = |mis: bool| {
+        let mut scene = floor_under_uniform_sky(a, mis);
+        scene.render.sampler = crate::rng::Sampler::Independent;
+        let mode =
+            AdaptiveMode::prepare_with(scene, SIZE, SIZE, Prepare::quietly(), options).expect("a");
+        let mut m = super::allocation::Moments::default();
+        for k in 0..4096 {
+            m.add(
+                mode.sample_value(SIZE / 2, SIZE / 2, k)
+                    .dot(DVec3::new(0.2126, 0.7152, 0.0722)),
+            );
+        }
+        m.variance()
+    };
+    // The 16 x 16 strata share one shift, a lattice rule whose error on cos+ (a
+    // kink at the horizon, a jump where the shift wraps) is a few percent: 10%.
     assert!(
-        (got - expected).abs() < 0.05 * expected,
+        (got - expected).abs() < 0.1 * expected,
         "{got} against {expected}"
     );
+    assert!((measured(false) - expected).abs() < 0.05 * expected);
     // With MIS the material's cosine samples carry most of the weight and the same
     // sky's estimator is far quieter; the prediction follows.
     let mis = AdaptiveMode::prepare_with(
@@ -357,19 +376,9 @@ fn the_predicted_variance_is_that_of_the_importance_sampled_estimator_on_a_hand_
     let with_mis = mis.sigma[centre] * mis.sigma[centre];
     assert!(with_mis < 0.5 * expected, "{with_mis} against {expected}");
     // And it is the estimator's measured variance: 4096 independent samples.
-    let mut scene = floor_under_uniform_sky(a, true);
-    scene.render.sampler = crate::rng::Sampler::Independent;
-    let measured_mode =
-        AdaptiveMode::prepare_with(scene, SIZE, SIZE, Prepare::quietly(), options).expect("a");
-    let mut m = super::allocation::Moments::default();
-    for k in 0..4096 {
-        m.add(measured_mode.sample_value(SIZE / 2, SIZE / 2, k).dot(DVec3::new(
-            0.2126, 0.7152, 0.0722,
-        )));
-    }
+    let m = measured(true);
     assert!(
-        (with_mis - m.variance()).abs() < 0.15 * m.variance() + 1e-4,
-        "predicted {with_mis}, measured {}",
-        m.variance()
+        (with_mis - m).abs() < 0.15 * m + 1e-4,
+        "predicted {with_mis}, measured {m}"
     );
 }

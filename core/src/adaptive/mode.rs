@@ -531,9 +531,7 @@ impl AdaptiveMode {
             .enumerate()
             .map(|(i, &b)| {
                 let (x, y) = (i as u32 % w, i as u32 / w);
-                if visibility_edge(&visible, w, h, x, y)
-                    || radiance_edge(&mean, w, h, x, y, dark)
-                {
+                if visibility_edge(&visible, w, h, x, y) || radiance_edge(&mean, w, h, x, y, dark) {
                     0
                 } else {
                     operators::level(b, w, h)
@@ -675,14 +673,7 @@ impl AdaptiveMode {
                 let nu_a = env_bw.rate(env, wi);
                 let seen = (k < GUARD_RAYS as usize)
                     .then(|| !self.bvh.occluded(lift, wi, 0.0, f64::INFINITY));
-                let lambda = bounce(
-                    li,
-                    DVec2::new(0.0, nu_a),
-                    0.0,
-                    radiance,
-                    1.0 / pdf,
-                    seen,
-                );
+                let lambda = bounce(li, DVec2::new(0.0, nu_a), 0.0, radiance, 1.0 / pdf, seen);
                 if env.mis
                     && let Some(sampler) = &self.env_sampler
                 {
@@ -692,7 +683,9 @@ impl AdaptiveMode {
             }
             for (k, v) in value.iter_mut().enumerate() {
                 // The map's strategy at the same stratum.
-                let Some(sampler) = &self.env_sampler else { break };
+                let Some(sampler) = &self.env_sampler else {
+                    break;
+                };
                 let e = sampler.sample(&env.map, stratum(k as u32));
                 let wi = rotate_y(e.dir, env.rotate_y_deg);
                 let li = s.to_local(wi);

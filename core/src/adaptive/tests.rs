@@ -318,8 +318,7 @@ fn floor_under_uniform_sky(a: f64, mis: bool) -> Scene {
 }
 
 #[test]
-fn the_predicted_variance_is_that_of_the_importance_sampled_estimator_on_a_hand_computed_case()
-{
+fn the_predicted_variance_is_that_of_the_importance_sampled_estimator_on_a_hand_computed_case() {
     // Map sampling alone (no MIS) of a uniform sky draws directions uniformly over the
     // sphere (pdf 1 / 4 pi): one sample is X = (a / pi) cos+ 4 pi = 4 a cos+, with
     // E[X] = 4a E[cos+] = a and E[X^2] = 16 a^2 E[cos+^2] = 16 a^2 / 6, so

@@ -7,6 +7,7 @@
 //! `gbuffer`, `upsample` (section 3.2), `preconvolved` (section 2.5), `mode` (the
 //! `RenderMode`). No multi-sample anti-aliasing levels, no textures.
 
+pub mod allocation;
 pub mod bandwidth;
 pub mod gbuffer;
 pub mod mode;

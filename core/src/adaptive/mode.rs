@@ -13,6 +13,7 @@ use std::time::Instant;
 
 use glam::{DVec2, DVec3};
 
+use super::allocation;
 use super::bandwidth::{EnvironmentBandwidth, LightBandwidth, MaterialBandwidth};
 use super::gbuffer::GBuffer;
 use super::operators::{self, Bandwidth, Bounce};
@@ -62,6 +63,9 @@ pub struct AdaptiveOptions {
     pub max_samples: u32,
     /// Frames between two refinements (every level drops by one).
     pub refine_frames: u32,
+    /// The lowest rate a shaded pixel takes, as a share of `mean_samples` (every
+    /// pixel keeps converging however quiet it is predicted to be).
+    pub min_share: f64,
 }
 
 impl Default for AdaptiveOptions {
@@ -70,8 +74,9 @@ impl Default for AdaptiveOptions {
             n_b: 16,
             preconvolved: false,
             mean_samples: 4.0,
-            max_samples: 64,
+            max_samples: 256,
             refine_frames: 2,
+            min_share: 0.125,
         }
     }
 }
@@ -106,17 +111,52 @@ pub struct Buffers {
     pub guide: Guide,
     /// Eq. 11 level per pixel.
     pub level: Vec<u32>,
-    /// Eq. 9's sum per pixel (the variance bound times N_p / 4 pi^2).
+    /// Eq. 9's sum per pixel (the bound of the paper, times N_p / 4 pi^2; eq. 10's
+    /// for the pre-convolved variant): the overlays and the report's study.
     pub variance: Vec<f64>,
+    /// The predicted standard deviation of one sample of the frames' estimator
+    /// (luminance; `allocation.rs`), which sets N_p.
+    pub sigma: Vec<f64>,
     /// Eq. 6 per pixel (samples per pixel).
     pub rate: Vec<f64>,
-    /// Max-filtered `variance`, per level (level 0 = `variance`).
-    variance_mip: Vec<Vec<f64>>,
-    /// The same of eq. 9's sum where `variance` is eq. 10's (pre-convolved): the
-    /// variance target is set by eq. 9, so eq. 10's smaller sums take fewer samples.
-    full_mip: Vec<Vec<f64>>,
+    /// Max-filtered `sigma`, per level (level 0 = `sigma`).
+    sigma_mip: Vec<Vec<f64>>,
+    /// Seconds of the G-buffer (part of `seconds`).
+    pub gbuffer_seconds: f64,
+    /// The share of pixels the per-pixel analysis ran on (the rest copy their block's).
+    pub analysed_share: f64,
     /// Seconds the pass took.
     pub seconds: f64,
+}
+
+/// Side of the pixel blocks the bandwidth pass analyses once (`bandwidth_pass`).
+pub const PASS_STRIDE: u32 = 2;
+
+/// True if pixel `i` may take the analysis of pixel `head`: both miss, or both see
+/// the same mesh at depths within the up-sampling's depth tolerance.
+fn shares_analysis(g: &GBuffer, i: usize, head: usize) -> bool {
+    let (a, b) = (&g.pixels[i], &g.pixels[head]);
+    match (&a.surface, &b.surface) {
+        (None, None) => true,
+        (Some(sa), Some(sb)) => {
+            a.mesh == b.mesh
+                && sa.material == sb.material
+                && upsample::depth_weight(a.depth, b.depth) > 0.5
+        }
+        _ => false,
+    }
+}
+
+/// What the bandwidth pass finds at one pixel.
+struct PixelAnalysis {
+    /// Eq. 5 at the eye.
+    nu: Bandwidth,
+    /// Eq. 9's sum (eq. 10's for the pre-convolved variant) and eq. 9's.
+    eq9: [f64; 2],
+    /// The visible share of the lambda weights (the visibility guard).
+    visible: f64,
+    /// The frames' estimator over the n_b directions.
+    moments: allocation::Moments,
 }
 
 /// A per-level pyramid of `values` over blocks of 2^k pixels (top-left aligned),
@@ -169,6 +209,30 @@ fn visibility_edge(visible: &[f64], w: u32, h: u32, x: u32, y: u32) -> bool {
     .into_iter()
     .filter(|&(nx, ny)| nx < w && ny < h)
     .any(|(nx, ny)| (visible[(ny * w + nx) as usize] - v).abs() > VISIBILITY_STEP)
+}
+
+/// The relative step of the pass's mean radiance between 4-neighbours above which a
+/// pixel is shaded at level 0 (our up-sampling guard: a highlight or reflection edge
+/// that the bandwidth's 95th percentile averaged away, whose interpolation would cost
+/// more squared error than the samples it saves).
+pub const RADIANCE_STEP: f64 = 0.25;
+
+/// True if pixel (x, y)'s mean radiance differs from a 4-neighbour's by more than
+/// `RADIANCE_STEP` of the larger of the two (or of `floor`, for dark pixels).
+fn radiance_edge(mean: &[f64], w: u32, h: u32, x: u32, y: u32, floor: f64) -> bool {
+    let v = mean[(y * w + x) as usize];
+    [
+        (x + 1, y),
+        (x, y + 1),
+        (x.wrapping_sub(1), y),
+        (x, y.wrapping_sub(1)),
+    ]
+    .into_iter()
+    .filter(|&(nx, ny)| nx < w && ny < h)
+    .any(|(nx, ny)| {
+        let n = mean[(ny * w + nx) as usize];
+        (n - v).abs() > RADIANCE_STEP * n.abs().max(v.abs()).max(floor)
+    })
 }
 
 /// Which pixels a frame shades: per pixel, 0 (up-sampled) or its sample count.
@@ -399,7 +463,9 @@ impl AdaptiveMode {
     /// per emitter (visibility ignored, as in the paper), and eq. 11. The environment's
     /// directions are drawn by the material's importance sampling and the lights' by
     /// area, each weighted by 1 / pdf so that eq. 5's lambda and eq. 9's sum are
-    /// estimates of integrals over the hemisphere.
+    /// estimates of integrals over the hemisphere. The same directions, with the
+    /// frames' estimator's MIS weights, estimate the per-sample variance that the
+    /// frames' allocation reads (`allocation.rs`).
     pub fn bandwidth_pass(&self) -> Buffers {
         use rayon::prelude::*;
         let start = Instant::now();
@@ -407,24 +473,65 @@ impl AdaptiveMode {
         let g = GBuffer::build(&self.scene, &self.bvh, w, h);
         let (right, down) = self.screen_axes();
         let guide = g.guide(right, down);
+        let gbuffer_seconds = start.elapsed().as_secs_f64();
         let (fx, fy) = self.fov();
-        let per_pixel: Vec<(f64, [f64; 2], f64)> = (0..w * h)
+        // The analysis runs on one pixel of each `PASS_STRIDE`^2 block (its top-left);
+        // the block's other pixels take its result unless they see another surface
+        // (another mesh or a depth step; `shares_analysis`), which are analysed
+        // themselves. Levels at or above log2 PASS_STRIDE are block-wise anyway.
+        let stride = if w.min(h) >= 4 * PASS_STRIDE {
+            PASS_STRIDE
+        } else {
+            1
+        };
+        let head = |i: u32| {
+            let (x, y) = (i % w, i / w);
+            (y / stride * stride) * w + x / stride * stride
+        };
+        let own: Vec<bool> = (0..w * h)
+            .map(|i| head(i) == i || !shares_analysis(&g, i as usize, head(i) as usize))
+            .collect();
+        let analysed: Vec<Option<PixelAnalysis>> = (0..w * h)
             .into_par_iter()
+            .map(|i| own[i as usize].then(|| self.pixel_bandwidth(&g, i)))
+            .collect();
+        let per_pixel: Vec<&PixelAnalysis> = (0..w * h)
             .map(|i| {
-                let nu = self.pixel_bandwidth(&g, i);
-                (operators::screen_rate(nu.0.y, fx, fy, w, h), nu.1, nu.2)
+                analysed[i as usize]
+                    .as_ref()
+                    .or(analysed[head(i) as usize].as_ref())
+                    .expect("a block's head is analysed")
             })
             .collect();
-        let rate: Vec<f64> = per_pixel.iter().map(|p| p.0).collect();
-        let variance: Vec<f64> = per_pixel.iter().map(|p| p.1[0]).collect();
-        let full: Vec<f64> = per_pixel.iter().map(|p| p.1[1]).collect();
-        let visible: Vec<f64> = per_pixel.iter().map(|p| p.2).collect();
+        let analysed_share = own.iter().filter(|&&o| o).count() as f64 / own.len() as f64;
+        let rate: Vec<f64> = per_pixel
+            .iter()
+            .map(|p| operators::screen_rate(p.nu.y, fx, fy, w, h))
+            .collect();
+        let variance: Vec<f64> = per_pixel.iter().map(|p| p.eq9[0]).collect();
+        let visible: Vec<f64> = per_pixel.iter().map(|p| p.visible).collect();
+        let mean: Vec<f64> = per_pixel.iter().map(|p| p.moments.mean()).collect();
+        let footprint = allocation::footprint_variance(&mean, w, h);
+        // The pre-convolved variant takes the full variant's prediction: eq. 10's
+        // smaller sum assumes an environment convolved with the whole lobe, and
+        // scaling by it (a Lambertian's eq. 10 is 0) starved diffuse pixels that the
+        // ladder, filtered at most to the lobe's rate, still leaves noisy.
+        let sigma2: Vec<f64> = per_pixel
+            .iter()
+            .zip(&footprint)
+            .map(|(p, f)| p.moments.variance() + f)
+            .collect();
+        let sigma: Vec<f64> = allocation::box3(&sigma2, w, h)
+            .into_iter()
+            .map(f64::sqrt)
+            .collect();
+        let dark = 1e-3 * mean.iter().map(|m| m.abs()).sum::<f64>() / mean.len().max(1) as f64;
         let level = rate
             .iter()
             .enumerate()
             .map(|(i, &b)| {
                 let (x, y) = (i as u32 % w, i as u32 / w);
-                if visibility_edge(&visible, w, h, x, y) {
+                if visibility_edge(&visible, w, h, x, y) || radiance_edge(&mean, w, h, x, y, dark) {
                     0
                 } else {
                     operators::level(b, w, h)
@@ -432,25 +539,27 @@ impl AdaptiveMode {
             })
             .collect();
         let top = self.top_level();
-        let variance_mip = mip(&variance, w, h, top, f64::max);
-        let full_mip = mip(&full, w, h, top, f64::max);
+        let sigma_mip = mip(&sigma, w, h, top, f64::max);
         Buffers {
             g,
             guide,
             level,
             variance,
+            sigma,
             rate,
-            variance_mip,
-            full_mip,
+            sigma_mip,
+            gbuffer_seconds,
+            analysed_share,
             seconds: start.elapsed().as_secs_f64(),
         }
     }
 
-    /// Eq. 5's bandwidth at the eye, eq. 9's sum and the visible share of the lambda
-    /// weights (our visibility guard, `bandwidth_pass`) for pixel `i`.
-    /// The sums are eq. 9's (or eq. 10's for the pre-convolved variant) and eq. 9's.
-    fn pixel_bandwidth(&self, g: &GBuffer, i: u32) -> (Bandwidth, [f64; 2], f64) {
+    /// Eq. 5's bandwidth at the eye, eq. 9's sums, the visible share of the lambda
+    /// weights (our visibility guard, `bandwidth_pass`) and the moments of the frames'
+    /// estimator over the n_b directions, for pixel `i`.
+    fn pixel_bandwidth(&self, g: &GBuffer, i: u32) -> PixelAnalysis {
         let px = &g.pixels[i as usize];
+        let mut moments = allocation::Moments::default();
         let Some(s) = &px.surface else {
             // A ray that leaves the scene sees the environment directly (no bounce).
             let nu = match (
@@ -461,16 +570,31 @@ impl AdaptiveMode {
                 (crate::scene::Background::FromEnvironment, Some(e), Some(b)) => b.rate(e, px.dir),
                 _ => 0.0,
             };
-            return (DVec2::new(0.0, nu), [0.0; 2], 1.0);
+            if let Some((layer, radiance)) = layers::escaped(&self.scene, px.dir) {
+                let weight = self.layers.weights(&self.scene)[layer];
+                moments.add((radiance * weight).dot(LUMINANCE));
+            }
+            return PixelAnalysis {
+                nu: DVec2::new(0.0, nu),
+                eq9: [0.0; 2],
+                visible: 1.0,
+                moments,
+            };
         };
         let material = &self.scene.materials[s.material];
+        let quiet = PixelAnalysis {
+            nu: DVec2::ZERO,
+            eq9: [0.0; 2],
+            visible: 1.0,
+            moments,
+        };
         let Some(mat_bw) = &self.materials[s.material] else {
-            return (DVec2::ZERO, [0.0; 2], 1.0);
+            return quiet;
         };
         let wo = -px.dir;
         let lo = s.to_local(wo);
         if lo.z <= 0.0 {
-            return (DVec2::ZERO, [0.0; 2], 1.0);
+            return quiet;
         }
         let lift = s.p + s.n * (EPSILON_REL * s.p.abs().max_element().max(1.0));
         let n_b = self.options.n_b;
@@ -486,6 +610,10 @@ impl AdaptiveMode {
             ) + shift;
             DVec2::new(u.x.fract(), u.y.fract())
         };
+        // The frames' estimator's value per direction k (luminance, emissions applied):
+        // its strategies (map, table, light) at the k-th stratum, with its MIS weights.
+        let mut value = vec![0.0; n_b as usize];
+        // Eq. 5's lambda without the common 1 / n_b (eq. 5 is a ratio).
         let mut paths: Vec<(f64, Bandwidth)> =
             Vec::with_capacity(n_b as usize * (1 + self.scene.lights.len()));
         let mut variance = 0.0;
@@ -520,32 +648,57 @@ impl AdaptiveMode {
                 operators::variance_term(incident, mat_bw.rate(lo, li), chi, preconvolved) * weight;
             variance_full +=
                 operators::variance_term(incident, mat_bw.rate(lo, li), chi, false) * weight;
+            lambda
         };
-        if let (Some(env), Some(env_bw)) = (&self.scene.environment, &self.env_bandwidth) {
-            for k in 0..n_b {
-                // BRDF-importance-sampled directions (cosine where the material draws
-                // none), so a sharp lobe is seen by a few of the n_b directions.
+        // Table-drawn directions (cosine where the material draws none), shared by the
+        // environment's bounces and the table strategy of the area lights.
+        let drawn: Vec<Option<(DVec3, f64)>> = (0..n_b)
+            .map(|k| {
                 let u = stratum(k);
                 let (li, pdf) = surface::sample(material, lo, u).unwrap_or_else(|| {
                     let li = warp::cosine_hemisphere(u);
                     (li, li.z / std::f64::consts::PI)
                 });
-                if pdf <= 0.0 || li.z <= 0.0 {
-                    continue;
-                }
+                (pdf > 0.0 && li.z > 0.0).then_some((li, pdf))
+            })
+            .collect();
+        let merl = matches!(material, Material::Merl { .. });
+        if let (Some(env), Some(env_bw)) = (&self.scene.environment, &self.env_bandwidth) {
+            for (k, d) in drawn.iter().enumerate() {
+                // BRDF-importance-sampled directions, so a sharp lobe is seen by a few
+                // of the n_b directions.
+                let Some((li, pdf)) = *d else { continue };
                 let wi = s.to_world(li);
                 let radiance = env.radiance_unit(wi).dot(LUMINANCE) * env.strength;
                 let nu_a = env_bw.rate(env, wi);
-                let seen =
-                    (k < GUARD_RAYS).then(|| !self.bvh.occluded(lift, wi, 0.0, f64::INFINITY));
-                bounce(
-                    li,
-                    DVec2::new(0.0, nu_a),
-                    0.0,
-                    radiance,
-                    1.0 / (pdf * n_b as f64),
-                    seen,
-                );
+                let seen = (k < GUARD_RAYS as usize)
+                    .then(|| !self.bvh.occluded(lift, wi, 0.0, f64::INFINITY));
+                let lambda = bounce(li, DVec2::new(0.0, nu_a), 0.0, radiance, 1.0 / pdf, seen);
+                if env.mis
+                    && let Some(sampler) = &self.env_sampler
+                {
+                    let map_pdf = sampler.pdf(rotate_y(wi, -env.rotate_y_deg));
+                    value[k] += lambda * power(pdf, map_pdf);
+                }
+            }
+            for (k, v) in value.iter_mut().enumerate() {
+                // The map's strategy at the same stratum.
+                let Some(sampler) = &self.env_sampler else {
+                    break;
+                };
+                let e = sampler.sample(&env.map, stratum(k as u32));
+                let wi = rotate_y(e.dir, env.rotate_y_deg);
+                let li = s.to_local(wi);
+                if li.z <= 0.0 || e.pdf <= 0.0 {
+                    continue;
+                }
+                let weight = if env.mis {
+                    power(e.pdf, surface::pdf(material, lo, li))
+                } else {
+                    1.0
+                };
+                let f = surface::brdf(material, li, lo).dot(LUMINANCE);
+                *v += f * li.z * e.radiance.dot(LUMINANCE) * env.strength * weight / e.pdf;
             }
         }
         for (light, bw) in self.scene.lights.iter().zip(&self.light_bandwidth) {
@@ -563,6 +716,7 @@ impl AdaptiveMode {
             };
             let cross = edge_u.cross(edge_v);
             let area = cross.length();
+            let emitted = radiance.dot(LUMINANCE);
             for k in 0..n_b {
                 let u = stratum(k);
                 let q = corner + edge_u * u.x + edge_v * u.y;
@@ -575,32 +729,57 @@ impl AdaptiveMode {
                 if cos_l <= 0.0 || li.z <= 0.0 {
                     continue;
                 }
-                let weight = cos_l * area / d2 / n_b as f64;
+                let falloff = cos_l * area / d2;
                 let seen = (k < GUARD_RAYS).then(|| {
                     !self
                         .bvh
                         .occluded(lift, wi, 0.0, (q - lift).length() * (1.0 - 1e-6))
                 });
-                bounce(
+                let lambda = bounce(
                     li,
                     DVec2::new(bw.rate(u.x, u.y), 0.0),
                     d,
-                    radiance.dot(LUMINANCE),
-                    weight,
+                    emitted,
+                    falloff,
                     seen,
                 );
+                let weight = if merl {
+                    power(1.0 / falloff, surface::pdf(material, lo, li))
+                } else {
+                    1.0
+                };
+                value[k as usize] += lambda * weight;
             }
+            if merl {
+                // The table's strategy for the light, as the frames draw it.
+                for (k, d) in drawn.iter().enumerate() {
+                    let Some((li, pdf)) = *d else { continue };
+                    let wi = s.to_world(li);
+                    if let Some((_, falloff)) =
+                        crate::geometry::hit_parallelogram(s.p, wi, corner, edge_u, edge_v)
+                    {
+                        let f = surface::brdf(material, li, lo).dot(LUMINANCE);
+                        value[k] += emitted * f * li.z / pdf * power(pdf, 1.0 / falloff);
+                    }
+                }
+            }
+        }
+        variance /= n_b as f64;
+        variance_full /= n_b as f64;
+        for v in value {
+            moments.add(v);
         }
         let share = if guarded > 0.0 {
             visible / guarded
         } else {
             1.0
         };
-        (
-            operators::weighted(&paths),
-            [variance, variance_full],
-            share,
-        )
+        PixelAnalysis {
+            nu: operators::weighted(&paths),
+            eq9: [variance, variance_full],
+            visible: share,
+            moments,
+        }
     }
 
     /// Which pixels frame `frame` shades and with how many samples.
@@ -639,40 +818,55 @@ impl AdaptiveMode {
                 }
             }
         }
-        // Eq. 9: N_p proportional to the block's largest variance bound.
-        let block = |m: &[Vec<f64>], i: usize, k: u32| {
+        // Samples in proportion to the block's largest predicted standard deviation
+        // (`allocation.rs`), `mean_samples` per site on average, at least
+        // `min_share` of that, dithered over frames.
+        let block_sigma = |i: usize, k: u32| {
             let (x, y) = (i as u32 % w, i as u32 / w);
             let bw = w.div_ceil(1 << k);
-            m[k as usize][((y >> k) * bw + (x >> k)) as usize]
+            b.sigma_mip[k as usize][((y >> k) * bw + (x >> k)) as usize]
         };
-        let block_var = |i: usize, k: u32| block(&b.variance_mip, i, k);
-        // The target variance: eq. 9's sums with `mean_samples` samples on average.
         let (mut sum, mut count) = (0.0, 0usize);
         for (i, s) in site_level.iter().enumerate() {
             if let Some(k) = s {
-                sum += block(&b.full_mip, i, *k);
+                sum += block_sigma(i, *k);
                 count += 1;
             }
         }
-        let mean_var = if count > 0 { sum / count as f64 } else { 0.0 };
+        let mean_sigma = if count > 0 { sum / count as f64 } else { 0.0 };
         let spf = f64::from(self.samples_per_frame);
         let mean = self.options.mean_samples * spf;
         let max = f64::from(self.options.max_samples) * spf;
+        let floor = self.options.min_share * mean;
         let samples = site_level
             .iter()
             .enumerate()
-            .map(|(i, s)| match s {
-                None => 0,
-                Some(k) if mean_var > 0.0 => {
-                    (mean * block_var(i, *k) / mean_var).round().clamp(1.0, max) as u32
-                }
-                Some(_) => mean.round().max(1.0) as u32,
+            .map(|(i, s)| {
+                let Some(k) = s else { return 0 };
+                let rate = if mean_sigma > 0.0 {
+                    (mean * block_sigma(i, *k) / mean_sigma).clamp(floor, max)
+                } else {
+                    mean
+                };
+                let n = allocation::dithered(rate, frame, allocation::phase(i));
+                // A site without a value yet takes one now: its children read it.
+                if self.own[i] == 0 { n.max(1) } else { n }
             })
             .collect();
         Plan {
             site_level,
             samples,
         }
+    }
+
+    /// One sample of pixel (x, y), `index` of its sequence, with the scene's
+    /// emissions applied (what the film's resolve sums): the reports' variance study.
+    pub fn sample_value(&self, x: u32, y: u32, index: u64) -> DVec3 {
+        let weights = self.layers.weights(&self.scene);
+        let mut out = vec![DVec3::ZERO; self.film.layers()];
+        let mut counts = RayCounts::default();
+        self.sample_into(x, y, index, &mut out, &mut counts);
+        out.iter().zip(&weights).map(|(o, w)| *o * *w).sum()
     }
 
     /// One sample of pixel (x, y), per film layer for unit emission.
@@ -1064,6 +1258,19 @@ mod tests {
             .map(|i| visibility_edge(&visible, 4, 2, i % 4, i / 4))
             .collect();
         assert_eq!(edge, [false, true, true, false, false, true, true, false]);
+    }
+
+    #[test]
+    fn a_radiance_step_marks_both_sides_and_a_smooth_ramp_or_dark_noise_does_not() {
+        // A highlight edge between columns 1 and 2 (1 -> 3); a 10% ramp elsewhere.
+        let mean = [1.0, 1.1, 3.0, 3.3];
+        let edge: Vec<bool> = (0..4)
+            .map(|x| radiance_edge(&mean, 4, 1, x, 0, 0.0))
+            .collect();
+        assert_eq!(edge, [false, true, true, false]);
+        // Steps of 1e-4 between near-black pixels stay below a floor of 1e-3.
+        let dark = [0.0, 1e-4, 0.0];
+        assert!((0..3).all(|x| !radiance_edge(&dark, 3, 1, x, 0, 1e-3)));
     }
 
     #[test]

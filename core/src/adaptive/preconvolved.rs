@@ -17,6 +17,8 @@ use crate::scene::Environment;
 /// the analysis neglects still varies over the hemisphere, so even a Lambertian keeps
 /// the map's variation at about this scale.
 pub const MIN_RATE: f64 = 2.0;
+/// How many times finer than the lobe's Nyquist spacing the chosen level's pixels are.
+pub const NARROWER: f64 = 4.0;
 
 #[derive(Clone, Debug)]
 pub struct Prefiltered {
@@ -80,10 +82,12 @@ impl Prefiltered {
     }
 
     /// The coarsest level whose rate (samples per radian down the map) still covers
-    /// `rate`.
+    /// `NARROWER` times `rate`: the filter's box is a fraction of the lobe's Nyquist
+    /// spacing, so a sharp lobe does not see a blurred map (the bias that capped this
+    /// variant on the silver teapot at a box as wide as the spacing).
     pub fn level_for(&self, rate: f64) -> usize {
         let h = f64::from(self.levels[0].1);
-        let rate = rate.max(MIN_RATE);
+        let rate = NARROWER * rate.max(MIN_RATE);
         let m = (h / (PI * rate)).log2().floor();
         if m <= 0.0 {
             0
@@ -125,7 +129,13 @@ mod tests {
         }
         // A sharp BRDF keeps the map; a slow one takes a coarse level.
         assert_eq!(p.level_for(1e6), 0);
-        assert!(p.level_for(0.0) > 0);
         assert!(p.level_for(3.0) >= p.level_for(6.0));
+        // Hand computed: 32 rows, rate 0.5 -> MIN_RATE 2 -> 8 per radian after
+        // NARROWER: floor(log2(32 / (8 pi))) = floor(0.349) = 0, the map itself; the
+        // pixels of level 1 (2 pi / 32 = 0.196 rad) would be wider than 1/8 rad.
+        assert_eq!(p.level_for(0.5), 0);
+        let big = Prefiltered::new(&Image::new(1024, 512));
+        // 512 rows at rate 2 (8 after NARROWER): floor(log2(512 / (8 pi))) = 4.
+        assert_eq!(big.level_for(2.0), 4);
     }
 }

@@ -50,8 +50,28 @@ pub struct Curve {
     pub checkpoints: Vec<Checkpoint>,
     /// Seconds of the bandwidth pass (adaptive variants).
     pub bandwidth_pass_seconds: Option<f64>,
+    /// Of which the G-buffer.
+    pub gbuffer_seconds: Option<f64>,
     /// Pixels shaded in the first frame, of all.
     pub first_frame_shaded: Option<f64>,
+}
+
+/// How well each rule spreads samples, against the per-pixel variance of the frames'
+/// estimator measured by brute force (`allocation::gain`: the factor by which the
+/// image's summed variance falls at equal samples against uniform sampling, the floor
+/// of `AdaptiveOptions::min_share` applied to every rule).
+#[derive(Clone, Debug, Serialize)]
+pub struct AllocationStudy {
+    /// Samples per pixel the variance was measured with (independent numbers).
+    pub samples_per_pixel: u32,
+    /// N_p in proportion to the measured standard deviation: the best any predictor can do.
+    pub oracle: f64,
+    /// The paper's rule: N_p in proportion to eq. 9's bound.
+    pub eq9_bound: f64,
+    /// N_p in proportion to the square root of eq. 9's bound.
+    pub eq9_sqrt: f64,
+    /// The mode's rule: in proportion to the predicted standard deviation.
+    pub predicted: f64,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -62,6 +82,7 @@ pub struct SpeedupReport {
     pub reference_seconds: f64,
     pub threads: usize,
     pub curves: Vec<Curve>,
+    pub allocation: AllocationStudy,
     #[serde(skip)]
     pub reference: Image,
 }
@@ -133,6 +154,7 @@ pub fn speedup_report(
         name: "spmm".into(),
         checkpoints: brute.clone(),
         bandwidth_pass_seconds: None,
+        gbuffer_seconds: None,
         first_frame_shaded: None,
     }];
     let base = AdaptiveOptions {
@@ -166,8 +188,8 @@ pub fn speedup_report(
         if let Some(b) = mode.buffers() {
             // The first frame's plan, recomputed (the mode keeps the last one).
             let first = mode.plan_frame(b, 0);
-            let n = first.samples.iter().filter(|&&s| s > 0).count();
-            shaded = Some(n as f64 / first.samples.len() as f64);
+            let n = first.site_level.iter().filter(|s| s.is_some()).count();
+            shaded = Some(n as f64 / first.site_level.len() as f64);
         }
         for c in &mut checkpoints {
             c.speedup = time_to(&brute, c.psnr_db).map(|t| t / c.seconds);
@@ -176,10 +198,14 @@ pub fn speedup_report(
             name: name.into(),
             checkpoints,
             bandwidth_pass_seconds: pass,
+            gbuffer_seconds: mode.buffers().map(|b| b.gbuffer_seconds),
             first_frame_shaded: shaded,
         });
     }
+    progress("allocation study");
+    let allocation = allocation_study(scene, r, STUDY_SPP)?;
     Ok(SpeedupReport {
+        allocation,
         width: r.width,
         height: r.height,
         reference_frames: r.reference_frames,
@@ -187,6 +213,53 @@ pub fn speedup_report(
         threads: rayon::current_num_threads(),
         curves,
         reference,
+    })
+}
+
+/// Samples per pixel of the allocation study.
+const STUDY_SPP: u32 = 64;
+
+/// Measures each pixel's per-sample variance (RGB summed, as the PSNR sums it) with
+/// `spp` independent samples of the frames' estimator and scores the allocation rules.
+pub fn allocation_study(
+    scene: &Scene,
+    r: &SpeedupRequest,
+    spp: u32,
+) -> Result<AllocationStudy, ModeError> {
+    use rayon::prelude::*;
+    let mut scene = scene.clone();
+    scene.render.sampler = crate::rng::Sampler::Independent;
+    let options = AdaptiveOptions {
+        n_b: 16,
+        preconvolved: false,
+        ..r.options
+    };
+    let mode = AdaptiveMode::prepare_with(scene, r.width, r.height, Prepare::quietly(), options)?;
+    let w = r.width;
+    let spp = spp.max(2);
+    let measured: Vec<f64> = (0..w * r.height)
+        .into_par_iter()
+        .map(|i| {
+            let mut m = [super::allocation::Moments::default(); 3];
+            for k in 0..spp {
+                let v = mode.sample_value(i % w, i / w, u64::from(k));
+                for (c, value) in m.iter_mut().zip(v.to_array()) {
+                    c.add(value);
+                }
+            }
+            m.iter().map(|c| c.variance()).sum()
+        })
+        .collect();
+    let b = mode.bandwidth_pass();
+    let floor = options.min_share;
+    let gain = |weight: &[f64]| super::allocation::gain(&measured, weight, floor);
+    let sqrt = |v: &[f64]| v.iter().map(|x| x.sqrt()).collect::<Vec<_>>();
+    Ok(AllocationStudy {
+        samples_per_pixel: spp,
+        oracle: gain(&sqrt(&measured)),
+        eq9_bound: gain(&b.variance),
+        eq9_sqrt: gain(&sqrt(&b.variance)),
+        predicted: gain(&b.sigma),
     })
 }
 

@@ -160,7 +160,9 @@ fn the_first_frame_shades_few_pixels_and_is_already_close() {
     let total = (SIZE * SIZE) as usize;
     let (m, r) = (mean(&mode.image()), mean(&reference));
     eprintln!("two frames shaded {shaded} of {total} pixels; mean {m} against {r}");
-    assert!(shaded < total / 4, "{shaded} of {total}");
+    // The radiance-step guard shades highlight and reflection edges at level 0 (on
+    // this 32 x 32 view they are a large share); still most of the view is up-sampled.
+    assert!(shaded < total / 2, "{shaded} of {total}");
     // Up-sampled from those few (each with about 8 samples, and a bright patch in the
     // sky): the image mean within 15% of the reference's.
     assert!(((m - r) / r).abs().max_element() < 0.15, "{m} {r}");
@@ -280,4 +282,105 @@ fn a_camera_edit_restarts_and_an_emission_edit_keeps_the_samples() {
         .is_err()
     );
     assert!(matches!(mode.scene().materials[0], Material::Brdf { .. }));
+}
+
+/// A grey Lambertian floor (albedo `a`) seen from above under a uniform sky of
+/// radiance 1, nothing else.
+fn floor_under_uniform_sky(a: f64, mis: bool) -> Scene {
+    let mut scene = merl_test_scene();
+    let mut sky = Image::new(64, 32);
+    sky.pixels_mut().iter_mut().for_each(|p| *p = [1.0; 3]);
+    scene.materials = vec![Material::Brdf {
+        brdf: AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
+        albedo: DVec3::splat(a),
+    }];
+    scene.material_names = vec!["floor".into()];
+    scene.meshes = vec![quad(
+        DVec3::new(-50.0, 0.0, 50.0),
+        DVec3::new(100.0, 0.0, 0.0),
+        DVec3::new(0.0, 0.0, -100.0),
+        0,
+    )];
+    scene.lights.clear();
+    scene.camera = Camera {
+        position: DVec3::new(0.0, 1.0, 0.0),
+        look_at: DVec3::ZERO,
+        up: DVec3::Z,
+        fov_y_deg: 30.0,
+    };
+    scene.environment = Some(Environment {
+        map: Arc::new(sky),
+        strength: 1.0,
+        rotate_y_deg: 0.0,
+        mis,
+    });
+    scene
+}
+
+#[test]
+fn the_predicted_variance_is_that_of_the_importance_sampled_estimator_on_a_hand_computed_case() {
+    // Map sampling alone (no MIS) of a uniform sky draws directions uniformly over the
+    // sphere (pdf 1 / 4 pi): one sample is X = (a / pi) cos+ 4 pi = 4 a cos+, with
+    // E[X] = 4a E[cos+] = a and E[X^2] = 16 a^2 E[cos+^2] = 16 a^2 / 6, so
+    // Var X = (8/3 - 1) a^2 = 5/3 a^2. Eq. 9's uniform bound knows nothing of this.
+    let a = 0.6;
+    let options = AdaptiveOptions {
+        n_b: 256,
+        ..AdaptiveOptions::default()
+    };
+    let mode = AdaptiveMode::prepare_with(
+        floor_under_uniform_sky(a, false),
+        SIZE,
+        SIZE,
+        Prepare::quietly(),
+        options,
+    )
+    .expect("adaptive");
+    let b = mode.bandwidth_pass();
+    let centre = (SIZE / 2 * SIZE + SIZE / 2) as usize;
+    let expected = 5.0 / 3.0 * a * a;
+    let got = b.sigma[centre] * b.sigma[centre];
+    let measured = |mis: bool| {
+        let mut scene = floor_under_uniform_sky(a, mis);
+        scene.render.sampler = crate::rng::Sampler::Independent;
+        let mode =
+            AdaptiveMode::prepare_with(scene, SIZE, SIZE, Prepare::quietly(), options).expect("a");
+        let mut m = super::allocation::Moments::default();
+        for k in 0..4096 {
+            m.add(
+                mode.sample_value(SIZE / 2, SIZE / 2, k)
+                    .dot(DVec3::new(0.2126, 0.7152, 0.0722)),
+            );
+        }
+        m.variance()
+    };
+    // The 16 x 16 strata share one shift, a lattice rule whose error on cos+ (a
+    // kink at the horizon, a jump where the shift wraps) is a few percent: 10%.
+    assert!(
+        (got - expected).abs() < 0.1 * expected,
+        "{got} against {expected}"
+    );
+    assert!((measured(false) - expected).abs() < 0.05 * expected);
+    // With MIS the material's cosine samples carry most of the weight and the same
+    // sky's estimator is far quieter; the prediction follows.
+    let mis = AdaptiveMode::prepare_with(
+        floor_under_uniform_sky(a, true),
+        SIZE,
+        SIZE,
+        Prepare::quietly(),
+        options,
+    )
+    .expect("adaptive")
+    .bandwidth_pass();
+    let with_mis = mis.sigma[centre] * mis.sigma[centre];
+    assert!(with_mis < 0.5 * expected, "{with_mis} against {expected}");
+    // And it is of the order of the estimator's measured variance (4096 independent
+    // samples): the pass draws the map's and the table's directions from the same
+    // stratum, whose correlation overstates the MIS sum's variance (measured: 0.039
+    // predicted against 0.024), so within a factor of 2 either way.
+    let m = measured(true);
+    assert!(
+        with_mis < 2.0 * m && with_mis > 0.5 * m,
+        "predicted {with_mis}, measured {m}"
+    );
 }

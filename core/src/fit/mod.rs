@@ -50,6 +50,9 @@ pub struct FitSettings {
     /// Direction pairs the nonlinear dictionary fits use.
     pub fit_pairs: usize,
     pub dictionary: DictionarySettings,
+    /// Caps the weights so that no basis exceeds the lobe bound's hemisphere multiple
+    /// of the BTF's maximum (spmm::lobe_bound); off only to test exact recovery.
+    pub hemisphere_bound: bool,
 }
 
 impl Default for FitSettings {
@@ -63,6 +66,7 @@ impl Default for FitSettings {
             feature_pairs: 512,
             fit_pairs: 6561,
             dictionary: DictionarySettings::default(),
+            hemisphere_bound: true,
         }
     }
 }
@@ -357,7 +361,7 @@ pub fn fit_btf(
         let caps: Vec<f64> = peaks
             .iter()
             .map(|&p| {
-                if p > 0.0 {
+                if p > 0.0 && settings.hemisphere_bound {
                     target * reference / p
                 } else {
                     f64::INFINITY
@@ -506,7 +510,7 @@ pub fn fit_btf(
             .zip(&peaks)
             .map(|(w, p)| w * p)
             .fold(0.0f64, f64::max);
-        if worst <= target * pack_max {
+        if worst <= target * pack_max || !settings.hemisphere_bound {
             break (material, weights, residuals);
         }
         if attempt == 4 {

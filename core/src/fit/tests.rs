@@ -234,7 +234,10 @@ fn fitting_a_known_spmm_recovers_it() {
     .expect("fit");
     crate::spmm::lobe_bound::check_lobes(&bounded.material).expect("within the bound");
     let relative = bounded.report.overall.rmse_basis / bounded.report.mean_reflectance;
-    assert!(relative > 1e-3, "RMSE {relative:e} of the mean: the caps never bound");
+    assert!(
+        relative > 1e-3,
+        "RMSE {relative:e} of the mean: the caps never bound"
+    );
 }
 
 fn weave_btf() -> Btf {

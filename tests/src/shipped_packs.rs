@@ -70,7 +70,10 @@ fn fitted_packs_validate_and_stay_small() {
         let settings = rebuild_settings(name);
         for pair in settings.chunks(2) {
             let want = format!("{} {}", pair[0], pair[1]);
-            assert!(provenance.contains(&want), "{name}: {provenance} lacks {want}");
+            assert!(
+                provenance.contains(&want),
+                "{name}: {provenance} lacks {want}"
+            );
         }
         assert!(provenance.ends_with("--seed 0"), "{name}: {provenance}");
         let npca: usize = settings
@@ -92,9 +95,9 @@ fn rebuild_settings(name: &str) -> Vec<String> {
         .map(str::trim)
         .find(|l| {
             l.contains("settings=\"")
-                && l.split(')').next().is_some_and(|names| {
-                    names.split('|').any(|n| n.trim() == name)
-                })
+                && l.split(')')
+                    .next()
+                    .is_some_and(|names| names.split('|').any(|n| n.trim() == name))
         })
         .unwrap_or_else(|| panic!("rebuild.sh has no settings for {name}"));
     let quoted = line.split('"').nth(1).expect("settings=\"...\"");

@@ -493,7 +493,7 @@ mod tests {
         assert!(peak > 10.0 * measured, "{peak} vs {measured}");
 
         // Weighted 0.2 next to a Lambertian at 0.5 it is over the hemisphere bound...
-        let m = pack_weighted(ct.clone(), 0.2);
+        let m = pack_weighted(ct, 0.2);
         let e = check_lobes(&m).expect_err("too bright at grazing");
         assert_eq!(e.place(), (0, 1), "{e}");
         let LobeBoundError::TooBright {

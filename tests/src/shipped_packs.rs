@@ -60,6 +60,46 @@ fn fitted_packs_validate_and_stay_small() {
             (r.light_dirs.as_slice(), r.view_dirs.as_slice()),
             (bonn.as_slice(), bonn.as_slice())
         );
-        assert_eq!(r.npca, 5);
+        // The pack is what materials/btf_recipes/rebuild.sh fits: its provenance holds
+        // the script's settings for it (and the default seed).
+        let provenance = m.provenance();
+        assert!(
+            provenance.starts_with(&format!("meso fit {name}.btf ")),
+            "{name}: {provenance}"
+        );
+        let settings = rebuild_settings(name);
+        for pair in settings.chunks(2) {
+            let want = format!("{} {}", pair[0], pair[1]);
+            assert!(
+                provenance.contains(&want),
+                "{name}: {provenance} lacks {want}"
+            );
+        }
+        assert!(provenance.ends_with("--seed 0"), "{name}: {provenance}");
+        let npca: usize = settings
+            .chunks(2)
+            .find(|p| p[0] == "--npca")
+            .map(|p| p[1].parse().expect("a number"))
+            .expect("rebuild.sh sets --npca");
+        assert_eq!(r.npca, npca, "{name}");
     }
+}
+
+/// The `meso fit` settings materials/btf_recipes/rebuild.sh uses for `name`, as
+/// (option, value) words.
+fn rebuild_settings(name: &str) -> Vec<String> {
+    let script = std::fs::read_to_string(root().join("materials/btf_recipes/rebuild.sh"))
+        .expect("the rebuild script is shipped");
+    let line = script
+        .lines()
+        .map(str::trim)
+        .find(|l| {
+            l.contains("settings=\"")
+                && l.split(')')
+                    .next()
+                    .is_some_and(|names| names.split('|').any(|n| n.trim() == name))
+        })
+        .unwrap_or_else(|| panic!("rebuild.sh has no settings for {name}"));
+    let quoted = line.split('"').nth(1).expect("settings=\"...\"");
+    quoted.split_whitespace().map(str::to_string).collect()
 }

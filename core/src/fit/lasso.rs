@@ -148,9 +148,59 @@ pub fn lasso_support(g: &DMatrix<f64>, b: &[f64], max_bases: usize) -> Vec<usize
     best
 }
 
+/// `nnls_gram` with upper bounds: `0 <= w[k] <= caps[k]` (the lobe bound's weight
+/// caps). Active set on the upper bounds: solve without them, fix the weight most over
+/// its cap (by ratio) at the cap, move its contribution to the right-hand side and
+/// solve the rest again, until none is over. Always feasible; exact when at most one
+/// cap binds, close otherwise (a fixed weight is not released again).
+pub fn bounded_nnls_gram(g: &DMatrix<f64>, b: &[f64], cols: &[usize], caps: &[f64]) -> Vec<f64> {
+    let n = cols.len();
+    let mut fixed: Vec<Option<f64>> = vec![None; n];
+    loop {
+        let free: Vec<usize> = (0..n).filter(|&k| fixed[k].is_none()).collect();
+        let mut rhs = b.to_vec();
+        for (k, f) in fixed.iter().enumerate() {
+            if let Some(v) = f {
+                for (j, r) in rhs.iter_mut().enumerate() {
+                    *r -= g[(j, cols[k])] * v;
+                }
+            }
+        }
+        let free_cols: Vec<usize> = free.iter().map(|&k| cols[k]).collect();
+        let w_free = nnls_gram(g, &rhs, &free_cols);
+        let worst = free
+            .iter()
+            .zip(&w_free)
+            .filter(|&(&k, &w)| w > caps[k])
+            .map(|(&k, &w)| (k, w / caps[k].max(1e-300)))
+            .max_by(|a, b| a.1.total_cmp(&b.1));
+        match worst {
+            Some((k, _)) => fixed[k] = Some(caps[k].max(0.0)),
+            None => {
+                let mut w = vec![0.0; n];
+                for (&k, &v) in free.iter().zip(&w_free) {
+                    w[k] = v;
+                }
+                for (k, f) in fixed.iter().enumerate() {
+                    if let Some(v) = f {
+                        w[k] = *v;
+                    }
+                }
+                return w;
+            }
+        }
+    }
+}
+
 /// Sparse RGB weights of one texel: (column, weight per channel), columns ascending,
-/// entries with all three channels zero dropped. `b` holds A^T y per channel.
-pub fn texel_weights(g: &DMatrix<f64>, b: &[[f64; 3]], max_bases: usize) -> Vec<(usize, [f64; 3])> {
+/// entries with all three channels zero dropped. `b` holds A^T y per channel; `caps`
+/// bounds each column's weight in every channel (infinite: no bound).
+pub fn texel_weights(
+    g: &DMatrix<f64>,
+    b: &[[f64; 3]],
+    max_bases: usize,
+    caps: &[f64],
+) -> Vec<(usize, [f64; 3])> {
     let summed: Vec<f64> = b.iter().map(|c| c[0] + c[1] + c[2]).collect();
     let support = lasso_support(g, &summed, max_bases);
     if support.is_empty() {
@@ -159,7 +209,11 @@ pub fn texel_weights(g: &DMatrix<f64>, b: &[[f64; 3]], max_bases: usize) -> Vec<
     let mut w = vec![[0.0; 3]; support.len()];
     for ch in 0..3 {
         let bc: Vec<f64> = b.iter().map(|c| c[ch]).collect();
-        for (k, v) in nnls_gram(g, &bc, &support).into_iter().enumerate() {
+        let sc: Vec<f64> = support.iter().map(|&j| caps[j]).collect();
+        for (k, v) in bounded_nnls_gram(g, &bc, &support, &sc)
+            .into_iter()
+            .enumerate()
+        {
             w[k][ch] = v;
         }
     }
@@ -234,7 +288,7 @@ mod tests {
                 b[j][ch] = aty[j];
             }
         }
-        let w = texel_weights(&g, &b, 9);
+        let w = texel_weights(&g, &b, 9, &[f64::INFINITY; 12]);
         let cols: Vec<usize> = w.iter().map(|e| e.0).collect();
         assert_eq!(cols, [2, 7, 9]);
         for ((_, got), (_, want)) in w.iter().zip(&truth) {
@@ -243,6 +297,49 @@ mod tests {
             }
         }
         // A budget of one basis keeps the strongest.
-        assert_eq!(texel_weights(&g, &b, 1).len(), 1);
+        assert_eq!(texel_weights(&g, &b, 1, &[f64::INFINITY; 12]).len(), 1);
+    }
+
+    #[test]
+    fn bounded_nnls_keeps_the_caps_and_is_plain_nnls_when_they_are_loose() {
+        for seed in 0..20 {
+            let a = random_matrix(30, 4, seed + 100);
+            let y = DVector::from_fn(30, |r, _| SampleStream::new(&[seed, 7, r as u64]).at(0));
+            let g = a.transpose() * &a;
+            let b: Vec<f64> = (a.transpose() * &y).iter().copied().collect();
+            let cols = [0, 1, 2, 3];
+            let free = nnls_gram(&g, &b, &cols);
+            let loose = bounded_nnls_gram(&g, &b, &cols, &[f64::INFINITY; 4]);
+            assert_eq!(free, loose);
+            // Caps at half the free solution's weights bind: every weight within them.
+            let caps: Vec<f64> = free.iter().map(|w| 0.5 * w + 0.01).collect();
+            let w = bounded_nnls_gram(&g, &b, &cols, &caps);
+            for k in 0..4 {
+                assert!(
+                    w[k] >= 0.0 && w[k] <= caps[k],
+                    "seed {seed}: {w:?} vs {caps:?}"
+                );
+            }
+            // With one column the answer is the clamp of the free one, exactly.
+            let one = bounded_nnls_gram(&g, &b, &[2], &[0.3]);
+            let free_one = nnls_gram(&g, &b, &[2]);
+            assert_eq!(one, vec![free_one[0].min(0.3)]);
+            // The weights not at their caps are the best non-negative ones given those
+            // at their caps: no worse than the clamped free solution there.
+            let cost = |w: &[f64]| (&a * DVector::from_column_slice(w) - &y).norm_squared();
+            let other: Vec<f64> = (0..4)
+                .map(|k| {
+                    if w[k] == caps[k] {
+                        caps[k]
+                    } else {
+                        free[k].min(caps[k])
+                    }
+                })
+                .collect();
+            assert!(
+                cost(&w) <= cost(&other) * (1.0 + 1e-9) + 1e-12,
+                "seed {seed}"
+            );
+        }
     }
 }

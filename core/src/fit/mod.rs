@@ -29,7 +29,7 @@ use rayon::prelude::*;
 use crate::brdf::{AnalyticBrdf, BasisFunction, BrdfModel};
 use crate::btf::Btf;
 use crate::rng::SampleStream;
-use crate::spmm::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial};
+use crate::spmm::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial, lobe_bound};
 use dictionary::{DictionarySettings, Pairs};
 pub use report::{ClusterReport, ErrorRow, FitReport, StageSeconds};
 
@@ -50,6 +50,9 @@ pub struct FitSettings {
     /// Direction pairs the nonlinear dictionary fits use.
     pub fit_pairs: usize,
     pub dictionary: DictionarySettings,
+    /// Caps the weights so that no basis exceeds the lobe bound's hemisphere multiple
+    /// of the BTF's maximum (spmm::lobe_bound); off only to test exact recovery.
+    pub hemisphere_bound: bool,
 }
 
 impl Default for FitSettings {
@@ -63,6 +66,7 @@ impl Default for FitSettings {
             feature_pairs: 512,
             fit_pairs: 6561,
             dictionary: DictionarySettings::default(),
+            hemisphere_bound: true,
         }
     }
 }
@@ -100,6 +104,10 @@ pub enum FitError {
     },
     #[error("cancelled")]
     Cancelled,
+    #[error(
+        "the fitted weights could not be brought within the lobe bound in 4 attempts (a bug: please report it)"
+    )]
+    LobeBound,
     #[error("the fitted material is invalid: {0}")]
     Material(#[from] SpmmError),
 }
@@ -279,7 +287,7 @@ pub fn fit_btf(
             // The lobe bound (spmm::lobe_bound): a basis peaking between the tabulated
             // directions far above its values there is dropped; the weights and the
             // residual are fitted without it.
-            if !crate::spmm::lobe_bound::within_bound(&b, btf.light_dirs(), btf.view_dirs()) {
+            if !lobe_bound::within_bound(&b, btf.light_dirs(), btf.view_dirs()) {
                 continue;
             }
             if !clusters[*c]
@@ -303,7 +311,8 @@ pub fn fit_btf(
     let s_dict = t0.elapsed().as_secs_f64();
 
     // 3. Sparse weights per texel against its cluster's dictionary, every pair.
-    let t0 = Instant::now();
+    let mut s_weights = 0.0;
+    let mut s_residual = 0.0;
     let columns: Vec<Vec<f64>> = clusters
         .par_iter()
         .flat_map_iter(|c| {
@@ -329,134 +338,187 @@ pub fn fit_btf(
             })
         })
         .collect();
-    let done = AtomicUsize::new(0);
-    type TexelWeights = Vec<(usize, [f64; 3])>;
-    let weights: Vec<Option<TexelWeights>> = (0..texels)
-        .into_par_iter()
-        .map(|t| {
-            if cancelled() {
-                return None;
-            }
-            let c = clustering.assignment[t] as usize;
-            let cols = &columns[first_col[c]..first_col[c + 1]];
-            let row = btf.texel(t);
-            let b: Vec<[f64; 3]> = cols
-                .iter()
-                .map(|col| {
-                    let mut s = [0.0; 3];
-                    for (p, a) in col.iter().enumerate() {
-                        for (ch, sc) in s.iter_mut().enumerate() {
-                            *sc += a * f64::from(row[p * 3 + ch]);
-                        }
-                    }
-                    s
-                })
-                .collect();
-            let w = lasso::texel_weights(&grams[c], &b, settings.max_bases);
-            let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-            if d.is_multiple_of(64) || d == texels {
-                progress(Stage::Weights, d, texels);
-            }
-            Some(w)
-        })
+    // The lobe bound's second half (spmm::lobe_bound): each basis times its weight
+    // stays within HEMISPHERE_MULTIPLE times the pack's largest tabulated value
+    // anywhere on the hemisphere down to 88.2 degrees. The weights are capped at that
+    // relative to the BTF's maximum (which the pack's maximum approximates); if the
+    // finished pack's own maximum is lower, the caps shrink by the shortfall and the
+    // weights and residual are fitted again.
+    let peaks: Vec<f64> = clusters
+        .par_iter()
+        .flat_map_iter(|c| c.bases.iter())
+        .collect::<Vec<_>>()
+        .par_iter()
+        .map(|b| lobe_bound::hemisphere_peak(b).0)
         .collect();
-    if cancelled() {
-        return Err(FitError::Cancelled);
-    }
-    let weights: Vec<Vec<(usize, [f64; 3])>> =
-        weights.into_iter().map(Option::unwrap_or_default).collect();
-    let s_weights = t0.elapsed().as_secs_f64();
-
-    // 4. Residual per cluster: mean + PCA over all pairs.
-    let t0 = Instant::now();
-    let d = m * 3;
-    let done = AtomicUsize::new(0);
-    let residuals: Vec<Option<residual::ClusterResidual>> = (0..n_clusters)
-        .into_par_iter()
-        .map(|c| {
-            if cancelled() {
-                return None;
-            }
-            let cols = &columns[first_col[c]..first_col[c + 1]];
-            let mut rows = vec![0.0f64; members[c].len() * d];
-            for (i, &t) in members[c].iter().enumerate() {
-                let out = &mut rows[i * d..(i + 1) * d];
-                for (o, v) in out.iter_mut().zip(btf.texel(t)) {
-                    *o = f64::from(*v);
+    let btf_max = btf.data().iter().fold(0.0f64, |a, &x| a.max(f64::from(x)));
+    // A margin below the validator's multiple for the f32/f16 rounding of the file.
+    let target = lobe_bound::HEMISPHERE_MULTIPLE * 0.97;
+    let mut reference = btf_max;
+    let mut attempt = 0;
+    let (material, weights, residuals) = loop {
+        attempt += 1;
+        let caps: Vec<f64> = peaks
+            .iter()
+            .map(|&p| {
+                if p > 0.0 && settings.hemisphere_bound {
+                    target * reference / p
+                } else {
+                    f64::INFINITY
                 }
-                for &(j, w) in &weights[t] {
-                    for (p, a) in cols[j].iter().enumerate() {
-                        for ch in 0..3 {
-                            out[p * 3 + ch] -= w[ch] * a;
+            })
+            .collect();
+        let t0 = Instant::now();
+        let done = AtomicUsize::new(0);
+        type TexelWeights = Vec<(usize, [f64; 3])>;
+        let weights: Vec<Option<TexelWeights>> = (0..texels)
+            .into_par_iter()
+            .map(|t| {
+                if cancelled() {
+                    return None;
+                }
+                let c = clustering.assignment[t] as usize;
+                let cols = &columns[first_col[c]..first_col[c + 1]];
+                let row = btf.texel(t);
+                let b: Vec<[f64; 3]> = cols
+                    .iter()
+                    .map(|col| {
+                        let mut s = [0.0; 3];
+                        for (p, a) in col.iter().enumerate() {
+                            for (ch, sc) in s.iter_mut().enumerate() {
+                                *sc += a * f64::from(row[p * 3 + ch]);
+                            }
                         }
-                    }
+                        s
+                    })
+                    .collect();
+                let w = lasso::texel_weights(
+                    &grams[c],
+                    &b,
+                    settings.max_bases,
+                    &caps[first_col[c]..first_col[c + 1]],
+                );
+                let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+                if d.is_multiple_of(64) || d == texels {
+                    progress(Stage::Weights, d, texels);
                 }
-            }
-            let r = residual::fit_cluster_residual(&rows, d, settings.npca);
-            progress(
-                Stage::Residual,
-                done.fetch_add(1, Ordering::Relaxed) + 1,
-                n_clusters,
-            );
-            Some(r)
-        })
-        .collect();
-    if cancelled() {
-        return Err(FitError::Cancelled);
-    }
-    let residuals: Vec<residual::ClusterResidual> = residuals.into_iter().flatten().collect();
-    let s_residual = t0.elapsed().as_secs_f64();
-
-    // The material.
-    let k = settings.npca;
-    let mut mean = vec![0.0f32; n_clusters * d];
-    let mut components = vec![0.0f32; n_clusters * k * d];
-    let mut coefficients = vec![0.0f32; texels * k];
-    for (c, r) in residuals.iter().enumerate() {
-        for (dst, src) in mean[c * d..(c + 1) * d].iter_mut().zip(&r.mean) {
-            *dst = *src as f32;
+                Some(w)
+            })
+            .collect();
+        if cancelled() {
+            return Err(FitError::Cancelled);
         }
-        for (kk, comp) in r.components.iter().enumerate() {
-            let at = (c * k + kk) * d;
-            for (dst, src) in components[at..at + d].iter_mut().zip(comp) {
+        let weights: Vec<Vec<(usize, [f64; 3])>> =
+            weights.into_iter().map(Option::unwrap_or_default).collect();
+        s_weights += t0.elapsed().as_secs_f64();
+
+        // 4. Residual per cluster: mean + PCA over all pairs.
+        let t0 = Instant::now();
+        let d = m * 3;
+        let done = AtomicUsize::new(0);
+        let residuals: Vec<Option<residual::ClusterResidual>> = (0..n_clusters)
+            .into_par_iter()
+            .map(|c| {
+                if cancelled() {
+                    return None;
+                }
+                let cols = &columns[first_col[c]..first_col[c + 1]];
+                let mut rows = vec![0.0f64; members[c].len() * d];
+                for (i, &t) in members[c].iter().enumerate() {
+                    let out = &mut rows[i * d..(i + 1) * d];
+                    for (o, v) in out.iter_mut().zip(btf.texel(t)) {
+                        *o = f64::from(*v);
+                    }
+                    for &(j, w) in &weights[t] {
+                        for (p, a) in cols[j].iter().enumerate() {
+                            for ch in 0..3 {
+                                out[p * 3 + ch] -= w[ch] * a;
+                            }
+                        }
+                    }
+                }
+                let r = residual::fit_cluster_residual(&rows, d, settings.npca);
+                progress(
+                    Stage::Residual,
+                    done.fetch_add(1, Ordering::Relaxed) + 1,
+                    n_clusters,
+                );
+                Some(r)
+            })
+            .collect();
+        if cancelled() {
+            return Err(FitError::Cancelled);
+        }
+        let residuals: Vec<residual::ClusterResidual> = residuals.into_iter().flatten().collect();
+        s_residual += t0.elapsed().as_secs_f64();
+
+        // The material.
+        let k = settings.npca;
+        let mut mean = vec![0.0f32; n_clusters * d];
+        let mut components = vec![0.0f32; n_clusters * k * d];
+        let mut coefficients = vec![0.0f32; texels * k];
+        for (c, r) in residuals.iter().enumerate() {
+            for (dst, src) in mean[c * d..(c + 1) * d].iter_mut().zip(&r.mean) {
                 *dst = *src as f32;
             }
-        }
-        for (i, &t) in members[c].iter().enumerate() {
-            for (kk, v) in r.coefficients[i].iter().enumerate() {
-                coefficients[t * k + kk] = *v as f32;
+            for (kk, comp) in r.components.iter().enumerate() {
+                let at = (c * k + kk) * d;
+                for (dst, src) in components[at..at + d].iter_mut().zip(comp) {
+                    *dst = *src as f32;
+                }
+            }
+            for (i, &t) in members[c].iter().enumerate() {
+                for (kk, v) in r.coefficients[i].iter().enumerate() {
+                    coefficients[t * k + kk] = *v as f32;
+                }
             }
         }
-    }
-    let mut sparse = SparseWeights {
-        offsets: vec![0],
-        basis: Vec::new(),
-        rgb: Vec::new(),
-    };
-    for w in &weights {
-        for &(j, rgb) in w {
-            sparse.basis.push(j as u16);
-            sparse.rgb.push(rgb.map(|x| x as f32));
+        let mut sparse = SparseWeights {
+            offsets: vec![0],
+            basis: Vec::new(),
+            rgb: Vec::new(),
+        };
+        for w in &weights {
+            for &(j, rgb) in w {
+                sparse.basis.push(j as u16);
+                sparse.rgb.push(rgb.map(|x| x as f32));
+            }
+            sparse.offsets.push(sparse.basis.len() as u32);
         }
-        sparse.offsets.push(sparse.basis.len() as u32);
-    }
-    let material = SpmmMaterial::new(
-        name.to_string(),
-        provenance.to_string(),
-        btf.width(),
-        btf.height(),
-        clusters,
-        clustering.assignment.clone(),
-        sparse,
-        Some(Residual {
-            light_dirs: btf.light_dirs().to_vec(),
-            view_dirs: btf.view_dirs().to_vec(),
-            npca: k,
-            mean,
-            components,
-            coefficients,
-        }),
-    )?;
+        let material = SpmmMaterial::new(
+            name.to_string(),
+            provenance.to_string(),
+            btf.width(),
+            btf.height(),
+            clusters.clone(),
+            clustering.assignment.clone(),
+            sparse,
+            Some(Residual {
+                light_dirs: btf.light_dirs().to_vec(),
+                view_dirs: btf.view_dirs().to_vec(),
+                npca: k,
+                mean,
+                components,
+                coefficients,
+            }),
+        )?;
+        let pack_max = lobe_bound::tabulated_maximum(&material);
+        let largest = lobe_bound::largest_weights(&material);
+        let worst = largest
+            .iter()
+            .flatten()
+            .zip(&peaks)
+            .map(|(w, p)| w * p)
+            .fold(0.0f64, f64::max);
+        if worst <= target * pack_max || !settings.hemisphere_bound {
+            break (material, weights, residuals);
+        }
+        if attempt == 4 {
+            return Err(FitError::LobeBound);
+        }
+        // The pack's maximum fell short of the BTF's: shrink the caps by the shortfall.
+        reference *= (target * pack_max / worst).min(0.99);
+    };
     let seconds = StageSeconds {
         clustering: s_cluster,
         dictionary: s_dict,

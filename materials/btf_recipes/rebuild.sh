@@ -1,0 +1,22 @@
+#!/bin/sh
+# Rebuilds the fitted packs in materials/ from their BTF recipes (docs/fitting.md):
+# synthesizes each BTF (kept in $BTF_DIR, 161 MB each, not committed) and fits the
+# pack with the settings below. Deterministic: the same Meso writes the same bytes.
+#   MESO=target/release/meso sh materials/btf_recipes/rebuild.sh [NAME...]
+set -eu
+MESO=${MESO:-meso}
+BTF_DIR=${BTF_DIR:-btf}
+mkdir -p "$BTF_DIR"
+for name in ${*:-knitted_wool woven_cloth grain_leather corduroy}; do
+    # Per pack: clusters and N_PCA (the best point under 4 MB of the curve in
+    # docs/fitting.md); everything else is `meso fit`'s default (seed 0).
+    case "$name" in
+        woven_cloth) settings="--clusters 8 --npca 10" ;;
+        knitted_wool | grain_leather | corduroy) settings="--clusters 8 --npca 5" ;;
+        *) echo "unknown pack $name" >&2; exit 2 ;;
+    esac
+    btf="$BTF_DIR/$name.btf"
+    [ -f "$btf" ] || "$MESO" btf synth "materials/btf_recipes/$name.toml" -o "$btf"
+    # shellcheck disable=SC2086
+    "$MESO" fit "$btf" -o "materials/$name.spmm" $settings --report "$BTF_DIR/$name.fit.json"
+done

@@ -368,9 +368,25 @@ fn the_compare_view_shows_exactly_what_metrics_compare_says() {
     h.get_by_label("Compare with a reference").click();
     h.run_steps(2);
     assert!(h.state().settings.compare);
-    step_until(&mut h, "a comparison with the 8-spp reference", |h| {
-        h.state().measured().is_some_and(|m| m.reference_spp >= 8)
-    });
+    // The comparison of the final live frame (4 spp): an earlier one is replaced as
+    // frames arrive, and the status bar shows the newest.
+    step_until(
+        &mut h,
+        "a comparison of the final frame with the 8-spp reference",
+        |h| {
+            let final_frame = h
+                .state()
+                .frame()
+                .filter(|f| f.progress.min_samples >= 4)
+                .map(|f| Arc::clone(&f.image));
+            h.state().measured().is_some_and(|m| {
+                m.reference_spp >= 8
+                    && final_frame
+                        .as_ref()
+                        .is_some_and(|f| Arc::ptr_eq(f, &m.live))
+            })
+        },
+    );
     let m = h.state().measured().expect("measured").clone();
     let again = meso_core::metrics::compare(&m.reference, &m.live, 0.0).expect("same size");
     assert_eq!(again, m.comparison);

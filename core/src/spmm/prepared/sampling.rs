@@ -122,7 +122,8 @@ impl PreparedSpmm {
         if wi.z <= 0.0 {
             return None;
         }
-        let pdf = self.texel_pdf(t, wi, wo);
+        // The selection was summed above: the pdf reuses it (a per-ray path).
+        let pdf = self.mixture_pdf((c, entries, total), wi, wo);
         (pdf > 0.0 && pdf.is_finite()).then_some((wi, pdf))
     }
 
@@ -131,7 +132,16 @@ impl PreparedSpmm {
         if wi.z <= 0.0 || wo.z <= 0.0 {
             return 0.0;
         }
-        let (c, entries, total) = self.selection_total(t);
+        self.mixture_pdf(self.selection_total(t), wi, wo)
+    }
+
+    /// `texel_pdf` from the texel's cluster, weight entries and selection total.
+    fn mixture_pdf(
+        &self,
+        (c, entries, total): (usize, std::ops::Range<usize>, f64),
+        wi: DVec3,
+        wo: DVec3,
+    ) -> f64 {
         if total <= 0.0 {
             return defensive_pdf(wi);
         }

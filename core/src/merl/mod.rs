@@ -193,6 +193,11 @@ impl MerlBrdf {
         self.sampler.get_or_init(|| MerlSampler::new(self))
     }
 
+    /// The importance-sampling tables if something has built them.
+    pub fn sampler_if_built(&self) -> Option<&MerlSampler> {
+        self.sampler.get()
+    }
+
     /// Directional albedo at normal view, integral of f(wi, n) cos(theta_i) over the
     /// hemisphere, per channel: with `wo` on the normal every azimuth of `wi` looks up
     /// the same cells, so a midpoint rule over 8192 rings of equal cos(theta_i) width

@@ -83,6 +83,19 @@ fn azimuth(w: DVec3) -> f64 {
 const CELL_SOLID_ANGLE: f64 = 2.0 * PI / (Z_BINS * PHI_BINS) as f64;
 
 impl MerlSampler {
+    /// Bytes of the tables (the same for every table).
+    pub fn full_bytes() -> usize {
+        (WO_BANDS * Z_BINS * PHI_BINS
+            + WO_BANDS * (Z_BINS + 1)
+            + WO_BANDS * Z_BINS * (PHI_BINS + 1))
+            * size_of::<f64>()
+    }
+
+    /// Bytes held.
+    pub fn bytes(&self) -> usize {
+        (self.cell_prob.len() + self.row_cdf.len() + self.col_cdf.len()) * size_of::<f64>()
+    }
+
     pub fn new(brdf: &MerlBrdf) -> Self {
         let cells = Z_BINS * PHI_BINS;
         let bands: Vec<(Vec<f64>, Vec<f64>, Vec<f64>)> = (0..WO_BANDS)

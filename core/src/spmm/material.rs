@@ -3,6 +3,8 @@
 //! through `SpmmMaterial::new`, which checks every count, index and value, so code
 //! holding one never re-checks. Evaluation at shading points lives elsewhere.
 
+use std::sync::Arc;
+
 use glam::DVec3;
 
 use super::directions::{DirectionTable, DirectionTableError};
@@ -54,7 +56,9 @@ pub struct SpmmMaterial {
     clusters: Vec<Cluster>,
     texel_cluster: Vec<u32>,
     weights: SparseWeights,
-    residual: Option<Residual>,
+    /// Shared with prepared data, which lays out a cluster's tables when a ray first
+    /// needs them (`spmm::PreparedSpmm`).
+    residual: Option<Arc<Residual>>,
     /// Which bases the view shows (mute and solo): never written to a pack.
     view: BasisView,
     /// Interpolation tables of the residual's light and view directions, built once.
@@ -282,7 +286,7 @@ impl SpmmMaterial {
             clusters,
             texel_cluster,
             weights,
-            residual,
+            residual: residual.map(Arc::new),
             residual_tables,
             view: BasisView::default(),
         })
@@ -339,6 +343,9 @@ impl SpmmMaterial {
         &self.weights
     }
     pub fn residual(&self) -> Option<&Residual> {
+        self.residual.as_deref()
+    }
+    pub(crate) fn shared_residual(&self) -> Option<&Arc<Residual>> {
         self.residual.as_ref()
     }
     pub(crate) fn residual_tables(&self) -> Option<&(DirectionTable, DirectionTable)> {

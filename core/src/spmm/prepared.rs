@@ -4,13 +4,13 @@
 //! residual tables are re-laid out cell-major ([cluster][light][view][mean, b_1..b_K]
 //! x RGB) so one interpolation cell is one contiguous read.
 
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use glam::{DVec2, DVec3};
 
 use super::directions::DirectionTable;
 use super::eval::TexelGrid;
-use super::{EvalSettings, SpmmMaterial};
+use super::{EvalSettings, Residual, SpmmMaterial};
 use crate::brdf::BasisFunction;
 
 mod sampling;
@@ -48,17 +48,59 @@ impl PreparedBytes {
     }
 }
 
+/// The residual as a render evaluates it. A cluster's tables are laid out the first
+/// time a texel of it is evaluated (or when `make_resident` asks), so a render holds
+/// the tables of the clusters its rays reach; every evaluation sees the same values
+/// whichever thread laid them out, so images do not depend on it.
 struct PreparedResidual {
+    source: Arc<Residual>,
     lights: DirectionTable,
     views: DirectionTable,
     /// Components kept (<= the pack's N_PCA).
     k: usize,
-    /// Per cluster: offset of its tables in `cells`, or `None` when unused.
-    cluster_offset: Vec<Option<usize>>,
-    /// [used cluster][light][view][1 + k][3], mean first.
-    cells: Vec<f32>,
+    /// Per cluster: `None` when unused or hidden, else its tables once laid out,
+    /// `[light][view][1 + k][3]` with the mean first.
+    clusters: Vec<Option<OnceLock<Box<[f32]>>>>,
     /// [texel][k]: only the kept components.
     coefficients: Vec<f32>,
+}
+
+impl PreparedResidual {
+    /// Cluster `c`'s tables, laid out now if no evaluation needed them before (one
+    /// thread lays them out, others needing them wait; later reads are one atomic load).
+    fn cluster_cells(&self, c: usize) -> Option<&[f32]> {
+        let slot = self.clusters.get(c)?.as_ref()?;
+        Some(slot.get_or_init(|| self.lay_out(c)))
+    }
+
+    fn lay_out(&self, c: usize) -> Box<[f32]> {
+        let r = &self.source;
+        let (nl, nv, npca) = (r.light_dirs.len(), r.view_dirs.len(), r.npca);
+        let mut cells = Vec::with_capacity(nl * nv * (1 + self.k) * 3);
+        for l in 0..nl {
+            for v in 0..nv {
+                let m = ((c * nl + l) * nv + v) * 3;
+                cells.extend_from_slice(&r.mean[m..m + 3]);
+                for kk in 0..self.k {
+                    let b = (((c * npca + kk) * nl + l) * nv + v) * 3;
+                    cells.extend_from_slice(&r.components[b..b + 3]);
+                }
+            }
+        }
+        cells.into_boxed_slice()
+    }
+
+    /// Bytes held now: the laid-out clusters' tables and the coefficients.
+    fn bytes(&self) -> usize {
+        let cells: usize = self
+            .clusters
+            .iter()
+            .flatten()
+            .filter_map(OnceLock::get)
+            .map(|c| c.len())
+            .sum();
+        (cells + self.coefficients.len()) * 4
+    }
 }
 
 /// A read-only view of prepared data, laid out as `PreparedSpmm` holds it.
@@ -75,14 +117,15 @@ pub struct PreparedParts<'a> {
     pub residual: Option<PreparedResidualParts<'a>>,
 }
 
-/// The prepared residual: cell-major tables `[used cluster][light][view][1 + k][3]`.
+/// The prepared residual: cell-major tables `[used cluster][light][view][1 + k][3]`,
+/// every used cluster's laid out (`PreparedSpmm::parts` lays out what no ray reached).
 pub struct PreparedResidualParts<'a> {
     pub lights: &'a DirectionTable,
     pub views: &'a DirectionTable,
     pub k: usize,
     /// Per cluster, the offset of its tables in `cells` (`None`: not prepared).
-    pub cluster_offset: &'a [Option<usize>],
-    pub cells: &'a [f32],
+    pub cluster_offset: Vec<Option<usize>>,
+    pub cells: Vec<f32>,
     /// `[texel][k]`.
     pub coefficients: &'a [f32],
 }
@@ -195,46 +238,34 @@ impl SpmmMaterial {
         self.prepared_with(request, previous.residual.clone())
     }
 
-    /// Builds the evaluation data a render with these settings needs.
+    /// Builds the evaluation data a render with these settings needs. The residual's
+    /// tables of a cluster are laid out when a texel of it is first evaluated.
     pub fn prepare(&self, request: &PrepareRequest) -> PreparedSpmm {
-        let used = |c: usize| request.uses_cluster(c);
-        let residual = match (request.residual, self.residual(), self.residual_tables()) {
+        let residual = match (
+            request.residual,
+            self.shared_residual(),
+            self.residual_tables(),
+        ) {
             (true, Some(r), Some((lights, views))) => {
-                let (nl, nv, npca) = (r.light_dirs.len(), r.view_dirs.len(), r.npca);
-                let k = npca.min(request.max_npca);
-                let stride = (1 + k) * 3;
-                let mut cluster_offset = Vec::with_capacity(self.clusters().len());
-                let mut cells = Vec::new();
-                for c in 0..self.clusters().len() {
-                    if !used(c) || !self.view().shows_residual(c) {
-                        cluster_offset.push(None);
-                        continue;
-                    }
-                    cluster_offset.push(Some(cells.len()));
-                    for l in 0..nl {
-                        for v in 0..nv {
-                            let m = ((c * nl + l) * nv + v) * 3;
-                            cells.extend_from_slice(&r.mean[m..m + 3]);
-                            for kk in 0..k {
-                                let b = (((c * npca + kk) * nl + l) * nv + v) * 3;
-                                cells.extend_from_slice(&r.components[b..b + 3]);
-                            }
-                        }
-                    }
-                }
-                debug_assert_eq!(cells.len() % (nl * nv * stride).max(1), 0);
+                let k = r.npca.min(request.max_npca);
+                let clusters = (0..self.clusters().len())
+                    .map(|c| {
+                        (request.uses_cluster(c) && self.view().shows_residual(c))
+                            .then(OnceLock::new)
+                    })
+                    .collect();
                 let coefficients = r
                     .coefficients
-                    .chunks_exact(npca.max(1))
+                    .chunks_exact(r.npca.max(1))
                     .flat_map(|row| &row[..k])
                     .copied()
                     .collect();
                 Some(Arc::new(PreparedResidual {
+                    source: Arc::clone(r),
                     lights: lights.clone(),
                     views: views.clone(),
                     k,
-                    cluster_offset,
-                    cells,
+                    clusters,
                     coefficients,
                 }))
             }
@@ -288,18 +319,18 @@ impl PreparedSpmm {
         // of them first, so their cache misses overlap with each other and with the
         // basis sum instead of queueing after it (same arithmetic, same order).
         let cells = match (&self.residual, residual) {
-            (Some(r), true) => r.cluster_offset[c].map(|base| {
+            (Some(r), true) => r.cluster_cells(c).map(|table| {
                 let stride = (1 + r.k) * 3;
                 let nv = r.views.len();
                 let (lw, vw) = (r.lights.weights(wi), r.views.weights(wo));
                 let mut cells = [(0usize, 0.0f64); 9];
                 for (i, cell) in cells.iter_mut().enumerate() {
                     let (l, v) = (lw[i / 3], vw[i % 3]);
-                    let start = base + (l.0 as usize * nv + v.0 as usize) * stride;
+                    let start = (l.0 as usize * nv + v.0 as usize) * stride;
                     *cell = (start, l.1 * v.1);
-                    prefetch(&r.cells[start..start + stride]);
+                    prefetch(&table[start..start + stride]);
                 }
-                (r, cells)
+                (r, table, cells)
             }),
             _ => None,
         };
@@ -310,14 +341,14 @@ impl PreparedSpmm {
             rgb += DVec3::new(w[0] as f64, w[1] as f64, w[2] as f64)
                 * bases[usize::from(self.basis[i])].eval(wi, wo);
         }
-        if let Some((r, cells)) = cells {
+        if let Some((r, table, cells)) = cells {
             let stride = (1 + r.k) * 3;
             let coef = &r.coefficients[t * r.k..(t + 1) * r.k];
             for (start, w) in cells {
                 if w == 0.0 {
                     continue;
                 }
-                let cell = &r.cells[start..][..stride];
+                let cell = &table[start..][..stride];
                 let mut e = DVec3::new(cell[0] as f64, cell[1] as f64, cell[2] as f64);
                 for (k, &a) in coef.iter().enumerate() {
                     let b = &cell[3 + 3 * k..6 + 3 * k];
@@ -334,6 +365,27 @@ impl PreparedSpmm {
     pub fn eval_uv(&self, uv: DVec2, wi: DVec3, wo: DVec3, s: &EvalSettings) -> DVec3 {
         self.grid
             .filter(uv, s, |t| self.eval_texel_parts(t, wi, wo, s.residual))
+    }
+
+    /// Lays out now the residual tables of the clusters whose texels an evaluation at
+    /// `uv` reads (what a primary ray's hit will shade), so the first frame does not
+    /// wait for them. Values are unchanged: only when the work is done.
+    pub fn make_resident_at(&self, uv: DVec2, s: &EvalSettings) {
+        if let (Some(r), true) = (&self.residual, s.residual) {
+            self.grid.filter(uv, s, |t| {
+                r.cluster_cells(self.texel_cluster[t] as usize);
+                DVec3::ZERO
+            });
+        }
+    }
+
+    /// Lays out every used cluster's residual tables (what preparing up front held).
+    pub fn make_all_resident(&self) {
+        if let Some(r) = &self.residual {
+            (0..r.clusters.len()).for_each(|c| {
+                r.cluster_cells(c);
+            });
+        }
     }
 
     /// Whether residual tables were prepared.
@@ -356,18 +408,30 @@ impl PreparedSpmm {
             offsets: &self.offsets,
             basis: &self.basis,
             rgb: &self.rgb,
-            residual: self.residual.as_ref().map(|r| PreparedResidualParts {
-                lights: &r.lights,
-                views: &r.views,
-                k: r.k,
-                cluster_offset: &r.cluster_offset,
-                cells: &r.cells,
-                coefficients: &r.coefficients,
+            residual: self.residual.as_ref().map(|r| {
+                let mut cells = Vec::new();
+                let cluster_offset = (0..r.clusters.len())
+                    .map(|c| {
+                        r.cluster_cells(c).map(|table| {
+                            cells.extend_from_slice(table);
+                            cells.len() - table.len()
+                        })
+                    })
+                    .collect();
+                PreparedResidualParts {
+                    lights: &r.lights,
+                    views: &r.views,
+                    k: r.k,
+                    cluster_offset,
+                    cells,
+                    coefficients: &r.coefficients,
+                }
             }),
         }
     }
 
-    /// Memory held, by part.
+    /// Memory held now, by part (residual tables of clusters no evaluation reached yet
+    /// are not held).
     pub fn bytes(&self) -> PreparedBytes {
         let bases = self
             .bases
@@ -378,10 +442,7 @@ impl PreparedSpmm {
             + self.offsets.len() * 4
             + self.basis.len() * 2
             + self.rgb.len() * 12;
-        let residual = self
-            .residual
-            .as_ref()
-            .map_or(0, |r| (r.cells.len() + r.coefficients.len()) * 4);
+        let residual = self.residual.as_ref().map_or(0, |r| r.bytes());
         PreparedBytes {
             bases,
             weights,

@@ -722,6 +722,8 @@ mod prepared {
             max_npca: 2,
         });
         assert_eq!((full.clusters_used(), part.clusters_used()), (4, 1));
+        full.make_all_resident();
+        part.make_all_resident();
         // Residual bytes: used clusters x L x V x (1 + k) RGB cells, plus k coefficients per texel.
         assert_eq!(full.bytes().residual, (4 * l * v * 4 * 3 + texels * 3) * 4);
         assert_eq!(part.bytes().residual, (l * v * 3 * 3 + texels * 2) * 4);
@@ -743,10 +745,12 @@ mod prepared {
                 residual: request.1,
                 max_npca: request.2,
             };
-            assert_eq!(m.prepare(&request).bytes(), m.prepared_bytes(&request));
+            let fresh = m.prepare(&request);
+            fresh.make_all_resident();
+            assert_eq!(fresh.bytes(), m.prepared_bytes(&request));
             assert_eq!(
                 m.prepared_bytes(&request).total() == prepared.bytes().total(),
-                m.prepare(&request).bytes().total() == prepared.bytes().total()
+                fresh.bytes().total() == prepared.bytes().total()
             );
         }
         // Texels of the used cluster evaluate exactly as the reference with N_PCA = 2.
@@ -755,5 +759,60 @@ mod prepared {
                 assert_eq!(part.eval_texel(t, wi, wo), m.eval_texel(t, wi, wo, true, 2));
             }
         }
+    }
+
+    /// A cluster's residual tables are laid out when a texel of it is first evaluated:
+    /// the bytes grow by exactly that cluster's tables, and every value equals the
+    /// evaluation of data laid out up front.
+    #[test]
+    fn residual_tables_are_laid_out_per_cluster_when_first_reached() {
+        let m = sample_material(6, 5, 4, Some(3));
+        let (l, v, texels, k) = (5, 4, 30, 3);
+        let request = PrepareRequest {
+            used_clusters: None,
+            residual: true,
+            max_npca: k,
+        };
+        let eager = m.prepare(&request);
+        eager.make_all_resident();
+        let lazy = m.prepare(&request);
+        let table = l * v * (1 + k) * 3 * 4;
+        let coefficients = texels * k * 4;
+        assert_eq!(lazy.bytes().residual, coefficients, "no table laid out yet");
+        let mut reached = [false; 4];
+        for (t, wi, wo) in points(400, texels) {
+            let c = m.texel_cluster()[t] as usize;
+            assert_eq!(
+                lazy.eval_texel(t, wi, wo).to_array().map(f64::to_bits),
+                eager.eval_texel(t, wi, wo).to_array().map(f64::to_bits)
+            );
+            reached[c] = true;
+            let held = reached.iter().filter(|&&r| r).count();
+            assert_eq!(lazy.bytes().residual, coefficients + held * table);
+        }
+        assert_eq!(
+            lazy.bytes(),
+            eager.bytes(),
+            "every cluster reached in the end"
+        );
+        // Below the horizon nothing is evaluated, so nothing is laid out.
+        let fresh = m.prepare(&request);
+        fresh.eval_texel(0, DVec3::new(0.0, 0.6, -0.8), DVec3::Z);
+        assert_eq!(fresh.bytes().residual, coefficients);
+        // A uv look-up lays out the clusters of the texels the filter reads.
+        let s = EvalSettings {
+            residual: true,
+            max_npca: k,
+            filter: TexelFilter::Nearest,
+            uv_scale: DVec2::ONE,
+        };
+        let uv = DVec2::new(0.5 / 6.0, 0.5 / 5.0);
+        fresh.make_resident_at(uv, &s);
+        assert_eq!(fresh.bytes().residual, coefficients + table);
+        // The parts a device uploads hold every used cluster's tables, laid out.
+        let parts = fresh.parts();
+        let r = parts.residual.expect("residual prepared");
+        assert_eq!(r.cells.len() * 4, 4 * table);
+        assert_eq!(fresh.bytes(), eager.bytes());
     }
 }

@@ -9,7 +9,7 @@ use std::time::Instant;
 use glam::DVec3;
 
 use super::light_selection::{LightSampling, LightSelection};
-use super::shading::{PackSampling, Shader};
+use super::shading::{PackSampling, Shader, shading_at};
 use crate::environment::EnvironmentSampler;
 use crate::geometry::{PinholeCamera, SceneBvh};
 use crate::image::Image;
@@ -155,13 +155,17 @@ impl SpmmMode {
         let start = Instant::now();
         let camera = PinholeCamera::new(&scene.camera, width, height);
         let shaders: Vec<Shader> = scene.materials.iter().map(Shader::new).collect();
-        // Packs a pixel's centre ray sees are prepared now, so the first frame does not
-        // stall on them; any other is prepared when a ray first reaches it (a mirror's
-        // reflection, a jittered ray at a silhouette) and never if none does.
-        let seen = materials_seen(&bvh, &scene, &camera, (width, height));
-        for (i, shader) in shaders.iter().enumerate().filter(|(i, _)| seen[*i]) {
-            prepare.report("materials", i as f32 / shaders.len().max(1) as f32)?;
-            shader.prepared();
+        // What a pixel's centre ray sees is prepared now (packs, and the residual tables
+        // of the clusters under those rays; MERL sampling tables), so the first frame
+        // does not stall on it; anything else is prepared when a ray first reaches it (a
+        // mirror's reflection, a jittered ray at a silhouette) and never if none does.
+        let seen = surfaces_seen(&bvh, &scene, &camera, (width, height));
+        let total = seen.len().max(1) as f32;
+        for (i, (material, uv)) in seen.iter().enumerate() {
+            if i % 4096 == 0 {
+                prepare.report("materials", i as f32 / total)?;
+            }
+            shaders[*material].make_resident_at(&scene.materials[*material], *uv);
         }
         stage("materials", start);
         prepare.report("environment", 0.0)?;
@@ -203,8 +207,8 @@ impl SpmmMode {
     /// Prepares every material now, reached or not (what rendering held before
     /// preparation on demand; tests compare the two).
     pub fn prepare_every_material(&self) {
-        for shader in &self.shaders {
-            shader.prepared();
+        for (shader, material) in self.shaders.iter().zip(&self.scene.materials) {
+            shader.make_all_resident(material);
         }
     }
 
@@ -566,7 +570,10 @@ impl RenderMode for SpmmMode {
     }
 
     fn material_bytes(&self) -> Option<MaterialBytes> {
-        let sum = |f: fn(&Shader) -> usize| self.shaders.iter().map(f).sum::<usize>() as u64;
+        let sum = |f: fn(&Shader, &Material) -> usize| {
+            let each = self.shaders.iter().zip(&self.scene.materials);
+            each.map(|(s, m)| f(s, m)).sum::<usize>() as u64
+        };
         Some(MaterialBytes {
             resident: sum(Shader::resident_bytes),
             full: sum(Shader::full_bytes),
@@ -673,29 +680,27 @@ impl RenderMode for SpmmMode {
     }
 }
 
-/// Which materials the centre ray of some pixel hits first.
-fn materials_seen(
+/// The material and texture position that each pixel's centre ray hits first (one
+/// entry per pixel that hits something).
+fn surfaces_seen(
     bvh: &SceneBvh,
     scene: &Scene,
     camera: &PinholeCamera,
     (w, h): (u32, u32),
-) -> Vec<bool> {
+) -> Vec<(usize, glam::DVec2)> {
     use rayon::prelude::*;
-    let hits: Vec<usize> = (0..h)
+    (0..h)
         .into_par_iter()
         .flat_map_iter(|y| {
             (0..w).filter_map(move |x| {
                 let ray = camera.ray(x, y, glam::DVec2::splat(0.5));
                 bvh.closest_hit(&scene.meshes, ray.origin, ray.dir, 0.0, f64::INFINITY)
-                    .map(|hit| scene.meshes[hit.mesh].material)
+                    .map(|hit| {
+                        let s = shading_at(scene, &hit, ray.dir);
+                        (s.material, s.uv)
+                    })
             })
         })
-        .collect();
-    let mut seen = vec![false; scene.materials.len()];
-    for m in hits {
-        if let Some(s) = seen.get_mut(m) {
-            *s = true;
-        }
-    }
-    seen
+        .filter(|(m, _)| *m < scene.materials.len())
+        .collect()
 }

@@ -162,3 +162,52 @@ fn an_edit_to_a_merl_material_restarts_only_the_pixels_it_touched() {
     }
     assert!(matches!(mode.scene().materials[1], Material::Merl { .. }));
 }
+
+/// A MERL table's sampling tables are built for a table rays reach, before the first
+/// frame when a pixel sees it, and never for one no ray reaches (a panel behind the
+/// camera); `material_bytes` counts them.
+#[test]
+fn sampling_tables_are_built_only_for_tables_rays_reach() {
+    use crate::merl::MerlSampler;
+    let glossy = AnalyticBrdf::new(BrdfModel::CookTorrance, &[("m", 0.3), ("f0", 0.5)])
+        .expect("valid parameters");
+    let merl = |albedo: f64| Material::Merl {
+        brdf: Arc::new(tabulate(&glossy, DVec3::splat(albedo)).expect("tabulates")),
+        tint: DVec3::ONE,
+    };
+    let mut scene = with_floor(merl(0.6));
+    scene.material_names.push("behind".into());
+    scene.materials.push(merl(0.4));
+    scene.meshes.push(crate::scene::mesh::quad(
+        DVec3::new(-1.0, 0.0, 4.0),
+        DVec3::new(2.0, 0.0, 0.0),
+        DVec3::new(0.0, 2.0, 0.0),
+        2,
+    ));
+    let built = |scene: &Scene, m: usize| match &scene.materials[m] {
+        Material::Merl { brdf, .. } => brdf.sampler_if_built().is_some(),
+        _ => unreachable!("a MERL material"),
+    };
+    let mut mode = SpmmMode::new(scene.clone(), 24, 24).expect("mode");
+    assert!(
+        built(&scene, 0),
+        "the floor's tables are built while preparing"
+    );
+    crate::render::run_frames(&mut mode, 4, |_, _| {});
+    assert!(
+        !built(&scene, 2),
+        "no ray shades the panel behind the camera"
+    );
+    let bytes = mode.material_bytes().expect("spmm reports");
+    let spmm_panel = {
+        let probe = SpmmMode::new(edit_test_scene(), 24, 24).expect("mode");
+        probe.prepare_every_material();
+        probe.material_bytes().expect("spmm reports").full
+    };
+    assert_eq!(
+        bytes.full,
+        spmm_panel + 2 * MerlSampler::full_bytes() as u64
+    );
+    assert!(bytes.resident <= spmm_panel + MerlSampler::full_bytes() as u64);
+    assert!(bytes.resident >= MerlSampler::full_bytes() as u64);
+}

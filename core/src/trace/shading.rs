@@ -82,12 +82,6 @@ impl Shader {
                     },
                 }
             }
-            Material::Merl { brdf, .. } => {
-                // The sampling tables (1.5 million lookups) are built while preparing,
-                // not in the middle of the first frame.
-                brdf.sampler();
-                Shader::Scene
-            }
             Material::Btf { .. } => Shader::Table,
             _ => Shader::Scene,
         }
@@ -160,21 +154,59 @@ impl Shader {
         }
     }
 
-    /// Bytes of prepared material data held now.
-    pub(super) fn resident_bytes(&self) -> usize {
-        match self {
-            Shader::Spmm { prepared, .. } => prepared.get().map_or(0, |p| p.bytes().total()),
-            Shader::Scene | Shader::Table => 0,
+    /// Prepares what shading `material` (this shader's) at texture position `uv` needs:
+    /// the pack and the residual tables of the clusters there, or a MERL table's
+    /// sampling tables (1.5 million lookups).
+    pub(super) fn make_resident_at(&self, material: &Material, uv: DVec2) {
+        match (self, material) {
+            (Shader::Spmm { still, .. }, _) => {
+                if let Some(p) = self.prepared() {
+                    p.make_resident_at(uv, still);
+                }
+            }
+            (_, Material::Merl { brdf, .. }) => {
+                brdf.sampler();
+            }
+            _ => {}
         }
     }
 
-    /// Bytes this material holds once prepared.
-    pub(super) fn full_bytes(&self) -> usize {
-        match self {
-            Shader::Spmm {
-                material, request, ..
-            } => material.prepared_bytes(request).total(),
-            Shader::Scene | Shader::Table => 0,
+    /// Prepares everything this material could need, reached or not.
+    pub(super) fn make_all_resident(&self, material: &Material) {
+        match (self, material) {
+            (Shader::Spmm { .. }, _) => {
+                if let Some(p) = self.prepared() {
+                    p.make_all_resident();
+                }
+            }
+            (_, Material::Merl { brdf, .. }) => {
+                brdf.sampler();
+            }
+            _ => {}
+        }
+    }
+
+    /// Bytes of prepared material data held now (a MERL table's sampling tables are
+    /// shared by every render of the table, and counted by each).
+    pub(super) fn resident_bytes(&self, material: &Material) -> usize {
+        match (self, material) {
+            (Shader::Spmm { prepared, .. }, _) => prepared.get().map_or(0, |p| p.bytes().total()),
+            (_, Material::Merl { brdf, .. }) => brdf.sampler_if_built().map_or(0, |s| s.bytes()),
+            _ => 0,
+        }
+    }
+
+    /// Bytes this material holds once everything is prepared.
+    pub(super) fn full_bytes(&self, material: &Material) -> usize {
+        match (self, material) {
+            (
+                Shader::Spmm {
+                    material, request, ..
+                },
+                _,
+            ) => material.prepared_bytes(request).total(),
+            (_, Material::Merl { .. }) => crate::merl::MerlSampler::full_bytes(),
+            _ => 0,
         }
     }
 

@@ -82,7 +82,7 @@ impl SceneBvh {
         );
         ReinsertionOptimizer::default().run(&mut bvh2, PARAMS.reinsertion_batch_ratio, None);
         let bvh = compress(&bvh2);
-        let wide = WideBvh::new(&bvh, &triangles);
+        let wide = WideBvh::new(&bvh, &triangles, &refs);
         Self {
             bvh,
             wide,
@@ -111,7 +111,7 @@ impl SceneBvh {
         }
         self.bvh2.refit_all();
         self.bvh = compress(&self.bvh2);
-        self.wide = WideBvh::new(&self.bvh, &triangles);
+        self.wide = WideBvh::new(&self.bvh, &triangles, &self.refs);
         self.triangles = triangles;
         self.degenerate = degenerate;
         self.build_time = start.elapsed();
@@ -210,8 +210,7 @@ impl SceneBvh {
 
     /// The hit record of BVH primitive slot `slot` at distance `t` along the ray.
     fn hit(&self, meshes: &[TriangleMesh], origin: DVec3, dir: DVec3, slot: u32, t: f32) -> Hit {
-        let prim = self.bvh.primitive_indices[slot as usize] as usize;
-        let (m, tri) = self.refs[prim];
+        let (m, tri) = self.wide.owner(slot);
         let idx = meshes[m as usize].indices[tri as usize];
         let [a, b, c] = idx.map(|i| meshes[m as usize].positions[i as usize]);
         // Barycentrics of the f32 hit distance's point, in f64, clamped into the triangle.

@@ -125,15 +125,22 @@ enum Tracer {
 }
 
 /// Traces every ray once; returns (seconds, rays that hit).
-fn trace_once(bvh: &SceneBvh, meshes: &[TriangleMesh], rays: &Rays, tracer: Tracer) -> (f64, usize) {
+fn trace_once(
+    bvh: &SceneBvh,
+    meshes: &[TriangleMesh],
+    rays: &Rays,
+    tracer: Tracer,
+) -> (f64, usize) {
     let start = Instant::now();
     let hits = rays
         .par_iter()
-        .filter(|(o, d)| match tracer {
-            Tracer::Cpu => bvh.closest_hit(meshes, *o, *d, 0.0, f64::INFINITY),
-            Tracer::Obvhs => bvh.closest_hit_reference(meshes, *o, *d, 0.0, f64::INFINITY),
-        }
-        .is_some())
+        .filter(|(o, d)| {
+            match tracer {
+                Tracer::Cpu => bvh.closest_hit(meshes, *o, *d, 0.0, f64::INFINITY),
+                Tracer::Obvhs => bvh.closest_hit_reference(meshes, *o, *d, 0.0, f64::INFINITY),
+            }
+            .is_some()
+        })
         .count();
     (start.elapsed().as_secs_f64(), hits)
 }
@@ -183,7 +190,9 @@ fn save_rays(
     for (kind, rays) in kinds {
         write(
             &format!("{kind}.f32"),
-            rays.iter().flat_map(|(o, d)| f32s(*o).into_iter().chain(f32s(*d))).collect(),
+            rays.iter()
+                .flat_map(|(o, d)| f32s(*o).into_iter().chain(f32s(*d)))
+                .collect(),
         )?;
         write(
             &format!("{kind}_t.f32"),
@@ -265,7 +274,9 @@ fn rays(args: &RaysArgs) -> Result<(), CliError> {
     });
     let ((coherent_mrays, coherent_hits), (incoherent_mrays, incoherent_hits)) =
         (coherent_runs[0], incoherent_runs[0]);
-    let baseline = args.baseline.then(|| (coherent_runs[1], incoherent_runs[1]));
+    let baseline = args
+        .baseline
+        .then(|| (coherent_runs[1], incoherent_runs[1]));
     let build_ms = bvh.build_time().as_secs_f64() * 1e3;
     let threads = pool.current_num_threads();
     if args.json {

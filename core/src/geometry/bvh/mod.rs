@@ -616,8 +616,8 @@ mod tests {
                 let target = lo + (hi - lo) * DVec3::new(rng.next(), rng.next(), rng.next());
                 (o, (target - o).normalize(), f64::INFINITY)
             } else {
-                let tri = ((rng.next() * mesh.indices.len() as f64) as usize)
-                    .min(mesh.indices.len() - 1);
+                let tri =
+                    ((rng.next() * mesh.indices.len() as f64) as usize).min(mesh.indices.len() - 1);
                 let [a, b, c] = mesh.indices[tri].map(|i| mesh.positions[i as usize]);
                 let n = (b - a).cross(c - a);
                 if n.length_squared() == 0.0 {
@@ -625,11 +625,19 @@ mod tests {
                 }
                 let n = n.normalize();
                 let (u, v) = (rng.next(), rng.next());
-                let (u, v) = if u + v > 1.0 { (1.0 - u, 1.0 - v) } else { (u, v) };
+                let (u, v) = if u + v > 1.0 {
+                    (1.0 - u, 1.0 - v)
+                } else {
+                    (u, v)
+                };
                 let p = a + (b - a) * u + (c - a) * v + n * (1e-4 * radius);
                 let w = DVec3::new(rng.next() - 0.5, rng.next() - 0.5, rng.next() - 0.5);
                 let w = (w - n * w.dot(n) + n * rng.next()).normalize_or(n);
-                let tmax = if i % 4 == 1 { radius * rng.next() } else { f64::INFINITY };
+                let tmax = if i % 4 == 1 {
+                    radius * rng.next()
+                } else {
+                    f64::INFINITY
+                };
                 (p, w, tmax)
             };
             near_extra += usize::from(same_as_reference(meshes, bvh, o, d, tmax));

@@ -295,13 +295,21 @@ impl WideBvh {
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn closest_avx2(&self, q: &Query, stack: &mut [MaybeUninit<Entry>]) -> Option<(u32, f32)> {
+    unsafe fn closest_avx2(
+        &self,
+        q: &Query,
+        stack: &mut [MaybeUninit<Entry>],
+    ) -> Option<(u32, f32)> {
         self.traverse::<true, false>(q, stack)
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn occluded_avx2(&self, q: &Query, stack: &mut [MaybeUninit<Entry>]) -> Option<(u32, f32)> {
+    unsafe fn occluded_avx2(
+        &self,
+        q: &Query,
+        stack: &mut [MaybeUninit<Entry>],
+    ) -> Option<(u32, f32)> {
         self.traverse::<true, true>(q, stack)
     }
 
@@ -488,7 +496,7 @@ fn intersect(tri: &LeafTriangle, q: &Query, tmax: f32) -> f32 {
 #[inline(always)]
 fn node_hits_portable(node: &Node, q: &Query, tmax: f32, tnear: &mut [f32; 8]) -> u32 {
     let mut mask = 0;
-    for lane in 0..8 {
+    for (lane, entry) in tnear.iter_mut().enumerate() {
         let (mut near, mut far) = (q.tmin, tmax);
         for axis in 0..3 {
             let lo = node.planes[2 * axis + q.neg[axis]][lane];
@@ -496,7 +504,7 @@ fn node_hits_portable(node: &Node, q: &Query, tmax: f32, tnear: &mut [f32; 8]) -
             near = near.max((lo - q.o[axis]) * q.inv[axis]);
             far = far.min((hi - q.o[axis]) * q.inv[axis]);
         }
-        tnear[lane] = near;
+        *entry = near;
         mask |= u32::from(near <= far * ROBUST_FAR) << lane;
     }
     mask

@@ -6,7 +6,7 @@
 set -euo pipefail
 meso=$1 mesh=$2 threads=${3:-1} quality=${4:-medium}
 here=$(cd "$(dirname "$0")" && pwd)
-work=${EMBREE_BENCH_DIR:-/tmp/embree_bench}
+work=${EMBREE_BENCH_DIR:-/tmp/meso_embree_bench}
 mkdir -p "$work"
 if [ ! -d "$work/venv" ]; then
   python3 -m venv "$work/venv"

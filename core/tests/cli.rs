@@ -1582,6 +1582,67 @@ fn bench_rays_reports_both_kinds_on_the_spec_rays() {
     let incoherent = v["incoherent_hit_fraction"].as_f64().expect("fraction");
     assert!(coherent > 0.05 && coherent < 0.9, "{coherent}");
     assert!(incoherent > 0.0 && incoherent < 0.6, "{incoherent}");
+    // --baseline times obvhs's traversal too: it finds the same hits; --save-rays
+    // writes the triangles, the rays and the tracer's distances as f32.
+    let dir = tempfile::tempdir().expect("temp dir");
+    let saved = dir.path().join("rays");
+    let o = meso(
+        &[
+            "bench",
+            "rays",
+            mesh,
+            "--size",
+            "24",
+            "--threads",
+            "1",
+            "--json",
+            "--baseline",
+            "--save-rays",
+            saved.to_str().expect("path"),
+        ],
+        "",
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let b: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    for kind in ["coherent", "incoherent"] {
+        assert!(
+            b[format!("baseline_{kind}_mrays")]
+                .as_f64()
+                .is_some_and(|x| x > 0.0)
+        );
+        assert_eq!(
+            b[format!("baseline_{kind}_hit_fraction")],
+            b[format!("{kind}_hit_fraction")]
+        );
+        assert_eq!(
+            b[format!("{kind}_hit_fraction")],
+            v[format!("{kind}_hit_fraction")]
+        );
+        let floats = |name: String| -> Vec<f32> {
+            std::fs::read(saved.join(name))
+                .expect("saved")
+                .chunks(4)
+                .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
+                .collect()
+        };
+        let rays = floats(format!("{kind}.f32"));
+        let t = floats(format!("{kind}_t.f32"));
+        assert_eq!((rays.len(), t.len()), (6 * 576, 576));
+        // Unit directions; as many finite distances as the hit fraction says.
+        for r in rays.chunks(6) {
+            let len = (r[3] * r[3] + r[4] * r[4] + r[5] * r[5]).sqrt();
+            assert!((len - 1.0).abs() < 1e-5, "{r:?}");
+        }
+        let hits = t.iter().filter(|t| t.is_finite()).count() as f64 / 576.0;
+        assert_eq!(Some(hits), b[format!("{kind}_hit_fraction")].as_f64());
+    }
+    let triangles = std::fs::read(saved.join("triangles.f32")).expect("saved");
+    assert_eq!(triangles.len(), 992 * 9 * 4);
     assert_bad_input(
         &meso(&["bench", "rays", mesh, "--threads", "0"], ""),
         &["--threads"],

@@ -6,6 +6,10 @@
 //! Incoherent: as many rays from uniform points of uniformly chosen triangles,
 //! uniform over the hemisphere of the face normal, offset by 1e-4 r. Rays are made
 //! before timing; each kind is traced three times and the fastest run is reported.
+//! `--baseline` also traces with obvhs's own traversal, alternating with the tracer's
+//! so both see the same machine load; `--save-rays DIR` writes the triangles, the rays
+//! and the tracer's hit distances as raw little-endian f32 for other tracers
+//! (tools/embree_bench reads them).
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -45,6 +49,13 @@ pub struct RaysArgs {
     threads: Option<usize>,
     #[arg(long)]
     json: bool,
+    /// Also trace with obvhs's own CWBVH traversal (the previous tracer), alternating.
+    #[arg(long)]
+    baseline: bool,
+    /// Write triangles.f32 (9 floats each), coherent.f32 and incoherent.f32 (origin,
+    /// direction: 6 floats per ray) and *_t.f32 (hit distance, inf on a miss) to DIR.
+    #[arg(long, value_name = "DIR")]
+    save_rays: Option<PathBuf>,
 }
 
 pub fn run(command: BenchCommand) -> Result<(), CliError> {
@@ -104,22 +115,96 @@ fn incoherent_rays(mesh: &TriangleMesh, diagonal: f64, count: usize) -> Rays {
         .collect()
 }
 
-/// Traces every ray three times; returns (fastest Mrays/s, rays that hit).
-fn trace(bvh: &SceneBvh, meshes: &[TriangleMesh], rays: &Rays) -> (f64, usize) {
-    let mut best = f64::INFINITY;
-    let mut hits = 0;
+/// Which traversal a run times.
+#[derive(Clone, Copy, PartialEq)]
+enum Tracer {
+    /// The tracer's own (what rendering uses).
+    Cpu,
+    /// obvhs's CWBVH traversal (`--baseline`).
+    Obvhs,
+}
+
+/// Traces every ray once; returns (seconds, rays that hit).
+fn trace_once(
+    bvh: &SceneBvh,
+    meshes: &[TriangleMesh],
+    rays: &Rays,
+    tracer: Tracer,
+) -> (f64, usize) {
+    let start = Instant::now();
+    let hits = rays
+        .par_iter()
+        .filter(|(o, d)| {
+            match tracer {
+                Tracer::Cpu => bvh.closest_hit(meshes, *o, *d, 0.0, f64::INFINITY),
+                Tracer::Obvhs => bvh.closest_hit_reference(meshes, *o, *d, 0.0, f64::INFINITY),
+            }
+            .is_some()
+        })
+        .count();
+    (start.elapsed().as_secs_f64(), hits)
+}
+
+/// Traces every ray three times with each tracer, alternating; per tracer (fastest
+/// Mrays/s, rays that hit).
+fn trace(
+    bvh: &SceneBvh,
+    meshes: &[TriangleMesh],
+    rays: &Rays,
+    tracers: &[Tracer],
+) -> Vec<(f64, usize)> {
+    let mut best = vec![(f64::INFINITY, 0); tracers.len()];
     for _ in 0..3 {
-        let start = Instant::now();
-        hits = rays
-            .par_iter()
-            .filter(|(o, d)| {
-                bvh.closest_hit(meshes, *o, *d, 0.0, f64::INFINITY)
-                    .is_some()
-            })
-            .count();
-        best = best.min(start.elapsed().as_secs_f64());
+        for (b, &tracer) in best.iter_mut().zip(tracers) {
+            let (seconds, hits) = trace_once(bvh, meshes, rays, tracer);
+            *b = (b.0.min(seconds), hits);
+        }
     }
-    (rays.len() as f64 / best.max(1e-12) / 1e6, hits)
+    best.into_iter()
+        .map(|(seconds, hits)| (rays.len() as f64 / seconds.max(1e-12) / 1e6, hits))
+        .collect()
+}
+
+/// `--save-rays`: the BVH's triangles, both kinds of rays and the tracer's hit
+/// distances, as raw little-endian f32.
+fn save_rays(
+    dir: &std::path::Path,
+    bvh: &SceneBvh,
+    meshes: &[TriangleMesh],
+    kinds: [(&str, &Rays); 2],
+) -> Result<(), CliError> {
+    std::fs::create_dir_all(dir)
+        .map_err(|e| CliError::bad_input(anyhow!("cannot create `{}`: {e}", dir.display())))?;
+    let write = |name: &str, floats: Vec<f32>| {
+        let bytes: Vec<u8> = floats.iter().flat_map(|f| f.to_le_bytes()).collect();
+        meso_core::atomic::write_bytes_atomic(&dir.join(name), &bytes)
+            .map_err(|e| CliError::failure(anyhow!(e)))
+    };
+    let f32s = |v: DVec3| [v.x as f32, v.y as f32, v.z as f32];
+    write(
+        "triangles.f32",
+        bvh.primitives()
+            .flat_map(|(t, _)| [t.v0, t.v1, t.v2].into_iter().flat_map(|v| v.to_array()))
+            .collect(),
+    )?;
+    for (kind, rays) in kinds {
+        write(
+            &format!("{kind}.f32"),
+            rays.iter()
+                .flat_map(|(o, d)| f32s(*o).into_iter().chain(f32s(*d)))
+                .collect(),
+        )?;
+        write(
+            &format!("{kind}_t.f32"),
+            rays.iter()
+                .map(|(o, d)| {
+                    bvh.closest_hit(meshes, *o, *d, 0.0, f64::INFINITY)
+                        .map_or(f32::INFINITY, |h| h.t as f32)
+                })
+                .collect(),
+        )?;
+    }
+    Ok(())
 }
 
 fn rays(args: &RaysArgs) -> Result<(), CliError> {
@@ -168,17 +253,34 @@ fn rays(args: &RaysArgs) -> Result<(), CliError> {
     let n = args.size as usize * args.size as usize;
     let coherent = coherent_rays(centre, diagonal, args.size);
     let incoherent = incoherent_rays(&mesh, diagonal, n);
+    if let Some(dir) = &args.save_rays {
+        save_rays(
+            dir,
+            &bvh,
+            meshes,
+            [("coherent", &coherent), ("incoherent", &incoherent)],
+        )?;
+    }
+    let tracers: &[Tracer] = if args.baseline {
+        &[Tracer::Cpu, Tracer::Obvhs]
+    } else {
+        &[Tracer::Cpu]
+    };
+    let (coherent_runs, incoherent_runs) = pool.install(|| {
+        (
+            trace(&bvh, meshes, &coherent, tracers),
+            trace(&bvh, meshes, &incoherent, tracers),
+        )
+    });
     let ((coherent_mrays, coherent_hits), (incoherent_mrays, incoherent_hits)) =
-        pool.install(|| {
-            (
-                trace(&bvh, meshes, &coherent),
-                trace(&bvh, meshes, &incoherent),
-            )
-        });
+        (coherent_runs[0], incoherent_runs[0]);
+    let baseline = args
+        .baseline
+        .then(|| (coherent_runs[1], incoherent_runs[1]));
     let build_ms = bvh.build_time().as_secs_f64() * 1e3;
     let threads = pool.current_num_threads();
     if args.json {
-        return crate::print_json(&json!({
+        let mut report = json!({
             "mesh": args.mesh.display().to_string(),
             "triangles": triangles,
             "size": args.size,
@@ -189,7 +291,14 @@ fn rays(args: &RaysArgs) -> Result<(), CliError> {
             "incoherent_mrays": incoherent_mrays,
             "coherent_hit_fraction": coherent_hits as f64 / n as f64,
             "incoherent_hit_fraction": incoherent_hits as f64 / n as f64,
-        }));
+        });
+        if let Some(((c, c_hits), (i, i_hits))) = baseline {
+            report["baseline_coherent_mrays"] = json!(c);
+            report["baseline_incoherent_mrays"] = json!(i);
+            report["baseline_coherent_hit_fraction"] = json!(c_hits as f64 / n as f64);
+            report["baseline_incoherent_hit_fraction"] = json!(i_hits as f64 / n as f64);
+        }
+        return crate::print_json(&report);
     }
     println!(
         "{}: {triangles} triangles, BVH built in {build_ms:.1} ms; {n} rays per kind on {threads} threads: coherent {coherent_mrays:.2} Mrays/s ({:.0}% hit), incoherent {incoherent_mrays:.2} Mrays/s ({:.0}% hit)",
@@ -197,5 +306,14 @@ fn rays(args: &RaysArgs) -> Result<(), CliError> {
         100.0 * coherent_hits as f64 / n as f64,
         100.0 * incoherent_hits as f64 / n as f64,
     );
+    if let Some(((c, c_hits), (i, i_hits))) = baseline {
+        println!(
+            "baseline (obvhs traversal): coherent {c:.2} Mrays/s ({:.0}% hit), incoherent {i:.2} Mrays/s ({:.0}% hit); speed-up {:.2}x coherent, {:.2}x incoherent",
+            100.0 * c_hits as f64 / n as f64,
+            100.0 * i_hits as f64 / n as f64,
+            coherent_mrays / c,
+            incoherent_mrays / i,
+        );
+    }
     Ok(())
 }

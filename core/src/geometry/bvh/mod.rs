@@ -1,6 +1,8 @@
 //! Ray queries against a scene's triangles: a compressed wide BVH (CWBVH, Ylitie et
 //! al. 2017) built by obvhs on scene load, closest-hit and occlusion (any-hit) queries.
-//! Traversal runs in f32 (obvhs); the hit point's barycentrics are recomputed in f64
+//! Traversal runs in f32 on the same tree unpacked for the CPU (`wide.rs`: SIMD
+//! box tests, ordered traversal; obvhs's own traversal is kept as the reference it is
+//! tested and benchmarked against); the hit point's barycentrics are recomputed in f64
 //! for shading. Degenerate (zero-area) triangles are left out of the BVH. Moved
 //! geometry with the same triangles is refitted (the binary BVH's boxes updated
 //! bottom-up, then re-compressed) instead of rebuilt; docs/performance.md has both costs.
@@ -19,6 +21,11 @@ use obvhs::triangle::Triangle;
 
 use crate::scene::TriangleMesh;
 
+mod wide;
+
+pub use wide::Kernel;
+use wide::{Query, WideBvh};
+
 /// The closest intersection of a ray.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Hit {
@@ -32,6 +39,8 @@ pub struct Hit {
 
 pub struct SceneBvh {
     bvh: CwBvh,
+    /// `bvh` unpacked for CPU traversal; rebuilt whenever `bvh` changes.
+    wide: WideBvh,
     /// The binary BVH the wide one was made from, kept for refitting.
     bvh2: Bvh2,
     triangles: Vec<Triangle>,
@@ -50,6 +59,16 @@ fn v3a(p: DVec3) -> Vec3A {
     Vec3A::new(p.x as f32, p.y as f32, p.z as f32)
 }
 
+/// A ray for the CPU traversal, in f32 as the BVH stores the triangles.
+fn query(origin: DVec3, dir: DVec3, tmin: f64, tmax: f64) -> Query {
+    Query::new(
+        v3a(origin).to_array(),
+        v3a(dir).to_array(),
+        tmin as f32,
+        tmax as f32,
+    )
+}
+
 impl SceneBvh {
     pub fn build(meshes: &[TriangleMesh]) -> Self {
         let (triangles, refs, degenerate) = collect_triangles(meshes);
@@ -63,8 +82,10 @@ impl SceneBvh {
         );
         ReinsertionOptimizer::default().run(&mut bvh2, PARAMS.reinsertion_batch_ratio, None);
         let bvh = compress(&bvh2);
+        let wide = WideBvh::new(&bvh, &triangles, &refs);
         Self {
             bvh,
+            wide,
             bvh2,
             triangles,
             refs,
@@ -90,6 +111,7 @@ impl SceneBvh {
         }
         self.bvh2.refit_all();
         self.bvh = compress(&self.bvh2);
+        self.wide = WideBvh::new(&self.bvh, &triangles, &self.refs);
         self.triangles = triangles;
         self.degenerate = degenerate;
         self.build_time = start.elapsed();
@@ -132,8 +154,42 @@ impl SceneBvh {
         (self.triangles.len(), self.degenerate)
     }
 
-    /// The closest hit with `t` in (tmin, tmax).
+    /// The closest hit with `t` in [tmin, tmax].
     pub fn closest_hit(
+        &self,
+        meshes: &[TriangleMesh],
+        origin: DVec3,
+        dir: DVec3,
+        tmin: f64,
+        tmax: f64,
+    ) -> Option<Hit> {
+        let (slot, t) = self.wide.closest(&query(origin, dir, tmin, tmax))?;
+        Some(self.hit(meshes, origin, dir, slot, t))
+    }
+
+    /// `closest_hit` with a chosen node test (`Kernel::Avx2` only where the CPU has it:
+    /// `Kernel::detect`); every kernel finds the same hits.
+    pub fn closest_hit_with(
+        &self,
+        kernel: Kernel,
+        meshes: &[TriangleMesh],
+        origin: DVec3,
+        dir: DVec3,
+        tmin: f64,
+        tmax: f64,
+    ) -> Option<Hit> {
+        if kernel == Kernel::Avx2 {
+            assert_eq!(Kernel::detect(), Kernel::Avx2, "this CPU has no AVX2");
+        }
+        let (slot, t) = self
+            .wide
+            .closest_with(kernel, &query(origin, dir, tmin, tmax))?;
+        Some(self.hit(meshes, origin, dir, slot, t))
+    }
+
+    /// The closest hit by obvhs's own CWBVH traversal: the reference the CPU traversal
+    /// is tested against and `meso bench rays --baseline` measures.
+    pub fn closest_hit_reference(
         &self,
         meshes: &[TriangleMesh],
         origin: DVec3,
@@ -149,15 +205,16 @@ impl SceneBvh {
         let found = self
             .bvh
             .ray_traverse(ray, &mut hit, |r, id| self.intersect(r, id));
-        if !found {
-            return None;
-        }
-        let prim = self.bvh.primitive_indices[hit.primitive_id as usize] as usize;
-        let (m, t) = self.refs[prim];
-        let idx = meshes[m as usize].indices[t as usize];
+        found.then(|| self.hit(meshes, origin, dir, hit.primitive_id, hit.t))
+    }
+
+    /// The hit record of BVH primitive slot `slot` at distance `t` along the ray.
+    fn hit(&self, meshes: &[TriangleMesh], origin: DVec3, dir: DVec3, slot: u32, t: f32) -> Hit {
+        let (m, tri) = self.wide.owner(slot);
+        let idx = meshes[m as usize].indices[tri as usize];
         let [a, b, c] = idx.map(|i| meshes[m as usize].positions[i as usize]);
         // Barycentrics of the f32 hit distance's point, in f64, clamped into the triangle.
-        let p = origin + dir * hit.t as f64;
+        let p = origin + dir * t as f64;
         let (e1, e2, ep) = (b - a, c - a, p - a);
         let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
         let (dp1, dp2) = (ep.dot(e1), ep.dot(e2));
@@ -172,17 +229,38 @@ impl SceneBvh {
         };
         b1 = b1.clamp(0.0, 1.0);
         b2 = b2.clamp(0.0, 1.0 - b1);
-        Some(Hit {
-            t: hit.t as f64,
+        Hit {
+            t: t as f64,
             mesh: m as usize,
-            triangle: t as usize,
+            triangle: tri as usize,
             b1,
             b2,
-        })
+        }
     }
 
-    /// True if anything blocks the segment from `origin` along `dir` within (tmin, tmax).
+    /// True if anything blocks the segment from `origin` along `dir` within [tmin, tmax].
     pub fn occluded(&self, origin: DVec3, dir: DVec3, tmin: f64, tmax: f64) -> bool {
+        self.wide.occluded(&query(origin, dir, tmin, tmax))
+    }
+
+    /// `occluded` with a chosen node test (as `closest_hit_with`).
+    pub fn occluded_with(
+        &self,
+        kernel: Kernel,
+        origin: DVec3,
+        dir: DVec3,
+        tmin: f64,
+        tmax: f64,
+    ) -> bool {
+        if kernel == Kernel::Avx2 {
+            assert_eq!(Kernel::detect(), Kernel::Avx2, "this CPU has no AVX2");
+        }
+        self.wide
+            .occluded_with(kernel, &query(origin, dir, tmin, tmax))
+    }
+
+    /// `occluded` by obvhs's own traversal (the reference, as `closest_hit_reference`).
+    pub fn occluded_reference(&self, origin: DVec3, dir: DVec3, tmin: f64, tmax: f64) -> bool {
         if self.triangles.is_empty() {
             return false;
         }
@@ -470,5 +548,159 @@ mod tests {
         assert!(bvh.update(&meshes), "same triangles refit");
         let (rays, hits) = check_against_brute_force(&meshes, &bvh, 2);
         assert!(hits > rays / 2, "{hits} of {rays} rays hit after the refit");
+    }
+
+    /// The CPU traversal (every kernel this CPU has) against obvhs's own on one ray:
+    /// the same distance bit for bit and the same triangle, or another triangle at
+    /// exactly that distance (an edge both share); the same occlusion answer.
+    /// obvhs culls boxes that end nearer than 1e-4 whatever tmin is, so it can miss a
+    /// hit nearer than that which the CPU traversal finds: returns true for such a ray.
+    fn same_as_reference(
+        meshes: &[TriangleMesh],
+        bvh: &SceneBvh,
+        o: DVec3,
+        d: DVec3,
+        tmax: f64,
+    ) -> bool {
+        let reference = bvh.closest_hit_reference(meshes, o, d, 0.0, tmax);
+        let occluded = bvh.occluded_reference(o, d, 0.0, tmax);
+        let mut kernels = vec![Kernel::Portable];
+        if Kernel::detect() == Kernel::Avx2 {
+            kernels.push(Kernel::Avx2);
+        }
+        let mut near_extra = false;
+        for kernel in kernels {
+            let hit = bvh.closest_hit_with(kernel, meshes, o, d, 0.0, tmax);
+            match (hit, reference) {
+                (None, None) => {}
+                (Some(h), Some(r)) if h.t.to_bits() == r.t.to_bits() => {
+                    if (h.mesh, h.triangle) != (r.mesh, r.triangle) {
+                        let slot = bvh
+                            .primitives()
+                            .position(|(_, at)| at == (h.mesh as u32, h.triangle as u32))
+                            .expect("hit triangle is in the BVH");
+                        let tri = bvh.primitives().nth(slot).expect("slot").0;
+                        let ray = BvhRay::new(v3a(o), v3a(d), 0.0, tmax as f32);
+                        assert_eq!(tri.intersect(&ray).to_bits(), (r.t as f32).to_bits());
+                    }
+                }
+                (Some(h), r) if h.t < 1e-4 && r.is_none_or(|r| r.t > h.t) => near_extra = true,
+                (h, r) => panic!("{kernel:?} ray {o} {d} tmax {tmax}: {h:?}, obvhs {r:?}"),
+            }
+            let blocked = bvh.occluded_with(kernel, o, d, 0.0, tmax);
+            assert!(
+                blocked == occluded || (near_extra && blocked),
+                "{kernel:?} ray {o} {d} tmax {tmax}: occluded {blocked}, obvhs {occluded}"
+            );
+        }
+        near_extra
+    }
+
+    /// Rays from around the mesh at its box and, like the renderer's secondary rays,
+    /// from its surface over the face's hemisphere, some of them as short segments.
+    fn check_against_obvhs(meshes: &[TriangleMesh], bvh: &SceneBvh, seed: u64, rays: usize) {
+        let mesh = &meshes[0];
+        let (lo, hi) = mesh.positions.iter().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(lo, hi), &p| (lo.min(p), hi.max(p)),
+        );
+        let (centre, radius) = ((lo + hi) * 0.5, (hi - lo).length());
+        let mut rng = crate::rng::SampleStream::new(&[seed]);
+        let (mut hits, mut near_extra) = (0, 0);
+        for i in 0..rays {
+            let (o, d, tmax) = if i % 2 == 0 {
+                let z = 2.0 * rng.next() - 1.0;
+                let phi = std::f64::consts::TAU * rng.next();
+                let r = (1.0 - z * z).sqrt();
+                let o = centre + radius * DVec3::new(r * phi.cos(), r * phi.sin(), z);
+                let target = lo + (hi - lo) * DVec3::new(rng.next(), rng.next(), rng.next());
+                (o, (target - o).normalize(), f64::INFINITY)
+            } else {
+                let tri =
+                    ((rng.next() * mesh.indices.len() as f64) as usize).min(mesh.indices.len() - 1);
+                let [a, b, c] = mesh.indices[tri].map(|i| mesh.positions[i as usize]);
+                let n = (b - a).cross(c - a);
+                if n.length_squared() == 0.0 {
+                    continue;
+                }
+                let n = n.normalize();
+                let (u, v) = (rng.next(), rng.next());
+                let (u, v) = if u + v > 1.0 {
+                    (1.0 - u, 1.0 - v)
+                } else {
+                    (u, v)
+                };
+                let p = a + (b - a) * u + (c - a) * v + n * (1e-4 * radius);
+                let w = DVec3::new(rng.next() - 0.5, rng.next() - 0.5, rng.next() - 0.5);
+                let w = (w - n * w.dot(n) + n * rng.next()).normalize_or(n);
+                let tmax = if i % 4 == 1 {
+                    radius * rng.next()
+                } else {
+                    f64::INFINITY
+                };
+                (p, w, tmax)
+            };
+            near_extra += usize::from(same_as_reference(meshes, bvh, o, d, tmax));
+            hits += usize::from(bvh.closest_hit(meshes, o, d, 0.0, tmax).is_some());
+        }
+        eprintln!("{hits} of {rays} rays hit; {near_extra} hits nearer than 1e-4 obvhs culls");
+        assert!(hits > rays / 5 && hits < rays, "{hits} of {rays}");
+        assert!(near_extra < rays / 1000 + 1, "{near_extra}");
+    }
+
+    fn load_test_mesh(name: &str) -> Vec<TriangleMesh> {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../tests/scenes/meshes")
+            .join(name);
+        let identity = crate::scene::mesh::Placement {
+            scale: 1.0,
+            rotation: glam::DMat3::IDENTITY,
+            translate: DVec3::ZERO,
+        };
+        vec![crate::scene::mesh::load_obj(&path, &identity, 0).expect("mesh")]
+    }
+
+    #[test]
+    fn cpu_traversal_finds_obvhs_hits_on_the_bunny_the_dragon_and_after_a_refit() {
+        let mut bunny = load_test_mesh("bunny_lowres.obj");
+        let mut bvh = SceneBvh::build(&bunny);
+        check_against_obvhs(&bunny, &bvh, 3, 20_000);
+        for p in &mut bunny[0].positions {
+            *p = DVec3::new(p.x + 0.3 * p.y, 0.7 * p.y + 0.5, p.z - 0.2);
+        }
+        assert!(bvh.update(&bunny));
+        check_against_obvhs(&bunny, &bvh, 4, 20_000);
+        let dragon = load_test_mesh("dragon.obj");
+        check_against_obvhs(&dragon, &SceneBvh::build(&dragon), 5, 20_000);
+    }
+
+    #[test]
+    fn axis_parallel_rays_and_rays_through_shared_edges_match_obvhs() {
+        // Directions with zero components (the slab test's 1 / 0) and rays aimed
+        // exactly at the quads' shared diagonal and at their corners.
+        let meshes = floor_and_wall();
+        let bvh = SceneBvh::build(&meshes);
+        for o in [
+            DVec3::new(0.0, 1.0, 0.0),
+            DVec3::new(-1.0, 1.0, 1.0),
+            DVec3::new(1.0, 0.5, 0.5),
+            DVec3::new(0.25, 1.0, -0.25),
+        ] {
+            for d in [
+                DVec3::NEG_Y,
+                DVec3::NEG_Z,
+                DVec3::X,
+                DVec3::NEG_X,
+                DVec3::new(0.0, -1.0, -1.0).normalize(),
+            ] {
+                same_as_reference(&meshes, &bvh, o, d, f64::INFINITY);
+                same_as_reference(&meshes, &bvh, o, d, 0.5);
+            }
+        }
+        // Straight down onto a point of the floor's diagonal (a tie between its halves).
+        let h = bvh
+            .closest_hit(&meshes, DVec3::new(0.0, 1.0, 0.0), DVec3::NEG_Y, 0.0, 9.0)
+            .expect("the floor");
+        assert_eq!((h.mesh, h.t), (0, 1.0));
     }
 }

@@ -1,0 +1,550 @@
+//! The CPU traversal of the scene's BVH. obvhs's compressed wide BVH (CWBVH) is laid
+//! out for GPUs: 8-bit child boxes relative to a per-node grid, decoded for every
+//! ray, and one scalar intersection callback per primitive through an index table.
+//! Here the same tree (same nodes, same leaves of up to 3 triangles) is unpacked once
+//! into 8-wide nodes whose children's exact f32 boxes lie in structure-of-arrays
+//! order, so one AVX2 instruction tests a slab of all 8 children, and the leaves'
+//! triangles are copied in leaf order with their edges and normal precomputed.
+//! Traversal is ordered (nearest child first, farther ones stacked with their entry
+//! distance and skipped once a closer hit is known); occlusion stops at the first hit.
+//!
+//! The triangle test performs obvhs's Moller-Trumbore arithmetic operation for
+//! operation (same operands, same order, no fused multiply-add), so a hit's distance is
+//! bit for bit the one obvhs finds, and the box test is conservative (Ize 2013: far
+//! distances widened by 1 + 2 gamma_3), so no triangle obvhs would hit is culled.
+
+use std::mem::MaybeUninit;
+
+use obvhs::cwbvh::CwBvh;
+use obvhs::triangle::Triangle;
+
+/// A child reference: a node index, or (`LEAF` set) a leaf's first triangle slot in
+/// the low 29 bits and its triangle count (1 to 3) in bits 29-30.
+const LEAF: u32 = 1 << 31;
+const LEAF_START_BITS: u32 = 29;
+const LEAF_START_MASK: u32 = (1 << LEAF_START_BITS) - 1;
+/// An unused child slot: its box is empty, so it is never entered.
+const EMPTY: u32 = u32::MAX;
+
+/// Most stack entries a traversal of any tree here can hold on the call stack; deeper
+/// trees (never seen in practice: depth 36 would be needed) use a heap stack.
+const INLINE_STACK: usize = 256;
+
+/// 1 + 2 gamma_3 (gamma_n = n u / (1 - n u), u = 2^-24), rounded up: the factor that
+/// makes the slab test's far distance an upper bound despite the rounding of the
+/// subtraction, the product and the reciprocal (Ize, "Robust BVH ray traversal", 2013).
+const ROBUST_FAR: f32 = 1.0 + 4.0 * f32::EPSILON;
+
+/// Eight children: their boxes as rows lo x, hi x, lo y, hi y, lo z, hi z of 8 lanes.
+/// 224 bytes, aligned to cache lines (padded to 256) so a node spans 4 lines, not 5.
+#[derive(Clone, Copy)]
+#[repr(C, align(64))]
+struct Node {
+    planes: [[f32; 8]; 6],
+    child: [u32; 8],
+}
+
+/// A triangle as the intersection test reads it: obvhs's v0, e1 = v0 - v1 and
+/// e2 = v2 - v0, computed once instead of per ray. Its normal e1 x e2 is not stored:
+/// 36 bytes instead of 48 miss the caches less often than 6 products cost.
+#[derive(Clone, Copy)]
+struct LeafTriangle {
+    v0: [f32; 3],
+    e1: [f32; 3],
+    e2: [f32; 3],
+}
+
+/// A ray as the traversal reads it.
+#[derive(Clone, Copy)]
+pub(super) struct Query {
+    o: [f32; 3],
+    d: [f32; 3],
+    /// 1 / d, with components under 1e-30 in magnitude replaced by +-1e-30 first so
+    /// that no slab product is 0 x infinity.
+    inv: [f32; 3],
+    /// Per axis, 1 when the direction is negative: the near plane is then the box's
+    /// high side (row 2 axis + 1), else its low side.
+    neg: [usize; 3],
+    tmin: f32,
+    tmax: f32,
+}
+
+impl Query {
+    pub(super) fn new(o: [f32; 3], d: [f32; 3], tmin: f32, tmax: f32) -> Self {
+        let safe = |x: f32| {
+            if x.abs() < 1e-30 {
+                1.0 / 1e-30f32.copysign(x)
+            } else {
+                1.0 / x
+            }
+        };
+        let inv = d.map(safe);
+        Self {
+            o,
+            d,
+            inv,
+            neg: inv.map(|i| usize::from(i < 0.0)),
+            tmin,
+            tmax,
+        }
+    }
+}
+
+/// Which node test a traversal uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kernel {
+    /// AVX2: 8 children per slab instruction (x86-64 CPUs that have it).
+    Avx2,
+    /// Plain Rust over the 8 lanes (any CPU; what the compiler vectorises itself).
+    Portable,
+}
+
+impl Kernel {
+    /// The fastest this CPU runs.
+    pub fn detect() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            return Self::Avx2;
+        }
+        Self::Portable
+    }
+}
+
+pub(super) struct WideBvh {
+    nodes: Vec<Node>,
+    /// The leaves' triangles, indexed by obvhs's primitive slot.
+    triangles: Vec<LeafTriangle>,
+    /// Per slot, the scene's (mesh, triangle within the mesh): one lookup per hit
+    /// instead of two.
+    owners: Vec<(u32, u32)>,
+    /// Stack entries a traversal can need: 7 per level of the tree, plus one.
+    stack_need: usize,
+    kernel: Kernel,
+}
+
+#[derive(Clone, Copy)]
+struct Entry {
+    child: u32,
+    tnear: f32,
+}
+
+/// Per axis the exact box of some triangles: (lo, hi).
+type Box3 = ([f32; 3], [f32; 3]);
+
+const EMPTY_BOX: Box3 = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+
+fn union(a: Box3, b: Box3) -> Box3 {
+    (
+        std::array::from_fn(|i| a.0[i].min(b.0[i])),
+        std::array::from_fn(|i| a.1[i].max(b.1[i])),
+    )
+}
+
+fn triangle_box(t: &Triangle) -> Box3 {
+    let p = [t.v0, t.v1, t.v2].map(|v| v.to_array());
+    (
+        std::array::from_fn(|i| p[0][i].min(p[1][i]).min(p[2][i])),
+        std::array::from_fn(|i| p[0][i].max(p[1][i]).max(p[2][i])),
+    )
+}
+
+impl WideBvh {
+    /// Unpacks `cw`, whose primitive indices point into `triangles` and `owners`
+    /// (each triangle's mesh and index within it).
+    pub(super) fn new(cw: &CwBvh, triangles: &[Triangle], owners: &[(u32, u32)]) -> Self {
+        let slots = cw.primitive_indices.len();
+        assert!(
+            slots < LEAF_START_MASK as usize && cw.nodes.len() < LEAF as usize,
+            "{slots} triangles: more than the wide BVH addresses"
+        );
+        let leaf_triangles = cw
+            .primitive_indices
+            .iter()
+            .map(|&i| {
+                let t = &triangles[i as usize];
+                LeafTriangle {
+                    v0: t.v0.to_array(),
+                    e1: (t.v0 - t.v1).to_array(),
+                    e2: (t.v2 - t.v0).to_array(),
+                }
+            })
+            .collect();
+        // Child references per node, and the nodes in pre-order with their depth.
+        let children: Vec<[u32; 8]> = cw
+            .nodes
+            .iter()
+            .map(|n| {
+                std::array::from_fn(|slot| {
+                    let meta = n.child_meta[slot];
+                    if meta == 0 {
+                        EMPTY
+                    } else if n.imask & (1 << slot) != 0 {
+                        // Internal children are stored in slot order from child_base_idx.
+                        n.child_base_idx + (n.imask & ((1u8 << slot) - 1)).count_ones()
+                    } else {
+                        // Low 5 bits: offset from primitive_base_idx; high 3: unary count.
+                        let count = (meta >> 5).count_ones();
+                        let start = n.primitive_base_idx + u32::from(meta & 0b1_1111);
+                        LEAF | (count << LEAF_START_BITS) | start
+                    }
+                })
+            })
+            .collect();
+        let mut order = Vec::with_capacity(cw.nodes.len());
+        let mut depth = 0;
+        if !cw.nodes.is_empty() {
+            let mut pending = vec![(0u32, 1usize)];
+            while let Some((i, d)) = pending.pop() {
+                order.push(i);
+                depth = depth.max(d);
+                for &c in &children[i as usize] {
+                    if c & LEAF == 0 {
+                        pending.push((c, d + 1));
+                    }
+                }
+            }
+        }
+        // Exact boxes bottom-up: in reverse pre-order every child comes before its parent.
+        let mut boxes = vec![EMPTY_BOX; cw.nodes.len()];
+        let mut nodes = vec![
+            Node {
+                planes: [[0.0; 8]; 6],
+                child: [EMPTY; 8],
+            };
+            cw.nodes.len()
+        ];
+        for &i in order.iter().rev() {
+            let i = i as usize;
+            let mut node_box = EMPTY_BOX;
+            for (slot, &c) in children[i].iter().enumerate() {
+                let b = if c == EMPTY {
+                    EMPTY_BOX
+                } else if c & LEAF != 0 {
+                    let (start, count) = leaf_range(c);
+                    (start..start + count)
+                        .map(|s| triangle_box(&triangles[cw.primitive_indices[s] as usize]))
+                        .fold(EMPTY_BOX, union)
+                } else {
+                    boxes[c as usize]
+                };
+                for axis in 0..3 {
+                    nodes[i].planes[2 * axis][slot] = b.0[axis];
+                    nodes[i].planes[2 * axis + 1][slot] = b.1[axis];
+                }
+                node_box = union(node_box, b);
+            }
+            nodes[i].child = children[i];
+            boxes[i] = node_box;
+        }
+        Self {
+            nodes,
+            triangles: leaf_triangles,
+            owners: cw
+                .primitive_indices
+                .iter()
+                .map(|&i| owners[i as usize])
+                .collect(),
+            stack_need: 7 * depth + 1,
+            kernel: Kernel::detect(),
+        }
+    }
+
+    /// The (mesh, triangle within the mesh) of primitive slot `slot`.
+    #[inline]
+    pub(super) fn owner(&self, slot: u32) -> (u32, u32) {
+        self.owners[slot as usize]
+    }
+
+    /// The closest hit within the query's (tmin, tmax): (primitive slot, distance).
+    #[inline]
+    pub(super) fn closest(&self, q: &Query) -> Option<(u32, f32)> {
+        self.closest_with(self.kernel, q)
+    }
+
+    /// Whether any triangle lies within the query's (tmin, tmax).
+    #[inline]
+    pub(super) fn occluded(&self, q: &Query) -> bool {
+        self.occluded_with(self.kernel, q)
+    }
+
+    pub(super) fn closest_with(&self, kernel: Kernel, q: &Query) -> Option<(u32, f32)> {
+        if self.nodes.is_empty() {
+            return None;
+        }
+        self.with_stack(|stack| match kernel {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Kernel::Avx2` is only chosen where the CPU reports AVX2
+            // (`Kernel::detect`, or a test that checks the same first).
+            Kernel::Avx2 => unsafe { self.closest_avx2(q, stack) },
+            _ => self.traverse::<false, false>(q, stack),
+        })
+    }
+
+    pub(super) fn occluded_with(&self, kernel: Kernel, q: &Query) -> bool {
+        if self.nodes.is_empty() {
+            return false;
+        }
+        self.with_stack(|stack| match kernel {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as in `closest_with`.
+            Kernel::Avx2 => unsafe { self.occluded_avx2(q, stack) },
+            _ => self.traverse::<false, true>(q, stack),
+        })
+        .is_some()
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn closest_avx2(
+        &self,
+        q: &Query,
+        stack: &mut [MaybeUninit<Entry>],
+    ) -> Option<(u32, f32)> {
+        self.traverse::<true, false>(q, stack)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn occluded_avx2(
+        &self,
+        q: &Query,
+        stack: &mut [MaybeUninit<Entry>],
+    ) -> Option<(u32, f32)> {
+        self.traverse::<true, true>(q, stack)
+    }
+
+    fn with_stack<R>(&self, f: impl FnOnce(&mut [MaybeUninit<Entry>]) -> R) -> R {
+        if self.stack_need <= INLINE_STACK {
+            // Left uninitialised: clearing 2 KiB per ray would cost as much as a
+            // few node tests, and only entries written are read back.
+            let mut stack = [const { MaybeUninit::uninit() }; INLINE_STACK];
+            f(&mut stack)
+        } else {
+            f(&mut vec![MaybeUninit::uninit(); self.stack_need])
+        }
+    }
+
+    /// Asks for a child's node or triangles ahead of use: several children's cache
+    /// misses then overlap instead of each waiting in turn when its entry is popped.
+    #[inline(always)]
+    fn prefetch(&self, child: u32) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+            let (start, bytes) = if child & LEAF != 0 {
+                let (start, count) = leaf_range(child);
+                let t = self.triangles[start..].as_ptr().cast::<i8>();
+                (t, count * size_of::<LeafTriangle>())
+            } else {
+                let n = std::ptr::from_ref(&self.nodes[child as usize]).cast::<i8>();
+                (n, size_of::<Node>())
+            };
+            // Every cache line the data touches, from the one its first byte is in.
+            let misalign = start as usize % 64;
+            let line = start.wrapping_sub(misalign);
+            for offset in (0..bytes + misalign).step_by(64) {
+                // SAFETY: a prefetch never faults and changes nothing but the caches.
+                unsafe { _mm_prefetch::<_MM_HINT_T0>(line.wrapping_add(offset)) };
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = child;
+    }
+
+    /// The traversal both queries share. `ANY`: stop at the first hit (occlusion),
+    /// unordered; else the closest hit, nearest child first. `AVX2` only from a
+    /// function compiled with AVX2 enabled.
+    #[inline(always)]
+    fn traverse<const AVX2: bool, const ANY: bool>(
+        &self,
+        q: &Query,
+        stack: &mut [MaybeUninit<Entry>],
+    ) -> Option<(u32, f32)> {
+        let mut best: Option<(u32, f32)> = None;
+        let mut tmax = q.tmax;
+        let mut len = 0;
+        let mut current = 0u32;
+        let mut tnear = [0.0f32; 8];
+        loop {
+            if current & LEAF == 0 {
+                let node = &self.nodes[current as usize];
+                let mask = if AVX2 {
+                    #[cfg(target_arch = "x86_64")]
+                    // SAFETY: AVX2 is only set by the AVX2-enabled entry points.
+                    unsafe {
+                        node_hits_avx2(node, q, tmax, &mut tnear)
+                    }
+                    #[cfg(not(target_arch = "x86_64"))]
+                    unreachable!()
+                } else {
+                    node_hits_portable(node, q, tmax, &mut tnear)
+                };
+                if mask != 0 {
+                    if mask & (mask - 1) == 0 {
+                        current = node.child[mask.trailing_zeros() as usize];
+                        continue;
+                    }
+                    // Several children: the nearest is visited now, the others stacked
+                    // farthest first so the next nearest is popped next.
+                    let mut refs = [0u32; 8];
+                    let mut dist = [0f32; 8];
+                    let mut k = 0;
+                    let mut m = mask;
+                    while m != 0 {
+                        let i = m.trailing_zeros() as usize;
+                        m &= m - 1;
+                        let (r, d) = (node.child[i], tnear[i]);
+                        self.prefetch(r);
+                        let mut j = k;
+                        if !ANY {
+                            while j > 0 && dist[j - 1] < d {
+                                refs[j] = refs[j - 1];
+                                dist[j] = dist[j - 1];
+                                j -= 1;
+                            }
+                        }
+                        refs[j] = r;
+                        dist[j] = d;
+                        k += 1;
+                    }
+                    for j in 0..k - 1 {
+                        stack[len] = MaybeUninit::new(Entry {
+                            child: refs[j],
+                            tnear: dist[j],
+                        });
+                        len += 1;
+                    }
+                    current = refs[k - 1];
+                    continue;
+                }
+            } else {
+                let (start, count) = leaf_range(current);
+                for slot in start..start + count {
+                    let t = intersect(&self.triangles[slot], q, tmax);
+                    if t < tmax {
+                        best = Some((slot as u32, t));
+                        if ANY {
+                            return best;
+                        }
+                        tmax = t;
+                    }
+                }
+            }
+            // Next: the nearest stacked child not beyond the closest hit so far.
+            loop {
+                if len == 0 {
+                    return best;
+                }
+                len -= 1;
+                // SAFETY: entries below `len` were all written by the push above.
+                let e = unsafe { stack[len].assume_init() };
+                if e.tnear <= tmax * ROBUST_FAR {
+                    current = e.child;
+                    break;
+                }
+            }
+        }
+    }
+}
+
+fn leaf_range(child: u32) -> (usize, usize) {
+    (
+        (child & LEAF_START_MASK) as usize,
+        ((child & !LEAF) >> LEAF_START_BITS) as usize,
+    )
+}
+
+/// obvhs's `Triangle::intersect` on precomputed edges: the distance, or infinity when
+/// the ray misses or the distance is outside [tmin, tmax].
+#[inline(always)]
+fn intersect(tri: &LeafTriangle, q: &Query, tmax: f32) -> f32 {
+    #[inline(always)]
+    fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
+        a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    }
+    let (e1, e2) = (tri.e1, tri.e2);
+    // Component by component as glam's cross product rounds it.
+    let n = [
+        e1[1] * e2[2] - e1[2] * e2[1],
+        e1[2] * e2[0] - e1[0] * e2[2],
+        e1[0] * e2[1] - e1[1] * e2[0],
+    ];
+    let c = [tri.v0[0] - q.o[0], tri.v0[1] - q.o[1], tri.v0[2] - q.o[2]];
+    let d = q.d;
+    let r = [
+        d[1] * c[2] - d[2] * c[1],
+        d[2] * c[0] - d[0] * c[2],
+        d[0] * c[1] - d[1] * c[0],
+    ];
+    let inv_det = 1.0 / dot(n, d);
+    let u = dot(r, tri.e2) * inv_det;
+    let v = dot(r, tri.e1) * inv_det;
+    let w = 1.0 - u - v;
+    // A negative barycentric (including -0.0) misses, as in obvhs.
+    let signs = u.to_bits() | v.to_bits() | w.to_bits();
+    if inv_det != 0.0 && signs & 0x8000_0000 == 0 {
+        let t = dot(n, c) * inv_det;
+        if t >= q.tmin && t <= tmax {
+            return t;
+        }
+    }
+    f32::INFINITY
+}
+
+/// Which of the node's children the ray enters within [tmin, tmax] (bit per child),
+/// and each child's entry distance in `tnear`.
+#[inline(always)]
+fn node_hits_portable(node: &Node, q: &Query, tmax: f32, tnear: &mut [f32; 8]) -> u32 {
+    let mut mask = 0;
+    for (lane, entry) in tnear.iter_mut().enumerate() {
+        let (mut near, mut far) = (q.tmin, tmax);
+        for axis in 0..3 {
+            let lo = node.planes[2 * axis + q.neg[axis]][lane];
+            let hi = node.planes[2 * axis + 1 - q.neg[axis]][lane];
+            near = near.max((lo - q.o[axis]) * q.inv[axis]);
+            far = far.min((hi - q.o[axis]) * q.inv[axis]);
+        }
+        *entry = near;
+        mask |= u32::from(near <= far * ROBUST_FAR) << lane;
+    }
+    mask
+}
+
+/// `node_hits_portable` with one AVX2 instruction per slab and lane-wise operation.
+/// Only called from functions compiled with AVX2 enabled, into which it is inlined
+/// (a `target_feature` function of its own would not be, and a call per node costs).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn node_hits_avx2(node: &Node, q: &Query, tmax: f32, tnear: &mut [f32; 8]) -> u32 {
+    use std::arch::x86_64::*;
+    // SAFETY: rows are 32-byte aligned (`Node` is align(64) and each row 32 bytes);
+    // `neg` is 0 or 1, so every row index is below 6.
+    unsafe {
+        let row = |r: usize| _mm256_load_ps(node.planes[r].as_ptr());
+        let slab = |axis: usize, r: usize| {
+            _mm256_mul_ps(
+                _mm256_sub_ps(row(r), _mm256_set1_ps(q.o[axis])),
+                _mm256_set1_ps(q.inv[axis]),
+            )
+        };
+        let near_x = slab(0, q.neg[0]);
+        let near_y = slab(1, 2 + q.neg[1]);
+        let near_z = slab(2, 4 + q.neg[2]);
+        let far_x = slab(0, 1 - q.neg[0]);
+        let far_y = slab(1, 3 - q.neg[1]);
+        let far_z = slab(2, 5 - q.neg[2]);
+        // The slab first: where it were NaN (finite rays give none) maxps/minps return
+        // the second operand, the running bound, as f32::max/min do in the portable test.
+        let near = _mm256_max_ps(
+            near_z,
+            _mm256_max_ps(near_y, _mm256_max_ps(near_x, _mm256_set1_ps(q.tmin))),
+        );
+        let far = _mm256_min_ps(
+            far_z,
+            _mm256_min_ps(far_y, _mm256_min_ps(far_x, _mm256_set1_ps(tmax))),
+        );
+        let far = _mm256_mul_ps(far, _mm256_set1_ps(ROBUST_FAR));
+        _mm256_storeu_ps(tnear.as_mut_ptr(), near);
+        _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(near, far)) as u32
+    }
+}

@@ -27,13 +27,21 @@ for name in ${*:-woven_cloth grain_leather knitted_wool corduroy}; do
     [ -f "$big" ] || "$MESO" fit "$btf" -o "$big" --clusters "$CLUSTERS" --npca "$CAP" \
         --report "$OUT/${name}_c${CLUSTERS}_p$CAP.fit.json"
     points=""
+    # A trim that would break the lobe bound (its residual no longer reaches the
+    # BTF's brightest values, which the bound is relative to) is reported and skipped.
     for b in $BUDGETS; do
-        "$MESO" pack trim "$big" -o "$OUT/${name}_c${CLUSTERS}_b$b.spmm" --max-bytes "$b"
-        points="$points c${CLUSTERS}_b$b"
+        if "$MESO" pack trim "$big" -o "$OUT/${name}_c${CLUSTERS}_b$b.spmm" --max-bytes "$b"; then
+            points="$points c${CLUSTERS}_b$b"
+        else
+            echo "$name: no point at $b bytes" >&2
+        fi
     done
     for k in $EVEN; do
-        "$MESO" pack trim "$big" -o "$OUT/${name}_c${CLUSTERS}_k$k.spmm" --npca "$k"
-        points="$points c${CLUSTERS}_k$k"
+        if "$MESO" pack trim "$big" -o "$OUT/${name}_c${CLUSTERS}_k$k.spmm" --npca "$k"; then
+            points="$points c${CLUSTERS}_k$k"
+        else
+            echo "$name: no even split at N_PCA $k" >&2
+        fi
     done
     for p in $points; do
         pack="$OUT/${name}_$p.spmm"

@@ -27,6 +27,8 @@ pub enum BudgetError {
         "the pack is {bytes} bytes with no component at all, over the budget of {budget} bytes"
     )]
     TooSmall { bytes: usize, budget: u64 },
+    #[error("the weights could not be brought within the lobe bound: {0}")]
+    LobeBound(String),
     #[error("{0}")]
     Material(#[from] SpmmError),
 }
@@ -233,4 +235,71 @@ pub fn keep_first(
         cluster_npca,
         dropped_energy,
     })
+}
+
+/// Lowers the weights a trimmed pack's lobe bound no longer allows. The bound
+/// (spmm::lobe_bound) is relative to the pack's own largest tabulated value, and the
+/// brightest BTF values (single grazing peaks) are what few components reproduce
+/// last, so a trimmed pack's maximum may drop below what the fit's weight caps
+/// assumed. Each weight is capped, as the fitter caps them, at 0.97 x the hemisphere
+/// multiple x the pack's maximum over its basis's hemisphere peak, until the pack
+/// passes (the residual is not refitted: `meso report fit` measures the cost).
+/// Returns the pack and how many weight entries were lowered.
+pub fn clamp_to_lobe_bound(m: &SpmmMaterial) -> Result<(SpmmMaterial, usize), BudgetError> {
+    use crate::spmm::lobe_bound;
+    use rayon::prelude::*;
+    let bases: Vec<&crate::brdf::BasisFunction> =
+        m.clusters().iter().flat_map(|c| &c.bases).collect();
+    let peaks: Vec<f64> = bases
+        .par_iter()
+        .map(|b| lobe_bound::hemisphere_peak(b).0)
+        .collect();
+    let mut first = vec![0usize];
+    for c in m.clusters() {
+        first.push(first.last().copied().unwrap_or(0) + c.bases.len());
+    }
+    let mut current = m.clone();
+    let mut lowered = vec![false; m.weights().basis.len()];
+    let count = |lowered: &[bool]| lowered.iter().filter(|&&l| l).count();
+    for _ in 0..8 {
+        if lobe_bound::check_lobes(&current).is_ok() {
+            return Ok((current, count(&lowered)));
+        }
+        let limit = lobe_bound::HEMISPHERE_MULTIPLE * 0.97 * lobe_bound::tabulated_maximum(&current);
+        let mut weights = current.weights().clone();
+        for (t, &c) in current.texel_cluster().iter().enumerate() {
+            let range = weights.offsets[t] as usize..weights.offsets[t + 1] as usize;
+            for e in range {
+                let peak = peaks[first[c as usize] + usize::from(weights.basis[e])];
+                if peak <= 0.0 {
+                    continue;
+                }
+                let cap = (limit / peak) as f32;
+                if weights.rgb[e].iter().any(|&x| x > cap) {
+                    lowered[e] = true;
+                    for x in weights.rgb[e].iter_mut() {
+                        *x = x.min(cap);
+                    }
+                }
+            }
+        }
+        let mut next = SpmmMaterial::new(
+            current.name().to_string(),
+            current.provenance().to_string(),
+            current.width(),
+            current.height(),
+            current.clusters().to_vec(),
+            current.texel_cluster().to_vec(),
+            weights,
+            current.residual().cloned(),
+        )?;
+        if current.edited() {
+            next.mark_clusters_edited(current.edited_clusters());
+        }
+        current = next;
+    }
+    match lobe_bound::check_lobes(&current) {
+        Ok(()) => Ok((current, count(&lowered))),
+        Err(e) => Err(BudgetError::LobeBound(e.to_string())),
+    }
 }

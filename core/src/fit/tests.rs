@@ -531,3 +531,57 @@ fn the_greedy_order_is_optimal_for_every_count() {
         assert_eq!(greedy, best, "n = {n}");
     }
 }
+
+/// A trimmed pack whose weights its own (lower) maximum no longer allows gets exactly
+/// the offending weights lowered to the bound; a pack within it is left as it is.
+#[test]
+fn clamping_to_the_lobe_bound_lowers_only_the_weights_over_it() {
+    use crate::spmm::{Residual, lobe_bound};
+    let lamb = basis(BrdfModel::Lambertian, &[], DVec3::Z);
+    // Broad at the measured directions, 20-odd times brighter towards the horizon.
+    let ct = basis(BrdfModel::CookTorrance, &[("m", 0.3), ("f0", 0.05)], DVec3::Z);
+    let d = directions::bonn81();
+    let table = d.len() * d.len() * 3;
+    let pack = |w: f32| {
+        SpmmMaterial::new(
+            "clamp".into(),
+            "test".into(),
+            2,
+            1,
+            vec![Cluster {
+                bases: vec![lamb, ct],
+            }],
+            vec![0, 0],
+            SparseWeights {
+                offsets: vec![0, 2, 4],
+                basis: vec![0, 1, 0, 1],
+                rgb: vec![[0.5; 3], [w, 0.001, w], [0.4; 3], [0.001; 3]],
+            },
+            Some(Residual {
+                light_dirs: d.clone(),
+                view_dirs: d.clone(),
+                npca: 0,
+                mean: vec![0.0; table],
+                components: Vec::new(),
+                coefficients: Vec::new(),
+            }),
+        )
+        .expect("valid")
+    };
+    let over = pack(0.2);
+    assert!(lobe_bound::check_lobes(&over).is_err());
+    let (clamped, lowered) = budget::clamp_to_lobe_bound(&over).expect("clamped");
+    assert_eq!(lowered, 1);
+    assert_eq!(lobe_bound::check_lobes(&clamped), Ok(()));
+    let (a, b) = (&over.weights().rgb, &clamped.weights().rgb);
+    assert_eq!((a[0], a[2], a[3]), (b[0], b[2], b[3]), "the others are kept");
+    // Channels over the cap are lowered to it, those under it kept.
+    assert!(b[1][0] < 0.2 && b[1][0] == b[1][2] && b[1][1] == 0.001, "{:?}", b[1]);
+    // Lowered no further than the fitter's margin below the bound.
+    let peak = lobe_bound::hemisphere_peak(&ct).0;
+    let ratio = f64::from(b[1][0]) * peak / lobe_bound::tabulated_maximum(&clamped);
+    assert!(ratio > 0.9 * lobe_bound::HEMISPHERE_MULTIPLE, "{ratio}");
+    let within = pack(0.005);
+    let (same, none) = budget::clamp_to_lobe_bound(&within).expect("within");
+    assert_eq!((same, none), (within, 0));
+}

@@ -206,13 +206,11 @@ fn trim(
         (None, None) => unreachable!("clap requires one of them"),
     };
     // Trimming lowers the residual and with it the pack's own maximum, which the
-    // lobe bound's hemisphere check compares against.
-    if let Err(e) = meso_core::spmm::lobe_bound::check_lobes(&t.material) {
-        return Err(CliError::failure(anyhow!(
-            "`{}` trimmed ({how}) breaks the lobe bound (fit it with those settings instead): {e}",
-            file.display()
-        )));
-    }
+    // lobe bound's hemisphere check compares against: weights it no longer allows
+    // are lowered to it.
+    let (clamped, lowered) = budget::clamp_to_lobe_bound(&t.material)
+        .map_err(|e| CliError::failure(anyhow!("`{}` ({how}): {e}", file.display())))?;
+    t.material = clamped;
     t.material
         .set_provenance(format!("{}; meso pack trim {how}", m.provenance()));
     let encoded = pack::encode_pack(&t.material, precision);
@@ -224,12 +222,13 @@ fn trim(
             "pack_bytes": encoded.len(),
             "cluster_npca": t.cluster_npca,
             "dropped_energy": t.dropped_energy,
+            "weights_lowered": lowered,
             "component_energy": before,
         }));
     }
     let list: Vec<String> = t.cluster_npca.iter().map(usize::to_string).collect();
     println!(
-        "wrote {} ({} bytes): N_PCA per cluster [{}]",
+        "wrote {} ({} bytes): N_PCA per cluster [{}]; {lowered} weight entries lowered to the lobe bound",
         output.display(),
         encoded.len(),
         list.join(", ")

@@ -8,8 +8,10 @@ MESO=${MESO:-meso}
 BTF_DIR=${BTF_DIR:-btf}
 mkdir -p "$BTF_DIR"
 for name in ${*:-knitted_wool woven_cloth grain_leather corduroy}; do
-    # Per pack: clusters and N_PCA (the best point under 4 MB of the curve in
-    # docs/fitting.md); everything else is `meso fit`'s default (seed 0).
+    # Per pack: clusters and N_PCA, and optionally a byte budget the fit is trimmed
+    # to (`meso pack trim`: per-cluster N_PCA; the best point under 4 MB of the curve
+    # in docs/fitting.md); everything else is `meso fit`'s default (seed 0).
+    trim=""
     case "$name" in
         woven_cloth) settings="--clusters 8 --npca 10" ;;
         knitted_wool | grain_leather | corduroy) settings="--clusters 8 --npca 5" ;;
@@ -17,6 +19,10 @@ for name in ${*:-knitted_wool woven_cloth grain_leather corduroy}; do
     esac
     btf="$BTF_DIR/$name.btf"
     [ -f "$btf" ] || "$MESO" btf synth "materials/btf_recipes/$name.toml" -o "$btf"
+    out="materials/$name.spmm"
+    [ -z "$trim" ] || out="$BTF_DIR/$name.fit.spmm"
     # shellcheck disable=SC2086
-    "$MESO" fit "$btf" -o "materials/$name.spmm" $settings --report "$BTF_DIR/$name.fit.json"
+    "$MESO" fit "$btf" -o "$out" $settings --report "$BTF_DIR/$name.fit.json"
+    # shellcheck disable=SC2086
+    [ -z "$trim" ] || "$MESO" pack trim "$out" -o "materials/$name.spmm" $trim
 done

@@ -75,14 +75,47 @@ fn fitted_packs_validate_and_stay_small() {
                 "{name}: {provenance} lacks {want}"
             );
         }
-        assert!(provenance.ends_with("--seed 0"), "{name}: {provenance}");
         let npca: usize = settings
             .chunks(2)
             .find(|p| p[0] == "--npca")
             .map(|p| p[1].parse().expect("a number"))
             .expect("rebuild.sh sets --npca");
-        assert_eq!(r.npca, npca, "{name}");
+        // A pack trimmed to a byte budget (`meso pack trim`, per-cluster N_PCA) says so
+        // after the fit, with the script's budget; it keeps at most the fit's N_PCA.
+        match rebuild_trim(name) {
+            None => {
+                assert!(provenance.ends_with("--seed 0"), "{name}: {provenance}");
+                assert_eq!(r.npca, npca, "{name}");
+            }
+            Some(trim) => {
+                let want = format!("--seed 0; meso pack trim {trim}");
+                assert!(provenance.ends_with(&want), "{name}: {provenance} vs {want}");
+                assert!(r.npca <= npca, "{name}");
+                let budget: u64 = trim
+                    .strip_prefix("--max-bytes ")
+                    .and_then(|b| b.parse().ok())
+                    .expect("trim=\"--max-bytes N\"");
+                assert!(len <= budget, "{name}: {len} bytes over its budget {budget}");
+            }
+        }
     }
+}
+
+/// The `meso pack trim` options rebuild.sh applies to `name`'s fit, if any.
+fn rebuild_trim(name: &str) -> Option<String> {
+    let script = std::fs::read_to_string(root().join("materials/btf_recipes/rebuild.sh"))
+        .expect("the rebuild script is shipped");
+    let line = script.lines().map(str::trim).find(|l| {
+        l.contains("settings=\"")
+            && l.split(')')
+                .next()
+                .is_some_and(|names| names.split('|').any(|n| n.trim() == name))
+    })?;
+    line.split("trim=\"")
+        .nth(1)
+        .and_then(|rest| rest.split('"').next())
+        .filter(|t| !t.is_empty())
+        .map(str::to_string)
 }
 
 /// The `meso fit` settings materials/btf_recipes/rebuild.sh uses for `name`, as

@@ -19,7 +19,7 @@ use crate::regress::case::substitute;
 use crate::render::{ModeError, RenderMode};
 use crate::scene::{Material, Scene};
 use crate::spmm::SpmmMaterial;
-use crate::trace::SpmmMode;
+use crate::trace::{PackSampling, SpmmMode};
 
 /// Polar angle beyond which a direction counts as grazing, degrees.
 pub const GRAZING_DEG: f64 = 60.0;
@@ -164,6 +164,10 @@ pub struct RenderRequest {
 fn render(scene: &Scene, r: &RenderRequest) -> Result<Image, FidelityError> {
     let mut mode = SpmmMode::new(scene.clone(), r.width, r.height)
         .map_err(|e: ModeError| FidelityError::Mode(e.to_string()))?;
+    // A BTF is sampled with the defensive mixture only; the pack must be too, or the
+    // two images differ by their noise as well as by their materials (packs are
+    // sampled from their bases by default).
+    mode.set_pack_sampling(PackSampling::Defensive);
     for _ in 0..r.frames {
         mode.render_frame();
     }
@@ -227,6 +231,40 @@ pub fn side_by_side(a: &Image, b: &Image, gain: f32) -> Image {
 mod tests {
     use super::*;
     use crate::spmm::tests::sample_material;
+
+    /// The pack's render is the one the defensive sampling gives (what the BTF's
+    /// render uses), not the bases' sampling, so both draw the same directions.
+    #[test]
+    fn the_pack_is_rendered_with_the_btf_s_sampling() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/scenes");
+        let mut scene = crate::scene::load_scene(&dir.join("fit_bunny.toml")).expect("scene");
+        let pack = Arc::new(sample_material(4, 3, 2, Some(2)));
+        let npca = pack.npca();
+        let m = Material::Spmm {
+            material: pack,
+            uv_scale: glam::DVec2::ONE,
+            residual: true,
+            npca,
+        };
+        substitute(&mut scene, "sample", m, false).expect("the scene's material");
+        let r = RenderRequest {
+            width: 24,
+            height: 24,
+            frames: 2,
+            material: "sample".into(),
+        };
+        let with = |sampling: PackSampling| {
+            let mut m = SpmmMode::new(scene.clone(), 24, 24).expect("mode");
+            m.set_pack_sampling(sampling);
+            for _ in 0..2 {
+                m.render_frame();
+            }
+            m.image()
+        };
+        let got = render(&scene, &r).expect("render");
+        assert!(got.pixels() == with(PackSampling::Defensive).pixels());
+        assert!(got.pixels() != with(PackSampling::Bases).pixels());
+    }
 
     /// A BTF made by tabulating a pack at its own residual directions: the pack is
     /// exact there, so the table error is the f32 rounding; scaling the BTF's grazing

@@ -9,6 +9,7 @@
 //! independent of the thread count. The nonlinear stages see a seeded subset of the
 //! direction pairs; the weights and the residual use every pair.
 
+pub mod budget;
 pub mod dictionary;
 pub mod fidelity;
 pub mod kmeans;
@@ -29,6 +30,7 @@ use rayon::prelude::*;
 use crate::brdf::{AnalyticBrdf, BasisFunction, BrdfModel};
 use crate::btf::Btf;
 use crate::rng::SampleStream;
+use crate::spmm::pack::ResidualPrecision;
 use crate::spmm::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial, lobe_bound};
 use dictionary::{DictionarySettings, Pairs};
 pub use report::{ClusterReport, ErrorRow, FitReport, StageSeconds};
@@ -53,6 +55,12 @@ pub struct FitSettings {
     /// Caps the weights so that no basis exceeds the lobe bound's hemisphere multiple
     /// of the BTF's maximum (spmm::lobe_bound); off only to test exact recovery.
     pub hemisphere_bound: bool,
+    /// A byte budget for the pack file at `precision`: `npca` becomes each cluster's
+    /// most, and the components kept over all clusters are those that remove the
+    /// most table error until the file reaches the budget (`budget.rs`).
+    pub max_bytes: Option<u64>,
+    /// Precision of the residual tables the budget counts.
+    pub precision: ResidualPrecision,
 }
 
 impl Default for FitSettings {
@@ -67,6 +75,8 @@ impl Default for FitSettings {
             fit_pairs: 6561,
             dictionary: DictionarySettings::default(),
             hemisphere_bound: true,
+            max_bytes: None,
+            precision: ResidualPrecision::F16,
         }
     }
 }
@@ -108,6 +118,8 @@ pub enum FitError {
         "the fitted weights could not be brought within the lobe bound in 4 attempts (a bug: please report it)"
     )]
     LobeBound,
+    #[error("--max-bytes: {0}")]
+    Budget(String),
     #[error("the fitted material is invalid: {0}")]
     Material(#[from] SpmmError),
 }
@@ -356,7 +368,7 @@ pub fn fit_btf(
     let target = lobe_bound::HEMISPHERE_MULTIPLE * 0.97;
     let mut reference = btf_max;
     let mut attempt = 0;
-    let (material, weights, residuals) = loop {
+    let (material, weights, residuals, cluster_npca) = loop {
         attempt += 1;
         let caps: Vec<f64> = peaks
             .iter()
@@ -485,7 +497,7 @@ pub fn fit_btf(
             }
             sparse.offsets.push(sparse.basis.len() as u32);
         }
-        let material = SpmmMaterial::new(
+        let mut material = SpmmMaterial::new(
             name.to_string(),
             provenance.to_string(),
             btf.width(),
@@ -502,6 +514,12 @@ pub fn fit_btf(
                 coefficients,
             }),
         )?;
+        let mut cluster_npca = None;
+        if let Some(max_bytes) = settings.max_bytes {
+            let trimmed = budget::trim_to_bytes(&material, max_bytes, settings.precision)?;
+            material = trimmed.material;
+            cluster_npca = Some(trimmed.cluster_npca);
+        }
         let pack_max = lobe_bound::tabulated_maximum(&material);
         let largest = lobe_bound::largest_weights(&material);
         let worst = largest
@@ -511,7 +529,7 @@ pub fn fit_btf(
             .map(|(w, p)| w * p)
             .fold(0.0f64, f64::max);
         if worst <= target * pack_max || !settings.hemisphere_bound {
-            break (material, weights, residuals);
+            break (material, weights, residuals, cluster_npca);
         }
         if attempt == 4 {
             return Err(FitError::LobeBound);
@@ -526,8 +544,11 @@ pub fn fit_btf(
         residual: s_residual,
         total: t_all.elapsed().as_secs_f64(),
     };
-    let report = report::build(
+    let mut report = report::build(
         btf, &material, &members, &residuals, &weights, settings, seconds,
     );
+    if let Some(counts) = cluster_npca {
+        report.set_cluster_npca(&residuals, counts);
+    }
     Ok(FitOutput { material, report })
 }

@@ -64,6 +64,12 @@ pub struct FitReport {
     pub pack_bytes: u64,
     pub compression_ratio: f64,
     pub seconds: StageSeconds,
+    /// Under a byte budget (`--max-bytes`): the components kept per cluster, and the
+    /// RMSE with them (closed form, before the file's f16 rounding).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cluster_npca: Option<Vec<usize>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rmse_budget: Option<f64>,
 }
 
 /// The N_PCA values the report lists: 0, 1, 2, 4, 8 (up to the fit's N_PCA) and
@@ -144,10 +150,25 @@ pub(super) fn build(
         pack_bytes: 0,
         compression_ratio: 0.0,
         seconds,
+        cluster_npca: None,
+        rmse_budget: None,
     }
 }
 
 impl FitReport {
+    /// Records the per-cluster component counts a byte budget chose, and the error
+    /// they leave.
+    pub(super) fn set_cluster_npca(&mut self, residuals: &[ClusterResidual], counts: Vec<usize>) {
+        let n = (self.width as usize * self.height as usize * self.lights * self.views * 3).max(1);
+        let sse: f64 = residuals
+            .iter()
+            .zip(&counts)
+            .map(|(r, &k)| r.sse_with[k.min(r.sse_with.len() - 1)])
+            .sum();
+        self.rmse_budget = Some((sse / n as f64).sqrt());
+        self.cluster_npca = Some(counts);
+    }
+
     /// Records the written pack's size and the compression ratio.
     pub fn set_pack_bytes(&mut self, bytes: u64) {
         self.pack_bytes = bytes;
@@ -172,6 +193,14 @@ impl FitReport {
             s.push_str(&format!(
                 "  with residual, N_PCA = {k}: RMSE {e:.5} ({:.2}%)\n",
                 rel(*e)
+            ));
+        }
+        if let (Some(counts), Some(e)) = (&self.cluster_npca, self.rmse_budget) {
+            let list: Vec<String> = counts.iter().map(usize::to_string).collect();
+            s.push_str(&format!(
+                "  under the byte budget, N_PCA per cluster [{}]: RMSE {e:.5} ({:.2}%)\n",
+                list.join(", "),
+                rel(e)
             ));
         }
         s.push_str(&format!(

@@ -408,3 +408,177 @@ fn fitted_leather_keeps_every_lobe_within_the_bound() {
     crate::spmm::lobe_bound::check_lobes(&m).expect("no basis beyond the lobe bound");
     assert!(m.clusters().iter().all(|c| !c.bases.is_empty()));
 }
+
+/// Per-cluster N_PCA under a byte budget (`budget.rs`): the pack fits the budget, one
+/// more component would not, its evaluated table error is the closed form's (the fit's
+/// mean-only error minus the kept components' energies), the file stores only the kept
+/// components, and the budget fit beats an even split of the same bytes.
+#[test]
+fn a_byte_budget_keeps_the_components_that_remove_most_error() {
+    use crate::spmm::pack::{ResidualPrecision, decode_pack, encode_pack};
+    let btf = weave_btf();
+    let base = FitSettings {
+        clusters: 3,
+        subclusters: 2,
+        max_bases: 3,
+        npca: 12,
+        fit_pairs: 300,
+        ..FitSettings::default()
+    };
+    let full = fit_btf(&btf, "w", "t", &base, &AtomicBool::new(false), &quiet).expect("fit");
+    let sse = |m: &SpmmMaterial| {
+        let (dl, dv) = (btf.light_dirs(), btf.view_dirs());
+        let mut sse = 0.0;
+        for t in 0..btf.texels() {
+            for (l, wi) in dl.iter().enumerate() {
+                for (v, wo) in dv.iter().enumerate() {
+                    let got = m.eval_texel(t, *wi, *wo, true, usize::MAX);
+                    let want = btf.value(t, l, v);
+                    sse += (got.x - f64::from(want[0])).powi(2)
+                        + (got.y - f64::from(want[1])).powi(2)
+                        + (got.z - f64::from(want[2])).powi(2);
+                }
+            }
+        }
+        sse
+    };
+    // An even split of 4 components per cluster, and the budget its file takes.
+    let even = budget::with_component_counts(&full.material, &[4, 4, 4]).expect("valid");
+    let even_bytes = encode_pack(&even, ResidualPrecision::F32).len() as u64;
+    let settings = FitSettings {
+        max_bytes: Some(even_bytes),
+        precision: ResidualPrecision::F32,
+        ..base
+    };
+    let out = fit_btf(&btf, "w", "t", &settings, &AtomicBool::new(false), &quiet).expect("fit");
+    let counts = out.report.cluster_npca.clone().expect("the budget's choice");
+    let bytes = encode_pack(&out.material, ResidualPrecision::F32);
+    assert!(bytes.len() as u64 <= even_bytes, "{} > {even_bytes}", bytes.len());
+    // The ragged file's extra tensor and the coefficients of larger clusters may cost
+    // one component of the even split's 12.
+    let total: usize = counts.iter().sum();
+    assert!((11..=12).contains(&total), "{counts:?}");
+    assert_ne!(counts, vec![4, 4, 4], "the clusters' errors differ: so do their shares");
+    // One more component, the next in the greedy order, would not fit.
+    let energies = budget::component_energies(&full.material);
+    let order = budget::greedy_order(&energies);
+    let mut more = counts.clone();
+    more[order[total]] += 1;
+    let over = budget::with_component_counts(&full.material, &more).expect("valid");
+    assert!(encode_pack(&over, ResidualPrecision::F32).len() as u64 > even_bytes);
+    // The evaluated error is the closed form's, and lower than the even split's.
+    let got = sse(&out.material);
+    let mean_only = budget::with_component_counts(&full.material, &[0, 0, 0]).expect("valid");
+    let kept: f64 = energies
+        .iter()
+        .zip(&counts)
+        .map(|(e, &n)| e[..n].iter().sum::<f64>())
+        .sum();
+    let closed = sse(&mean_only) - kept;
+    assert!(
+        (got - closed).abs() <= 1e-4 * sse(&mean_only),
+        "evaluated {got}, closed form {closed}"
+    );
+    let n = btf.data().len() as f64;
+    let rmse_budget = out.report.rmse_budget.expect("reported");
+    assert!(((got / n).sqrt() - rmse_budget).abs() <= 1e-3 * rmse_budget + 1e-9);
+    let even_sse = sse(&even);
+    assert!(got < even_sse, "budget {got} vs even split {even_sse}");
+    // The file holds the chosen counts and reads back to the same values.
+    let back = decode_pack(&bytes).expect("valid");
+    assert_eq!(
+        crate::spmm::pack::cluster_component_counts(&back),
+        counts
+    );
+    assert_eq!(encode_pack(&back, ResidualPrecision::F32), bytes);
+    assert!((sse(&back) - got).abs() <= 1e-9 * got.max(1e-30));
+}
+
+#[test]
+fn the_greedy_order_is_optimal_for_every_count() {
+    // Energies non-increasing within each cluster, as PCA gives them.
+    let energies = vec![vec![5.0, 1.0], vec![4.0, 3.0, 2.0], vec![0.5], vec![]];
+    let order = budget::greedy_order(&energies);
+    assert_eq!(order, vec![0, 1, 1, 1, 0, 2]);
+    // Against every split of n components: the greedy prefix keeps the most.
+    for n in 0..=order.len() {
+        let greedy: f64 = {
+            let mut next = vec![0; 4];
+            order[..n]
+                .iter()
+                .map(|&c| {
+                    next[c] += 1;
+                    energies[c][next[c] - 1]
+                })
+                .sum()
+        };
+        let mut best = 0.0f64;
+        for a in 0..=2 {
+            for b in 0..=3 {
+                for c in 0..=1 {
+                    if a + b + c == n {
+                        let kept = energies[0][..a].iter().sum::<f64>()
+                            + energies[1][..b].iter().sum::<f64>()
+                            + energies[2][..c].iter().sum::<f64>();
+                        best = best.max(kept);
+                    }
+                }
+            }
+        }
+        assert_eq!(greedy, best, "n = {n}");
+    }
+}
+
+/// A trimmed pack whose weights its own (lower) maximum no longer allows gets exactly
+/// the offending weights lowered to the bound; a pack within it is left as it is.
+#[test]
+fn clamping_to_the_lobe_bound_lowers_only_the_weights_over_it() {
+    use crate::spmm::{Residual, lobe_bound};
+    let lamb = basis(BrdfModel::Lambertian, &[], DVec3::Z);
+    // Broad at the measured directions, 20-odd times brighter towards the horizon.
+    let ct = basis(BrdfModel::CookTorrance, &[("m", 0.3), ("f0", 0.05)], DVec3::Z);
+    let d = directions::bonn81();
+    let table = d.len() * d.len() * 3;
+    let pack = |w: f32| {
+        SpmmMaterial::new(
+            "clamp".into(),
+            "test".into(),
+            2,
+            1,
+            vec![Cluster {
+                bases: vec![lamb, ct],
+            }],
+            vec![0, 0],
+            SparseWeights {
+                offsets: vec![0, 2, 4],
+                basis: vec![0, 1, 0, 1],
+                rgb: vec![[0.5; 3], [w, 0.001, w], [0.4; 3], [0.001; 3]],
+            },
+            Some(Residual {
+                light_dirs: d.clone(),
+                view_dirs: d.clone(),
+                npca: 0,
+                mean: vec![0.0; table],
+                components: Vec::new(),
+                coefficients: Vec::new(),
+            }),
+        )
+        .expect("valid")
+    };
+    let over = pack(0.2);
+    assert!(lobe_bound::check_lobes(&over).is_err());
+    let (clamped, lowered) = budget::clamp_to_lobe_bound(&over).expect("clamped");
+    assert_eq!(lowered, 1);
+    assert_eq!(lobe_bound::check_lobes(&clamped), Ok(()));
+    let (a, b) = (&over.weights().rgb, &clamped.weights().rgb);
+    assert_eq!((a[0], a[2], a[3]), (b[0], b[2], b[3]), "the others are kept");
+    // Channels over the cap are lowered to it, those under it kept.
+    assert!(b[1][0] < 0.2 && b[1][0] == b[1][2] && b[1][1] == 0.001, "{:?}", b[1]);
+    // Lowered no further than the fitter's margin below the bound.
+    let peak = lobe_bound::hemisphere_peak(&ct).0;
+    let ratio = f64::from(b[1][0]) * peak / lobe_bound::tabulated_maximum(&clamped);
+    assert!(ratio > 0.9 * lobe_bound::HEMISPHERE_MULTIPLE, "{ratio}");
+    let within = pack(0.005);
+    let (same, none) = budget::clamp_to_lobe_bound(&within).expect("within");
+    assert_eq!((same, none), (within, 0));
+}

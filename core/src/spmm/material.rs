@@ -298,6 +298,11 @@ impl SpmmMaterial {
     pub fn provenance(&self) -> &str {
         &self.provenance
     }
+    /// Replaces how the material was made (a tool that derives one pack from another
+    /// appends what it did).
+    pub fn set_provenance(&mut self, provenance: String) {
+        self.provenance = provenance;
+    }
     /// Whether the material was changed in the editor since it was made.
     pub fn edited(&self) -> bool {
         self.edited

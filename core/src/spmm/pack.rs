@@ -81,6 +81,8 @@ pub enum PackErrorKind {
         model: &'static str,
         used: usize,
     },
+    #[error("{0}")]
+    Ragged(String),
     #[error("tensor `cluster_basis_offsets`: {0}")]
     ClusterOffsets(String),
     #[error("{0}")]
@@ -231,14 +233,49 @@ pub fn encode_pack(m: &SpmmMaterial, precision: ResidualPrecision) -> Vec<u8> {
         };
         let (dt, data) = table(&r.mean);
         put("residual_mean", dt, vec![c, l, v, 3], data);
-        let (dt, data) = table(&r.components);
-        put("residual_components", dt, vec![c, k, l, v, 3], data);
-        put(
-            "residual_coefficients",
-            Dtype::F32,
-            vec![w * h, k],
-            le_bytes(&r.coefficients, f32::to_le_bytes),
-        );
+        let counts = cluster_component_counts(m);
+        if counts.iter().all(|&n| n == k) {
+            let (dt, data) = table(&r.components);
+            put("residual_components", dt, vec![c, k, l, v, 3], data);
+            put(
+                "residual_coefficients",
+                Dtype::F32,
+                vec![w * h, k],
+                le_bytes(&r.coefficients, f32::to_le_bytes),
+            );
+        } else {
+            // Ragged: each cluster stores only its leading components that are not all
+            // zero (a trailing zero component adds nothing whatever its coefficients).
+            let d = l * v * 3;
+            let components: Vec<f32> = (0..c)
+                .flat_map(|ci| &r.components[ci * k * d..(ci * k + counts[ci]) * d])
+                .copied()
+                .collect();
+            let coefficients: Vec<f32> = m
+                .texel_cluster()
+                .iter()
+                .enumerate()
+                .flat_map(|(t, &ci)| &r.coefficients[t * k..t * k + counts[ci as usize]])
+                .copied()
+                .collect();
+            let total: usize = counts.iter().sum();
+            let n_coef = coefficients.len();
+            let (dt, data) = table(&components);
+            put("residual_components", dt, vec![total, l, v, 3], data);
+            put(
+                "residual_coefficients",
+                Dtype::F32,
+                vec![n_coef],
+                le_bytes(&coefficients, f32::to_le_bytes),
+            );
+            let counts: Vec<u32> = counts.iter().map(|&n| n as u32).collect();
+            put(
+                "cluster_npca",
+                Dtype::U32,
+                vec![c],
+                le_bytes(&counts, u32::to_le_bytes),
+            );
+        }
     }
 
     let mut metadata = vec![
@@ -262,7 +299,38 @@ pub fn encode_pack(m: &SpmmMaterial, precision: ResidualPrecision) -> Vec<u8> {
     container::encode(&metadata, &tensors)
 }
 
-const KNOWN_TENSORS: [&str; 13] = [
+/// Per cluster, how many leading components the file must store: one past the last
+/// component that is not all zero in the table or in a coefficient of the cluster's
+/// texels (the fitter's per-cluster choice of N_PCA, and `fit::budget`'s trimming,
+/// leave the rest zero in both, so dropping them loses nothing; a cluster whose
+/// residual was switched off keeps its coefficients and so its components). Empty
+/// without a residual.
+pub fn cluster_component_counts(m: &SpmmMaterial) -> Vec<usize> {
+    let Some(r) = m.residual() else {
+        return Vec::new();
+    };
+    let (clusters, k) = (m.clusters().len(), r.npca);
+    let d = r.light_dirs.len() * r.view_dirs.len() * 3;
+    let mut used = vec![false; clusters * k];
+    for (t, &c) in m.texel_cluster().iter().enumerate() {
+        for (kk, x) in r.coefficients[t * k..(t + 1) * k].iter().enumerate() {
+            used[c as usize * k + kk] |= *x != 0.0;
+        }
+    }
+    (0..clusters)
+        .map(|c| {
+            (0..k)
+                .rev()
+                .find(|&kk| {
+                    let at = (c * k + kk) * d;
+                    used[c * k + kk] || r.components[at..at + d].iter().any(|x| *x != 0.0)
+                })
+                .map_or(0, |kk| kk + 1)
+        })
+        .collect()
+}
+
+const KNOWN_TENSORS: [&str; 14] = [
     "texel_cluster",
     "cluster_basis_offsets",
     "basis_model",
@@ -276,6 +344,7 @@ const KNOWN_TENSORS: [&str; 13] = [
     "residual_mean",
     "residual_components",
     "residual_coefficients",
+    "cluster_npca",
 ];
 
 /// The validated contents of one tensor, typed.
@@ -516,24 +585,29 @@ pub fn decode_pack(bytes: &[u8]) -> Result<SpmmMaterial, PackErrorKind> {
             &[Some(n_clusters), Some(l), Some(v), Some(3)],
         )?;
         let mean = table_f32(dt, data);
-        let (dt, _, data) = r.view(
-            "residual_components",
-            &halves,
-            &[Some(n_clusters), Some(npca), Some(l), Some(v), Some(3)],
-        )?;
-        let components = table_f32(dt, data);
-        let (_, _, data) = r.view(
-            "residual_coefficients",
-            &[Dtype::F32],
-            &[Some(texels), Some(npca)],
-        )?;
+        let (components, coefficients) = if r.st.tensor("cluster_npca").is_ok() {
+            read_ragged_residual(&r, n_clusters, npca, l, v, &texel_cluster)?
+        } else {
+            let (dt, _, data) = r.view(
+                "residual_components",
+                &halves,
+                &[Some(n_clusters), Some(npca), Some(l), Some(v), Some(3)],
+            )?;
+            let components = table_f32(dt, data);
+            let (_, _, data) = r.view(
+                "residual_coefficients",
+                &[Dtype::F32],
+                &[Some(texels), Some(npca)],
+            )?;
+            (components, f32s(data))
+        };
         Some(Residual {
             light_dirs,
             view_dirs,
             npca,
             mean,
             components,
-            coefficients: f32s(data),
+            coefficients,
         })
     } else {
         if npca != 0 {
@@ -575,6 +649,66 @@ pub fn decode_pack(bytes: &[u8]) -> Result<SpmmMaterial, PackErrorKind> {
         }
     }
     Ok(material)
+}
+
+/// The ragged residual (docs/formats/spmm.md, "Per-cluster N_PCA"): `cluster_npca`
+/// components per cluster, stored one cluster after the other, and per texel its
+/// cluster's count of coefficients; expanded to the padded in-memory layout
+/// [C, npca, L, V, 3] and [T, npca] with zeros, so every reader of a material sees
+/// one layout.
+fn read_ragged_residual(
+    r: &Reader,
+    n_clusters: usize,
+    npca: usize,
+    l: usize,
+    v: usize,
+    texel_cluster: &[u32],
+) -> Result<(Vec<f32>, Vec<f32>), PackErrorKind> {
+    let (_, _, data) = r.view("cluster_npca", &[Dtype::U32], &[Some(n_clusters)])?;
+    let counts = u32s(data);
+    if let Some((c, &n)) = counts.iter().enumerate().find(|(_, n)| **n as usize > npca) {
+        return Err(PackErrorKind::Ragged(format!(
+            "tensor `cluster_npca`[{c}] = {n}: more than the metadata `npca` = {npca}"
+        )));
+    }
+    let total: usize = counts.iter().map(|&n| n as usize).sum();
+    let (dt, _, data) = r.view(
+        "residual_components",
+        &[Dtype::F16, Dtype::F32],
+        &[Some(total), Some(l), Some(v), Some(3)],
+    )?;
+    let stored = table_f32(dt, data);
+    if let Some(i) = stored.iter().position(|x| !x.is_finite()) {
+        return Err(PackErrorKind::Ragged(format!(
+            "tensor `residual_components`[{i}] = {} is not finite",
+            stored[i]
+        )));
+    }
+    let d = l * v * 3;
+    let mut components = vec![0.0f32; n_clusters * npca * d];
+    let mut at = 0;
+    for (c, &n) in counts.iter().enumerate() {
+        let n = n as usize;
+        components[c * npca * d..(c * npca + n) * d].copy_from_slice(&stored[at..at + n * d]);
+        at += n * d;
+    }
+    // Texel clusters are checked against C only when the material is built.
+    let count_of = |t: usize| {
+        counts
+            .get(texel_cluster[t] as usize)
+            .map_or(0, |&n| n as usize)
+    };
+    let expected: usize = (0..texel_cluster.len()).map(count_of).sum();
+    let (_, _, data) = r.view("residual_coefficients", &[Dtype::F32], &[Some(expected)])?;
+    let stored = f32s(data);
+    let mut coefficients = vec![0.0f32; texel_cluster.len() * npca];
+    let mut at = 0;
+    for t in 0..texel_cluster.len() {
+        let n = count_of(t);
+        coefficients[t * npca..t * npca + n].copy_from_slice(&stored[at..at + n]);
+        at += n;
+    }
+    Ok((components, coefficients))
 }
 
 /// The `edited_clusters` metadata: comma-separated cluster indices below `clusters`

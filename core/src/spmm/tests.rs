@@ -816,3 +816,106 @@ mod prepared {
         assert_eq!(fresh.bytes(), eager.bytes());
     }
 }
+
+/// A sample material whose clusters keep 3, 1 and 0 of their 3 components (the rest
+/// zero), as a byte budget leaves them.
+fn ragged_material() -> SpmmMaterial {
+    let m = sample_material(5, 4, 3, Some(3));
+    crate::fit::budget::with_component_counts(&m, &[3, 1, 0]).expect("valid")
+}
+
+#[test]
+fn per_cluster_npca_stores_only_the_kept_components_and_reads_back() {
+    let m = ragged_material();
+    let r = m.residual().expect("residual");
+    assert_eq!(pack::cluster_component_counts(&m), vec![3, 1, 0]);
+    let table = r.light_dirs.len() * r.view_dirs.len() * 3;
+    for precision in [ResidualPrecision::F32, ResidualPrecision::F16] {
+        let bytes = encode_pack(&m, precision);
+        let header = |b: &[u8]| -> serde_json::Value {
+            let n = u64::from_le_bytes(b[..8].try_into().expect("8 bytes")) as usize;
+            serde_json::from_slice(&b[8..8 + n]).expect("JSON header")
+        };
+        let h = header(&bytes);
+        assert_eq!(h["cluster_npca"]["shape"], serde_json::json!([3]));
+        assert_eq!(
+            h["residual_components"]["shape"],
+            serde_json::json!([4, 5, 4, 3])
+        );
+        // Per texel, its cluster's count of coefficients.
+        let coefs: usize = m
+            .texel_cluster()
+            .iter()
+            .map(|&c| [3, 1, 0][c as usize])
+            .sum();
+        assert_eq!(
+            h["residual_coefficients"]["shape"],
+            serde_json::json!([coefs])
+        );
+        let back = decode_pack(&bytes).expect("a valid pack");
+        assert_eq!(encode_pack(&back, precision), bytes, "{precision:?}");
+        if precision == ResidualPrecision::F32 {
+            // Exactly the material: the dropped parts were zero in it too.
+            assert_eq!(back, m);
+        }
+        // The padded layout of the same values would be 5 components' tables larger.
+        let elem = if precision == ResidualPrecision::F16 { 2 } else { 4 };
+        let padded = 9 * table * elem + 3 * m.texel_cluster().len() * 4;
+        let ragged = 4 * table * elem + coefs * 4;
+        let full = encode_pack(&sample_material(5, 4, 3, Some(3)), precision).len();
+        let saved = full - bytes.len();
+        // Less the ragged file's `cluster_npca` (12 bytes and its header entry).
+        assert!(
+            saved <= padded - ragged && saved + 200 >= padded - ragged,
+            "saved {saved} of {}",
+            padded - ragged
+        );
+    }
+    // Evaluation agrees with the padded material everywhere (the zeros add nothing).
+    let back = decode_pack(&encode_pack(&m, ResidualPrecision::F32)).expect("valid");
+    for t in 0..20 {
+        for (wi, wo) in [
+            (DVec3::new(0.3, 0.1, 0.95), DVec3::new(-0.2, 0.4, 0.89)),
+            (DVec3::new(-0.6, 0.2, 0.77), DVec3::new(0.5, -0.5, 0.71)),
+        ] {
+            let (wi, wo) = (wi.normalize(), wo.normalize());
+            assert_eq!(
+                m.eval_texel(t, wi, wo, true, usize::MAX),
+                back.eval_texel(t, wi, wo, true, usize::MAX)
+            );
+        }
+    }
+}
+
+#[test]
+fn per_cluster_npca_faults_are_named() {
+    let good = encode_pack(&ragged_material(), ResidualPrecision::F16);
+    let cases: Vec<(Vec<u8>, &[&str])> = vec![
+        (
+            with_tensor(&good, "cluster_npca", |d| {
+                d[4..8].copy_from_slice(&4u32.to_le_bytes())
+            }),
+            &["cluster_npca`[1] = 4", "npca"],
+        ),
+        (
+            // Counts that no longer match the stored components' shape.
+            with_tensor(&good, "cluster_npca", |d| {
+                d[8..12].copy_from_slice(&1u32.to_le_bytes())
+            }),
+            &["residual_components", "shape"],
+        ),
+        (
+            // A half-float infinity (0x7c00) in a stored component.
+            with_tensor(&good, "residual_components", |d| {
+                d[6..8].copy_from_slice(&0x7c00u16.to_le_bytes())
+            }),
+            &["residual_components`[3]", "not finite"],
+        ),
+    ];
+    for (bytes, needles) in cases {
+        let msg = rejection(&bytes);
+        for n in needles {
+            assert!(msg.contains(n), "`{msg}` lacks `{n}`");
+        }
+    }
+}

@@ -41,6 +41,11 @@ pub struct FitArgs {
     /// Write the report as JSON here as well.
     #[arg(long)]
     report: Option<PathBuf>,
+    /// A byte budget for the pack: --npca becomes each cluster's most, and the
+    /// components kept over all clusters are those that remove the most table error
+    /// until the file reaches the budget (per-cluster N_PCA).
+    #[arg(long)]
+    max_bytes: Option<u64>,
     /// Store the residual tables as f32 (default f16).
     #[arg(long)]
     f32: bool,
@@ -57,11 +62,21 @@ pub fn run(args: &FitArgs) -> Result<(), CliError> {
         npca: args.npca,
         seed: args.seed,
         fit_pairs: args.fit_pairs,
+        max_bytes: args.max_bytes,
+        precision: if args.f32 {
+            ResidualPrecision::F32
+        } else {
+            ResidualPrecision::F16
+        },
         ..FitSettings::default()
     };
+    let budget = args
+        .max_bytes
+        .map(|b| format!(" --max-bytes {b}"))
+        .unwrap_or_default();
     let name = args.name.clone().unwrap_or_else(|| btf.name().to_string());
     let provenance = format!(
-        "meso fit {} --clusters {} --subclusters {} --max-bases {} --npca {} --seed {}",
+        "meso fit {} --clusters {} --subclusters {} --max-bases {} --npca {}{budget} --seed {}",
         file_name(&args.input),
         args.clusters,
         args.subclusters,
@@ -87,7 +102,9 @@ pub fn run(args: &FitArgs) -> Result<(), CliError> {
                 args.output.display()
             )));
         }
-        Err(e @ FitError::Setting { .. }) => return Err(CliError::bad_input(e)),
+        Err(e @ (FitError::Setting { .. } | FitError::Budget(_))) => {
+            return Err(CliError::bad_input(e));
+        }
         Err(e) => return Err(CliError::failure(e)),
     };
     let precision = if args.f32 {

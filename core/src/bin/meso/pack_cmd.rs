@@ -58,6 +58,22 @@ pub enum PackCommand {
     },
     /// Scripted edits: scale weights per basis or cluster, mute, remove or add bases, within a texel mask.
     Edit(Box<crate::pack_edit_cmd::PackEditArgs>),
+    /// Keep, over all clusters, the residual components that remove the most table
+    /// error, as many as fit in a byte budget (per-cluster N_PCA; docs/fitting.md).
+    Trim {
+        file: PathBuf,
+        #[arg(short = 'o', long)]
+        output: PathBuf,
+        /// Largest file size in bytes.
+        #[arg(long, required_unless_present = "npca", conflicts_with = "npca")]
+        max_bytes: Option<u64>,
+        /// Instead: the first N components in every cluster (an even split, what
+        /// `meso fit --npca N` gives), to compare with a budget at equal bytes.
+        #[arg(long)]
+        npca: Option<usize>,
+        #[arg(long)]
+        json: bool,
+    },
     /// Read CSV rows `wix,wiy,wiz,wox,woy,woz` from stdin, print the RGB BTF value of one texel per row.
     Eval {
         file: PathBuf,
@@ -101,6 +117,13 @@ pub fn run(command: PackCommand) -> Result<(), CliError> {
             json,
         } => eval(&file, &texel, !no_residual, npca, bilinear, json),
         PackCommand::Info { file, json } => info(&file, json),
+        PackCommand::Trim {
+            file,
+            output,
+            max_bytes,
+            npca,
+            json,
+        } => trim(&file, &output, max_bytes, npca, json),
         PackCommand::Edit(args) => {
             crate::pack_edit_cmd::run(&args, &std::env::args().collect::<Vec<_>>())
         }
@@ -141,6 +164,76 @@ pub fn run(command: PackCommand) -> Result<(), CliError> {
             Ok(())
         }
     }
+}
+
+fn trim(
+    file: &Path,
+    output: &Path,
+    max_bytes: Option<u64>,
+    npca: Option<usize>,
+    json: bool,
+) -> Result<(), CliError> {
+    use meso_core::fit::budget;
+    let bytes = std::fs::read(file).bad_input_ctx(|| format!("reading `{}`", file.display()))?;
+    let m = pack::decode_pack(&bytes).map_err(|kind| {
+        CliError::bad_input(PackError {
+            path: file.to_path_buf(),
+            kind,
+        })
+    })?;
+    let precision = pack::residual_precision(&bytes);
+    let before: f64 = budget::component_energies(&m).iter().flatten().sum();
+    let (mut t, how) = match (max_bytes, npca) {
+        (Some(b), _) => (
+            budget::trim_to_bytes(&m, b, precision)
+                .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", file.display())))?,
+            format!("--max-bytes {b}"),
+        ),
+        (None, Some(k)) => {
+            if k > m.npca() {
+                return Err(CliError::bad_input(anyhow!(
+                    "--npca {k}: `{}` has {} components per cluster",
+                    file.display(),
+                    m.npca()
+                )));
+            }
+            (
+                budget::keep_first(&m, k, precision)
+                    .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", file.display())))?,
+                format!("--npca {k}"),
+            )
+        }
+        (None, None) => unreachable!("clap requires one of them"),
+    };
+    // Trimming lowers the residual and with it the pack's own maximum, which the
+    // lobe bound's hemisphere check compares against: weights it no longer allows
+    // are lowered to it.
+    let (clamped, lowered) = budget::clamp_to_lobe_bound(&t.material)
+        .map_err(|e| CliError::failure(anyhow!("`{}` ({how}): {e}", file.display())))?;
+    t.material = clamped;
+    t.material
+        .set_provenance(format!("{}; meso pack trim {how}", m.provenance()));
+    let encoded = pack::encode_pack(&t.material, precision);
+    meso_core::atomic::write_bytes_atomic(output, &encoded)
+        .failure_ctx(|| format!("writing `{}`", output.display()))?;
+    if json {
+        return crate::print_json(&json!({
+            "output": output.display().to_string(),
+            "pack_bytes": encoded.len(),
+            "cluster_npca": t.cluster_npca,
+            "dropped_energy": t.dropped_energy,
+            "weights_lowered": lowered,
+            "component_energy": before,
+        }));
+    }
+    let list: Vec<String> = t.cluster_npca.iter().map(usize::to_string).collect();
+    println!(
+        "wrote {} ({} bytes): N_PCA per cluster [{}]; {lowered} weight entries lowered to the lobe bound",
+        output.display(),
+        encoded.len(),
+        list.join(", ")
+    );
+    Ok(())
 }
 
 fn load(file: &Path) -> Result<SpmmMaterial, CliError> {

@@ -152,8 +152,9 @@ fn material_pdf(s: Shading, wi: vec3<f32>, wo: vec3<f32>) -> f32 {
     if kind == MATERIAL_BRDF {
         return brdf_pdf(load_brdf(data[at + 1u]), lo, li);
     }
-    if kind == MATERIAL_SPMM && li.z > 0.0 {
-        return 0.5 * li.z / PI + 0.25 / PI;
+    if kind == MATERIAL_SPMM {
+        let m = data[at + 1u];
+        return spmm_texel_pdf(m, spmm_texel_at(m, s.uv), li, lo);
     }
     if kind == MATERIAL_MERL {
         return merl_pdf(data[at + 1u], lo, li);
@@ -173,10 +174,10 @@ fn material_sample(s: Shading, wo: vec3<f32>, u: vec2<f32>) -> vec4<f32> {
         let lo = vec3<f32>(dot(wo, s.t), dot(wo, s.b), dot(wo, s.n));
         local = merl_sample(data[at + 1u], lo, u);
     } else if kind == MATERIAL_SPMM {
-        let h = hemisphere_sample(true, u);
-        if h.z > 0.0 {
-            local = vec4<f32>(h.xyz, 1.0 / h.w);
-        }
+        // From the texel's bases and a defensive share, as the CPU's `PackSampling::Bases`.
+        let m = data[at + 1u];
+        let lo = vec3<f32>(dot(wo, s.t), dot(wo, s.b), dot(wo, s.n));
+        local = spmm_sample_texel(m, spmm_texel_at(m, s.uv), lo, u);
     }
     return vec4<f32>(s.t * local.x + s.b * local.y + s.n * local.z, local.w);
 }

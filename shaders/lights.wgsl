@@ -105,26 +105,6 @@ fn sample_lights(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f3
     }
 }
 
-// The SPMM's defensive half-cosine, half-uniform mixture, or the cosine hemisphere
-// (core/src/trace/shading.rs, `hemisphere_sample`): the local direction and 1 / pdf.
-fn hemisphere_sample(spmm: bool, u: vec2<f32>) -> vec4<f32> {
-    if spmm {
-        var local: vec3<f32>;
-        if u.x < 0.5 {
-            local = cosine_hemisphere(vec2<f32>(2.0 * u.x, u.y));
-        } else {
-            let z = 1.0 - u.y;
-            let r = sqrt(max(1.0 - z * z, 0.0));
-            let phi = 2.0 * PI * (2.0 * u.x - 1.0);
-            local = vec3<f32>(r * cos(phi), r * sin(phi), z);
-        }
-        let pdf = select(0.0, 0.5 * local.z / PI + 0.25 / PI, local.z > 0.0);
-        return vec4<f32>(local, 1.0 / pdf);
-    }
-    let local = cosine_hemisphere(u);
-    return vec4<f32>(local, PI / local.z);
-}
-
 fn cosine_hemisphere(u: vec2<f32>) -> vec3<f32> {
     let r = sqrt(u.x);
     let phi = 2.0 * PI * u.y;
@@ -136,13 +116,26 @@ fn sample_ambient(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f
     if params.ambient_radius < 0.0 {
         return;
     }
-    let sample = hemisphere_sample(material_kind(s.material) == MATERIAL_SPMM, u);
-    if sample.z <= 0.0 {
-        return;
+    var wi: vec3<f32>;
+    var weight: f32;
+    if material_kind(s.material) == MATERIAL_SPMM {
+        // A pack draws from its texel's bases (and a defensive share), as the CPU.
+        let m = material_sample(s, wo, u);
+        if !(m.w > 0.0) || dot(m.xyz, s.n) <= 0.0 {
+            return;
+        }
+        wi = m.xyz;
+        weight = 1.0 / m.w;
+    } else {
+        let local = cosine_hemisphere(u);
+        if local.z <= 0.0 {
+            return;
+        }
+        wi = s.t * local.x + s.b * local.y + s.n * local.z;
+        weight = PI / local.z;
     }
-    let wi = s.t * sample.x + s.b * sample.y + s.n * sample.z;
     counts.ambient += 1u;
     if !occluded(lift, wi, params.ambient_radius) {
-        add_layer(pixel, LAYER_AMBIENT, throughput * response(s, wi, wo) * sample.w);
+        add_layer(pixel, LAYER_AMBIENT, throughput * response(s, wi, wo) * weight);
     }
 }

@@ -10,8 +10,10 @@ use crate::spmm::directions::DirectionTable;
 
 /// Words of one BRDF record (model + 7 parameters).
 pub(super) const BRDF_WORDS: usize = 8;
-/// Words of one basis function (BRDF record, frame x y z, padding).
+/// Words of one basis function (BRDF record, frame x y z, selection albedo, padding).
 pub(super) const BASIS_WORDS: usize = 20;
+/// The word of a basis record holding its selection albedo (`shaders/spmm.wgsl`).
+const BASIS_ALBEDO: usize = BRDF_WORDS + 9;
 const SPMM_HEADER_WORDS: usize = 16;
 const NO_CLUSTER: u32 = u32::MAX;
 
@@ -126,10 +128,12 @@ impl Words {
         let start = self.words.len();
         // Basis records of every cluster, then per cluster the offset of its first.
         let mut cluster_bases = Vec::with_capacity(p.bases.len());
-        for cluster in p.bases {
+        for (cluster, albedos) in p.bases.iter().zip(p.basis_albedo) {
             cluster_bases.push(self.at());
-            for b in cluster {
-                self.push_basis(b);
+            for (b, &albedo) in cluster.iter().zip(albedos) {
+                let at = self.push_basis(b) as usize;
+                // How often the pack sampler draws this basis (`PreparedSpmm::sample_texel`).
+                self.words[at + BASIS_ALBEDO] = f(albedo);
             }
         }
         let cluster_bases_at = self.push_u32s(cluster_bases);

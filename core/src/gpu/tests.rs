@@ -447,7 +447,7 @@ fn gpu_mode(scene: crate::scene::Scene, size: u32) -> super::GpuSpmmMode {
 
 /// The GPU image after `frames` frames against the CPU's converged one: an error no
 /// larger than the CPU's own after as many frames (independent samples, as the GPU
-/// draws them, and packs sampled by the defensive mixture, as the GPU samples them)
+/// draws them; packs sampled from their bases on both, the CPU's default)
 /// times 1.25 plus a floor of 1% of the image's mean, the same mean within
 /// 2% plus four standard errors of an image mean after `frames` frames (the CPU's own
 /// RMSE over the square root of the pixel count: sharp MERL lobes make rare, large
@@ -472,9 +472,6 @@ fn image_of_scene_agrees_with_the_cpu(
     let mut other = scene.clone();
     other.render.seed += 1;
     let mut cpu = crate::trace::SpmmMode::new(other, size, size).expect("CPU mode");
-    // Packs drawn as the GPU draws them (the defensive mixture), so the noise compared
-    // is the same estimator's.
-    cpu.set_pack_sampling(crate::trace::PackSampling::Defensive);
     run_frames(&mut cpu, frames, |_, _| {});
     let mut gpu = gpu_mode(scene, size);
     let run = run_frames(&mut gpu, frames, |_, _| {});
@@ -991,4 +988,123 @@ fn merl_means() {
             mean(&cpu.image())
         );
     }
+}
+
+/// The pack sampler in WGSL (`spmm_sample_texel`, `spmm_texel_pdf`) against
+/// `PreparedSpmm::sample_texel` / `texel_pdf` (the CPU's `PackSampling::Bases`) on
+/// every texel of a pack of tilted Lambertian, Ward, Ashikhmin-Shirley, Lafortune and
+/// Oren-Nayar bases (one texel's weights zeroed: the defensive mixture alone), on
+/// random and grazing direction pairs. f32 limits: the pdf within 1e-3 relative plus
+/// 1e-6 of its scale (as the BRDF samplers' pdfs); the direction drawn from the same
+/// numbers within 1e-3 per component, drawn or not alike, except on at most 2% of
+/// draws (a number within f32 rounding of a basis's selection interval edge picks the
+/// neighbouring basis; the horizon decides near-grazing draws).
+#[test]
+fn pack_sampling_matches_the_cpus() {
+    use glam::DVec2;
+    let mut material = crate::spmm::tests::sample_material(4, 3, 3, None);
+    // Texel 5 without weight: the sampler falls back to the defensive mixture alone.
+    {
+        let w = material.weights().clone();
+        let mut rgb = w.rgb.clone();
+        for v in &mut rgb[w.offsets[5] as usize..w.offsets[6] as usize] {
+            *v = [0.0; 3];
+        }
+        material = crate::spmm::SpmmMaterial::new(
+            material.name().to_string(),
+            material.provenance().to_string(),
+            material.width(),
+            material.height(),
+            material.clusters().to_vec(),
+            material.texel_cluster().to_vec(),
+            crate::spmm::SparseWeights {
+                offsets: w.offsets.clone(),
+                basis: w.basis.clone(),
+                rgb,
+            },
+            None,
+        )
+        .expect("valid material");
+    }
+    let prepared = material.prepare(&crate::spmm::PrepareRequest {
+        used_clusters: None,
+        residual: false,
+        max_npca: 0,
+    });
+    let mut words = Words::default();
+    let record = words.push_spmm(&prepared, glam::DVec2::ONE);
+    let pairs = direction_pairs(11, 240);
+    let mut cases = Vec::new();
+    let mut reference = Vec::new();
+    let mut s = SampleStream::new(&[12]);
+    for t in 0..12u32 {
+        for &(wi, wo) in &pairs {
+            let case = Case {
+                kind: 8,
+                record,
+                wi,
+                wo,
+                texel: t,
+                residual: false,
+            };
+            cases.push(case);
+            reference.push((t, wi, wo, None));
+            let u = DVec2::new(s.next(), s.next()).as_vec2().as_dvec2();
+            let u = u.min(DVec2::splat(1.0 - 1e-7));
+            cases.push(Case {
+                kind: 9,
+                wi: DVec3::new(u.x, u.y, 0.0),
+                ..case
+            });
+            reference.push((t, wi, wo, Some(u)));
+        }
+    }
+    let got = evaluate(&words.words, &cases);
+    let (mut worst_pdf, mut worst_dir, mut drawn, mut off, mut draws) = (0.0f64, 0.0f64, 0, 0, 0);
+    for (g, &(t, wi, wo, u)) in got.iter().zip(&reference) {
+        let t = t as usize;
+        match u {
+            None => {
+                let c = prepared.texel_pdf(t, wi, wo);
+                let g = g[0];
+                assert!(g.is_finite() && g >= 0.0, "texel {t} pdf at {wi} {wo}: {g}");
+                let e = excess(g, c, 1e-3, 1e-6 * (1.0 + c));
+                assert!(
+                    e <= 1.0,
+                    "texel {t} pdf at wi {wi} wo {wo}: gpu {g}, f64 {c}"
+                );
+                worst_pdf = worst_pdf.max(e);
+            }
+            Some(u) => {
+                draws += 1;
+                let c = prepared.sample_texel(t, wo, u).map(|s| s.0);
+                let gv = DVec3::new(g[0] as f64, g[1] as f64, g[2] as f64);
+                assert!(gv.is_finite(), "texel {t} sample at {wo} {u}: {gv}");
+                match c {
+                    Some(c) if gv != DVec3::ZERO => {
+                        let e = (gv - c).abs().max_element();
+                        if e > 1e-3 {
+                            off += 1;
+                        } else {
+                            worst_dir = worst_dir.max(e);
+                            drawn += 1;
+                        }
+                    }
+                    None if gv == DVec3::ZERO => {}
+                    _ => off += 1,
+                }
+            }
+        }
+    }
+    eprintln!(
+        "pack sampling: pdf worst {worst_pdf:.3} of the tolerance; {draws} draws, {drawn} alike (worst {worst_dir:.2e}), {off} off"
+    );
+    assert!(
+        off * 50 <= draws,
+        "{off} of {draws} draws differ from the CPU's"
+    );
+    assert!(
+        drawn > draws / 2,
+        "most samples are drawn: {drawn} of {draws}"
+    );
 }

@@ -24,7 +24,8 @@ struct Params {
     // Negative: no ambient term.
     ambient_radius: f32,
     materials: u32,
-    pad0: u32,
+    // 1: more lights than the exact path's 16, chosen stochastically (lights.wgsl).
+    stochastic: u32,
     pad1: u32,
     cam_origin: vec4<f32>,
     // w: half the image plane's width at distance 1.
@@ -51,7 +52,6 @@ struct Params {
 const MAX_LAYERS: u32 = 19u;
 const LAYER_BACKGROUND: u32 = 0u;
 const LAYER_AMBIENT: u32 = 1u;
-const LAYER_FIRST_LIGHT: u32 = 3u;
 const AUX_WORDS: u32 = 6u;
 const SHADE_FLOATS: u32 = 16u;
 const MATERIAL_WORDS: u32 = 8u;

@@ -29,9 +29,11 @@ use crate::render::{
 };
 use crate::scene::{Light, Material, RenderSettings, Scene};
 use crate::spmm::PrepareRequest;
+use crate::trace::light_selection::{LightSampling, LightSelection};
 
 const MATERIAL_WORDS: usize = 8;
-const LIGHT_WORDS: usize = 12;
+/// Words of one light record (`shaders/lights.wgsl`).
+const LIGHT_WORDS: usize = 24;
 const AUX_WORDS: usize = 6;
 /// Counter slots of `shaders/integrator.wgsl` (two traversal overflows, then rays;
 /// the last is the environment's, `shaders/environment.wgsl`).
@@ -88,7 +90,9 @@ struct Params {
     background: u32,
     ambient_radius: f32,
     materials: u32,
-    pad: [u32; 2],
+    /// 1: lights chosen stochastically (more than `MANY_LIGHTS`, as the CPU).
+    stochastic: u32,
+    pad: u32,
     cam_origin: [f32; 4],
     cam_forward: [f32; 4],
     cam_right: [f32; 4],
@@ -135,7 +139,9 @@ fn words_size_problem(ctx: &GpuContext, what: &str, words: usize) -> Option<Stri
 struct SceneData {
     words: Words,
     material_table: u32,
+    /// The light table, last in `words`, with room for `light_capacity` lights.
     light_table: u32,
+    light_capacity: usize,
     /// Per material: its SPMM residual is in use (the moving flag changes it).
     residual: Vec<bool>,
 }
@@ -144,28 +150,69 @@ fn f(v: f64) -> u32 {
     (v as f32).to_bits()
 }
 
-fn light_words(light: &Light) -> [u32; LIGHT_WORDS] {
-    let mut w = [0u32; LIGHT_WORDS];
-    let (kind, a, b, c) = match *light {
-        Light::Point { position, .. } => (0, position, DVec3::ZERO, DVec3::ZERO),
-        Light::Area {
-            corner,
-            edge_u,
-            edge_v,
-            ..
-        } => (1, corner, edge_u, edge_v),
-    };
-    w[0] = kind;
-    for (i, v) in [a, b, c].iter().enumerate() {
-        w[1 + 3 * i..4 + 3 * i].copy_from_slice(&[f(v.x), f(v.y), f(v.z)]);
+/// The light table of `shaders/lights.wgsl`, one record per light: kind, position or
+/// corner, edges; the film layer its samples go to and the factor they are multiplied
+/// by (`Layers::light_targets`: one, or its emission in a bounded film's shared layer);
+/// and above `MANY_LIGHTS` the CPU's selection table (`LightSelection`: alias bin,
+/// pmf, 1 / area, the resampling weight's scale, the emitting normal).
+fn light_table(scene: &Scene, layers: &Layers) -> Vec<u32> {
+    let targets = layers.light_targets(scene);
+    let selection = LightSampling::Auto
+        .stochastic(scene.lights.len())
+        .then(|| LightSelection::new(&scene.lights))
+        .flatten();
+    // The scale only matters relative to the other lights' (it cancels in the
+    // estimate): divided by the largest, so f32 holds it whatever the emissions.
+    let max_scale = selection.as_ref().map_or(1.0, |sel| {
+        sel.lights.iter().map(|l| l.w_scale).fold(0.0, f64::max)
+    });
+    let mut table = vec![0u32; scene.lights.len() * LIGHT_WORDS];
+    for (k, (light, rec)) in scene
+        .lights
+        .iter()
+        .zip(table.chunks_exact_mut(LIGHT_WORDS))
+        .enumerate()
+    {
+        let (kind, a, b, c) = match *light {
+            Light::Point { position, .. } => (0, position, DVec3::ZERO, DVec3::ZERO),
+            Light::Area {
+                corner,
+                edge_u,
+                edge_v,
+                ..
+            } => (1, corner, edge_u, edge_v),
+        };
+        rec[0] = kind;
+        for (i, v) in [a, b, c].iter().enumerate() {
+            rec[1 + 3 * i..4 + 3 * i].copy_from_slice(&[f(v.x), f(v.y), f(v.z)]);
+        }
+        rec[10] = targets[k].layer as u32;
+        let factor = targets[k].factor.min(DVec3::splat(f64::from(f32::MAX)));
+        rec[11..14].copy_from_slice(&[f(factor.x), f(factor.y), f(factor.z)]);
+        if let Some(sel) = &selection {
+            let (keep, alias) = sel.table.bins()[k];
+            let l = &sel.lights[k];
+            rec[14] = f(keep);
+            rec[15] = alias;
+            rec[16] = f(sel.table.pmf()[k]);
+            rec[17] = f(l.inv_area);
+            rec[18] = f(l.w_scale / max_scale);
+            rec[19..22].copy_from_slice(&[f(l.normal.x), f(l.normal.y), f(l.normal.z)]);
+        }
     }
-    w
+    table
+}
+
+/// Room for the light table: at least `MANY_LIGHTS`, and a power of two above, so
+/// light edits rewrite it in place and an added light seldom re-uploads the data.
+fn light_capacity(lights: usize) -> usize {
+    lights.max(MANY_LIGHTS).next_power_of_two()
 }
 
 impl SceneData {
-    /// Every material (SPMM packs prepared as the CPU mode prepares them) and a light
-    /// table with room for `MANY_LIGHTS`, so light edits rewrite it in place.
-    fn build(scene: &Scene) -> Self {
+    /// Every material (SPMM packs prepared as the CPU mode prepares them) and the light
+    /// table (`light_table`) with room to grow, so light edits rewrite it in place.
+    fn build(scene: &Scene, layers: &Layers) -> Self {
         let mut words = Words::default();
         let mut table = Vec::with_capacity(scene.materials.len() * MATERIAL_WORDS);
         let mut residual = Vec::with_capacity(scene.materials.len());
@@ -227,19 +274,19 @@ impl SceneData {
         let material_table = words.at();
         words.words.extend_from_slice(&table);
         let light_table = words.at();
+        let light_capacity = light_capacity(scene.lights.len());
+        let lights = self::light_table(scene, layers);
+        words.words.extend_from_slice(&lights);
         words
             .words
-            .resize(words.words.len() + MANY_LIGHTS * LIGHT_WORDS, 0);
-        for (k, l) in scene.lights.iter().take(MANY_LIGHTS).enumerate() {
-            let at = light_table as usize + k * LIGHT_WORDS;
-            words.words[at..at + LIGHT_WORDS].copy_from_slice(&light_words(l));
-        }
+            .resize(light_table as usize + light_capacity * LIGHT_WORDS, 0);
         // BRDF records sit among the SPMM data; count the tables as materials.
         words.bytes.materials += 4 * (words.words.len() - before) as u64;
         Self {
             words,
             material_table,
             light_table,
+            light_capacity,
             residual,
         }
     }
@@ -296,25 +343,15 @@ const SLOTS: [Slot; 9] = [
 ];
 
 impl GpuSpmmMode {
-    /// What this mode cannot render in `scene`, each by name: BTF materials and lights
-    /// beyond the 16 of the exact per-light path (not yet on the device; the CPU mode
-    /// renders them).
+    /// What this mode cannot render in `scene`, each by name: BTF materials (not yet
+    /// on the device; the CPU mode renders them).
     pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
-        let mut parts: Vec<Unrenderable> = scene
+        let parts: Vec<Unrenderable> = scene
             .materials
             .iter()
             .enumerate()
             .filter_map(|(i, m)| Self::unrenderable(scene, i, m))
             .collect();
-        for (index, l) in scene.lights.iter().enumerate().skip(MANY_LIGHTS) {
-            parts.push(Unrenderable::Light {
-                index,
-                kind: match l {
-                    Light::Point { .. } => "point",
-                    Light::Area { .. } => "area",
-                },
-            });
-        }
         Unsupported::check(ModeKind::Spmm, Device::Gpu, parts)
     }
 
@@ -366,7 +403,7 @@ impl GpuSpmmMode {
         stage("bvh", start);
         prepare.report("materials", 0.0)?;
         let start = Instant::now();
-        let scene_data = SceneData::build(&scene);
+        let scene_data = SceneData::build(&scene, &layers);
         if let Some(p) = words_size_problem(&ctx, MATERIAL_WORDS_NAME, scene_data.words.words.len())
         {
             return Err(ModeError::Size(p));
@@ -465,7 +502,7 @@ impl GpuSpmmMode {
             sample_hi: (sample >> 32) as u32,
             max_depth: self.scene.render.max_specular_depth,
             moving: u32::from(self.moving),
-            lights: self.scene.lights.len().min(MANY_LIGHTS) as u32,
+            lights: self.scene.lights.len() as u32,
             light_table: self.scene_data.light_table,
             material_table: self.scene_data.material_table,
             background: environment::escape(&self.scene),
@@ -474,7 +511,8 @@ impl GpuSpmmMode {
                 .ambient
                 .map_or(-1.0, |a| a.radius.min(3.0e38) as f32),
             materials: self.scene.materials.len() as u32,
-            pad: [0; 2],
+            stochastic: u32::from(LightSampling::Auto.stochastic(self.scene.lights.len())),
+            pad: 0,
             cam_origin: v4(cam.position, 0.0),
             cam_forward: v4(forward, half_w),
             cam_right: v4(right, half_h),
@@ -564,7 +602,7 @@ impl GpuSpmmMode {
 
     /// Rebuilds the data words (materials, lights) and rebinds.
     fn reupload_data(&mut self) {
-        self.scene_data = SceneData::build(&self.scene);
+        self.scene_data = SceneData::build(&self.scene, &self.layers);
         self.rebind();
     }
 
@@ -594,17 +632,34 @@ impl GpuSpmmMode {
         self.rebind();
     }
 
-    /// Rewrites the light table in place (light edits keep every other buffer).
-    fn write_lights(&mut self) {
-        let mut table = vec![0u32; MANY_LIGHTS * LIGHT_WORDS];
-        for (k, l) in self.scene.lights.iter().take(MANY_LIGHTS).enumerate() {
-            table[k * LIGHT_WORDS..(k + 1) * LIGHT_WORDS].copy_from_slice(&light_words(l));
-        }
+    /// Rewrites the light table after a light edit: in place while it has room (every
+    /// other buffer kept), else grown at the end of the data words; true if the data
+    /// buffer must be uploaded again (`rebind`).
+    fn write_lights(&mut self) -> bool {
+        let table = light_table(&self.scene, &self.layers);
         let at = self.scene_data.light_table as usize;
-        self.scene_data.words.words[at..at + table.len()].copy_from_slice(&table);
-        self.ctx
-            .queue
-            .write_buffer(&self.res.data, at as u64 * 4, bytemuck::cast_slice(&table));
+        let n = self.scene.lights.len();
+        let grow = n > self.scene_data.light_capacity;
+        if grow {
+            let capacity = light_capacity(n);
+            let words = &mut self.scene_data.words;
+            let before = words.words.len();
+            words.words.resize(at + capacity * LIGHT_WORDS, 0);
+            words.bytes.materials += 4 * (words.words.len() - before) as u64;
+            self.scene_data.light_capacity = capacity;
+        }
+        let words = &mut self.scene_data.words.words;
+        words[at..at + table.len()].copy_from_slice(&table);
+        // Records past the last light: zero (not read; kept clean).
+        words[at + table.len()..].fill(0);
+        if !grow {
+            self.ctx.queue.write_buffer(
+                &self.res.data,
+                at as u64 * 4,
+                bytemuck::cast_slice(&words[at..]),
+            );
+        }
+        grow
     }
 
     /// `Some` if the scene after `edit` would hold something this mode cannot render.
@@ -614,15 +669,6 @@ impl GpuSpmmMode {
                 Self::unrenderable(&self.scene, *index, material)
                     .into_iter()
                     .collect()
-            }
-            SceneEdit::AddLight(l) if self.scene.lights.len() >= MANY_LIGHTS => {
-                vec![Unrenderable::Light {
-                    index: self.scene.lights.len(),
-                    kind: match l {
-                        Light::Point { .. } => "point",
-                        Light::Area { .. } => "area",
-                    },
-                }]
             }
             _ => Vec::new(),
         };
@@ -811,7 +857,13 @@ impl RenderMode for GpuSpmmMode {
         }
         if let SceneEdit::AddLight(_) = edit {
             let (w, h) = (self.film.width(), self.film.height());
-            if let Some(p) = device_size_problem(&self.ctx, w, h, self.film.layers() + 1) {
+            let layers = crate::render::layers::FIRST_LIGHT + self.scene.lights.len() + 1;
+            let layers = if self.scene.lights.len() < MANY_LIGHTS {
+                layers
+            } else {
+                crate::render::layers::SHARED_LIGHTS + 1
+            };
+            if let Some(p) = device_size_problem(&self.ctx, w, h, layers) {
                 return Err(EditError::Size(p));
             }
         }
@@ -826,12 +878,10 @@ impl RenderMode for GpuSpmmMode {
             .layers
             .apply(&mut self.film, &before, &edit, &self.scene)
         {
-            if matches!(
+            let grown = matches!(
                 edit,
                 SceneEdit::Light { .. } | SceneEdit::AddLight(_) | SceneEdit::RemoveLight(_)
-            ) {
-                self.write_lights();
-            }
+            ) && self.write_lights();
             match &edit {
                 // A new map, rotation or sampling changes the tables; a strength
                 // edit (nothing invalidated) only re-weights the layer.
@@ -839,8 +889,9 @@ impl RenderMode for GpuSpmmMode {
                     self.reupload_environment(true);
                 }
                 SceneEdit::Background(_) => self.reupload_environment(false),
-                _ if self.film.layers() != layer_count => {
-                    // A light added or removed: the device's frame buffer follows.
+                _ if self.film.layers() != layer_count || grown => {
+                    // A light added or removed: the device's frame buffer follows, or
+                    // the light table outgrew its room.
                     self.rebind();
                 }
                 _ => {}

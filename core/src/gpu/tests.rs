@@ -459,9 +459,22 @@ fn image_agrees_with_the_cpu(scene_file: &str, size: u32, frames: u32) {
 
 fn image_of_scene_agrees_with_the_cpu(
     scene_file: &str,
+    scene: crate::scene::Scene,
+    size: u32,
+    frames: u32,
+) {
+    mode_agrees_with_the_cpu(scene_file, scene, size, frames, None);
+}
+
+/// The rule above for `gpu` (a fresh mode of `scene` if `None`) after `frames` more
+/// frames: a mode with a history (edits that kept some layers' samples) has at least
+/// as many samples per layer as a fresh one.
+fn mode_agrees_with_the_cpu(
+    scene_file: &str,
     mut scene: crate::scene::Scene,
     size: u32,
     frames: u32,
+    gpu: Option<super::GpuSpmmMode>,
 ) {
     use crate::render::{RenderMode, run_frames};
     scene.render.sampler = crate::rng::Sampler::Independent;
@@ -473,7 +486,7 @@ fn image_of_scene_agrees_with_the_cpu(
     other.render.seed += 1;
     let mut cpu = crate::trace::SpmmMode::new(other, size, size).expect("CPU mode");
     run_frames(&mut cpu, frames, |_, _| {});
-    let mut gpu = gpu_mode(scene, size);
+    let mut gpu = gpu.unwrap_or_else(|| gpu_mode(scene, size));
     let run = run_frames(&mut gpu, frames, |_, _| {});
     let image = gpu.image();
     assert!(
@@ -597,25 +610,36 @@ fn a_background_image_and_map_sampling_alone_agree_with_the_cpu() {
 #[test]
 fn unsupported_parts_are_named() {
     use crate::render::{RenderMode, SceneEdit, Unrenderable};
-    let mut many = test_scene("cornell.toml");
-    let light = many.lights[0];
-    many.lights = vec![light; 17];
-    let err = super::GpuSpmmMode::supports(&many).expect_err("17 lights");
-    assert_eq!(
-        err.parts,
-        vec![Unrenderable::Light {
-            index: 16,
-            kind: "area"
-        }],
+    let mut scene = test_scene("cornell.toml");
+    let btf = crate::scene::test_scenes::tabulated_btf(
+        &AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
+        DVec3::splat(0.5),
+        glam::DVec2::ONE,
+    );
+    let mut with_btf = scene.clone();
+    with_btf.materials[0] = btf.clone();
+    let err = super::GpuSpmmMode::supports(&with_btf).expect_err("a BTF material");
+    assert!(
+        matches!(&err.parts[..], [Unrenderable::Material { index: 0, kind, .. }] if *kind == "btf"),
         "{err}"
     );
-    many.lights.truncate(16);
-    let mut gpu = gpu_mode(many, 8);
+    // Lights beyond 16 are rendered (the CPU's stochastic path), and an edit that
+    // would bring a BTF is refused by name, leaving the scene as it was.
+    let light = scene.lights[0];
+    scene.lights = vec![light; 17];
+    super::GpuSpmmMode::supports(&scene).expect("17 lights");
+    let mut gpu = gpu_mode(scene, 8);
     let err = gpu
-        .apply(SceneEdit::AddLight(light))
-        .expect_err("a 17th light refused");
-    assert!(err.to_string().contains("light[16] (area)"), "{err}");
-    assert_eq!(gpu.scene().lights.len(), 16);
+        .apply(SceneEdit::Material {
+            index: 0,
+            material: btf,
+        })
+        .expect_err("a BTF refused");
+    assert!(err.to_string().contains("btf"), "{err}");
+    assert!(!matches!(
+        gpu.scene().materials[0],
+        crate::scene::Material::Btf { .. }
+    ));
 }
 
 /// The code-built edit scene: an SPMM panel with a PCA residual under an area and a
@@ -1107,4 +1131,85 @@ fn pack_sampling_matches_the_cpus() {
         drawn > draws / 2,
         "most samples are drawn: {drawn} of {draws}"
     );
+}
+
+/// More than 16 lights (40: point lights, one-sided area lights facing both ways, a
+/// black one): the CPU's bounded film (two own layers and a shared one) and its
+/// stochastic selection, on the GPU; the image rule above.
+#[test]
+fn forty_lights_on_the_gpu_agree_with_the_cpu() {
+    let scene = crate::scene::test_scenes::many_lights_scene(40);
+    image_of_scene_agrees_with_the_cpu("40 lights", scene, 24, 16);
+}
+
+/// Light edits among 40 lights invalidate on the GPU exactly as on the CPU (a shared
+/// light's colour promotes it to an own layer, a colour edit of an own light keeps
+/// everything, a move restarts its layer, added and removed lights, back to 16 lights
+/// and one layer each), the sample counts follow, and the edited mode's image then
+/// agrees with the CPU's for the edited scene.
+#[test]
+fn light_edits_among_many_lights_invalidate_as_on_the_cpu() {
+    use crate::render::{RenderMode, SceneEdit, run_frames};
+    let mut scene = crate::scene::test_scenes::many_lights_scene(40);
+    scene.render.sampler = crate::rng::Sampler::Independent;
+    let size = 24;
+    let mut cpu = crate::trace::SpmmMode::new(scene.clone(), size, size).expect("CPU mode");
+    let mut gpu = gpu_mode(scene.clone(), size);
+    run_frames(&mut cpu, 2, |_, _| {});
+    run_frames(&mut gpu, 2, |_, _| {});
+    let own = |m: &crate::trace::SpmmMode| m.light_layers().light_targets(m.scene());
+    let targets = own(&cpu);
+    let shared = (0..40)
+        .find(|&k| targets[k].layer == crate::render::layers::SHARED_LIGHTS)
+        .expect("a shared light");
+    let mut brighter = scene.lights[shared];
+    brighter = brighter.with_emission(brighter.emission() * 3.0);
+    let moved = match brighter {
+        crate::scene::Light::Point {
+            position,
+            intensity,
+        } => crate::scene::Light::Point {
+            position: position + DVec3::new(0.1, 0.0, 0.0),
+            intensity,
+        },
+        l => l,
+    };
+    let mut edits = vec![
+        SceneEdit::Light {
+            index: shared,
+            light: brighter,
+        },
+        SceneEdit::Light {
+            index: shared,
+            light: brighter.with_emission(brighter.emission() * 0.5),
+        },
+        SceneEdit::Light {
+            index: shared,
+            light: moved,
+        },
+        SceneEdit::AddLight(scene.lights[9]),
+        SceneEdit::RemoveLight(3),
+    ];
+    // Down to 16 lights: the film lays its light layers out again, one per light.
+    edits.extend((0..24).map(|_| SceneEdit::RemoveLight(0)));
+    for edit in edits {
+        let what = format!("{edit:?}");
+        let a = cpu.apply(edit.clone()).expect("CPU edit");
+        let b = gpu.apply(edit).expect("GPU edit");
+        assert_eq!(a, b, "{what}");
+        run_frames(&mut cpu, 1, |_, _| {});
+        run_frames(&mut gpu, 1, |_, _| {});
+        assert_eq!(cpu.film().layers(), gpu.film().layers(), "{what}");
+        assert_eq!(
+            cpu.progress().min_samples,
+            gpu.progress().min_samples,
+            "{what}"
+        );
+    }
+    assert_eq!(gpu.scene().lights.len(), 16);
+    // Back above 16, then the image of the edited scene.
+    let extra = gpu.scene().lights[0];
+    gpu.apply(SceneEdit::AddLight(extra)).expect("a 17th light");
+    let edited = gpu.scene().clone();
+    mode_agrees_with_the_cpu("40 lights, edited", edited, size, 16, Some(gpu));
 }

@@ -123,12 +123,24 @@ impl Words {
     }
 
     /// A prepared SPMM material with its texture tiling; returns its header's offset.
-    pub fn push_spmm(&mut self, prepared: &PreparedSpmm, uv_scale: glam::DVec2) -> u32 {
+    /// `used` (per cluster; `None`: all) leaves out the bases of clusters no ray can
+    /// reach (`reach.rs`); the residual tables of those were left out by the
+    /// preparation.
+    pub fn push_spmm(
+        &mut self,
+        prepared: &PreparedSpmm,
+        uv_scale: glam::DVec2,
+        used: Option<&[bool]>,
+    ) -> u32 {
         let p = prepared.parts();
         let start = self.words.len();
-        // Basis records of every cluster, then per cluster the offset of its first.
+        // Basis records of every used cluster, then per cluster the offset of its first.
         let mut cluster_bases = Vec::with_capacity(p.bases.len());
-        for (cluster, albedos) in p.bases.iter().zip(p.basis_albedo) {
+        for (c, (cluster, albedos)) in p.bases.iter().zip(p.basis_albedo).enumerate() {
+            if used.is_some_and(|u| !u.get(c).copied().unwrap_or(false)) {
+                cluster_bases.push(NO_CLUSTER);
+                continue;
+            }
             cluster_bases.push(self.at());
             for (b, &albedo) in cluster.iter().zip(albedos) {
                 let at = self.push_basis(b) as usize;

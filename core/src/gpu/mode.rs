@@ -14,6 +14,7 @@ use super::data::{DataBytes, Words};
 use super::environment;
 use super::geometry::GeometryBuffers;
 use super::kernel::{self, Kernel, Slot};
+use super::reach::{Reach, reachable_clusters};
 use super::shaders;
 use super::{GpuContext, GpuError};
 use crate::environment::EnvironmentSampler;
@@ -144,6 +145,8 @@ struct SceneData {
     light_capacity: usize,
     /// Per material: its SPMM residual is in use (the moving flag changes it).
     residual: Vec<bool>,
+    /// Per SPMM material, the clusters uploaded (`reach::reachable_clusters`).
+    reach: Reach,
 }
 
 fn f(v: f64) -> u32 {
@@ -210,14 +213,28 @@ fn light_capacity(lights: usize) -> usize {
 }
 
 impl SceneData {
-    /// Every material (SPMM packs prepared as the CPU mode prepares them) and the light
-    /// table (`light_table`) with room to grow, so light edits rewrite it in place.
-    fn build(scene: &Scene, layers: &Layers) -> Self {
+    /// Every material (SPMM packs prepared as the CPU mode prepares them, only the
+    /// clusters the scene can reach unless `all_clusters`; a pack no mesh carries not
+    /// at all) and the light table (`light_table`) with room to grow, so light edits
+    /// rewrite it in place.
+    fn build(scene: &Scene, layers: &Layers, all_clusters: bool) -> Self {
+        let reach = if all_clusters {
+            scene
+                .materials
+                .iter()
+                .map(|m| match m {
+                    Material::Spmm { material, .. } => Some(vec![true; material.clusters().len()]),
+                    _ => None,
+                })
+                .collect()
+        } else {
+            reachable_clusters(scene)
+        };
         let mut words = Words::default();
         let mut table = Vec::with_capacity(scene.materials.len() * MATERIAL_WORDS);
         let mut residual = Vec::with_capacity(scene.materials.len());
         let mut merl: Vec<(*const crate::merl::MerlBrdf, u32)> = Vec::new();
-        for m in &scene.materials {
+        for (i, m) in scene.materials.iter().enumerate() {
             let mut rec = [0u32; MATERIAL_WORDS];
             let mut uses_residual = false;
             match m {
@@ -232,14 +249,22 @@ impl SceneData {
                     residual: wanted,
                     npca,
                 } => {
+                    let used = reach[i].clone().unwrap_or_default();
+                    if !used.contains(&true) {
+                        // No ray can shade it: nothing uploaded, a record of no kind.
+                        rec[0] = u32::MAX;
+                        table.extend_from_slice(&rec);
+                        residual.push(false);
+                        continue;
+                    }
                     let prepared = material.prepare(&PrepareRequest {
-                        used_clusters: None,
+                        used_clusters: Some(used.clone()),
                         residual: *wanted,
                         max_npca: *npca,
                     });
                     uses_residual = *wanted && prepared.has_residual();
                     rec[0] = 1;
-                    rec[1] = words.push_spmm(&prepared, *uv_scale);
+                    rec[1] = words.push_spmm(&prepared, *uv_scale, Some(&used));
                     rec[2] = u32::from(uses_residual);
                 }
                 Material::Mirror { reflectance } => {
@@ -288,6 +313,7 @@ impl SceneData {
             light_table,
             light_capacity,
             residual,
+            reach,
         }
     }
 }
@@ -328,6 +354,8 @@ pub struct GpuSpmmMode {
     overflows: [u64; 2],
     /// Set once the device fails: the mode renders nothing more.
     failure: Option<GpuError>,
+    /// Every cluster of every pack on the device, not just the reachable ones.
+    all_clusters: bool,
 }
 
 const SLOTS: [Slot; 9] = [
@@ -376,6 +404,18 @@ impl GpuSpmmMode {
         height: u32,
         prepare: Prepare,
     ) -> Result<Self, ModeError> {
+        Self::prepare_uploading(ctx, scene, (width, height), prepare, false)
+    }
+
+    /// `prepare`, with every cluster of every pack uploaded when `all_clusters` (the
+    /// tests' reference for the reachable set).
+    pub(super) fn prepare_uploading(
+        ctx: GpuContext,
+        scene: Scene,
+        (width, height): (u32, u32),
+        prepare: Prepare,
+        all_clusters: bool,
+    ) -> Result<Self, ModeError> {
         if let Some(p) = RenderSettings::size_problem(width, height) {
             return Err(ModeError::Size(p));
         }
@@ -403,7 +443,7 @@ impl GpuSpmmMode {
         stage("bvh", start);
         prepare.report("materials", 0.0)?;
         let start = Instant::now();
-        let scene_data = SceneData::build(&scene, &layers);
+        let scene_data = SceneData::build(&scene, &layers, all_clusters);
         if let Some(p) = words_size_problem(&ctx, MATERIAL_WORDS_NAME, scene_data.words.words.len())
         {
             return Err(ModeError::Size(p));
@@ -455,6 +495,7 @@ impl GpuSpmmMode {
             preparation: report,
             overflows: [0; 2],
             failure: None,
+            all_clusters,
         })
     }
 
@@ -600,10 +641,27 @@ impl GpuSpmmMode {
         Invalidation::All
     }
 
-    /// Rebuilds the data words (materials, lights) and rebinds.
-    fn reupload_data(&mut self) {
-        self.scene_data = SceneData::build(&self.scene, &self.layers);
-        self.rebind();
+    /// The data words (materials, lights) of the scene as it is, or why they would
+    /// not fit in one buffer of the device.
+    fn rebuild_data(&self) -> Result<SceneData, EditError> {
+        let data = SceneData::build(&self.scene, &self.layers, self.all_clusters);
+        match words_size_problem(&self.ctx, MATERIAL_WORDS_NAME, data.words.words.len()) {
+            Some(p) => Err(EditError::Size(p)),
+            None => Ok(data),
+        }
+    }
+
+    /// A device whose buffers are limited to `bytes` (the tests' way to meet the
+    /// limit without allocating it).
+    #[cfg(test)]
+    pub(super) fn limit_buffers(&mut self, bytes: u64) {
+        self.ctx = self.ctx.with_buffer_limit(bytes);
+    }
+
+    /// The bytes of the data words now on the device.
+    #[cfg(test)]
+    pub(super) fn data_words_bytes(&self) -> u64 {
+        self.scene_data.words.words.len() as u64 * 4
     }
 
     fn rebind(&mut self) {
@@ -872,6 +930,7 @@ impl RenderMode for GpuSpmmMode {
             SceneEdit::Material { index, .. } => self.scene.materials.get(*index).cloned(),
             _ => None,
         };
+        let meshes_before = matches!(edit, SceneEdit::Meshes(_)).then(|| self.scene.meshes.clone());
         let layer_count = self.film.layers();
         edit.apply_to(&mut self.scene)?;
         if let Some(invalidation) = self
@@ -906,12 +965,32 @@ impl RenderMode for GpuSpmmMode {
                 self.restart_all()
             }
             SceneEdit::Meshes(_) => {
+                // New UVs or material assignments may reach other clusters.
+                if reachable_clusters(&self.scene) != self.scene_data.reach && !self.all_clusters {
+                    match self.rebuild_data() {
+                        Ok(data) => self.scene_data = data,
+                        Err(e) => {
+                            self.scene.meshes = meshes_before.expect("taken for a mesh edit");
+                            return Err(e);
+                        }
+                    }
+                }
                 self.bvh.update(&self.scene.meshes);
                 self.rebind();
                 self.restart_all()
             }
             SceneEdit::Material { index, .. } => {
-                self.reupload_data();
+                // The re-upload is checked against the device's limit first; the
+                // material stays as it was if it would not fit.
+                match self.rebuild_data() {
+                    Ok(data) => self.scene_data = data,
+                    Err(e) => {
+                        self.scene.materials[index] =
+                            material_before.clone().expect("taken for a material edit");
+                        return Err(e);
+                    }
+                }
+                self.rebind();
                 let after = &self.scene.materials[index];
                 let bit = material_bit(index);
                 Invalidation::Pixels(

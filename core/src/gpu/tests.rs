@@ -265,7 +265,7 @@ fn basis_functions_and_spmm_texels_match_the_f64_reference() {
             max_npca: usize::MAX,
         });
         assert_eq!(prepared.has_residual(), residual);
-        let record = words.push_spmm(&prepared, glam::DVec2::ONE);
+        let record = words.push_spmm(&prepared, glam::DVec2::ONE, None);
         for t in 0..12u32 {
             for &(wi, wo) in pairs.iter().step_by(4) {
                 cases.push(Case {
@@ -1056,7 +1056,7 @@ fn pack_sampling_matches_the_cpus() {
         max_npca: 0,
     });
     let mut words = Words::default();
-    let record = words.push_spmm(&prepared, glam::DVec2::ONE);
+    let record = words.push_spmm(&prepared, glam::DVec2::ONE, None);
     let pairs = direction_pairs(11, 240);
     let mut cases = Vec::new();
     let mut reference = Vec::new();
@@ -1212,4 +1212,117 @@ fn light_edits_among_many_lights_invalidate_as_on_the_cpu() {
     gpu.apply(SceneEdit::AddLight(extra)).expect("a 17th light");
     let edited = gpu.scene().clone();
     mode_agrees_with_the_cpu("40 lights, edited", edited, size, 16, Some(gpu));
+}
+
+/// Only the clusters the scene can reach go up: a panel whose UVs cover part of its
+/// texture (one cluster of two) uploads fewer basis and residual bytes than a full
+/// upload and renders the same image bit for bit; a mesh edit that widens the UVs to
+/// the whole texture uploads the rest and again renders as a full upload; a pack no
+/// mesh carries uploads nothing.
+#[test]
+fn a_scene_reaching_part_of_a_pack_uploads_less_and_renders_the_same() {
+    use crate::render::{Prepare, RenderMode, SceneEdit, run_frames};
+    let scene = super::reach::tests::partial_panel_scene();
+    let size = 24;
+    let make = |scene: &crate::scene::Scene, all| {
+        super::GpuSpmmMode::prepare_uploading(
+            context().clone(),
+            scene.clone(),
+            (size, size),
+            Prepare::quietly(),
+            all,
+        )
+        .expect("the GPU mode renders the scene")
+    };
+    let (mut partial, mut full) = (make(&scene, false), make(&scene, true));
+    let (p, f) = (partial.device_bytes(), full.device_bytes());
+    eprintln!("partial {p:?}\nfull {f:?}");
+    assert!(
+        p.residual_tables < f.residual_tables && p.spmm_bases < f.spmm_bases,
+        "{p:?} against {f:?}"
+    );
+    run_frames(&mut partial, 3, |_, _| {});
+    run_frames(&mut full, 3, |_, _| {});
+    assert!(
+        partial.image().pixels() == full.image().pixels(),
+        "the images differ"
+    );
+    assert_eq!(partial.overflows(), (0, 0));
+
+    // The panel's UVs over the whole texture: the edit uploads the other cluster.
+    let mut meshes = scene.meshes.clone();
+    for m in meshes.iter_mut().filter(|m| m.material == 1) {
+        for uv in &mut m.uvs {
+            *uv = (*uv - glam::DVec2::new(0.33, 0.15)) / glam::DVec2::new(0.06, 0.1);
+        }
+    }
+    partial
+        .apply(SceneEdit::Meshes(meshes))
+        .expect("a mesh edit");
+    assert_eq!(partial.device_bytes().residual_tables, f.residual_tables);
+    let mut reference = make(partial.scene(), true);
+    run_frames(&mut partial, 3, |_, _| {});
+    run_frames(&mut reference, 3, |_, _| {});
+    assert!(
+        partial.image().pixels() == reference.image().pixels(),
+        "the images differ after the edit"
+    );
+
+    let mut bare = scene.clone();
+    bare.meshes.retain(|m| m.material != 1);
+    let b = make(&bare, false).device_bytes();
+    assert_eq!(
+        (b.spmm_bases, b.spmm_weights, b.residual_tables),
+        (0, 0, 0),
+        "{b:?}"
+    );
+}
+
+/// A material edit whose data would pass the adapter's buffer limit is refused with
+/// the limit's message (bytes and adapter), not a device failure, and leaves the
+/// material and the film as they were.
+#[test]
+fn a_material_edit_past_the_buffer_limit_is_refused_by_size() {
+    use crate::render::{EditError, RenderMode, SceneEdit, run_frames};
+    let scene = super::reach::tests::partial_panel_scene();
+    let mut gpu = gpu_mode(scene.clone(), 8);
+    run_frames(&mut gpu, 2, |_, _| {});
+    gpu.limit_buffers(gpu.data_words_bytes() + 64);
+    let crate::scene::Material::Spmm {
+        material,
+        residual,
+        npca,
+        ..
+    } = &scene.materials[1]
+    else {
+        panic!("the panel is a pack");
+    };
+    // A finer tiling reaches every cluster: more residual tables than the limit.
+    let finer = crate::scene::Material::Spmm {
+        material: material.clone(),
+        uv_scale: glam::DVec2::splat(40.0),
+        residual: *residual,
+        npca: *npca,
+    };
+    let err = gpu
+        .apply(SceneEdit::Material {
+            index: 1,
+            material: finer,
+        })
+        .expect_err("past the limit");
+    let EditError::Size(message) = &err else {
+        panic!("not a size error: {err}");
+    };
+    assert!(
+        message.contains("byte") && message.contains(&context().adapter_name()),
+        "{message}"
+    );
+    assert!(matches!(
+        gpu.scene().materials[1],
+        crate::scene::Material::Spmm { uv_scale, .. } if uv_scale == glam::DVec2::splat(2.0)
+    ));
+    assert_eq!(gpu.progress().min_samples, 2);
+    run_frames(&mut gpu, 1, |_, _| {});
+    assert!(gpu.failure().is_none());
+    assert_eq!(gpu.progress().min_samples, 3);
 }

@@ -68,32 +68,9 @@ fn background_radiance(d: vec3<f32>) -> vec3<f32> {
     return env_rgb(env[BG_RGB] + p * 3u);
 }
 
-struct Pick {
-    index: u32,
-    t: f32,
-}
-
-// `sampler::pick`: the first interval of the CDF at `at` (n + 1 entries) whose upper
-// end exceeds `u`, and `u` remapped into it.
-fn pick(at: u32, n: u32, u: f32) -> Pick {
-    var lo = 0u;
-    var hi = n;
-    for (var k = 0u; k < CDF_STEPS && lo < hi; k++) {
-        let mid = lo + (hi - lo) / 2u;
-        if env_f(at + 1u + mid) <= u {
-            lo = mid + 1u;
-        } else {
-            hi = mid;
-        }
-    }
-    let i = min(lo, n - 1u);
-    let c0 = env_f(at + i);
-    let width = env_f(at + i + 1u) - c0;
-    var t = 0.5;
-    if width > 0.0 {
-        t = clamp((u - c0) / width, 0.0, 0.99999994);
-    }
-    return Pick(i, t);
+// `sampler::pick` (cdf.wgsl).
+fn pick(at: u32, n: u32, u: f32) -> CdfPick {
+    return cdf_pick(CDF_IN_ENV, at, n, u, CDF_STEPS, 0.99999994);
 }
 
 struct EnvSample {

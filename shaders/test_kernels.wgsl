@@ -13,6 +13,8 @@
 @group(0) @binding(3) var<storage, read> nodes: array<u32>;
 @group(0) @binding(4) var<storage, read> tris: array<u32>;
 @group(0) @binding(5) var<storage, read_write> counters: array<atomic<u32>>;
+// Unused by the kernels; cdf.wgsl names it.
+@group(0) @binding(6) var<storage, read> env: array<u32>;
 
 const CASE_WORDS: u32 = 10u;
 

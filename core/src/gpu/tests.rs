@@ -56,16 +56,18 @@ fn test_module() -> String {
         shaders::BRDF,
         shaders::SPMM,
         shaders::MERL,
+        shaders::CDF,
     ])
 }
 
-const TEST_SLOTS: [Slot; 6] = [
+const TEST_SLOTS: [Slot; 7] = [
     Slot::Read,
     Slot::Read,
     Slot::ReadWrite,
     Slot::Read,
     Slot::Read,
     Slot::ReadWrite,
+    Slot::Read,
 ];
 
 /// Runs `eval_cases` over `cases` with `data`; RGB per case.
@@ -87,7 +89,9 @@ fn evaluate(data: &[u32], cases: &[Case]) -> Vec<[f32; 3]> {
     let counters = zeroed(ctx, "counters", 16);
     let bind = kernel.bind(
         ctx,
-        &[&data_buf, &case_buf, &out, &empty, &empty, &counters],
+        &[
+            &data_buf, &case_buf, &out, &empty, &empty, &counters, &empty,
+        ],
     );
     let mut enc = encoder(ctx);
     kernel.record(&mut enc, &bind, cases.len() as u32);
@@ -348,6 +352,7 @@ fn primary_hits_match(scene_file: &str, size: u32) {
             &geometry.nodes,
             &geometry.tris,
             &counters,
+            &data,
         ],
     );
     let mut enc = encoder(ctx);

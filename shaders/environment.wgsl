@@ -136,6 +136,10 @@ fn material_pdf(s: Shading, wi: vec3<f32>, wo: vec3<f32>) -> f32 {
     if kind == MATERIAL_MERL {
         return merl_pdf(data[at + 1u], lo, li);
     }
+    if kind == MATERIAL_BTF {
+        // A table is drawn from by the defensive mixture alone, as on the CPU.
+        return defensive_pdf(li);
+    }
     return 0.0;
 }
 
@@ -155,6 +159,11 @@ fn material_sample(s: Shading, wo: vec3<f32>, u: vec2<f32>) -> vec4<f32> {
         let m = data[at + 1u];
         let lo = vec3<f32>(dot(wo, s.t), dot(wo, s.b), dot(wo, s.n));
         local = spmm_sample_texel(m, spmm_texel_at(m, s.uv), lo, u);
+    } else if kind == MATERIAL_BTF {
+        let d = defensive_sample(u);
+        if d.z > 0.0 {
+            local = vec4<f32>(d, defensive_pdf(d));
+        }
     }
     return vec4<f32>(s.t * local.x + s.b * local.y + s.n * local.z, local.w);
 }

@@ -59,6 +59,7 @@ const MATERIAL_BRDF: u32 = 0u;
 const MATERIAL_SPMM: u32 = 1u;
 const MATERIAL_MIRROR: u32 = 2u;
 const MATERIAL_MERL: u32 = 3u;
+const MATERIAL_BTF: u32 = 4u;
 // Counter slots after the traversal's two.
 const COUNT_PRIMARY: u32 = 2u;
 const COUNT_SHADOW: u32 = 3u;
@@ -206,6 +207,10 @@ fn response(s: Shading, wi: vec3<f32>, wo: vec3<f32>) -> vec3<f32> {
     }
     if kind == MATERIAL_MERL {
         return rgb_at(at + 4u) * merl_eval(data[at + 1u], li, lo) * max(li.z, 0.0);
+    }
+    if kind == MATERIAL_BTF {
+        let m = data[at + 1u];
+        return btf_eval_texel(m, btf_texel_at(m, s.uv), li, lo);
     }
     return vec3<f32>(0.0);
 }

@@ -205,8 +205,10 @@ fn sample_ambient(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f
     }
     var wi: vec3<f32>;
     var weight: f32;
-    if material_kind(s.material) == MATERIAL_SPMM {
-        // A pack draws from its texel's bases (and a defensive share), as the CPU.
+    let kind = material_kind(s.material);
+    if kind == MATERIAL_SPMM || kind == MATERIAL_BTF {
+        // A pack draws from its texel's bases (and a defensive share), a table from
+        // the defensive mixture, as the CPU.
         let m = material_sample(s, wo, u);
         if !(m.w > 0.0) || dot(m.xyz, s.n) <= 0.0 {
             return;

@@ -150,10 +150,15 @@ fn spmm_eval_texel(m: u32, t: u32, wi: vec3<f32>, wo: vec3<f32>, residual: bool)
 
 // The row-major texel a UV position falls in (nearest, tiled by the material's scale).
 fn spmm_texel_at(m: u32, uv: vec2<f32>) -> u32 {
-    let w = data[m + SPMM_WIDTH];
-    let h = data[m + SPMM_HEIGHT];
-    let su = uv.x * f32_at(m + SPMM_UV_SCALE_X);
-    let sv = uv.y * f32_at(m + SPMM_UV_SCALE_Y);
+    let scale = vec2<f32>(f32_at(m + SPMM_UV_SCALE_X), f32_at(m + SPMM_UV_SCALE_Y));
+    return texel_in_grid(data[m + SPMM_WIDTH], data[m + SPMM_HEIGHT], scale, uv);
+}
+
+// `TexelGrid::nearest`: the row-major texel of a `w` x `h` grid tiled by `scale` that
+// `uv` falls in (u right, v up, row 0 the top, wrapping); SPMM packs and BTFs alike.
+fn texel_in_grid(w: u32, h: u32, scale: vec2<f32>, uv: vec2<f32>) -> u32 {
+    let su = uv.x * scale.x;
+    let sv = uv.y * scale.y;
     let u = su - floor(su);
     let v = sv - floor(sv);
     let x = u32(clamp(i32(floor(u * f32(w))), 0, i32(w) - 1));

@@ -26,7 +26,7 @@ use crate::render::reach::EditedTexels;
 use crate::render::{
     Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind,
     PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit,
-    Unrenderable, Unsupported,
+    Unsupported,
 };
 use crate::scene::{Light, Material, RenderSettings, Scene};
 use crate::spmm::PrepareRequest;
@@ -55,6 +55,8 @@ pub struct DeviceBytes {
     pub environment: u64,
     /// MERL tables and their sampling tables.
     pub merl_tables: u64,
+    /// `btf` materials' values and direction tables.
+    pub btf_tables: u64,
     /// One sample's layers and per-pixel masks (the f64 film itself is on the host).
     pub film: u64,
 }
@@ -69,6 +71,7 @@ impl DeviceBytes {
             + self.materials
             + self.environment
             + self.merl_tables
+            + self.btf_tables
             + self.film
     }
 }
@@ -289,8 +292,10 @@ impl SceneData {
                     };
                     rec[4..7].copy_from_slice(&[f(tint.x), f(tint.y), f(tint.z)]);
                 }
-                // `supports` refuses BTF tables; a record of no kind shades nothing.
-                Material::Btf { .. } => rec[0] = u32::MAX,
+                Material::Btf { table, uv_scale } => {
+                    rec[0] = 4;
+                    rec[1] = words.push_btf(table, *uv_scale);
+                }
             }
             table.extend_from_slice(&rec);
             residual.push(uses_residual);
@@ -371,27 +376,12 @@ const SLOTS: [Slot; 9] = [
 ];
 
 impl GpuSpmmMode {
-    /// What this mode cannot render in `scene`, each by name: BTF materials (not yet
-    /// on the device; the CPU mode renders them).
+    /// What this mode cannot render in `scene`, each by name: nothing the CPU mode
+    /// renders (what would not fit on the adapter is refused by size instead).
     pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
-        let parts: Vec<Unrenderable> = scene
-            .materials
-            .iter()
-            .enumerate()
-            .filter_map(|(i, m)| Self::unrenderable(scene, i, m))
-            .collect();
-        Unsupported::check(ModeKind::Spmm, Device::Gpu, parts)
-    }
-
-    fn unrenderable(scene: &Scene, index: usize, m: &Material) -> Option<Unrenderable> {
-        matches!(m, Material::Btf { .. }).then(|| Unrenderable::Material {
-            index,
-            name: scene
-                .material_names
-                .get(index)
-                .cloned()
-                .unwrap_or_else(|| format!("#{index}")),
-            kind: m.kind_name(),
+        crate::trace::SpmmMode::supports(scene).map_err(|u| Unsupported {
+            device: Device::Gpu,
+            ..u
         })
     }
 
@@ -511,6 +501,7 @@ impl GpuSpmmMode {
             materials: d.materials,
             environment: self.res.env.size(),
             merl_tables: d.merl_tables,
+            btf_tables: d.btf_tables,
             film: self.res.frame.size() + self.res.aux.size(),
         }
     }
@@ -719,23 +710,6 @@ impl GpuSpmmMode {
         }
         grow
     }
-
-    /// `Some` if the scene after `edit` would hold something this mode cannot render.
-    fn refused(&self, edit: &SceneEdit) -> Option<Unsupported> {
-        let parts: Vec<Unrenderable> = match edit {
-            SceneEdit::Material { index, material } => {
-                Self::unrenderable(&self.scene, *index, material)
-                    .into_iter()
-                    .collect()
-            }
-            _ => Vec::new(),
-        };
-        (!parts.is_empty()).then_some(Unsupported {
-            mode: ModeKind::Spmm,
-            device: Device::Gpu,
-            parts,
-        })
-    }
 }
 
 impl Resources {
@@ -857,6 +831,7 @@ impl RenderMode for GpuSpmmMode {
             ("materials", b.materials),
             ("environment", b.environment),
             ("merl_tables", b.merl_tables),
+            ("btf_tables", b.btf_tables),
             ("film", b.film),
         ]
     }
@@ -889,9 +864,6 @@ impl RenderMode for GpuSpmmMode {
     }
 
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
-        if let Some(u) = self.refused(&edit) {
-            return Err(u.into());
-        }
         if let SceneEdit::Resize { width, height } = edit {
             Film::check(
                 width,

@@ -11,6 +11,7 @@ pub(super) const INTEGRATOR: &str = include_str!("../../../shaders/integrator.wg
 pub(super) const ENVIRONMENT: &str = include_str!("../../../shaders/environment.wgsl");
 pub(super) const MERL: &str = include_str!("../../../shaders/merl.wgsl");
 pub(super) const CDF: &str = include_str!("../../../shaders/cdf.wgsl");
+pub(super) const BTF_TABLE: &str = include_str!("../../../shaders/btf.wgsl");
 
 /// The test kernels: evaluations of BRDFs and SPMM texels, and primary-ray hits.
 #[cfg(test)]
@@ -50,5 +51,6 @@ pub(super) fn integrator() -> String {
         ENVIRONMENT,
         MERL,
         CDF,
+        BTF_TABLE,
     ])
 }

@@ -227,6 +227,7 @@ impl SceneData {
                 .iter()
                 .map(|m| match m {
                     Material::Spmm { material, .. } => Some(vec![true; material.clusters().len()]),
+                    Material::Btf { .. } => Some(vec![true]),
                     _ => None,
                 })
                 .collect()
@@ -293,8 +294,13 @@ impl SceneData {
                     rec[4..7].copy_from_slice(&[f(tint.x), f(tint.y), f(tint.z)]);
                 }
                 Material::Btf { table, uv_scale } => {
-                    rec[0] = 4;
-                    rec[1] = words.push_btf(table, *uv_scale);
+                    if reach[i].as_ref().is_some_and(|r| r.contains(&true)) {
+                        rec[0] = 4;
+                        rec[1] = words.push_btf(table, *uv_scale);
+                    } else {
+                        // No mesh carries it: nothing uploaded, a record of no kind.
+                        rec[0] = u32::MAX;
+                    }
                 }
             }
             table.extend_from_slice(&rec);

@@ -7,7 +7,9 @@
 use crate::render::reach::wrapped;
 use crate::scene::{Material, Scene};
 
-/// Per material: `Some(used clusters)` for an SPMM pack, `None` for other kinds.
+/// Per material: `Some(used clusters)` for an SPMM pack, `Some([carried])` for a
+/// `btf` table (uploaded whole, or not at all if no mesh carries it), `None` for
+/// other kinds.
 pub(super) type Reach = Vec<Option<Vec<bool>>>;
 
 /// The clusters each SPMM pack of `scene` can be shaded at.
@@ -27,6 +29,7 @@ pub(super) fn reachable_clusters(scene: &Scene) -> Reach {
                     None => vec![true; material.clusters().len()],
                 })
             }
+            Material::Btf { .. } => Some(vec![scene.meshes.iter().any(|m| m.material == i)]),
             _ => None,
         })
         .collect()

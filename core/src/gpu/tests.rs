@@ -641,6 +641,10 @@ fn btf_materials_and_many_lights_are_supported() {
         crate::scene::Material::Btf { .. }
     ));
     assert!(gpu.device_bytes().btf_tables > 0);
+    // A table no mesh carries goes up not at all.
+    let mut bare = gpu.scene().clone();
+    bare.meshes.retain(|m| m.material != 0);
+    assert_eq!(gpu_mode(bare, 8).device_bytes().btf_tables, 0);
 }
 
 /// The code-built edit scene: an SPMM panel with a PCA residual under an area and a

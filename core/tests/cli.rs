@@ -2380,6 +2380,7 @@ fn render_on_the_gpu_reports_device_memory_and_no_adapter_is_exit_2() {
     // and no environment or background image (the 16-word header alone).
     assert_eq!(v["device_bytes"]["residual_tables"], 0);
     assert_eq!(v["device_bytes"]["merl_tables"], 0);
+    assert_eq!(v["device_bytes"]["btf_tables"], 0);
     assert_eq!(v["device_bytes"]["environment"], 64);
     assert!(v["rays"]["shadow"].as_u64().expect("count") > 0);
     assert!(out.exists());

@@ -68,32 +68,9 @@ fn background_radiance(d: vec3<f32>) -> vec3<f32> {
     return env_rgb(env[BG_RGB] + p * 3u);
 }
 
-struct Pick {
-    index: u32,
-    t: f32,
-}
-
-// `sampler::pick`: the first interval of the CDF at `at` (n + 1 entries) whose upper
-// end exceeds `u`, and `u` remapped into it.
-fn pick(at: u32, n: u32, u: f32) -> Pick {
-    var lo = 0u;
-    var hi = n;
-    for (var k = 0u; k < CDF_STEPS && lo < hi; k++) {
-        let mid = lo + (hi - lo) / 2u;
-        if env_f(at + 1u + mid) <= u {
-            lo = mid + 1u;
-        } else {
-            hi = mid;
-        }
-    }
-    let i = min(lo, n - 1u);
-    let c0 = env_f(at + i);
-    let width = env_f(at + i + 1u) - c0;
-    var t = 0.5;
-    if width > 0.0 {
-        t = clamp((u - c0) / width, 0.0, 0.99999994);
-    }
-    return Pick(i, t);
+// `sampler::pick` (cdf.wgsl).
+fn pick(at: u32, n: u32, u: f32) -> CdfPick {
+    return cdf_pick(CDF_IN_ENV, at, n, u, CDF_STEPS, 0.99999994);
 }
 
 struct EnvSample {
@@ -152,11 +129,16 @@ fn material_pdf(s: Shading, wi: vec3<f32>, wo: vec3<f32>) -> f32 {
     if kind == MATERIAL_BRDF {
         return brdf_pdf(load_brdf(data[at + 1u]), lo, li);
     }
-    if kind == MATERIAL_SPMM && li.z > 0.0 {
-        return 0.5 * li.z / PI + 0.25 / PI;
+    if kind == MATERIAL_SPMM {
+        let m = data[at + 1u];
+        return spmm_texel_pdf(m, spmm_texel_at(m, s.uv), li, lo);
     }
     if kind == MATERIAL_MERL {
         return merl_pdf(data[at + 1u], lo, li);
+    }
+    if kind == MATERIAL_BTF {
+        // A table is drawn from by the defensive mixture alone, as on the CPU.
+        return defensive_pdf(li);
     }
     return 0.0;
 }
@@ -173,9 +155,14 @@ fn material_sample(s: Shading, wo: vec3<f32>, u: vec2<f32>) -> vec4<f32> {
         let lo = vec3<f32>(dot(wo, s.t), dot(wo, s.b), dot(wo, s.n));
         local = merl_sample(data[at + 1u], lo, u);
     } else if kind == MATERIAL_SPMM {
-        let h = hemisphere_sample(true, u);
-        if h.z > 0.0 {
-            local = vec4<f32>(h.xyz, 1.0 / h.w);
+        // From the texel's bases and a defensive share, as the CPU's `PackSampling::Bases`.
+        let m = data[at + 1u];
+        let lo = vec3<f32>(dot(wo, s.t), dot(wo, s.b), dot(wo, s.n));
+        local = spmm_sample_texel(m, spmm_texel_at(m, s.uv), lo, u);
+    } else if kind == MATERIAL_BTF {
+        let d = defensive_sample(u);
+        if d.z > 0.0 {
+            local = vec4<f32>(d, defensive_pdf(d));
         }
     }
     return vec4<f32>(s.t * local.x + s.b * local.y + s.n * local.z, local.w);

@@ -24,7 +24,8 @@ struct Params {
     // Negative: no ambient term.
     ambient_radius: f32,
     materials: u32,
-    pad0: u32,
+    // 1: more lights than the exact path's 16, chosen stochastically (lights.wgsl).
+    stochastic: u32,
     pad1: u32,
     cam_origin: vec4<f32>,
     // w: half the image plane's width at distance 1.
@@ -51,7 +52,6 @@ struct Params {
 const MAX_LAYERS: u32 = 19u;
 const LAYER_BACKGROUND: u32 = 0u;
 const LAYER_AMBIENT: u32 = 1u;
-const LAYER_FIRST_LIGHT: u32 = 3u;
 const AUX_WORDS: u32 = 6u;
 const SHADE_FLOATS: u32 = 16u;
 const MATERIAL_WORDS: u32 = 8u;
@@ -59,6 +59,7 @@ const MATERIAL_BRDF: u32 = 0u;
 const MATERIAL_SPMM: u32 = 1u;
 const MATERIAL_MIRROR: u32 = 2u;
 const MATERIAL_MERL: u32 = 3u;
+const MATERIAL_BTF: u32 = 4u;
 // Counter slots after the traversal's two.
 const COUNT_PRIMARY: u32 = 2u;
 const COUNT_SHADOW: u32 = 3u;
@@ -206,6 +207,10 @@ fn response(s: Shading, wi: vec3<f32>, wo: vec3<f32>) -> vec3<f32> {
     }
     if kind == MATERIAL_MERL {
         return rgb_at(at + 4u) * merl_eval(data[at + 1u], li, lo) * max(li.z, 0.0);
+    }
+    if kind == MATERIAL_BTF {
+        let m = data[at + 1u];
+        return btf_eval_texel(m, btf_texel_at(m, s.uv), li, lo);
     }
     return vec3<f32>(0.0);
 }

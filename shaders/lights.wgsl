@@ -1,16 +1,36 @@
 // Light sampling of the spmm mode (Silva & Santos 2013 eq. 4-7), as
-// core/src/trace/lights.rs does it on the exact per-light path (up to 16 lights):
-// each point light one shadow ray, each area light one shadow ray to a point drawn
-// uniformly on it (A L_e f cos_i cos_l / r^2, one-sided), at MERL surfaces combined by
-// MIS with a material sample towards it, and one ambient-occlusion ray limited to the
-// ambient radius. Each adds to its own film layer for unit emission.
+// core/src/trace/lights.rs does it: up to 16 lights, each point light one shadow ray
+// and each area light one shadow ray to a point drawn uniformly on it (A L_e f cos_i
+// cos_l / r^2, one-sided), at MERL surfaces combined by MIS with a material sample
+// towards it; above 16, one light per shading point kept from CANDIDATES drawn from the
+// CPU's alias table by resampled importance sampling (core/src/trace/light_selection.rs).
+// One ambient-occlusion ray limited to the ambient radius. Each light adds to the film
+// layer the CPU's `Layers::light_targets` gives it, times its factor (one, or its
+// emission in a bounded film's shared layer).
 
-const LIGHT_WORDS: u32 = 12u;
+// Light record in `data` (24 words): kind, position or corner, edge_u, edge_v, layer,
+// factor; above 16 lights the selection table: keep probability and alias of its alias
+// bin, pmf, 1 / area, the resampling weight's scale, the emitting normal; padding.
+const LIGHT_WORDS: u32 = 24u;
 const LIGHT_POINT: u32 = 0u;
+const LIGHT_LAYER: u32 = 10u;
+const LIGHT_FACTOR: u32 = 11u;
+const LIGHT_KEEP: u32 = 14u;
+const LIGHT_ALIAS: u32 = 15u;
+const LIGHT_PMF: u32 = 16u;
+const LIGHT_INV_AREA: u32 = 17u;
+const LIGHT_W_SCALE: u32 = 18u;
+const LIGHT_NORMAL: u32 = 19u;
+// Candidates per light sample (`light_selection::CANDIDATES`; one light sample).
+const CANDIDATES: u32 = 8u;
 
-// Light record in `data` (12 words): kind, position or corner, edge_u, edge_v, pad x2.
 fn light_vec(at: u32) -> vec3<f32> {
     return vec3<f32>(f32_at(at), f32_at(at + 1u), f32_at(at + 2u));
+}
+
+// Adds `v` (unit emission) to the layer of the light whose record is at `at`.
+fn add_light(pixel: u32, at: u32, v: vec3<f32>) {
+    add_layer(pixel, data[at + LIGHT_LAYER], v * light_vec(at + LIGHT_FACTOR));
 }
 
 // `geometry::hit_parallelogram`: the distance to the front face of the light with
@@ -54,10 +74,14 @@ fn sample_area_light_by_material(k: u32, s: Shading, wo: vec3<f32>, lift: vec3<f
         return;
     }
     let weight = power_heuristic(m.w, 1.0 / hit.y);
-    add_layer(pixel, LAYER_FIRST_LIGHT + k, throughput * response(s, m.xyz, wo) * (weight / m.w));
+    add_light(pixel, at, throughput * response(s, m.xyz, wo) * (weight / m.w));
 }
 
 fn sample_lights(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f32>, pixel: u32, rng: ptr<function, Rng>) {
+    if params.stochastic != 0u {
+        sample_chosen_lights(s, wo, lift, throughput, pixel, rng);
+        return;
+    }
     let count = min(params.lights, 16u);
     // Area lights meet a material sample by MIS at MERL surfaces, whose measured lobes
     // can be far narrower than a light (`SpmmMode::area_light_mis`).
@@ -100,29 +124,72 @@ fn sample_lights(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f3
             if mis && kind != LIGHT_POINT {
                 weight = power_heuristic(1.0 / falloff, material_pdf(s, wi, wo));
             }
-            add_layer(pixel, LAYER_FIRST_LIGHT + k, throughput * response(s, wi, wo) * (falloff * weight));
+            add_light(pixel, at, throughput * response(s, wi, wo) * (falloff * weight));
         }
     }
 }
 
-// The SPMM's defensive half-cosine, half-uniform mixture, or the cosine hemisphere
-// (core/src/trace/shading.rs, `hemisphere_sample`): the local direction and 1 / pdf.
-fn hemisphere_sample(spmm: bool, u: vec2<f32>) -> vec4<f32> {
-    if spmm {
-        var local: vec3<f32>;
-        if u.x < 0.5 {
-            local = cosine_hemisphere(vec2<f32>(2.0 * u.x, u.y));
-        } else {
-            let z = 1.0 - u.y;
-            let r = sqrt(max(1.0 - z * z, 0.0));
-            let phi = 2.0 * PI * (2.0 * u.x - 1.0);
-            local = vec3<f32>(r * cos(phi), r * sin(phi), z);
-        }
-        let pdf = select(0.0, 0.5 * local.z / PI + 0.25 / PI, local.z > 0.0);
-        return vec4<f32>(local, 1.0 / pdf);
+// `sample_chosen_lights`: CANDIDATES lights drawn from the alias table by power (a
+// point on an area light with each), one kept in proportion to its unshadowed
+// `emission x falloff` (weighted reservoir: the CPU's choice in distribution), one
+// shadow ray to it, weighted `total / (CANDIDATES x target)`. Zero below the surface
+// and behind a one-sided area light, where the contribution is zero too.
+fn sample_chosen_lights(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f32>, pixel: u32, rng: ptr<function, Rng>) {
+    let n = params.lights;
+    if n == 0u {
+        return;
     }
-    let local = cosine_hemisphere(u);
-    return vec4<f32>(local, PI / local.z);
+    var total = 0.0;
+    var chosen = 0u;
+    var chosen_q = vec3<f32>(0.0);
+    var chosen_falloff = 0.0;
+    var chosen_w = 0.0;
+    for (var c = 0u; c < CANDIDATES; c++) {
+        // Walker's alias table: a bin, then keep it or take its alias.
+        let bin = min(u32(rand(rng) * f32(n)), n - 1u);
+        let bin_at = params.light_table + bin * LIGHT_WORDS;
+        var k = bin;
+        if !(rand(rng) < f32_at(bin_at + LIGHT_KEEP)) {
+            k = min(data[bin_at + LIGHT_ALIAS], n - 1u);
+        }
+        let at = params.light_table + k * LIGHT_WORDS;
+        let u = rand2(rng);
+        let q = light_vec(at + 1u) + light_vec(at + 4u) * u.x + light_vec(at + 7u) * u.y;
+        let to = q - s.p;
+        let d2 = dot(to, to);
+        var cos_l = 1.0;
+        if data[at] != LIGHT_POINT {
+            cos_l = -dot(to, light_vec(at + LIGHT_NORMAL)) / sqrt(d2);
+        }
+        var falloff = 0.0;
+        if dot(to, s.n) > 0.0 && cos_l > 0.0 {
+            falloff = cos_l / d2;
+        }
+        let w = f32_at(at + LIGHT_W_SCALE) * falloff;
+        let pick = rand(rng);
+        if w > 0.0 && w < F32_MAX {
+            total += w;
+            if pick * total < w {
+                chosen = k;
+                chosen_q = q;
+                chosen_falloff = falloff;
+                chosen_w = w;
+            }
+        }
+    }
+    if !(total > 0.0 && total < F32_MAX) {
+        return;
+    }
+    let at = params.light_table + chosen * LIGHT_WORDS;
+    // target(y) = w(y) p_src(y), p_src per light or per unit area.
+    let p_target = chosen_w * f32_at(at + LIGHT_PMF) * f32_at(at + LIGHT_INV_AREA);
+    let wi = normalize(chosen_q - s.p);
+    counts.shadow += 1u;
+    if occluded(lift, wi, length(chosen_q - lift) * (1.0 - 1e-6)) {
+        return;
+    }
+    let weight = total / (f32(CANDIDATES) * p_target);
+    add_light(pixel, at, throughput * response(s, wi, wo) * (chosen_falloff * weight));
 }
 
 fn cosine_hemisphere(u: vec2<f32>) -> vec3<f32> {
@@ -136,13 +203,28 @@ fn sample_ambient(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f
     if params.ambient_radius < 0.0 {
         return;
     }
-    let sample = hemisphere_sample(material_kind(s.material) == MATERIAL_SPMM, u);
-    if sample.z <= 0.0 {
-        return;
+    var wi: vec3<f32>;
+    var weight: f32;
+    let kind = material_kind(s.material);
+    if kind == MATERIAL_SPMM || kind == MATERIAL_BTF {
+        // A pack draws from its texel's bases (and a defensive share), a table from
+        // the defensive mixture, as the CPU.
+        let m = material_sample(s, wo, u);
+        if !(m.w > 0.0) || dot(m.xyz, s.n) <= 0.0 {
+            return;
+        }
+        wi = m.xyz;
+        weight = 1.0 / m.w;
+    } else {
+        let local = cosine_hemisphere(u);
+        if local.z <= 0.0 {
+            return;
+        }
+        wi = s.t * local.x + s.b * local.y + s.n * local.z;
+        weight = PI / local.z;
     }
-    let wi = s.t * sample.x + s.b * sample.y + s.n * sample.z;
     counts.ambient += 1u;
     if !occluded(lift, wi, params.ambient_radius) {
-        add_layer(pixel, LAYER_AMBIENT, throughput * response(s, wi, wo) * sample.w);
+        add_layer(pixel, LAYER_AMBIENT, throughput * response(s, wi, wo) * weight);
     }
 }

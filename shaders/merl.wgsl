@@ -58,31 +58,10 @@ fn merl_band(wo: vec3<f32>) -> u32 {
     return min(u32(max(theta_o / MERL_HALF_PI * f32(MERL_BANDS), 0.0)), MERL_BANDS - 1u);
 }
 
-struct MerlPick {
-    index: u32,
-    t: f32,
-}
-
-// `sample::pick`: the bin of the CDF at `at` (n + 1 entries in `data`) holding `u`.
-fn merl_pick(at: u32, n: u32, u: f32) -> MerlPick {
-    var lo = 0u;
-    var hi = n;
-    for (var k = 0u; k < MERL_PICK_STEPS && lo < hi; k++) {
-        let mid = lo + (hi - lo) / 2u;
-        if f32_at(at + 1u + mid) <= u {
-            lo = mid + 1u;
-        } else {
-            hi = mid;
-        }
-    }
-    let i = min(lo, n - 1u);
-    let c0 = f32_at(at + i);
-    let width = f32_at(at + i + 1u) - c0;
-    var t = 0.5;
-    if width > 0.0 {
-        t = clamp((u - c0) / width, 0.0, 1.0);
-    }
-    return MerlPick(i, t);
+// `sample::pick`: the bin of the CDF at `at` (n + 1 entries in `data`) holding `u`
+// (cdf.wgsl).
+fn merl_pick(at: u32, n: u32, u: f32) -> CdfPick {
+    return cdf_pick(CDF_IN_DATA, at, n, u, MERL_PICK_STEPS, 1.0);
 }
 
 const MERL_CELL_SOLID_ANGLE: f32 = 7.66990393942820e-4; // 2 pi / (64 x 128)

@@ -150,13 +150,151 @@ fn spmm_eval_texel(m: u32, t: u32, wi: vec3<f32>, wo: vec3<f32>, residual: bool)
 
 // The row-major texel a UV position falls in (nearest, tiled by the material's scale).
 fn spmm_texel_at(m: u32, uv: vec2<f32>) -> u32 {
-    let w = data[m + SPMM_WIDTH];
-    let h = data[m + SPMM_HEIGHT];
-    let su = uv.x * f32_at(m + SPMM_UV_SCALE_X);
-    let sv = uv.y * f32_at(m + SPMM_UV_SCALE_Y);
+    let scale = vec2<f32>(f32_at(m + SPMM_UV_SCALE_X), f32_at(m + SPMM_UV_SCALE_Y));
+    return texel_in_grid(data[m + SPMM_WIDTH], data[m + SPMM_HEIGHT], scale, uv);
+}
+
+// `TexelGrid::nearest`: the row-major texel of a `w` x `h` grid tiled by `scale` that
+// `uv` falls in (u right, v up, row 0 the top, wrapping); SPMM packs and BTFs alike.
+fn texel_in_grid(w: u32, h: u32, scale: vec2<f32>, uv: vec2<f32>) -> u32 {
+    let su = uv.x * scale.x;
+    let sv = uv.y * scale.y;
     let u = su - floor(su);
     let v = sv - floor(sv);
     let x = u32(clamp(i32(floor(u * f32(w))), 0, i32(w) - 1));
     let y = u32(clamp(i32(floor((1.0 - v) * f32(h))), 0, i32(h) - 1));
     return y * w + x;
+}
+
+// Importance sampling of a texel's BTF (core/src/spmm/prepared/sampling.rs): a mixture
+// of the texel's own bases, each drawn by its BRDF's sampler in its own frame and
+// chosen in proportion to its weight's luminance times its selection albedo (word 17
+// of its record), plus DEFENSIVE_SHARE of the half-cosine, half-uniform mixture.
+const DEFENSIVE_SHARE: f32 = 0.1;
+const BASIS_ALBEDO: u32 = 17u;
+// The largest f32 below 1 (the CPU clamps to 1 - f64::EPSILON).
+const BELOW_ONE: f32 = 0.99999994;
+
+// The defensive mixture's direction from two uniform numbers (`defensive_sample`).
+fn defensive_sample(u: vec2<f32>) -> vec3<f32> {
+    if u.x < 0.5 {
+        return cosine_dir(vec2<f32>(2.0 * u.x, u.y));
+    }
+    let z = 1.0 - u.y;
+    let r = sqrt(max(1.0 - z * z, 0.0));
+    let phi = 2.0 * PI * (2.0 * u.x - 1.0);
+    return vec3<f32>(r * cos(phi), r * sin(phi), z);
+}
+
+// Its solid-angle pdf (`defensive_pdf`).
+fn defensive_pdf(w: vec3<f32>) -> f32 {
+    return select(0.0, 0.5 * w.z * INV_PI + 0.25 * INV_PI, w.z > 0.0);
+}
+
+// A texel's weight entries and the sum of their selection weights.
+struct Selection {
+    first: u32,
+    last: u32,
+    // The cluster's first basis record.
+    bases: u32,
+    total: f32,
+}
+
+// Selection weight of weight entry `i` whose cluster's bases start at `bases`.
+fn spmm_selection(m: u32, bases: u32, i: u32) -> f32 {
+    let w = rgb_at(data[m + SPMM_RGB] + 3u * i);
+    let luminance = 0.2126 * w.x + 0.7152 * w.y + 0.0722 * w.z;
+    let j = data[data[m + SPMM_BASIS] + i];
+    let s = max(luminance, 0.0) * f32_at(bases + j * BASIS_WORDS + BASIS_ALBEDO);
+    return select(0.0, s, s < F32_MAX);
+}
+
+fn spmm_selection_total(m: u32, t: u32) -> Selection {
+    let c = data[data[m + SPMM_TEXEL_CLUSTER] + t];
+    let bases = data[data[m + SPMM_CLUSTER_BASES] + c];
+    let offsets = data[m + SPMM_OFFSETS];
+    let first = data[offsets + t];
+    let last = min(data[offsets + t + 1u], first + 1024u);
+    var total = 0.0;
+    for (var i = first; i < last; i++) {
+        total += spmm_selection(m, bases, i);
+    }
+    return Selection(first, last, bases, total);
+}
+
+// A basis record's frame as columns (x, y, z), from words 8 to 16.
+fn basis_frame(at: u32) -> mat3x3<f32> {
+    return mat3x3<f32>(rgb_at(at + 8u), rgb_at(at + 11u), rgb_at(at + 14u));
+}
+
+// The mixture's pdf of texel-frame `wi` for `wo` (`mixture_pdf`).
+fn spmm_mixture_pdf(m: u32, sel: Selection, wi: vec3<f32>, wo: vec3<f32>) -> f32 {
+    if sel.total <= 0.0 {
+        return defensive_pdf(wi);
+    }
+    var mixture = 0.0;
+    for (var i = sel.first; i < sel.last; i++) {
+        let s = spmm_selection(m, sel.bases, i);
+        if s > 0.0 {
+            let at = sel.bases + data[data[m + SPMM_BASIS] + i] * BASIS_WORDS;
+            let frame = basis_frame(at);
+            // Transposed: world (texel frame) to the basis's local frame.
+            mixture += s * brdf_pdf(load_brdf(at), wo * frame, wi * frame);
+        }
+    }
+    return DEFENSIVE_SHARE * defensive_pdf(wi) + (1.0 - DEFENSIVE_SHARE) * mixture / sel.total;
+}
+
+// The solid-angle density with which `spmm_sample_texel(m, t, wo, .)` returns `wi`
+// (`PreparedSpmm::texel_pdf`).
+fn spmm_texel_pdf(m: u32, t: u32, wi: vec3<f32>, wo: vec3<f32>) -> f32 {
+    if wi.z <= 0.0 || wo.z <= 0.0 {
+        return 0.0;
+    }
+    return spmm_mixture_pdf(m, spmm_selection_total(m, t), wi, wo);
+}
+
+// A direction (texel frame) drawn for `wo` at texel `t` with its pdf (w; 0: none, as the
+// CPU's `None`), from two uniform numbers (`PreparedSpmm::sample_texel`).
+fn spmm_sample_texel(m: u32, t: u32, wo: vec3<f32>, u: vec2<f32>) -> vec4<f32> {
+    if wo.z <= 0.0 {
+        return vec4<f32>(0.0);
+    }
+    let sel = spmm_selection_total(m, t);
+    var wi: vec3<f32>;
+    if sel.total <= 0.0 || u.x < DEFENSIVE_SHARE {
+        var x = u.x;
+        if sel.total > 0.0 {
+            x = u.x / DEFENSIVE_SHARE;
+        }
+        wi = defensive_sample(vec2<f32>(min(x, BELOW_ONE), u.y));
+    } else {
+        // u.x again: its position inside the chosen entry's interval is uniform.
+        var x = (u.x - DEFENSIVE_SHARE) / (1.0 - DEFENSIVE_SHARE) * sel.total;
+        var chosen = sel.last - 1u;
+        for (var i = sel.first; i < sel.last; i++) {
+            let s = spmm_selection(m, sel.bases, i);
+            if x < s {
+                chosen = i;
+                x = x / s;
+                break;
+            }
+            x -= s;
+        }
+        let at = sel.bases + data[data[m + SPMM_BASIS] + chosen] * BASIS_WORDS;
+        let frame = basis_frame(at);
+        let b = brdf_sample(load_brdf(at), wo * frame, vec2<f32>(clamp(x, 0.0, BELOW_ONE), u.y));
+        if !(b.w > 0.0) {
+            return vec4<f32>(0.0);
+        }
+        wi = frame * b.xyz;
+    }
+    if wi.z <= 0.0 {
+        return vec4<f32>(0.0);
+    }
+    let pdf = spmm_mixture_pdf(m, sel, wi, wo);
+    if pdf > 0.0 && pdf < F32_MAX {
+        return vec4<f32>(wi, pdf);
+    }
+    return vec4<f32>(0.0);
 }

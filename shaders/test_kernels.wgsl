@@ -4,7 +4,8 @@
 @group(0) @binding(0) var<storage, read> data: array<u32>;
 // eval_cases: per case 8 words: kind (0 BRDF, 1 basis, 2 SPMM texel, 3 BRDF sampling
 // pdf, 4 BRDF sample with the uniform numbers in wi.xy, 5 MERL value, 6 MERL sampling
-// pdf, 7 MERL sample), record offset,
+// pdf, 7 MERL sample, 8 SPMM texel sampling pdf, 9 SPMM texel sample with the uniform
+// numbers in wi.xy, 10 BTF texel), record offset,
 // wi, wo (f32 bits); SPMM cases: texel in word 8, residual flag in word 9 (10 words).
 // trace_rays: per ray 8 words: origin, direction (f32 bits), tmin, tmax.
 @group(0) @binding(1) var<storage, read> cases: array<u32>;
@@ -12,6 +13,8 @@
 @group(0) @binding(3) var<storage, read> nodes: array<u32>;
 @group(0) @binding(4) var<storage, read> tris: array<u32>;
 @group(0) @binding(5) var<storage, read_write> counters: array<atomic<u32>>;
+// Unused by the kernels; cdf.wgsl names it.
+@group(0) @binding(6) var<storage, read> env: array<u32>;
 
 const CASE_WORDS: u32 = 10u;
 
@@ -46,6 +49,12 @@ fn eval_cases(@builtin(global_invocation_id) id: vec3<u32>) {
         v = vec3<f32>(merl_pdf(record, wo, wi));
     } else if kind == 7u {
         v = merl_sample(record, wo, wi.xy).xyz;
+    } else if kind == 8u {
+        v = vec3<f32>(spmm_texel_pdf(record, cases[at + 8u], wi, wo));
+    } else if kind == 9u {
+        v = spmm_sample_texel(record, cases[at + 8u], wo, wi.xy).xyz;
+    } else if kind == 10u {
+        v = btf_eval_texel(record, cases[at + 8u], wi, wo);
     } else {
         v = spmm_eval_texel(record, cases[at + 8u], wi, wo, cases[at + 9u] != 0u);
     }

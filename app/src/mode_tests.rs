@@ -131,7 +131,7 @@ fn small() -> Settings {
         resolution: 0.25,
         max_samples: 1_000_000,
         show_timings: false,
-        ..Settings::default()
+        ..Settings::for_tests()
     }
 }
 

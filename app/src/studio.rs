@@ -108,6 +108,18 @@ impl Default for Settings {
     }
 }
 
+impl Settings {
+    /// The defaults, with the GPU default off: tests open scenes on the device they
+    /// name, never on whatever GPU the machine running them has.
+    #[cfg(test)]
+    pub fn for_tests() -> Self {
+        Self {
+            gpu_by_default: false,
+            ..Self::default()
+        }
+    }
+}
+
 /// A library file read for a material slot: its path, the material, and (for a
 /// pack) its residual precision.
 type Assigned = (PathBuf, Material, ResidualPrecision);

@@ -23,7 +23,7 @@ pub(super) fn harness() -> Harness<'static, Studio> {
         .with_size(egui::vec2(1280.0, 800.0))
         .build_ui_state(
             |ui, s: &mut Studio| s.show(ui),
-            Studio::new(None, None, Settings::default()),
+            Studio::new(None, None, Settings::for_tests()),
         );
     loaded(&mut h);
     h
@@ -182,7 +182,7 @@ fn save_then_reopen_is_byte_identical_and_a_failed_save_keeps_the_edits() {
 fn resting_studio(scene: Option<std::path::PathBuf>, spp: u32) -> Harness<'static, Studio> {
     let settings = Settings {
         max_samples: spp,
-        ..Settings::default()
+        ..Settings::for_tests()
     };
     let mut h = Harness::builder()
         .with_size(egui::vec2(1280.0, 800.0))
@@ -481,7 +481,7 @@ fn the_main_window_matches_its_snapshot() {
     let settings = Settings {
         max_samples: 8,
         show_timings: false,
-        ..Settings::default()
+        ..Settings::for_tests()
     };
     let mut h = Harness::builder()
         .with_size(egui::vec2(1280.0, 800.0))
@@ -539,7 +539,7 @@ fn a_saved_pack_renders_in_core_exactly_as_in_the_viewport() {
 
     let settings = Settings {
         max_samples: 4,
-        ..Settings::default()
+        ..Settings::for_tests()
     };
     let mut b = Harness::builder()
         .with_size(egui::vec2(1280.0, 800.0))
@@ -630,7 +630,7 @@ fn opening_the_shipped_scenes_edits_nothing() {
             .with_size(egui::vec2(1280.0, 800.0))
             .build_ui_state(
                 |ui, s: &mut Studio| s.show(ui),
-                Studio::new(None, Some(path), Settings::default()),
+                Studio::new(None, Some(path), Settings::for_tests()),
             );
         loaded(&mut h);
         wait_for_current_frame(&mut h);
@@ -891,7 +891,7 @@ fn a_click_in_the_library_assigns_the_pack_and_undo_restores_the_object() {
     let settings = Settings {
         show_library: true,
         thumbnail_cache: Some(cache.path().to_path_buf()),
-        ..Settings::default()
+        ..Settings::for_tests()
     };
     let mut h = Harness::builder()
         .with_size(egui::vec2(1280.0, 800.0))
@@ -1010,7 +1010,7 @@ fn docs_screenshots() {
         max_samples: spp,
         show_timings: false,
         thumbnail_cache: Some(cache.path().to_path_buf()),
-        ..Settings::default()
+        ..Settings::for_tests()
     };
     let mut h = Harness::builder()
         .with_size(egui::vec2(1280.0, 800.0))

@@ -39,6 +39,21 @@ pub enum BtfTableError {
     },
 }
 
+/// A read-only view of a `BtfTable` (`BtfTable::parts`).
+pub struct BtfTableParts<'a> {
+    pub width: u32,
+    pub height: u32,
+    pub lights: &'a DirectionTable,
+    pub views: &'a DirectionTable,
+    pub values: BtfValues<'a>,
+}
+
+/// The values of a `BtfTableParts`, in the precision they are held in.
+pub enum BtfValues<'a> {
+    F16(&'a [f16]),
+    F32(&'a [f32]),
+}
+
 /// A BTF prepared for shading: values, texel grid and the two interpolation tables.
 #[derive(Clone, Debug)]
 pub struct BtfTable {
@@ -146,6 +161,22 @@ impl BtfTable {
             return DVec3::ZERO;
         }
         self.eval_texel(self.grid.nearest(uv, uv_scale), wi, wo)
+    }
+
+    /// The tables and values as they are held, for a device that uploads them
+    /// (`gpu`): the texel grid, the light and view interpolation tables, and the
+    /// values `[texel][light][view][rgb]` as f16 bits or f32.
+    pub fn parts(&self) -> BtfTableParts<'_> {
+        BtfTableParts {
+            width: self.grid.width,
+            height: self.grid.height,
+            lights: &self.lights,
+            views: &self.views,
+            values: match &self.values {
+                Values::F16(v) => BtfValues::F16(v),
+                Values::F32(v) => BtfValues::F32(v),
+            },
+        }
     }
 
     /// The interpolation weights of a light direction (index into `light_dirs`,

@@ -155,4 +155,14 @@ impl GpuContext {
     pub fn limits(&self) -> &wgpu::Limits {
         &self.limits
     }
+
+    /// The same device, with buffers limited to `bytes` as far as the mode's checks
+    /// go (tests meet the limit without allocating it).
+    #[cfg(test)]
+    pub(super) fn with_buffer_limit(&self, bytes: u64) -> Self {
+        let mut limited = self.clone();
+        limited.limits.max_buffer_size = bytes;
+        limited.limits.max_storage_buffer_binding_size = bytes;
+        limited
+    }
 }

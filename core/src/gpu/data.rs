@@ -4,14 +4,17 @@
 //! one `array<u32>` binding serves every kind (adapters offer few storage bindings).
 
 use crate::brdf::{AnalyticBrdf, BasisFunction};
+use crate::btf::table::{BtfTable, BtfValues};
 use crate::merl::MerlBrdf;
 use crate::spmm::PreparedSpmm;
 use crate::spmm::directions::DirectionTable;
 
 /// Words of one BRDF record (model + 7 parameters).
 pub(super) const BRDF_WORDS: usize = 8;
-/// Words of one basis function (BRDF record, frame x y z, padding).
+/// Words of one basis function (BRDF record, frame x y z, selection albedo, padding).
 pub(super) const BASIS_WORDS: usize = 20;
+/// The word of a basis record holding its selection albedo (`shaders/spmm.wgsl`).
+const BASIS_ALBEDO: usize = BRDF_WORDS + 9;
 const SPMM_HEADER_WORDS: usize = 16;
 const NO_CLUSTER: u32 = u32::MAX;
 
@@ -24,6 +27,8 @@ pub struct DataBytes {
     pub materials: u64,
     /// MERL tables (f32, scaled as `MerlBrdf::cell_value`) and their sampling tables.
     pub merl_tables: u64,
+    /// `btf` materials: their values and direction tables.
+    pub btf_tables: u64,
 }
 
 /// A growing word buffer.
@@ -121,15 +126,29 @@ impl Words {
     }
 
     /// A prepared SPMM material with its texture tiling; returns its header's offset.
-    pub fn push_spmm(&mut self, prepared: &PreparedSpmm, uv_scale: glam::DVec2) -> u32 {
+    /// `used` (per cluster; `None`: all) leaves out the bases of clusters no ray can
+    /// reach (`reach.rs`); the residual tables of those were left out by the
+    /// preparation.
+    pub fn push_spmm(
+        &mut self,
+        prepared: &PreparedSpmm,
+        uv_scale: glam::DVec2,
+        used: Option<&[bool]>,
+    ) -> u32 {
         let p = prepared.parts();
         let start = self.words.len();
-        // Basis records of every cluster, then per cluster the offset of its first.
+        // Basis records of every used cluster, then per cluster the offset of its first.
         let mut cluster_bases = Vec::with_capacity(p.bases.len());
-        for cluster in p.bases {
+        for (c, (cluster, albedos)) in p.bases.iter().zip(p.basis_albedo).enumerate() {
+            if used.is_some_and(|u| !u.get(c).copied().unwrap_or(false)) {
+                cluster_bases.push(NO_CLUSTER);
+                continue;
+            }
             cluster_bases.push(self.at());
-            for b in cluster {
-                self.push_basis(b);
+            for (b, &albedo) in cluster.iter().zip(albedos) {
+                let at = self.push_basis(b) as usize;
+                // How often the pack sampler draws this basis (`PreparedSpmm::sample_texel`).
+                self.words[at + BASIS_ALBEDO] = f(albedo);
             }
         }
         let cluster_bases_at = self.push_u32s(cluster_bases);
@@ -177,6 +196,43 @@ impl Words {
         self.bytes.spmm_bases += 4 * (bases_end - start) as u64;
         self.bytes.spmm_weights += 4 * (weights_end - bases_end + SPMM_HEADER_WORDS) as u64;
         self.bytes.residual_tables += 4 * (residual_end - weights_end) as u64;
+        at
+    }
+
+    /// A `btf` material as `shaders/btf.wgsl` reads it: a header `[width, height,
+    /// lights, views, values_at, f16, light_table, view_table, uv_scale x, y]` (the
+    /// direction tables as the residual's), the values `[texel][light][view][rgb]`
+    /// as they are held: f16 two to a word (low half first) or f32. Returns the
+    /// header's offset.
+    pub fn push_btf(&mut self, table: &BtfTable, uv_scale: glam::DVec2) -> u32 {
+        let p = table.parts();
+        let start = self.words.len();
+        let (values_at, half) = match p.values {
+            BtfValues::F16(v) => (
+                self.push_u32s(v.chunks(2).map(|pair| {
+                    let lo = u32::from(pair[0].to_bits());
+                    let hi = pair.get(1).map_or(0, |h| u32::from(h.to_bits()));
+                    lo | (hi << 16)
+                })),
+                1,
+            ),
+            BtfValues::F32(v) => (self.push_f32s(v.iter().copied()), 0),
+        };
+        let lights_at = self.push_direction_table(p.lights);
+        let views_at = self.push_direction_table(p.views);
+        let at = self.push_u32s([
+            p.width,
+            p.height,
+            p.lights.len() as u32,
+            p.views.len() as u32,
+            values_at,
+            half,
+            lights_at,
+            views_at,
+            f(uv_scale.x),
+            f(uv_scale.y),
+        ]);
+        self.bytes.btf_tables += 4 * (self.words.len() - start) as u64;
         at
     }
 

@@ -1,7 +1,8 @@
 //! The `spmm` mode on the GPU (wgpu compute; WGSL in the workspace's `shaders/`):
 //! the device and its adapter (`context.rs`), the WGSL sources and how they are put
 //! together (`shaders.rs`), the words a shader reads (`data.rs`: BRDFs, SPMM packs,
-//! materials), the scene's geometry on the device (`geometry.rs`: the obvhs CWBVH's
+//! materials; `reach.rs`: the clusters of each pack the scene can reach, the only
+//! ones uploaded), the scene's geometry on the device (`geometry.rs`: the obvhs CWBVH's
 //! nodes as they are, the leaf-ordered triangles and their shading data), the
 //! environment map with its sampling tables and the background image
 //! (`environment.rs`), one compute
@@ -14,6 +15,7 @@ mod environment;
 mod geometry;
 mod kernel;
 mod mode;
+mod reach;
 mod shaders;
 
 pub use context::{GpuContext, GpuError, hardware_adapter, is_hardware};

@@ -14,6 +14,7 @@ use super::data::{DataBytes, Words};
 use super::environment;
 use super::geometry::GeometryBuffers;
 use super::kernel::{self, Kernel, Slot};
+use super::reach::{Reach, reachable_clusters};
 use super::shaders;
 use super::{GpuContext, GpuError};
 use crate::environment::EnvironmentSampler;
@@ -25,13 +26,15 @@ use crate::render::reach::EditedTexels;
 use crate::render::{
     Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind,
     PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit,
-    Unrenderable, Unsupported,
+    Unsupported,
 };
 use crate::scene::{Light, Material, RenderSettings, Scene};
 use crate::spmm::PrepareRequest;
+use crate::trace::light_selection::{LightSampling, LightSelection};
 
 const MATERIAL_WORDS: usize = 8;
-const LIGHT_WORDS: usize = 12;
+/// Words of one light record (`shaders/lights.wgsl`).
+const LIGHT_WORDS: usize = 24;
 const AUX_WORDS: usize = 6;
 /// Counter slots of `shaders/integrator.wgsl` (two traversal overflows, then rays;
 /// the last is the environment's, `shaders/environment.wgsl`).
@@ -52,6 +55,8 @@ pub struct DeviceBytes {
     pub environment: u64,
     /// MERL tables and their sampling tables.
     pub merl_tables: u64,
+    /// `btf` materials' values and direction tables.
+    pub btf_tables: u64,
     /// One sample's layers and per-pixel masks (the f64 film itself is on the host).
     pub film: u64,
 }
@@ -66,6 +71,7 @@ impl DeviceBytes {
             + self.materials
             + self.environment
             + self.merl_tables
+            + self.btf_tables
             + self.film
     }
 }
@@ -88,7 +94,9 @@ struct Params {
     background: u32,
     ambient_radius: f32,
     materials: u32,
-    pad: [u32; 2],
+    /// 1: lights chosen stochastically (more than `MANY_LIGHTS`, as the CPU).
+    stochastic: u32,
+    pad: u32,
     cam_origin: [f32; 4],
     cam_forward: [f32; 4],
     cam_right: [f32; 4],
@@ -135,42 +143,102 @@ fn words_size_problem(ctx: &GpuContext, what: &str, words: usize) -> Option<Stri
 struct SceneData {
     words: Words,
     material_table: u32,
+    /// The light table, last in `words`, with room for `light_capacity` lights.
     light_table: u32,
+    light_capacity: usize,
     /// Per material: its SPMM residual is in use (the moving flag changes it).
     residual: Vec<bool>,
+    /// Per SPMM material, the clusters uploaded (`reach::reachable_clusters`).
+    reach: Reach,
 }
 
 fn f(v: f64) -> u32 {
     (v as f32).to_bits()
 }
 
-fn light_words(light: &Light) -> [u32; LIGHT_WORDS] {
-    let mut w = [0u32; LIGHT_WORDS];
-    let (kind, a, b, c) = match *light {
-        Light::Point { position, .. } => (0, position, DVec3::ZERO, DVec3::ZERO),
-        Light::Area {
-            corner,
-            edge_u,
-            edge_v,
-            ..
-        } => (1, corner, edge_u, edge_v),
-    };
-    w[0] = kind;
-    for (i, v) in [a, b, c].iter().enumerate() {
-        w[1 + 3 * i..4 + 3 * i].copy_from_slice(&[f(v.x), f(v.y), f(v.z)]);
+/// The light table of `shaders/lights.wgsl`, one record per light: kind, position or
+/// corner, edges; the film layer its samples go to and the factor they are multiplied
+/// by (`Layers::light_targets`: one, or its emission in a bounded film's shared layer);
+/// and above `MANY_LIGHTS` the CPU's selection table (`LightSelection`: alias bin,
+/// pmf, 1 / area, the resampling weight's scale, the emitting normal).
+fn light_table(scene: &Scene, layers: &Layers) -> Vec<u32> {
+    let targets = layers.light_targets(scene);
+    let selection = LightSampling::Auto
+        .stochastic(scene.lights.len())
+        .then(|| LightSelection::new(&scene.lights))
+        .flatten();
+    // The scale only matters relative to the other lights' (it cancels in the
+    // estimate): divided by the largest, so f32 holds it whatever the emissions.
+    let max_scale = selection.as_ref().map_or(1.0, |sel| {
+        sel.lights.iter().map(|l| l.w_scale).fold(0.0, f64::max)
+    });
+    let mut table = vec![0u32; scene.lights.len() * LIGHT_WORDS];
+    for (k, (light, rec)) in scene
+        .lights
+        .iter()
+        .zip(table.chunks_exact_mut(LIGHT_WORDS))
+        .enumerate()
+    {
+        let (kind, a, b, c) = match *light {
+            Light::Point { position, .. } => (0, position, DVec3::ZERO, DVec3::ZERO),
+            Light::Area {
+                corner,
+                edge_u,
+                edge_v,
+                ..
+            } => (1, corner, edge_u, edge_v),
+        };
+        rec[0] = kind;
+        for (i, v) in [a, b, c].iter().enumerate() {
+            rec[1 + 3 * i..4 + 3 * i].copy_from_slice(&[f(v.x), f(v.y), f(v.z)]);
+        }
+        rec[10] = targets[k].layer as u32;
+        let factor = targets[k].factor.min(DVec3::splat(f64::from(f32::MAX)));
+        rec[11..14].copy_from_slice(&[f(factor.x), f(factor.y), f(factor.z)]);
+        if let Some(sel) = &selection {
+            let (keep, alias) = sel.table.bins()[k];
+            let l = &sel.lights[k];
+            rec[14] = f(keep);
+            rec[15] = alias;
+            rec[16] = f(sel.table.pmf()[k]);
+            rec[17] = f(l.inv_area);
+            rec[18] = f(l.w_scale / max_scale);
+            rec[19..22].copy_from_slice(&[f(l.normal.x), f(l.normal.y), f(l.normal.z)]);
+        }
     }
-    w
+    table
+}
+
+/// Room for the light table: at least `MANY_LIGHTS`, and a power of two above, so
+/// light edits rewrite it in place and an added light seldom re-uploads the data.
+fn light_capacity(lights: usize) -> usize {
+    lights.max(MANY_LIGHTS).next_power_of_two()
 }
 
 impl SceneData {
-    /// Every material (SPMM packs prepared as the CPU mode prepares them) and a light
-    /// table with room for `MANY_LIGHTS`, so light edits rewrite it in place.
-    fn build(scene: &Scene) -> Self {
+    /// Every material (SPMM packs prepared as the CPU mode prepares them, only the
+    /// clusters the scene can reach unless `all_clusters`; a pack no mesh carries not
+    /// at all) and the light table (`light_table`) with room to grow, so light edits
+    /// rewrite it in place.
+    fn build(scene: &Scene, layers: &Layers, all_clusters: bool) -> Self {
+        let reach = if all_clusters {
+            scene
+                .materials
+                .iter()
+                .map(|m| match m {
+                    Material::Spmm { material, .. } => Some(vec![true; material.clusters().len()]),
+                    Material::Btf { .. } => Some(vec![true]),
+                    _ => None,
+                })
+                .collect()
+        } else {
+            reachable_clusters(scene)
+        };
         let mut words = Words::default();
         let mut table = Vec::with_capacity(scene.materials.len() * MATERIAL_WORDS);
         let mut residual = Vec::with_capacity(scene.materials.len());
         let mut merl: Vec<(*const crate::merl::MerlBrdf, u32)> = Vec::new();
-        for m in &scene.materials {
+        for (i, m) in scene.materials.iter().enumerate() {
             let mut rec = [0u32; MATERIAL_WORDS];
             let mut uses_residual = false;
             match m {
@@ -185,14 +253,22 @@ impl SceneData {
                     residual: wanted,
                     npca,
                 } => {
+                    let used = reach[i].clone().unwrap_or_default();
+                    if !used.contains(&true) {
+                        // No ray can shade it: nothing uploaded, a record of no kind.
+                        rec[0] = u32::MAX;
+                        table.extend_from_slice(&rec);
+                        residual.push(false);
+                        continue;
+                    }
                     let prepared = material.prepare(&PrepareRequest {
-                        used_clusters: None,
+                        used_clusters: Some(used.clone()),
                         residual: *wanted,
                         max_npca: *npca,
                     });
                     uses_residual = *wanted && prepared.has_residual();
                     rec[0] = 1;
-                    rec[1] = words.push_spmm(&prepared, *uv_scale);
+                    rec[1] = words.push_spmm(&prepared, *uv_scale, Some(&used));
                     rec[2] = u32::from(uses_residual);
                 }
                 Material::Mirror { reflectance } => {
@@ -217,8 +293,15 @@ impl SceneData {
                     };
                     rec[4..7].copy_from_slice(&[f(tint.x), f(tint.y), f(tint.z)]);
                 }
-                // `supports` refuses BTF tables; a record of no kind shades nothing.
-                Material::Btf { .. } => rec[0] = u32::MAX,
+                Material::Btf { table, uv_scale } => {
+                    if reach[i].as_ref().is_some_and(|r| r.contains(&true)) {
+                        rec[0] = 4;
+                        rec[1] = words.push_btf(table, *uv_scale);
+                    } else {
+                        // No mesh carries it: nothing uploaded, a record of no kind.
+                        rec[0] = u32::MAX;
+                    }
+                }
             }
             table.extend_from_slice(&rec);
             residual.push(uses_residual);
@@ -227,20 +310,21 @@ impl SceneData {
         let material_table = words.at();
         words.words.extend_from_slice(&table);
         let light_table = words.at();
+        let light_capacity = light_capacity(scene.lights.len());
+        let lights = self::light_table(scene, layers);
+        words.words.extend_from_slice(&lights);
         words
             .words
-            .resize(words.words.len() + MANY_LIGHTS * LIGHT_WORDS, 0);
-        for (k, l) in scene.lights.iter().take(MANY_LIGHTS).enumerate() {
-            let at = light_table as usize + k * LIGHT_WORDS;
-            words.words[at..at + LIGHT_WORDS].copy_from_slice(&light_words(l));
-        }
+            .resize(light_table as usize + light_capacity * LIGHT_WORDS, 0);
         // BRDF records sit among the SPMM data; count the tables as materials.
         words.bytes.materials += 4 * (words.words.len() - before) as u64;
         Self {
             words,
             material_table,
             light_table,
+            light_capacity,
             residual,
+            reach,
         }
     }
 }
@@ -281,6 +365,8 @@ pub struct GpuSpmmMode {
     overflows: [u64; 2],
     /// Set once the device fails: the mode renders nothing more.
     failure: Option<GpuError>,
+    /// Every cluster of every pack on the device, not just the reachable ones.
+    all_clusters: bool,
 }
 
 const SLOTS: [Slot; 9] = [
@@ -296,37 +382,12 @@ const SLOTS: [Slot; 9] = [
 ];
 
 impl GpuSpmmMode {
-    /// What this mode cannot render in `scene`, each by name: BTF materials and lights
-    /// beyond the 16 of the exact per-light path (not yet on the device; the CPU mode
-    /// renders them).
+    /// What this mode cannot render in `scene`, each by name: nothing the CPU mode
+    /// renders (what would not fit on the adapter is refused by size instead).
     pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
-        let mut parts: Vec<Unrenderable> = scene
-            .materials
-            .iter()
-            .enumerate()
-            .filter_map(|(i, m)| Self::unrenderable(scene, i, m))
-            .collect();
-        for (index, l) in scene.lights.iter().enumerate().skip(MANY_LIGHTS) {
-            parts.push(Unrenderable::Light {
-                index,
-                kind: match l {
-                    Light::Point { .. } => "point",
-                    Light::Area { .. } => "area",
-                },
-            });
-        }
-        Unsupported::check(ModeKind::Spmm, Device::Gpu, parts)
-    }
-
-    fn unrenderable(scene: &Scene, index: usize, m: &Material) -> Option<Unrenderable> {
-        matches!(m, Material::Btf { .. }).then(|| Unrenderable::Material {
-            index,
-            name: scene
-                .material_names
-                .get(index)
-                .cloned()
-                .unwrap_or_else(|| format!("#{index}")),
-            kind: m.kind_name(),
+        crate::trace::SpmmMode::supports(scene).map_err(|u| Unsupported {
+            device: Device::Gpu,
+            ..u
         })
     }
 
@@ -338,6 +399,18 @@ impl GpuSpmmMode {
         width: u32,
         height: u32,
         prepare: Prepare,
+    ) -> Result<Self, ModeError> {
+        Self::prepare_uploading(ctx, scene, (width, height), prepare, false)
+    }
+
+    /// `prepare`, with every cluster of every pack uploaded when `all_clusters` (the
+    /// tests' reference for the reachable set).
+    pub(super) fn prepare_uploading(
+        ctx: GpuContext,
+        scene: Scene,
+        (width, height): (u32, u32),
+        prepare: Prepare,
+        all_clusters: bool,
     ) -> Result<Self, ModeError> {
         if let Some(p) = RenderSettings::size_problem(width, height) {
             return Err(ModeError::Size(p));
@@ -366,7 +439,7 @@ impl GpuSpmmMode {
         stage("bvh", start);
         prepare.report("materials", 0.0)?;
         let start = Instant::now();
-        let scene_data = SceneData::build(&scene);
+        let scene_data = SceneData::build(&scene, &layers, all_clusters);
         if let Some(p) = words_size_problem(&ctx, MATERIAL_WORDS_NAME, scene_data.words.words.len())
         {
             return Err(ModeError::Size(p));
@@ -418,6 +491,7 @@ impl GpuSpmmMode {
             preparation: report,
             overflows: [0; 2],
             failure: None,
+            all_clusters,
         })
     }
 
@@ -433,6 +507,7 @@ impl GpuSpmmMode {
             materials: d.materials,
             environment: self.res.env.size(),
             merl_tables: d.merl_tables,
+            btf_tables: d.btf_tables,
             film: self.res.frame.size() + self.res.aux.size(),
         }
     }
@@ -465,7 +540,7 @@ impl GpuSpmmMode {
             sample_hi: (sample >> 32) as u32,
             max_depth: self.scene.render.max_specular_depth,
             moving: u32::from(self.moving),
-            lights: self.scene.lights.len().min(MANY_LIGHTS) as u32,
+            lights: self.scene.lights.len() as u32,
             light_table: self.scene_data.light_table,
             material_table: self.scene_data.material_table,
             background: environment::escape(&self.scene),
@@ -474,7 +549,8 @@ impl GpuSpmmMode {
                 .ambient
                 .map_or(-1.0, |a| a.radius.min(3.0e38) as f32),
             materials: self.scene.materials.len() as u32,
-            pad: [0; 2],
+            stochastic: u32::from(LightSampling::Auto.stochastic(self.scene.lights.len())),
+            pad: 0,
             cam_origin: v4(cam.position, 0.0),
             cam_forward: v4(forward, half_w),
             cam_right: v4(right, half_h),
@@ -562,10 +638,27 @@ impl GpuSpmmMode {
         Invalidation::All
     }
 
-    /// Rebuilds the data words (materials, lights) and rebinds.
-    fn reupload_data(&mut self) {
-        self.scene_data = SceneData::build(&self.scene);
-        self.rebind();
+    /// The data words (materials, lights) of the scene as it is, or why they would
+    /// not fit in one buffer of the device.
+    fn rebuild_data(&self) -> Result<SceneData, EditError> {
+        let data = SceneData::build(&self.scene, &self.layers, self.all_clusters);
+        match words_size_problem(&self.ctx, MATERIAL_WORDS_NAME, data.words.words.len()) {
+            Some(p) => Err(EditError::Size(p)),
+            None => Ok(data),
+        }
+    }
+
+    /// A device whose buffers are limited to `bytes` (the tests' way to meet the
+    /// limit without allocating it).
+    #[cfg(test)]
+    pub(super) fn limit_buffers(&mut self, bytes: u64) {
+        self.ctx = self.ctx.with_buffer_limit(bytes);
+    }
+
+    /// The bytes of the data words now on the device.
+    #[cfg(test)]
+    pub(super) fn data_words_bytes(&self) -> u64 {
+        self.scene_data.words.words.len() as u64 * 4
     }
 
     fn rebind(&mut self) {
@@ -594,43 +687,34 @@ impl GpuSpmmMode {
         self.rebind();
     }
 
-    /// Rewrites the light table in place (light edits keep every other buffer).
-    fn write_lights(&mut self) {
-        let mut table = vec![0u32; MANY_LIGHTS * LIGHT_WORDS];
-        for (k, l) in self.scene.lights.iter().take(MANY_LIGHTS).enumerate() {
-            table[k * LIGHT_WORDS..(k + 1) * LIGHT_WORDS].copy_from_slice(&light_words(l));
-        }
+    /// Rewrites the light table after a light edit: in place while it has room (every
+    /// other buffer kept), else grown at the end of the data words; true if the data
+    /// buffer must be uploaded again (`rebind`).
+    fn write_lights(&mut self) -> bool {
+        let table = light_table(&self.scene, &self.layers);
         let at = self.scene_data.light_table as usize;
-        self.scene_data.words.words[at..at + table.len()].copy_from_slice(&table);
-        self.ctx
-            .queue
-            .write_buffer(&self.res.data, at as u64 * 4, bytemuck::cast_slice(&table));
-    }
-
-    /// `Some` if the scene after `edit` would hold something this mode cannot render.
-    fn refused(&self, edit: &SceneEdit) -> Option<Unsupported> {
-        let parts: Vec<Unrenderable> = match edit {
-            SceneEdit::Material { index, material } => {
-                Self::unrenderable(&self.scene, *index, material)
-                    .into_iter()
-                    .collect()
-            }
-            SceneEdit::AddLight(l) if self.scene.lights.len() >= MANY_LIGHTS => {
-                vec![Unrenderable::Light {
-                    index: self.scene.lights.len(),
-                    kind: match l {
-                        Light::Point { .. } => "point",
-                        Light::Area { .. } => "area",
-                    },
-                }]
-            }
-            _ => Vec::new(),
-        };
-        (!parts.is_empty()).then_some(Unsupported {
-            mode: ModeKind::Spmm,
-            device: Device::Gpu,
-            parts,
-        })
+        let n = self.scene.lights.len();
+        let grow = n > self.scene_data.light_capacity;
+        if grow {
+            let capacity = light_capacity(n);
+            let words = &mut self.scene_data.words;
+            let before = words.words.len();
+            words.words.resize(at + capacity * LIGHT_WORDS, 0);
+            words.bytes.materials += 4 * (words.words.len() - before) as u64;
+            self.scene_data.light_capacity = capacity;
+        }
+        let words = &mut self.scene_data.words.words;
+        words[at..at + table.len()].copy_from_slice(&table);
+        // Records past the last light: zero (not read; kept clean).
+        words[at + table.len()..].fill(0);
+        if !grow {
+            self.ctx.queue.write_buffer(
+                &self.res.data,
+                at as u64 * 4,
+                bytemuck::cast_slice(&words[at..]),
+            );
+        }
+        grow
     }
 }
 
@@ -753,6 +837,7 @@ impl RenderMode for GpuSpmmMode {
             ("materials", b.materials),
             ("environment", b.environment),
             ("merl_tables", b.merl_tables),
+            ("btf_tables", b.btf_tables),
             ("film", b.film),
         ]
     }
@@ -785,9 +870,6 @@ impl RenderMode for GpuSpmmMode {
     }
 
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
-        if let Some(u) = self.refused(&edit) {
-            return Err(u.into());
-        }
         if let SceneEdit::Resize { width, height } = edit {
             Film::check(
                 width,
@@ -811,7 +893,13 @@ impl RenderMode for GpuSpmmMode {
         }
         if let SceneEdit::AddLight(_) = edit {
             let (w, h) = (self.film.width(), self.film.height());
-            if let Some(p) = device_size_problem(&self.ctx, w, h, self.film.layers() + 1) {
+            let layers = crate::render::layers::FIRST_LIGHT + self.scene.lights.len() + 1;
+            let layers = if self.scene.lights.len() < MANY_LIGHTS {
+                layers
+            } else {
+                crate::render::layers::SHARED_LIGHTS + 1
+            };
+            if let Some(p) = device_size_problem(&self.ctx, w, h, layers) {
                 return Err(EditError::Size(p));
             }
         }
@@ -820,18 +908,17 @@ impl RenderMode for GpuSpmmMode {
             SceneEdit::Material { index, .. } => self.scene.materials.get(*index).cloned(),
             _ => None,
         };
+        let meshes_before = matches!(edit, SceneEdit::Meshes(_)).then(|| self.scene.meshes.clone());
         let layer_count = self.film.layers();
         edit.apply_to(&mut self.scene)?;
         if let Some(invalidation) = self
             .layers
             .apply(&mut self.film, &before, &edit, &self.scene)
         {
-            if matches!(
+            let grown = matches!(
                 edit,
                 SceneEdit::Light { .. } | SceneEdit::AddLight(_) | SceneEdit::RemoveLight(_)
-            ) {
-                self.write_lights();
-            }
+            ) && self.write_lights();
             match &edit {
                 // A new map, rotation or sampling changes the tables; a strength
                 // edit (nothing invalidated) only re-weights the layer.
@@ -839,8 +926,9 @@ impl RenderMode for GpuSpmmMode {
                     self.reupload_environment(true);
                 }
                 SceneEdit::Background(_) => self.reupload_environment(false),
-                _ if self.film.layers() != layer_count => {
-                    // A light added or removed: the device's frame buffer follows.
+                _ if self.film.layers() != layer_count || grown => {
+                    // A light added or removed: the device's frame buffer follows, or
+                    // the light table outgrew its room.
                     self.rebind();
                 }
                 _ => {}
@@ -855,12 +943,32 @@ impl RenderMode for GpuSpmmMode {
                 self.restart_all()
             }
             SceneEdit::Meshes(_) => {
+                // New UVs or material assignments may reach other clusters.
+                if reachable_clusters(&self.scene) != self.scene_data.reach && !self.all_clusters {
+                    match self.rebuild_data() {
+                        Ok(data) => self.scene_data = data,
+                        Err(e) => {
+                            self.scene.meshes = meshes_before.expect("taken for a mesh edit");
+                            return Err(e);
+                        }
+                    }
+                }
                 self.bvh.update(&self.scene.meshes);
                 self.rebind();
                 self.restart_all()
             }
             SceneEdit::Material { index, .. } => {
-                self.reupload_data();
+                // The re-upload is checked against the device's limit first; the
+                // material stays as it was if it would not fit.
+                match self.rebuild_data() {
+                    Ok(data) => self.scene_data = data,
+                    Err(e) => {
+                        self.scene.materials[index] =
+                            material_before.clone().expect("taken for a material edit");
+                        return Err(e);
+                    }
+                }
+                self.rebind();
                 let after = &self.scene.materials[index];
                 let bit = material_bit(index);
                 Invalidation::Pixels(

@@ -10,6 +10,8 @@ pub(super) const LIGHTS: &str = include_str!("../../../shaders/lights.wgsl");
 pub(super) const INTEGRATOR: &str = include_str!("../../../shaders/integrator.wgsl");
 pub(super) const ENVIRONMENT: &str = include_str!("../../../shaders/environment.wgsl");
 pub(super) const MERL: &str = include_str!("../../../shaders/merl.wgsl");
+pub(super) const CDF: &str = include_str!("../../../shaders/cdf.wgsl");
+pub(super) const BTF_TABLE: &str = include_str!("../../../shaders/btf.wgsl");
 
 /// The test kernels: evaluations of BRDFs and SPMM texels, and primary-ray hits.
 #[cfg(test)]
@@ -40,5 +42,15 @@ fn from_disk(embedded: &str) -> String {
 
 /// The integrator: one sample per pixel per dispatch.
 pub(super) fn integrator() -> String {
-    module(&[INTEGRATOR, TRAVERSAL, BRDF, SPMM, LIGHTS, ENVIRONMENT, MERL])
+    module(&[
+        INTEGRATOR,
+        TRAVERSAL,
+        BRDF,
+        SPMM,
+        LIGHTS,
+        ENVIRONMENT,
+        MERL,
+        CDF,
+        BTF_TABLE,
+    ])
 }

@@ -56,16 +56,19 @@ fn test_module() -> String {
         shaders::BRDF,
         shaders::SPMM,
         shaders::MERL,
+        shaders::CDF,
+        shaders::BTF_TABLE,
     ])
 }
 
-const TEST_SLOTS: [Slot; 6] = [
+const TEST_SLOTS: [Slot; 7] = [
     Slot::Read,
     Slot::Read,
     Slot::ReadWrite,
     Slot::Read,
     Slot::Read,
     Slot::ReadWrite,
+    Slot::Read,
 ];
 
 /// Runs `eval_cases` over `cases` with `data`; RGB per case.
@@ -87,7 +90,9 @@ fn evaluate(data: &[u32], cases: &[Case]) -> Vec<[f32; 3]> {
     let counters = zeroed(ctx, "counters", 16);
     let bind = kernel.bind(
         ctx,
-        &[&data_buf, &case_buf, &out, &empty, &empty, &counters],
+        &[
+            &data_buf, &case_buf, &out, &empty, &empty, &counters, &empty,
+        ],
     );
     let mut enc = encoder(ctx);
     kernel.record(&mut enc, &bind, cases.len() as u32);
@@ -265,7 +270,7 @@ fn basis_functions_and_spmm_texels_match_the_f64_reference() {
             max_npca: usize::MAX,
         });
         assert_eq!(prepared.has_residual(), residual);
-        let record = words.push_spmm(&prepared, glam::DVec2::ONE);
+        let record = words.push_spmm(&prepared, glam::DVec2::ONE, None);
         for t in 0..12u32 {
             for &(wi, wo) in pairs.iter().step_by(4) {
                 cases.push(Case {
@@ -348,6 +353,7 @@ fn primary_hits_match(scene_file: &str, size: u32) {
             &geometry.nodes,
             &geometry.tris,
             &counters,
+            &data,
         ],
     );
     let mut enc = encoder(ctx);
@@ -447,7 +453,7 @@ fn gpu_mode(scene: crate::scene::Scene, size: u32) -> super::GpuSpmmMode {
 
 /// The GPU image after `frames` frames against the CPU's converged one: an error no
 /// larger than the CPU's own after as many frames (independent samples, as the GPU
-/// draws them, and packs sampled by the defensive mixture, as the GPU samples them)
+/// draws them; packs sampled from their bases on both, the CPU's default)
 /// times 1.25 plus a floor of 1% of the image's mean, the same mean within
 /// 2% plus four standard errors of an image mean after `frames` frames (the CPU's own
 /// RMSE over the square root of the pixel count: sharp MERL lobes make rare, large
@@ -459,9 +465,22 @@ fn image_agrees_with_the_cpu(scene_file: &str, size: u32, frames: u32) {
 
 fn image_of_scene_agrees_with_the_cpu(
     scene_file: &str,
+    scene: crate::scene::Scene,
+    size: u32,
+    frames: u32,
+) {
+    mode_agrees_with_the_cpu(scene_file, scene, size, frames, None);
+}
+
+/// The rule above for `gpu` (a fresh mode of `scene` if `None`) after `frames` more
+/// frames: a mode with a history (edits that kept some layers' samples) has at least
+/// as many samples per layer as a fresh one.
+fn mode_agrees_with_the_cpu(
+    scene_file: &str,
     mut scene: crate::scene::Scene,
     size: u32,
     frames: u32,
+    gpu: Option<super::GpuSpmmMode>,
 ) {
     use crate::render::{RenderMode, run_frames};
     scene.render.sampler = crate::rng::Sampler::Independent;
@@ -472,11 +491,8 @@ fn image_of_scene_agrees_with_the_cpu(
     let mut other = scene.clone();
     other.render.seed += 1;
     let mut cpu = crate::trace::SpmmMode::new(other, size, size).expect("CPU mode");
-    // Packs drawn as the GPU draws them (the defensive mixture), so the noise compared
-    // is the same estimator's.
-    cpu.set_pack_sampling(crate::trace::PackSampling::Defensive);
     run_frames(&mut cpu, frames, |_, _| {});
-    let mut gpu = gpu_mode(scene, size);
+    let mut gpu = gpu.unwrap_or_else(|| gpu_mode(scene, size));
     let run = run_frames(&mut gpu, frames, |_, _| {});
     let image = gpu.image();
     assert!(
@@ -597,28 +613,38 @@ fn a_background_image_and_map_sampling_alone_agree_with_the_cpu() {
 }
 
 /// The mode refuses by name what it does not render yet, and an edit that brings it.
+/// Nothing the CPU mode renders is refused on the GPU: BTF materials and more than
+/// 16 lights are accepted, and so is an edit that brings a BTF.
 #[test]
-fn unsupported_parts_are_named() {
-    use crate::render::{RenderMode, SceneEdit, Unrenderable};
-    let mut many = test_scene("cornell.toml");
-    let light = many.lights[0];
-    many.lights = vec![light; 17];
-    let err = super::GpuSpmmMode::supports(&many).expect_err("17 lights");
-    assert_eq!(
-        err.parts,
-        vec![Unrenderable::Light {
-            index: 16,
-            kind: "area"
-        }],
-        "{err}"
+fn btf_materials_and_many_lights_are_supported() {
+    use crate::render::{RenderMode, SceneEdit};
+    let mut scene = test_scene("cornell.toml");
+    let btf = crate::scene::test_scenes::tabulated_btf(
+        &AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
+        DVec3::splat(0.5),
+        glam::DVec2::ONE,
     );
-    many.lights.truncate(16);
-    let mut gpu = gpu_mode(many, 8);
-    let err = gpu
-        .apply(SceneEdit::AddLight(light))
-        .expect_err("a 17th light refused");
-    assert!(err.to_string().contains("light[16] (area)"), "{err}");
-    assert_eq!(gpu.scene().lights.len(), 16);
+    let mut with_btf = scene.clone();
+    with_btf.materials[0] = btf.clone();
+    super::GpuSpmmMode::supports(&with_btf).expect("a BTF material");
+    let light = scene.lights[0];
+    scene.lights = vec![light; 17];
+    super::GpuSpmmMode::supports(&scene).expect("17 lights");
+    let mut gpu = gpu_mode(scene, 8);
+    gpu.apply(SceneEdit::Material {
+        index: 0,
+        material: btf,
+    })
+    .expect("a BTF edit");
+    assert!(matches!(
+        gpu.scene().materials[0],
+        crate::scene::Material::Btf { .. }
+    ));
+    assert!(gpu.device_bytes().btf_tables > 0);
+    // A table no mesh carries goes up not at all.
+    let mut bare = gpu.scene().clone();
+    bare.meshes.retain(|m| m.material != 0);
+    assert_eq!(gpu_mode(bare, 8).device_bytes().btf_tables, 0);
 }
 
 /// The code-built edit scene: an SPMM panel with a PCA residual under an area and a
@@ -991,4 +1017,408 @@ fn merl_means() {
             mean(&cpu.image())
         );
     }
+}
+
+/// The pack sampler in WGSL (`spmm_sample_texel`, `spmm_texel_pdf`) against
+/// `PreparedSpmm::sample_texel` / `texel_pdf` (the CPU's `PackSampling::Bases`) on
+/// every texel of a pack of tilted Lambertian, Ward, Ashikhmin-Shirley, Lafortune and
+/// Oren-Nayar bases (one texel's weights zeroed: the defensive mixture alone), on
+/// random and grazing direction pairs. f32 limits: the pdf within 1e-3 relative plus
+/// 1e-6 of its scale (as the BRDF samplers' pdfs); the direction drawn from the same
+/// numbers within 1e-3 per component, drawn or not alike, except on at most 2% of
+/// draws (a number within f32 rounding of a basis's selection interval edge picks the
+/// neighbouring basis; the horizon decides near-grazing draws).
+#[test]
+fn pack_sampling_matches_the_cpus() {
+    use glam::DVec2;
+    let mut material = crate::spmm::tests::sample_material(4, 3, 3, None);
+    // Texel 5 without weight: the sampler falls back to the defensive mixture alone.
+    {
+        let w = material.weights().clone();
+        let mut rgb = w.rgb.clone();
+        for v in &mut rgb[w.offsets[5] as usize..w.offsets[6] as usize] {
+            *v = [0.0; 3];
+        }
+        material = crate::spmm::SpmmMaterial::new(
+            material.name().to_string(),
+            material.provenance().to_string(),
+            material.width(),
+            material.height(),
+            material.clusters().to_vec(),
+            material.texel_cluster().to_vec(),
+            crate::spmm::SparseWeights {
+                offsets: w.offsets.clone(),
+                basis: w.basis.clone(),
+                rgb,
+            },
+            None,
+        )
+        .expect("valid material");
+    }
+    let prepared = material.prepare(&crate::spmm::PrepareRequest {
+        used_clusters: None,
+        residual: false,
+        max_npca: 0,
+    });
+    let mut words = Words::default();
+    let record = words.push_spmm(&prepared, glam::DVec2::ONE, None);
+    let pairs = direction_pairs(11, 240);
+    let mut cases = Vec::new();
+    let mut reference = Vec::new();
+    let mut s = SampleStream::new(&[12]);
+    for t in 0..12u32 {
+        for &(wi, wo) in &pairs {
+            let case = Case {
+                kind: 8,
+                record,
+                wi,
+                wo,
+                texel: t,
+                residual: false,
+            };
+            cases.push(case);
+            reference.push((t, wi, wo, None));
+            let u = DVec2::new(s.next(), s.next()).as_vec2().as_dvec2();
+            let u = u.min(DVec2::splat(1.0 - 1e-7));
+            cases.push(Case {
+                kind: 9,
+                wi: DVec3::new(u.x, u.y, 0.0),
+                ..case
+            });
+            reference.push((t, wi, wo, Some(u)));
+        }
+    }
+    let got = evaluate(&words.words, &cases);
+    let (mut worst_pdf, mut worst_dir, mut drawn, mut off, mut draws) = (0.0f64, 0.0f64, 0, 0, 0);
+    for (g, &(t, wi, wo, u)) in got.iter().zip(&reference) {
+        let t = t as usize;
+        match u {
+            None => {
+                let c = prepared.texel_pdf(t, wi, wo);
+                let g = g[0];
+                assert!(g.is_finite() && g >= 0.0, "texel {t} pdf at {wi} {wo}: {g}");
+                let e = excess(g, c, 1e-3, 1e-6 * (1.0 + c));
+                assert!(
+                    e <= 1.0,
+                    "texel {t} pdf at wi {wi} wo {wo}: gpu {g}, f64 {c}"
+                );
+                worst_pdf = worst_pdf.max(e);
+            }
+            Some(u) => {
+                draws += 1;
+                let c = prepared.sample_texel(t, wo, u).map(|s| s.0);
+                let gv = DVec3::new(g[0] as f64, g[1] as f64, g[2] as f64);
+                assert!(gv.is_finite(), "texel {t} sample at {wo} {u}: {gv}");
+                match c {
+                    Some(c) if gv != DVec3::ZERO => {
+                        let e = (gv - c).abs().max_element();
+                        if e > 1e-3 {
+                            off += 1;
+                        } else {
+                            worst_dir = worst_dir.max(e);
+                            drawn += 1;
+                        }
+                    }
+                    None if gv == DVec3::ZERO => {}
+                    _ => off += 1,
+                }
+            }
+        }
+    }
+    eprintln!(
+        "pack sampling: pdf worst {worst_pdf:.3} of the tolerance; {draws} draws, {drawn} alike (worst {worst_dir:.2e}), {off} off"
+    );
+    assert!(
+        off * 50 <= draws,
+        "{off} of {draws} draws differ from the CPU's"
+    );
+    assert!(
+        drawn > draws / 2,
+        "most samples are drawn: {drawn} of {draws}"
+    );
+}
+
+/// More than 16 lights (40: point lights, one-sided area lights facing both ways, a
+/// black one): the CPU's bounded film (two own layers and a shared one) and its
+/// stochastic selection, on the GPU; the image rule above.
+#[test]
+fn forty_lights_on_the_gpu_agree_with_the_cpu() {
+    let scene = crate::scene::test_scenes::many_lights_scene(40);
+    image_of_scene_agrees_with_the_cpu("40 lights", scene, 24, 16);
+}
+
+/// Light edits among 40 lights invalidate on the GPU exactly as on the CPU (a shared
+/// light's colour promotes it to an own layer, a colour edit of an own light keeps
+/// everything, a move restarts its layer, added and removed lights, back to 16 lights
+/// and one layer each), the sample counts follow, and the edited mode's image then
+/// agrees with the CPU's for the edited scene.
+#[test]
+fn light_edits_among_many_lights_invalidate_as_on_the_cpu() {
+    use crate::render::{RenderMode, SceneEdit, run_frames};
+    let mut scene = crate::scene::test_scenes::many_lights_scene(40);
+    scene.render.sampler = crate::rng::Sampler::Independent;
+    let size = 24;
+    let mut cpu = crate::trace::SpmmMode::new(scene.clone(), size, size).expect("CPU mode");
+    let mut gpu = gpu_mode(scene.clone(), size);
+    run_frames(&mut cpu, 2, |_, _| {});
+    run_frames(&mut gpu, 2, |_, _| {});
+    let own = |m: &crate::trace::SpmmMode| m.light_layers().light_targets(m.scene());
+    let targets = own(&cpu);
+    let shared = (0..40)
+        .find(|&k| targets[k].layer == crate::render::layers::SHARED_LIGHTS)
+        .expect("a shared light");
+    let mut brighter = scene.lights[shared];
+    brighter = brighter.with_emission(brighter.emission() * 3.0);
+    let moved = match brighter {
+        crate::scene::Light::Point {
+            position,
+            intensity,
+        } => crate::scene::Light::Point {
+            position: position + DVec3::new(0.1, 0.0, 0.0),
+            intensity,
+        },
+        l => l,
+    };
+    let mut edits = vec![
+        SceneEdit::Light {
+            index: shared,
+            light: brighter,
+        },
+        SceneEdit::Light {
+            index: shared,
+            light: brighter.with_emission(brighter.emission() * 0.5),
+        },
+        SceneEdit::Light {
+            index: shared,
+            light: moved,
+        },
+        SceneEdit::AddLight(scene.lights[9]),
+        SceneEdit::RemoveLight(3),
+    ];
+    // Down to 16 lights: the film lays its light layers out again, one per light.
+    edits.extend((0..24).map(|_| SceneEdit::RemoveLight(0)));
+    for edit in edits {
+        let what = format!("{edit:?}");
+        let a = cpu.apply(edit.clone()).expect("CPU edit");
+        let b = gpu.apply(edit).expect("GPU edit");
+        assert_eq!(a, b, "{what}");
+        run_frames(&mut cpu, 1, |_, _| {});
+        run_frames(&mut gpu, 1, |_, _| {});
+        assert_eq!(cpu.film().layers(), gpu.film().layers(), "{what}");
+        assert_eq!(
+            cpu.progress().min_samples,
+            gpu.progress().min_samples,
+            "{what}"
+        );
+    }
+    assert_eq!(gpu.scene().lights.len(), 16);
+    // Back above 16, then the image of the edited scene.
+    let extra = gpu.scene().lights[0];
+    gpu.apply(SceneEdit::AddLight(extra)).expect("a 17th light");
+    let edited = gpu.scene().clone();
+    mode_agrees_with_the_cpu("40 lights, edited", edited, size, 16, Some(gpu));
+}
+
+/// Only the clusters the scene can reach go up: a panel whose UVs cover part of its
+/// texture (one cluster of two) uploads fewer basis and residual bytes than a full
+/// upload and renders the same image bit for bit; a mesh edit that widens the UVs to
+/// the whole texture uploads the rest and again renders as a full upload; a pack no
+/// mesh carries uploads nothing.
+#[test]
+fn a_scene_reaching_part_of_a_pack_uploads_less_and_renders_the_same() {
+    use crate::render::{Prepare, RenderMode, SceneEdit, run_frames};
+    let scene = super::reach::tests::partial_panel_scene();
+    let size = 24;
+    let make = |scene: &crate::scene::Scene, all| {
+        super::GpuSpmmMode::prepare_uploading(
+            context().clone(),
+            scene.clone(),
+            (size, size),
+            Prepare::quietly(),
+            all,
+        )
+        .expect("the GPU mode renders the scene")
+    };
+    let (mut partial, mut full) = (make(&scene, false), make(&scene, true));
+    let (p, f) = (partial.device_bytes(), full.device_bytes());
+    eprintln!("partial {p:?}\nfull {f:?}");
+    assert!(
+        p.residual_tables < f.residual_tables && p.spmm_bases < f.spmm_bases,
+        "{p:?} against {f:?}"
+    );
+    run_frames(&mut partial, 3, |_, _| {});
+    run_frames(&mut full, 3, |_, _| {});
+    assert!(
+        partial.image().pixels() == full.image().pixels(),
+        "the images differ"
+    );
+    assert_eq!(partial.overflows(), (0, 0));
+
+    // The panel's UVs over the whole texture: the edit uploads the other cluster.
+    let mut meshes = scene.meshes.clone();
+    for m in meshes.iter_mut().filter(|m| m.material == 1) {
+        for uv in &mut m.uvs {
+            *uv = (*uv - glam::DVec2::new(0.33, 0.15)) / glam::DVec2::new(0.06, 0.1);
+        }
+    }
+    partial
+        .apply(SceneEdit::Meshes(meshes))
+        .expect("a mesh edit");
+    assert_eq!(partial.device_bytes().residual_tables, f.residual_tables);
+    let mut reference = make(partial.scene(), true);
+    run_frames(&mut partial, 3, |_, _| {});
+    run_frames(&mut reference, 3, |_, _| {});
+    assert!(
+        partial.image().pixels() == reference.image().pixels(),
+        "the images differ after the edit"
+    );
+
+    let mut bare = scene.clone();
+    bare.meshes.retain(|m| m.material != 1);
+    let b = make(&bare, false).device_bytes();
+    assert_eq!(
+        (b.spmm_bases, b.spmm_weights, b.residual_tables),
+        (0, 0, 0),
+        "{b:?}"
+    );
+}
+
+/// A material edit whose data would pass the adapter's buffer limit is refused with
+/// the limit's message (bytes and adapter), not a device failure, and leaves the
+/// material and the film as they were.
+#[test]
+fn a_material_edit_past_the_buffer_limit_is_refused_by_size() {
+    use crate::render::{EditError, RenderMode, SceneEdit, run_frames};
+    let scene = super::reach::tests::partial_panel_scene();
+    let mut gpu = gpu_mode(scene.clone(), 8);
+    run_frames(&mut gpu, 2, |_, _| {});
+    gpu.limit_buffers(gpu.data_words_bytes() + 64);
+    let crate::scene::Material::Spmm {
+        material,
+        residual,
+        npca,
+        ..
+    } = &scene.materials[1]
+    else {
+        panic!("the panel is a pack");
+    };
+    // A finer tiling reaches every cluster: more residual tables than the limit.
+    let finer = crate::scene::Material::Spmm {
+        material: material.clone(),
+        uv_scale: glam::DVec2::splat(40.0),
+        residual: *residual,
+        npca: *npca,
+    };
+    let err = gpu
+        .apply(SceneEdit::Material {
+            index: 1,
+            material: finer,
+        })
+        .expect_err("past the limit");
+    let EditError::Size(message) = &err else {
+        panic!("not a size error: {err}");
+    };
+    assert!(
+        message.contains("byte") && message.contains(&context().adapter_name()),
+        "{message}"
+    );
+    assert!(matches!(
+        gpu.scene().materials[1],
+        crate::scene::Material::Spmm { uv_scale, .. } if uv_scale == glam::DVec2::splat(2.0)
+    ));
+    assert_eq!(gpu.progress().min_samples, 2);
+    run_frames(&mut gpu, 1, |_, _| {});
+    assert!(gpu.failure().is_none());
+    assert_eq!(gpu.progress().min_samples, 3);
+}
+
+/// `btf` tables in WGSL against `BtfTable::eval_texel` (f64 over the same values): a
+/// tabulated Ward BRDF on the Bonn 81 directions held as f32, and the same with its
+/// values rounded to f16 (held as f16, two to a word), on random and grazing pairs
+/// (outside the sets' hull too): within 1e-4 relative plus 1e-5 of the texel's scale.
+#[test]
+fn btf_tables_match_the_cpu() {
+    use crate::btf::table::{BtfTable, Storage};
+    let dirs = crate::btf::directions::bonn81();
+    let brdf = AnalyticBrdf::new(BrdfModel::Ward, &[("ax", 0.2), ("ay", 0.4)]).expect("valid");
+    let f32_btf = crate::btf::Btf::from_brdf(
+        &brdf,
+        DVec3::new(0.8, 0.5, 0.3),
+        2,
+        1,
+        dirs.clone(),
+        dirs.clone(),
+    )
+    .expect("valid BTF");
+    let halves: Vec<f32> = f32_btf
+        .data()
+        .iter()
+        .enumerate()
+        .map(|(i, &v)| half::f16::from_f32(v * if i % 7 == 0 { 0.5 } else { 1.0 }).to_f32())
+        .collect();
+    let f16_btf = crate::btf::Btf::new(
+        "halves".into(),
+        "test".into(),
+        2,
+        1,
+        dirs.clone(),
+        dirs,
+        halves,
+    )
+    .expect("valid BTF");
+    let tables = [
+        BtfTable::new(&f32_btf).expect("shadeable"),
+        BtfTable::new(&f16_btf).expect("shadeable"),
+    ];
+    assert_eq!(tables[0].storage(), Storage::F32);
+    assert_eq!(tables[1].storage(), Storage::F16);
+    let pairs = direction_pairs(21, 600);
+    let mut words = Words::default();
+    let mut cases = Vec::new();
+    let mut reference = Vec::new();
+    for table in &tables {
+        let record = words.push_btf(table, glam::DVec2::ONE);
+        for t in 0..2u32 {
+            for &(wi, wo) in &pairs {
+                cases.push(Case {
+                    kind: 10,
+                    record,
+                    wi,
+                    wo,
+                    texel: t,
+                    residual: false,
+                });
+                reference.push((
+                    format!("{:?} texel {t}", table.storage()),
+                    wi,
+                    wo,
+                    table.eval_texel(t as usize, wi, wo),
+                ));
+            }
+        }
+    }
+    let got = evaluate(&words.words, &cases);
+    let mut worst = 0.0f64;
+    for (g, (what, wi, wo, c)) in got.iter().zip(&reference) {
+        for ch in 0..3 {
+            assert!(g[ch].is_finite(), "{what}: {g:?}");
+            let e = excess(g[ch], c[ch], 1e-4, 1e-5 * (1.0 + c.abs().max_element()));
+            assert!(e <= 1.0, "{what} at wi {wi} wo {wo}: gpu {g:?}, f64 {c}");
+            worst = worst.max(e);
+        }
+    }
+    eprintln!("btf tables: worst {worst:.3} of the tolerance");
+}
+
+/// A scene with a `btf` material (the residual panel's pack replaced by a tabulated
+/// anisotropic Ward table, tiled 2 x 2) on the GPU against the CPU: the image rule.
+#[test]
+fn a_btf_scene_on_the_gpu_agrees_with_the_cpu() {
+    let mut scene = crate::scene::test_scenes::edit_test_scene();
+    scene.materials[1] = crate::scene::test_scenes::tabulated_btf(
+        &AnalyticBrdf::new(BrdfModel::Ward, &[("ax", 0.25), ("ay", 0.5)]).expect("valid"),
+        DVec3::new(0.7, 0.5, 0.3),
+        glam::DVec2::splat(2.0),
+    );
+    image_of_scene_agrees_with_the_cpu("btf panel", scene, 24, 16);
 }

@@ -107,7 +107,7 @@ impl EditedTexels {
 
 /// The inclusive range a..=b of a periodic axis of `n` cells as at most two half-open
 /// ranges inside 0..n.
-fn wrapped(a: i64, b: i64, n: i64) -> [Option<(i64, i64)>; 2] {
+pub(crate) fn wrapped(a: i64, b: i64, n: i64) -> [Option<(i64, i64)>; 2] {
     if b - a + 1 >= n {
         return [Some((0, n)), None];
     }

@@ -115,6 +115,8 @@ pub struct PreparedParts<'a> {
     pub basis: &'a [u16],
     pub rgb: &'a [[f32; 3]],
     pub residual: Option<PreparedResidualParts<'a>>,
+    /// Per cluster and basis, the albedo that sets how often `sample_texel` draws it.
+    pub basis_albedo: &'a [Vec<f64>],
 }
 
 /// The prepared residual: cell-major tables `[used cluster][light][view][1 + k][3]`,
@@ -427,6 +429,7 @@ impl PreparedSpmm {
                     coefficients: &r.coefficients,
                 }
             }),
+            basis_albedo: &self.basis_albedo,
         }
     }
 

@@ -96,6 +96,12 @@ impl AliasTable {
     pub fn pmf(&self) -> &[f64] {
         &self.pmf
     }
+
+    /// Per bin: the probability of keeping the bin, and its alias (a device that
+    /// draws from the same table uploads them).
+    pub fn bins(&self) -> &[(f64, u32)] {
+        &self.bins
+    }
 }
 
 /// What the stochastic path reads per light, rebuilt after every light edit.

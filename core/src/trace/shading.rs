@@ -30,7 +30,7 @@ pub enum PackSampling {
     #[default]
     Bases,
     /// The defensive half-cosine, half-uniform mixture alone: the sampling before
-    /// the bases were drawn from, and what the GPU path draws (docs/gpu.md).
+    /// the bases were drawn from.
     Defensive,
 }
 

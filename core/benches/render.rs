@@ -9,7 +9,9 @@
 //! - many lights: the default scene lit by 1 to 10,000 scattered lights at 256^2, the
 //!   automatic path (stochastic above 16 lights) against every light traced (forced),
 //!   with the film's bytes; `MESO_MANY_LIGHTS_REPORT=1` instead prints the frame
-//!   times, film bytes and an equal-time convergence comparison (docs/performance.md).
+//!   times, film bytes and an equal-time convergence comparison (docs/performance.md);
+//! - the viewport denoiser on the default scene's first frame at 256^2 and 512^2: the
+//!   filter as used against its straightforward reference, 1 thread and all threads.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -21,7 +23,7 @@ use meso_core::geometry::SceneBvh;
 use meso_core::modes;
 use meso_core::render::Film;
 use meso_core::render::layers::layer_count;
-use meso_core::render::{Device, ModeKind, Prepare, RenderMode, SceneEdit};
+use meso_core::render::{Denoiser, Device, ModeKind, Prepare, RenderMode, SceneEdit};
 use meso_core::rng::SampleStream;
 use meso_core::scene::mesh::{Placement, load_obj, vertex_normals};
 use meso_core::scene::{Light, Scene, TriangleMesh, load_scene};
@@ -280,6 +282,42 @@ fn bench_frames(c: &mut Criterion) {
     }
 }
 
+fn bench_denoise(c: &mut Criterion) {
+    let scene = load_scene(&root().join("tests/scenes/default.toml")).expect("default scene");
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool");
+    for size in [256u32, 512] {
+        let mut mode = create(scene.clone(), size);
+        mode.render_frame();
+        let (image, guides) = (
+            mode.image(),
+            mode.guides().expect("the spmm mode has guides"),
+        );
+        let denoiser = Denoiser::for_samples(1);
+        let mut group = c.benchmark_group(format!("denoise {size}x{size}"));
+        group.sample_size(10);
+        group.throughput(Throughput::Elements(u64::from(size * size)));
+        for threads in ["1 thread", "all threads"] {
+            let run = |f: &(dyn Fn() -> Option<meso_core::image::Image> + Sync)| {
+                if threads == "1 thread" {
+                    one.install(f)
+                } else {
+                    f()
+                }
+            };
+            group.bench_function(BenchmarkId::new("reference", threads), |b| {
+                b.iter(|| run(&|| denoiser.apply_reference(&image, &guides)))
+            });
+            group.bench_function(BenchmarkId::new("fast", threads), |b| {
+                b.iter(|| run(&|| denoiser.apply(&image, &guides)))
+            });
+        }
+        group.finish();
+    }
+}
+
 /// The default scene lit by `n` lights scattered over the floor instead of its own:
 /// every tenth a small one-sided area light (alternately facing down and up), the rest
 /// point lights; the total emission does not grow with `n`.
@@ -434,7 +472,8 @@ criterion_group!(
     bench_rays,
     bench_frames,
     bench_environment,
-    bench_many_lights
+    bench_many_lights,
+    bench_denoise
 );
 
 fn main() {

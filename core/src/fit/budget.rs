@@ -265,7 +265,8 @@ pub fn clamp_to_lobe_bound(m: &SpmmMaterial) -> Result<(SpmmMaterial, usize), Bu
         if lobe_bound::check_lobes(&current).is_ok() {
             return Ok((current, count(&lowered)));
         }
-        let limit = lobe_bound::HEMISPHERE_MULTIPLE * 0.97 * lobe_bound::tabulated_maximum(&current);
+        let limit =
+            lobe_bound::HEMISPHERE_MULTIPLE * 0.97 * lobe_bound::tabulated_maximum(&current);
         let mut weights = current.weights().clone();
         for (t, &c) in current.texel_cluster().iter().enumerate() {
             let range = weights.offsets[t] as usize..weights.offsets[t + 1] as usize;

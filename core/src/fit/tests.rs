@@ -451,14 +451,26 @@ fn a_byte_budget_keeps_the_components_that_remove_most_error() {
         ..base
     };
     let out = fit_btf(&btf, "w", "t", &settings, &AtomicBool::new(false), &quiet).expect("fit");
-    let counts = out.report.cluster_npca.clone().expect("the budget's choice");
+    let counts = out
+        .report
+        .cluster_npca
+        .clone()
+        .expect("the budget's choice");
     let bytes = encode_pack(&out.material, ResidualPrecision::F32);
-    assert!(bytes.len() as u64 <= even_bytes, "{} > {even_bytes}", bytes.len());
+    assert!(
+        bytes.len() as u64 <= even_bytes,
+        "{} > {even_bytes}",
+        bytes.len()
+    );
     // The ragged file's extra tensor and the coefficients of larger clusters may cost
     // one component of the even split's 12.
     let total: usize = counts.iter().sum();
     assert!((11..=12).contains(&total), "{counts:?}");
-    assert_ne!(counts, vec![4, 4, 4], "the clusters' errors differ: so do their shares");
+    assert_ne!(
+        counts,
+        vec![4, 4, 4],
+        "the clusters' errors differ: so do their shares"
+    );
     // One more component, the next in the greedy order, would not fit.
     let energies = budget::component_energies(&full.material);
     let order = budget::greedy_order(&energies);
@@ -486,10 +498,7 @@ fn a_byte_budget_keeps_the_components_that_remove_most_error() {
     assert!(got < even_sse, "budget {got} vs even split {even_sse}");
     // The file holds the chosen counts and reads back to the same values.
     let back = decode_pack(&bytes).expect("valid");
-    assert_eq!(
-        crate::spmm::pack::cluster_component_counts(&back),
-        counts
-    );
+    assert_eq!(crate::spmm::pack::cluster_component_counts(&back), counts);
     assert_eq!(encode_pack(&back, ResidualPrecision::F32), bytes);
     assert!((sse(&back) - got).abs() <= 1e-9 * got.max(1e-30));
 }
@@ -536,7 +545,11 @@ fn clamping_to_the_lobe_bound_lowers_only_the_weights_over_it() {
     use crate::spmm::{Residual, lobe_bound};
     let lamb = basis(BrdfModel::Lambertian, &[], DVec3::Z);
     // Broad at the measured directions, 20-odd times brighter towards the horizon.
-    let ct = basis(BrdfModel::CookTorrance, &[("m", 0.3), ("f0", 0.05)], DVec3::Z);
+    let ct = basis(
+        BrdfModel::CookTorrance,
+        &[("m", 0.3), ("f0", 0.05)],
+        DVec3::Z,
+    );
     let d = directions::bonn81();
     let table = d.len() * d.len() * 3;
     let pack = |w: f32| {
@@ -571,9 +584,17 @@ fn clamping_to_the_lobe_bound_lowers_only_the_weights_over_it() {
     assert_eq!(lowered, 1);
     assert_eq!(lobe_bound::check_lobes(&clamped), Ok(()));
     let (a, b) = (&over.weights().rgb, &clamped.weights().rgb);
-    assert_eq!((a[0], a[2], a[3]), (b[0], b[2], b[3]), "the others are kept");
+    assert_eq!(
+        (a[0], a[2], a[3]),
+        (b[0], b[2], b[3]),
+        "the others are kept"
+    );
     // Channels over the cap are lowered to it, those under it kept.
-    assert!(b[1][0] < 0.2 && b[1][0] == b[1][2] && b[1][1] == 0.001, "{:?}", b[1]);
+    assert!(
+        b[1][0] < 0.2 && b[1][0] == b[1][2] && b[1][1] == 0.001,
+        "{:?}",
+        b[1]
+    );
     // Lowered no further than the fitter's margin below the bound.
     let peak = lobe_bound::hemisphere_peak(&ct).0;
     let ratio = f64::from(b[1][0]) * peak / lobe_bound::tabulated_maximum(&clamped);

@@ -859,7 +859,11 @@ fn per_cluster_npca_stores_only_the_kept_components_and_reads_back() {
             assert_eq!(back, m);
         }
         // The padded layout of the same values would be 5 components' tables larger.
-        let elem = if precision == ResidualPrecision::F16 { 2 } else { 4 };
+        let elem = if precision == ResidualPrecision::F16 {
+            2
+        } else {
+            4
+        };
         let padded = 9 * table * elem + 3 * m.texel_cluster().len() * 4;
         let ragged = 4 * table * elem + coefs * 4;
         let full = encode_pack(&sample_material(5, 4, 3, Some(3)), precision).len();

@@ -512,7 +512,7 @@ fn the_greedy_order_is_optimal_for_every_count() {
     // Against every split of n components: the greedy prefix keeps the most.
     for n in 0..=order.len() {
         let greedy: f64 = {
-            let mut next = vec![0; 4];
+            let mut next = [0; 4];
             order[..n]
                 .iter()
                 .map(|&c| {

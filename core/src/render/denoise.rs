@@ -124,8 +124,8 @@ impl Denoiser {
                 })
                 .collect();
             for (y, row) in rows.into_iter().enumerate() {
-                for k in 0..3 {
-                    current.0[k][y * w..(y + 1) * w].copy_from_slice(&row[k]);
+                for (plane, values) in current.0.iter_mut().zip(&row) {
+                    plane[y * w..(y + 1) * w].copy_from_slice(values);
                 }
             }
         }

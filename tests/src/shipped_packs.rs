@@ -89,13 +89,19 @@ fn fitted_packs_validate_and_stay_small() {
             }
             Some(trim) => {
                 let want = format!("--seed 0; meso pack trim {trim}");
-                assert!(provenance.ends_with(&want), "{name}: {provenance} vs {want}");
+                assert!(
+                    provenance.ends_with(&want),
+                    "{name}: {provenance} vs {want}"
+                );
                 assert!(r.npca <= npca, "{name}");
                 let budget: u64 = trim
                     .strip_prefix("--max-bytes ")
                     .and_then(|b| b.parse().ok())
                     .expect("trim=\"--max-bytes N\"");
-                assert!(len <= budget, "{name}: {len} bytes over its budget {budget}");
+                assert!(
+                    len <= budget,
+                    "{name}: {len} bytes over its budget {budget}"
+                );
             }
         }
     }

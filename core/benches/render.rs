@@ -127,10 +127,7 @@ fn bench_rays(c: &mut Criterion) {
     let bunny59k = subdivide(&subdivide(&bunny));
     let cloth = load("tablecloth.obj");
     let cloth1m = subdivide(&subdivide(&subdivide(&cloth)));
-    let one = rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
-        .build()
-        .expect("pool");
+    let one = single_thread();
     let n = 65_536;
     for (label, mesh) in [
         ("bunny 3.7k", &bunny),
@@ -212,6 +209,18 @@ fn bench_rays(c: &mut Criterion) {
     }
 }
 
+/// A rayon pool of one thread, for the benches' "1 thread" figures.
+fn single_thread() -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool")
+}
+
+fn default_scene() -> Scene {
+    load_scene(&root().join("tests/scenes/default.toml")).expect("default scene")
+}
+
 fn create(scene: meso_core::scene::Scene, size: u32) -> Box<dyn RenderMode> {
     modes::create(
         ModeKind::Spmm,
@@ -250,11 +259,8 @@ fn bench_environment(c: &mut Criterion) {
 }
 
 fn bench_frames(c: &mut Criterion) {
-    let scene = load_scene(&root().join("tests/scenes/default.toml")).expect("default scene");
-    let one = rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
-        .build()
-        .expect("pool");
+    let scene = default_scene();
+    let one = single_thread();
     for size in [256u32, 512] {
         let mut group = c.benchmark_group(format!("frame {size}x{size}"));
         group.sample_size(10);
@@ -283,11 +289,8 @@ fn bench_frames(c: &mut Criterion) {
 }
 
 fn bench_denoise(c: &mut Criterion) {
-    let scene = load_scene(&root().join("tests/scenes/default.toml")).expect("default scene");
-    let one = rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
-        .build()
-        .expect("pool");
+    let scene = default_scene();
+    let one = single_thread();
     for size in [256u32, 512] {
         let mut mode = create(scene.clone(), size);
         mode.render_frame();
@@ -322,7 +325,7 @@ fn bench_denoise(c: &mut Criterion) {
 /// every tenth a small one-sided area light (alternately facing down and up), the rest
 /// point lights; the total emission does not grow with `n`.
 fn many_lights(n: usize) -> Scene {
-    let mut scene = load_scene(&root().join("tests/scenes/default.toml")).expect("default scene");
+    let mut scene = default_scene();
     let rng = SampleStream::new(&[77]);
     let u = |k: usize, d: u64| rng.at(k as u64 * 8 + d);
     scene.lights = (0..n)

@@ -948,7 +948,9 @@ impl RenderMode for GpuSpmmMode {
                     match self.rebuild_data() {
                         Ok(data) => self.scene_data = data,
                         Err(e) => {
-                            self.scene.meshes = meshes_before.expect("taken for a mesh edit");
+                            if let Some(meshes) = meshes_before {
+                                self.scene.meshes = meshes;
+                            }
                             return Err(e);
                         }
                     }
@@ -963,8 +965,9 @@ impl RenderMode for GpuSpmmMode {
                 match self.rebuild_data() {
                     Ok(data) => self.scene_data = data,
                     Err(e) => {
-                        self.scene.materials[index] =
-                            material_before.clone().expect("taken for a material edit");
+                        if let Some(material) = material_before {
+                            self.scene.materials[index] = material;
+                        }
                         return Err(e);
                     }
                 }

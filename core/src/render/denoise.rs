@@ -82,7 +82,11 @@ pub fn viewport_strength(samples: u32) -> f32 {
 const KERNEL: [f32; 5] = [1.0 / 16.0, 1.0 / 4.0, 3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0];
 
 fn compress(c: [f32; 3]) -> [f32; 3] {
-    c.map(|v| v.max(0.0) / (1.0 + v.max(0.0)))
+    c.map(compress_channel)
+}
+
+fn compress_channel(v: f32) -> f32 {
+    v.max(0.0) / (1.0 + v.max(0.0))
 }
 
 fn dist2(a: [f32; 3], b: [f32; 3]) -> f32 {
@@ -106,7 +110,12 @@ impl Denoiser {
         for pass in 0..self.passes {
             let step = 1usize << pass;
             let sigma_c = self.sigma_color / (1u32 << pass) as f32;
-            let compressed = Planar::of(&current.pixels().map(compress).collect::<Vec<_>>());
+            let compressed = Planar(
+                current
+                    .0
+                    .each_ref()
+                    .map(|plane| plane.iter().map(|&v| compress_channel(v)).collect()),
+            );
             let rows: Vec<[Vec<f32>; 3]> = (0..h)
                 .into_par_iter()
                 .map(|y| {
@@ -604,6 +613,41 @@ mod tests {
             }
         }
         (img, g)
+    }
+
+    /// The AVX2 build of a row pass gives the portable build's bits (docs/rendering.md
+    /// says so); on a CPU without AVX2 both calls run the portable code.
+    #[test]
+    fn the_avx2_and_portable_rows_are_bit_identical() {
+        let (img, guides) = busy_scene(61, 37);
+        let filter = Denoiser::for_samples(2);
+        let g = PlanarGuides::new(&filter, &guides);
+        let src = Planar::of(img.pixels());
+        let compressed = Planar::of(
+            &img.pixels()
+                .iter()
+                .map(|&c| compress(c))
+                .collect::<Vec<_>>(),
+        );
+        for step in [1, 2, 4, 8] {
+            let row = RowPass {
+                filter: &filter,
+                guides: &g,
+                src: &src,
+                compressed: &compressed,
+                width: 61,
+                height: 37,
+                step,
+                inv_color: 1.0 / (filter.sigma_color * filter.sigma_color),
+            };
+            for y in 0..37 {
+                let (a, b) = (row.run(y), row.run_portable(y));
+                for k in 0..3 {
+                    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&a[k]), bits(&b[k]), "step {step}, row {y}");
+                }
+            }
+        }
     }
 
     #[test]

@@ -574,7 +574,13 @@ impl Library {
             }
             ui.horizontal_wrapped(|ui| {
                 for entry in entries {
-                    if self.entry_button(ui, entry) {
+                    // Each entry in its own id scope, its button first: the button's
+                    // id stays the same while thumbnails land (a spinner before it
+                    // would shift it, and a click at that moment would be lost).
+                    let clicked = ui
+                        .push_id(&entry.path, |ui| self.entry_button(ui, entry))
+                        .inner;
+                    if clicked {
                         requests.push(LibraryRequest::Assign(entry.clone()));
                     }
                 }
@@ -583,7 +589,8 @@ impl Library {
         requests
     }
 
-    /// One file: its thumbnail (or a spinner, or why there is none) above its name.
+    /// One file: its thumbnail above its name (or its name and a spinner, or its name and
+    /// why there is no thumbnail).
     fn entry_button(&mut self, ui: &mut Ui, entry: &Entry) -> bool {
         let side = THUMB_SIZE as f32 * 0.75;
         let kind = match entry.kind {
@@ -614,10 +621,12 @@ impl Library {
                     .clicked()
             }
             _ => {
-                ui.spinner();
-                ui.add(egui::Button::new(&entry.name))
+                let clicked = ui
+                    .add(egui::Button::new(&entry.name))
                     .on_hover_text(hover)
-                    .clicked()
+                    .clicked();
+                ui.spinner();
+                clicked
             }
         }
     }

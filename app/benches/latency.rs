@@ -18,20 +18,23 @@ use meso_core::scene::{Material, load_scene};
 use meso_studio::render_worker::{Command, RenderWorker};
 use meso_studio::studio::{Settings, Studio, default_scene_path};
 
-/// Waits for a frame of `version` or newer and returns its render time (ms).
-fn wait_for(worker: &RenderWorker, version: u64) -> f64 {
+/// Waits for a frame of `version` or newer (not a preview if `whole`) and returns its
+/// render time (ms; 0 for a preview, whose time is not a frame's).
+fn wait_for(worker: &RenderWorker, version: u64, whole: bool) -> f64 {
     let deadline = Instant::now() + Duration::from_secs(30);
     loop {
-        if let Some(f) = worker.take_frame().filter(|f| f.version >= version) {
-            return f.frame_ms;
+        let frame = worker.take_frame();
+        if let Some(f) = frame.filter(|f| f.version >= version && !(whole && f.preview)) {
+            return if f.preview { 0.0 } else { f.frame_ms };
         }
         assert!(Instant::now() < deadline, "no frame of version {version}");
         std::thread::sleep(Duration::from_micros(200));
     }
 }
 
-/// The edits timed: each returns the edit for an iteration number.
-type EditFor<'a> = Box<dyn Fn(u64) -> SceneEdit + 'a>;
+/// The edits timed: each returns the edit for an iteration number, and whether the
+/// time is to the first whole frame (a preview, `Frame::preview`, does not count).
+type EditFor<'a> = (Box<dyn Fn(u64) -> SceneEdit + 'a>, bool);
 
 fn bench_latency(c: &mut Criterion) {
     let scene = load_scene(&default_scene_path()).expect("default scene");
@@ -66,28 +69,40 @@ fn bench_latency(c: &mut Criterion) {
     .collect();
     let light = scene.lights[0];
     let camera = scene.camera;
+    let camera_edit = move |v: u64| {
+        let mut moved = camera;
+        moved.position.x += if v % 2 == 0 { 0.0 } else { 0.05 };
+        SceneEdit::Camera(moved)
+    };
     let edits: Vec<(&str, EditFor)> = vec![
         (
             "material edit (basis normal)",
-            Box::new(|v| SceneEdit::Material {
-                index,
-                material: variants[(v % 2) as usize].clone(),
-            }),
+            (
+                Box::new(|v| SceneEdit::Material {
+                    index,
+                    material: variants[(v % 2) as usize].clone(),
+                }),
+                false,
+            ),
         ),
         (
             "light colour edit (samples kept)",
-            Box::new(|v| SceneEdit::Light {
-                index: 0,
-                light: light.with_emission(light.emission() * if v % 2 == 0 { 1.0 } else { 0.8 }),
-            }),
+            (
+                Box::new(|v| SceneEdit::Light {
+                    index: 0,
+                    light: light
+                        .with_emission(light.emission() * if v % 2 == 0 { 1.0 } else { 0.8 }),
+                }),
+                false,
+            ),
         ),
         (
-            "camera edit (every pixel restarts)",
-            Box::new(|v| {
-                let mut moved = camera;
-                moved.position.x += if v % 2 == 0 { 0.0 } else { 0.05 };
-                SceneEdit::Camera(moved)
-            }),
+            "camera edit (every pixel restarts; a preview first when tiles yield)",
+            (Box::new(camera_edit), false),
+        ),
+        (
+            "camera edit to the whole frame (after its preview)",
+            (Box::new(camera_edit), true),
         ),
     ];
 
@@ -105,13 +120,14 @@ fn bench_latency(c: &mut Criterion) {
             width: size,
             height: size,
         });
-        let mut frame_ms = wait_for(&worker, 1);
+        let mut frame_ms = wait_for(&worker, 1, true);
         let mut version = 1u64;
         let mut phase = 0x9e37_79b9_7f4a_7c15u64;
         let mut group = c.benchmark_group(format!("edit to first frame {size}x{size}"));
         group.sample_size(10);
-        for (name, edit) in &edits {
-            for yielding in [true, false] {
+        for (name, (edit, whole)) in &edits {
+            // A preview is shown only when tiles yield.
+            for yielding in [true, false].into_iter().filter(|y| *y || !whole) {
                 worker.send(Command::YieldToEdits(yielding));
                 let label = if yielding {
                     "tiles yield"
@@ -135,7 +151,7 @@ fn bench_latency(c: &mut Criterion) {
                                 version,
                                 edit: Box::new(edit(version)),
                             });
-                            let ms = wait_for(&worker, version);
+                            let ms = wait_for(&worker, version, *whole);
                             total += start.elapsed();
                             if ms > 0.0 {
                                 frame_ms = ms;

@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 
 use meso_core::image::Image;
 use meso_core::render::{
-    Denoiser, Device, Guides, ModeKind, Prepare, Progress, RenderMode, SceneEdit, denoise,
+    Denoiser, Device, Guides, ModeKind, Prepare, Progress, RenderMode, SceneEdit, denoise, preview,
 };
 use meso_core::scene::Scene;
 
@@ -48,8 +48,10 @@ pub enum Command {
     /// Show the first frames through the viewport denoiser (fading out by
     /// `denoise::FADE_SAMPLES`); the estimate itself is never filtered.
     Denoise(bool),
-    /// Let a command stop the frame in flight between tiles (on by default); off, a
-    /// command waits for the whole frame (the behaviour the latency bench compares).
+    /// Let a command stop the frame in flight between tiles, and show a preview of the
+    /// frame after an edit that restarts every pixel (`render::preview`), both on by
+    /// default; off, a command waits for the whole frame and the first frame after a
+    /// restart is whole (the behaviour the latency bench compares).
     YieldToEdits(bool),
 }
 
@@ -69,6 +71,10 @@ pub struct Frame {
     /// What the viewport shows: the estimate, blended with its denoised version
     /// during the first frames when the denoiser is on (the same `Arc` otherwise).
     pub shown: Arc<Image>,
+    /// A preview after an edit that restarted every pixel: one pixel per block has
+    /// its first sample and `image` and `shown` are those pixels spread over the
+    /// image (`render::preview`), for the viewport only: not an estimate to measure.
+    pub preview: bool,
     pub progress: Progress,
     pub frame_ms: f64,
     pub rays_per_second: f64,
@@ -222,6 +228,21 @@ fn changes_guides(command: &Command) -> bool {
     }
 }
 
+/// The preview frame of `m`'s film after `render_preview` did `stats`.
+fn preview_of(
+    m: &dyn RenderMode,
+    stats: meso_core::render::FrameStats,
+    stride: u32,
+    version: u64,
+) -> Frame {
+    let image = Arc::new(preview::spread(&m.image(), stride));
+    Frame {
+        preview: true,
+        overlays: Vec::new(),
+        ..frame_with(m, stats, version, Arc::clone(&image), image)
+    }
+}
+
 /// The frame to publish of `m`'s film now, after a call that did `stats`.
 fn frame_of(
     m: &dyn RenderMode,
@@ -236,17 +257,29 @@ fn frame_of(
     // is shown as it is: denoising the whole image would cost far more than it.
     let pixels = u64::from(progress.width) * u64::from(progress.height);
     let partial = stats.counters.samples > 0 && stats.counters.samples * 2 <= pixels;
+    let shown = if denoise && !partial {
+        shown(m, &image, progress.min_samples, guides)
+    } else {
+        Arc::clone(&image)
+    };
+    frame_with(m, stats, version, image, shown)
+}
+
+fn frame_with(
+    m: &dyn RenderMode,
+    stats: meso_core::render::FrameStats,
+    version: u64,
+    image: Arc<Image>,
+    shown: Arc<Image>,
+) -> Frame {
     Frame {
         version,
         mode: m.kind(),
         device: m.device(),
-        shown: if denoise && !partial {
-            shown(m, &image, progress.min_samples, guides)
-        } else {
-            Arc::clone(&image)
-        },
+        shown,
         image,
-        progress,
+        preview: false,
+        progress: m.progress(),
         overlays: m
             .debug_overlays()
             .into_iter()
@@ -378,6 +411,19 @@ fn run(
             ));
             continue;
         }
+        // No pixel has a sample (a camera edit restarted them all): a few pixels of
+        // the frame first, spread over the viewport, then the rest of the frame.
+        let (width, height) = (m.progress().width, m.progress().height);
+        let stride = preview::stride_for(width, height);
+        let previewed = yield_to_edits
+            && m.progress().min_samples == 0
+            && match m.render_preview(stride) {
+                Some(stats) => {
+                    publish(preview_of(m.as_ref(), stats, stride, version));
+                    true
+                }
+                None => false,
+            };
         // Every pixel keeps a sample (an emission edit re-weights, a stopped frame
         // left its rows): show the edit now, then go on with the frame.
         let shows_whole = m.progress().min_samples > 0;
@@ -390,10 +436,11 @@ fn run(
                 &mut guides,
             ));
         }
-        let stats = if shows_whole && yield_to_edits {
+        let stats = if (shows_whole || previewed) && yield_to_edits {
             // A command stops the frame between tiles; it is applied at once and the
-            // frame resumes after it. A film with unsampled pixels renders its frame
-            // whole, so a stream of edits (a camera drag) still shows frames.
+            // frame resumes after it. A film with unsampled pixels and no preview
+            // renders its frame whole, so a stream of edits still shows frames (a
+            // camera drag shows a preview per step).
             m.render_frame_yielding(&mut || match rx.try_recv() {
                 Ok(c) => {
                     early.push(c);
@@ -588,5 +635,152 @@ mod tests {
         meso_core::render::run_frames(reference.as_mut(), frame.progress.frames, |_, _| {});
         assert!(frame.progress.frames > 0);
         assert_eq!(frame.image.pixels(), reference.image().pixels());
+    }
+
+    /// Core's CPU spmm mode whose frames wait for the test's go-ahead (previews do
+    /// not), so the test sees each frame the thread publishes.
+    struct Gated {
+        inner: Box<dyn RenderMode>,
+        go: Arc<Mutex<mpsc::Receiver<()>>>,
+    }
+
+    impl RenderMode for Gated {
+        fn kind(&self) -> ModeKind {
+            self.inner.kind()
+        }
+        fn device(&self) -> Device {
+            self.inner.device()
+        }
+        fn scene(&self) -> &Scene {
+            self.inner.scene()
+        }
+        fn render_frame(&mut self) -> FrameStats {
+            let _ = self.go.lock().map(|go| go.recv());
+            self.inner.render_frame()
+        }
+        fn render_preview(&mut self, stride: u32) -> Option<FrameStats> {
+            self.inner.render_preview(stride)
+        }
+        fn image(&self) -> Image {
+            self.inner.image()
+        }
+        fn progress(&self) -> Progress {
+            self.inner.progress()
+        }
+        fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
+            self.inner.apply(edit)
+        }
+        fn set_samples_per_frame(&mut self, samples: u32) {
+            self.inner.set_samples_per_frame(samples);
+        }
+        fn preparation(&self) -> PreparationReport {
+            self.inner.preparation()
+        }
+    }
+
+    struct GatedModes(Arc<Mutex<mpsc::Receiver<()>>>);
+
+    impl ModeMaker for GatedModes {
+        fn supports(&self, kind: ModeKind, d: Device, scene: &Scene) -> Result<(), ModeError> {
+            CoreModes.supports(kind, d, scene)
+        }
+        fn create(
+            &self,
+            kind: ModeKind,
+            device: Device,
+            scene: Scene,
+            width: u32,
+            height: u32,
+            prepare: Prepare,
+        ) -> Result<Box<dyn RenderMode>, ModeError> {
+            let inner = CoreModes.create(kind, device, scene, width, height, prepare)?;
+            let go = Arc::clone(&self.0);
+            Ok(Box::new(Gated { inner, go }))
+        }
+    }
+
+    fn next_frame(worker: &RenderWorker) -> Frame {
+        let deadline = Instant::now() + Duration::from_secs(60);
+        loop {
+            if let Some(f) = worker.take_frame() {
+                return f;
+            }
+            assert!(Instant::now() < deadline, "no frame");
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+
+    /// After a load and after a camera edit, the first frame published is a preview:
+    /// the frame's own samples of one pixel per block, spread over the image, shown
+    /// before the rest of the frame is rendered; the whole frame that follows is a
+    /// plain render's. With yielding off there is no preview.
+    #[test]
+    fn a_restart_shows_a_preview_before_the_whole_frame() {
+        const SIZE: u32 = 256;
+        let (go, gate) = mpsc::channel();
+        let worker =
+            RenderWorker::spawn_with(None, Arc::new(GatedModes(Arc::new(Mutex::new(gate)))));
+        let path = crate::studio::default_scene_path().with_file_name("cornell.toml");
+        let scene = meso_core::scene::load_scene(&path).expect("the Cornell scene");
+        let fresh = |scene: &Scene| {
+            CoreModes
+                .create(
+                    ModeKind::Spmm,
+                    Device::Cpu,
+                    scene.clone(),
+                    SIZE,
+                    SIZE,
+                    Prepare::quietly(),
+                )
+                .expect("the CPU mode")
+        };
+        let stride = preview::stride_for(SIZE, SIZE);
+        assert!(stride > 1);
+        worker.send(Command::MaxSamples(1));
+        worker.send(Command::Load {
+            version: 1,
+            scene: Box::new(scene.clone()),
+            mode: ModeKind::Spmm,
+            device: Device::Cpu,
+            width: SIZE,
+            height: SIZE,
+        });
+        let mut moved = scene.clone();
+        moved.camera.position.x += 0.2;
+        for (version, scene) in [(1, &scene), (2, &moved)] {
+            if version == 2 {
+                worker.send(Command::Edit {
+                    version,
+                    edit: Box::new(SceneEdit::Camera(moved.camera)),
+                });
+            }
+            let first = next_frame(&worker);
+            assert!(
+                first.preview,
+                "version {version}: the first frame is a preview"
+            );
+            assert_eq!((first.version, first.progress.min_samples), (version, 0));
+            let mut direct = fresh(scene);
+            direct.render_preview(stride).expect("a preview");
+            assert_eq!(*first.image, preview::spread(&direct.image(), stride));
+            assert!(
+                Arc::ptr_eq(&first.image, &first.shown),
+                "a preview is not denoised"
+            );
+            go.send(()).expect("the thread waits");
+            let whole = next_frame(&worker);
+            assert!(!whole.preview && whole.progress.min_samples == 1);
+            direct.render_frame();
+            assert_eq!(whole.image.pixels(), direct.image().pixels());
+        }
+        worker.send(Command::YieldToEdits(false));
+        moved.camera.position.x += 0.2;
+        worker.send(Command::Edit {
+            version: 3,
+            edit: Box::new(SceneEdit::Camera(moved.camera)),
+        });
+        go.send(()).expect("the thread waits");
+        let whole = next_frame(&worker);
+        assert!(!whole.preview && (whole.version, whole.progress.min_samples) == (3, 1));
     }
 }

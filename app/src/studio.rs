@@ -1254,6 +1254,11 @@ impl Studio {
             };
             match self.viewport.frame() {
                 Some(f) => {
+                    if f.preview {
+                        ui.label("preview").on_hover_text(
+                            "The view changed: one pixel in every few has its first sample, spread over the image; the whole frame follows.",
+                        );
+                    }
                     ui.label(format!(
                         "{} spp · {}x{} · {} non-finite dropped · film {:.1} MB",
                         f.progress.min_samples,
@@ -1586,6 +1591,7 @@ impl Studio {
         };
         let key = (live.finished, r.seq);
         let comparable = live.version == r.version
+            && !live.preview
             && (live.image.width(), live.image.height()) == (r.image.width(), r.image.height());
         if comparable
             && self.measure_job.is_none()

@@ -9,6 +9,7 @@ pub mod denoise;
 pub mod edit;
 pub mod film;
 pub mod layers;
+pub mod preview;
 pub mod reach;
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -277,6 +278,16 @@ pub trait RenderMode: Send {
     fn render_frame_yielding(&mut self, stop: &mut dyn FnMut() -> bool) -> FrameStats {
         let _ = stop;
         self.render_frame()
+    }
+    /// When no pixel has a sample yet (after a camera, resize or mesh edit, or at
+    /// the start), renders the next frame's samples of one pixel per `stride` x
+    /// `stride` block (`preview::grid_pixels`) and returns their statistics; the frame
+    /// then completes the other pixels, so the film is an uninterrupted frame's.
+    /// `None` when the film has samples or the mode does not preview (it is then
+    /// unchanged). The viewport shows `preview::spread` of `image` meanwhile.
+    fn render_preview(&mut self, stride: u32) -> Option<FrameStats> {
+        let _ = stride;
+        None
     }
     /// The image accumulated so far, with the current emissions.
     fn image(&self) -> Image;

@@ -517,3 +517,63 @@ fn a_frame_stopped_between_tiles_finishes_with_an_uninterrupted_frames_samples()
     fresh.render_frame();
     assert!(stopped.image().pixels() == fresh.image().pixels());
 }
+
+/// A preview renders one pixel per block of the frame to come and nothing else; the
+/// frame it starts completes the rest, so the film equals an uninterrupted render's;
+/// there is no preview once pixels have samples, and again after a camera edit.
+#[test]
+fn a_preview_takes_the_frames_own_samples_of_one_pixel_per_block() {
+    use crate::render::preview::grid_pixels;
+    const W: u32 = 40;
+    const STRIDE: u32 = 4;
+    let mut whole = SpmmMode::new(scene(), W, W).expect("size");
+    let mut previewed = SpmmMode::new(scene(), W, W).expect("size");
+    let grid = grid_pixels(W, W, STRIDE);
+    let preview = previewed
+        .render_preview(STRIDE)
+        .expect("an empty film previews");
+    assert_eq!(preview.counters.samples, grid.len() as u64);
+    assert_eq!(previewed.progress().frames, 0, "the frame is unfinished");
+    let image = previewed.image();
+    let lit = |p: usize| image.pixels()[p] != [0.0; 3];
+    assert!(
+        grid.iter().all(|&p| lit(p as usize)),
+        "a previewed pixel is black"
+    );
+    let off_grid = (0..(W * W) as usize).filter(|p| !grid.contains(&(*p as u32)));
+    assert!(
+        off_grid.clone().all(|p| !lit(p)),
+        "a pixel off the grid was sampled"
+    );
+    assert!(
+        previewed.render_preview(STRIDE).is_none(),
+        "previewed twice"
+    );
+
+    let rest = previewed.render_frame();
+    assert_eq!(rest.counters.samples, u64::from(W * W) - grid.len() as u64);
+    whole.render_frame();
+    for m in [&mut whole, &mut previewed] {
+        m.render_frame();
+        assert!(
+            m.render_preview(STRIDE).is_none(),
+            "a film with samples previews"
+        );
+    }
+    assert!(whole.image().pixels() == previewed.image().pixels());
+
+    let mut camera = scene().camera;
+    camera.position += DVec3::new(0.3, 0.1, 0.0);
+    assert_eq!(
+        previewed.apply(SceneEdit::Camera(camera)),
+        Ok(Invalidation::All)
+    );
+    assert!(
+        previewed.render_preview(1).is_none(),
+        "a stride of 1 is a whole frame"
+    );
+    assert!(
+        previewed.render_preview(STRIDE).is_some(),
+        "no preview after a camera edit"
+    );
+}

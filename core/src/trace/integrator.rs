@@ -542,6 +542,16 @@ impl RenderMode for SpmmMode {
         self.render_tiles(Some(stop))
     }
 
+    fn render_preview(&mut self, stride: u32) -> Option<FrameStats> {
+        let untouched =
+            self.next_sample == 0 && self.catch_up.is_empty() && !self.done_early.contains(&true);
+        if stride <= 1 || !untouched {
+            return None;
+        }
+        let (w, h) = (self.film.width(), self.film.height());
+        Some(self.render_pixels(&crate::render::preview::grid_pixels(w, h, stride)))
+    }
+
     fn image(&self) -> Image {
         self.film.resolve(&self.layer_weights())
     }

@@ -13,28 +13,51 @@ use std::time::{Duration, Instant};
 use criterion::{Criterion, criterion_group, criterion_main};
 use glam::DVec3;
 use meso_core::brdf::BasisFunction;
+use meso_core::render::denoise;
 use meso_core::render::{ModeKind, SceneEdit};
 use meso_core::scene::{Material, load_scene};
-use meso_studio::render_worker::{Command, RenderWorker};
+use meso_studio::render_worker::{Command, Frame, RenderWorker};
 use meso_studio::studio::{Settings, Studio, default_scene_path};
 
-/// Waits for a frame of `version` or newer (not a preview if `whole`) and returns its
-/// render time (ms; 0 for a preview, whose time is not a frame's).
-fn wait_for(worker: &RenderWorker, version: u64, whole: bool) -> f64 {
-    let deadline = Instant::now() + Duration::from_secs(30);
+/// Waits for a frame `wanted` accepts.
+fn wait_until(worker: &RenderWorker, wanted: impl Fn(&Frame) -> bool) -> Frame {
+    let deadline = Instant::now() + Duration::from_secs(60);
     loop {
-        let frame = worker.take_frame();
-        if let Some(f) = frame.filter(|f| f.version >= version && !(whole && f.preview)) {
-            return if f.preview { 0.0 } else { f.frame_ms };
+        if let Some(f) = worker.take_frame().filter(&wanted) {
+            return f;
         }
-        assert!(Instant::now() < deadline, "no frame of version {version}");
+        assert!(Instant::now() < deadline, "no frame came");
         std::thread::sleep(Duration::from_micros(200));
     }
 }
 
-/// The edits timed: each returns the edit for an iteration number, and whether the
-/// time is to the first whole frame (a preview, `Frame::preview`, does not count).
-type EditFor<'a> = (Box<dyn Fn(u64) -> SceneEdit + 'a>, bool);
+/// Waits for a frame of `version` or newer (not a preview if `whole`).
+fn wait_for(worker: &RenderWorker, version: u64, whole: bool) -> Frame {
+    wait_until(worker, |f| f.version >= version && !(whole && f.preview))
+}
+
+/// What the film holds when a timed edit arrives.
+#[derive(Clone, Copy, PartialEq)]
+enum FilmState {
+    /// Whatever the edits before left.
+    Any,
+    /// Under 16 samples per pixel: the viewport denoiser is on (a camera edit, not
+    /// timed, restarts the film when it has more).
+    Denoised,
+    /// `denoise::FADE_SAMPLES` or more: the denoiser is off (the film is left to
+    /// reach them first, not timed).
+    Clean,
+}
+
+/// An edit timed: its name, the edit for an iteration number, whether the time is to
+/// the first whole frame (a preview, `Frame::preview`, does not count) and the film's
+/// state when it arrives.
+struct Timed<'a> {
+    name: &'a str,
+    edit: Box<dyn Fn(u64) -> SceneEdit + 'a>,
+    whole: bool,
+    film: FilmState,
+}
 
 fn bench_latency(c: &mut Criterion) {
     let scene = load_scene(&default_scene_path()).expect("default scene");
@@ -71,38 +94,52 @@ fn bench_latency(c: &mut Criterion) {
     let camera = scene.camera;
     let camera_edit = move |v: u64| {
         let mut moved = camera;
-        moved.position.x += if v % 2 == 0 { 0.0 } else { 0.05 };
+        moved.position.x += if v.is_multiple_of(2) { 0.0 } else { 0.05 };
         SceneEdit::Camera(moved)
     };
-    let edits: Vec<(&str, EditFor)> = vec![
-        (
+    let light_edit = move |v: u64| SceneEdit::Light {
+        index: 0,
+        light: light.with_emission(light.emission() * if v.is_multiple_of(2) { 1.0 } else { 0.8 }),
+    };
+    let timed = |name, edit: Box<dyn Fn(u64) -> SceneEdit>, whole, film| Timed {
+        name,
+        edit,
+        whole,
+        film,
+    };
+    let edits: Vec<Timed> = vec![
+        timed(
             "material edit (basis normal)",
-            (
-                Box::new(|v| SceneEdit::Material {
-                    index,
-                    material: variants[(v % 2) as usize].clone(),
-                }),
-                false,
-            ),
+            Box::new(move |v| SceneEdit::Material {
+                index,
+                material: variants[(v % 2) as usize].clone(),
+            }),
+            false,
+            FilmState::Any,
         ),
-        (
-            "light colour edit (samples kept)",
-            (
-                Box::new(|v| SceneEdit::Light {
-                    index: 0,
-                    light: light
-                        .with_emission(light.emission() * if v % 2 == 0 { 1.0 } else { 0.8 }),
-                }),
-                false,
-            ),
+        timed(
+            "light colour edit (samples kept), view denoised",
+            Box::new(light_edit),
+            false,
+            FilmState::Denoised,
         ),
-        (
+        timed(
+            "light colour edit (samples kept), 32 spp or more",
+            Box::new(light_edit),
+            false,
+            FilmState::Clean,
+        ),
+        timed(
             "camera edit (every pixel restarts; a preview first when tiles yield)",
-            (Box::new(camera_edit), false),
+            Box::new(camera_edit),
+            false,
+            FilmState::Any,
         ),
-        (
+        timed(
             "camera edit to the whole frame (after its preview)",
-            (Box::new(camera_edit), true),
+            Box::new(camera_edit),
+            true,
+            FilmState::Any,
         ),
     ];
 
@@ -120,24 +157,41 @@ fn bench_latency(c: &mut Criterion) {
             width: size,
             height: size,
         });
-        let mut frame_ms = wait_for(&worker, 1, true);
+        let first = wait_for(&worker, 1, true);
+        let (mut frame_ms, mut spp) = (first.frame_ms, first.progress.min_samples);
         let mut version = 1u64;
         let mut phase = 0x9e37_79b9_7f4a_7c15u64;
         let mut group = c.benchmark_group(format!("edit to first frame {size}x{size}"));
         group.sample_size(10);
-        for (name, (edit, whole)) in &edits {
+        for t in &edits {
             // A preview is shown only when tiles yield.
-            for yielding in [true, false].into_iter().filter(|y| *y || !whole) {
+            for yielding in [true, false].into_iter().filter(|y| *y || !t.whole) {
                 worker.send(Command::YieldToEdits(yielding));
                 let label = if yielding {
                     "tiles yield"
                 } else {
                     "whole frames"
                 };
-                group.bench_function(format!("{name}, {label}"), |b| {
+                group.bench_function(format!("{}, {label}", t.name), |b| {
                     b.iter_custom(|iters| {
                         let mut total = Duration::ZERO;
                         for _ in 0..iters {
+                            // The film as the edit wants it, not timed.
+                            if t.film == FilmState::Denoised && spp >= 16 {
+                                version += 1;
+                                worker.send(Command::Edit {
+                                    version,
+                                    edit: Box::new(camera_edit(version)),
+                                });
+                                spp = wait_for(&worker, version, true).progress.min_samples;
+                            }
+                            if t.film == FilmState::Clean && spp < denoise::FADE_SAMPLES {
+                                spp = wait_until(&worker, |f| {
+                                    f.progress.min_samples >= denoise::FADE_SAMPLES
+                                })
+                                .progress
+                                .min_samples;
+                            }
                             phase = phase
                                 .wrapping_mul(6_364_136_223_846_793_005)
                                 .wrapping_add(1);
@@ -149,12 +203,13 @@ fn bench_latency(c: &mut Criterion) {
                             let start = Instant::now();
                             worker.send(Command::Edit {
                                 version,
-                                edit: Box::new(edit(version)),
+                                edit: Box::new((t.edit)(version)),
                             });
-                            let ms = wait_for(&worker, version, *whole);
+                            let f = wait_for(&worker, version, t.whole);
                             total += start.elapsed();
-                            if ms > 0.0 {
-                                frame_ms = ms;
+                            spp = f.progress.min_samples;
+                            if f.frame_ms > 0.0 && !f.preview {
+                                frame_ms = f.frame_ms;
                             }
                         }
                         total

@@ -183,6 +183,16 @@ impl Drop for RenderWorker {
     }
 }
 
+/// How the viewport's denoiser runs for a frame.
+#[derive(Clone, Copy, PartialEq)]
+enum Filter {
+    /// `Denoiser::apply`.
+    Full,
+    /// `Denoiser::apply_halved`: the first picture after an edit that keeps the
+    /// samples, which the next frame replaces with the full filter's.
+    Halved,
+}
+
 /// The viewport's picture of `image` after `samples` samples per pixel: blended with
 /// its denoised version while the blend's strength is positive and the mode gives
 /// guides. `guides` caches the mode's guides until a command changes the scene, the
@@ -192,15 +202,20 @@ fn shown(
     image: &Arc<Image>,
     samples: u32,
     guides: &mut Option<Option<Guides>>,
+    filter: Filter,
 ) -> Arc<Image> {
     let strength = denoise::viewport_strength(samples);
     if strength <= 0.0 {
         return Arc::clone(image);
     }
+    let denoiser = Denoiser::for_samples(samples);
     guides
         .get_or_insert_with(|| mode.guides())
         .as_ref()
-        .and_then(|g| Denoiser::for_samples(samples).apply(image, g))
+        .and_then(|g| match filter {
+            Filter::Full => denoiser.apply(image, g),
+            Filter::Halved => denoiser.apply_halved(image, &g.halved()),
+        })
         .map_or_else(
             || Arc::clone(image),
             |d| Arc::new(denoise::blend(image, &d, strength)),
@@ -243,6 +258,24 @@ fn preview_of(
     }
 }
 
+/// The frame to publish at once after commands changed the image without restarting
+/// it (an emission edit): the denoiser, while on, at half resolution, so the edit shows
+/// before a full filter's time.
+fn edited_frame_of(
+    m: &dyn RenderMode,
+    version: u64,
+    denoise: bool,
+    guides: &mut Option<Option<Guides>>,
+) -> Frame {
+    let image = Arc::new(m.image());
+    let shown = if denoise {
+        shown(m, &image, m.progress().min_samples, guides, Filter::Halved)
+    } else {
+        Arc::clone(&image)
+    };
+    frame_with(m, Default::default(), version, image, shown)
+}
+
 /// The frame to publish of `m`'s film now, after a call that did `stats`.
 fn frame_of(
     m: &dyn RenderMode,
@@ -258,7 +291,7 @@ fn frame_of(
     let pixels = u64::from(progress.width) * u64::from(progress.height);
     let partial = stats.counters.samples > 0 && stats.counters.samples * 2 <= pixels;
     let shown = if denoise && !partial {
-        shown(m, &image, progress.min_samples, guides)
+        shown(m, &image, progress.min_samples, guides, Filter::Full)
     } else {
         Arc::clone(&image)
     };
@@ -402,13 +435,19 @@ fn run(
             continue;
         }
         if converged {
-            publish(frame_of(
-                m.as_ref(),
-                Default::default(),
-                version,
-                denoise,
-                &mut guides,
-            ));
+            // The quick picture first, then the full filter's (the same without it).
+            let quick = edited_frame_of(m.as_ref(), version, denoise, &mut guides);
+            let filtered = !Arc::ptr_eq(&quick.image, &quick.shown);
+            publish(quick);
+            if filtered {
+                publish(frame_of(
+                    m.as_ref(),
+                    Default::default(),
+                    version,
+                    denoise,
+                    &mut guides,
+                ));
+            }
             continue;
         }
         // No pixel has a sample (a camera edit restarted them all): a few pixels of
@@ -428,13 +467,7 @@ fn run(
         // left its rows): show the edit now, then go on with the frame.
         let shows_whole = m.progress().min_samples > 0;
         if changed && shows_whole && yield_to_edits {
-            publish(frame_of(
-                m.as_ref(),
-                Default::default(),
-                version,
-                denoise,
-                &mut guides,
-            ));
+            publish(edited_frame_of(m.as_ref(), version, denoise, &mut guides));
         }
         let stats = if (shows_whole || previewed) && yield_to_edits {
             // A command stops the frame between tiles; it is applied at once and the
@@ -637,11 +670,32 @@ mod tests {
         assert_eq!(frame.image.pixels(), reference.image().pixels());
     }
 
-    /// Core's CPU spmm mode whose frames wait for the test's go-ahead (previews do
-    /// not), so the test sees each frame the thread publishes.
+    /// Core's CPU spmm mode whose frames say they started and wait for the test's
+    /// go-ahead (previews do not), so the test sees each frame the thread publishes.
     struct Gated {
         inner: Box<dyn RenderMode>,
+        gate: Gate,
+    }
+
+    #[derive(Clone)]
+    struct Gate {
         go: Arc<Mutex<mpsc::Receiver<()>>>,
+        started: mpsc::Sender<()>,
+    }
+
+    /// A gate for a thread's modes, the test's go-ahead and the frame-start signal.
+    fn gate() -> (Gate, mpsc::Sender<()>, mpsc::Receiver<()>) {
+        let (go, gate) = mpsc::channel();
+        let (started, starts) = mpsc::channel();
+        let go_gate = Arc::new(Mutex::new(gate));
+        (
+            Gate {
+                go: go_gate,
+                started,
+            },
+            go,
+            starts,
+        )
     }
 
     impl RenderMode for Gated {
@@ -655,11 +709,16 @@ mod tests {
             self.inner.scene()
         }
         fn render_frame(&mut self) -> FrameStats {
-            let _ = self.go.lock().map(|go| go.recv());
+            let _ = self.gate.started.send(());
+            // Bounded, so a failed test cannot leave the thread waiting forever.
+            let _ = (self.gate.go.lock()).map(|go| go.recv_timeout(Duration::from_secs(20)));
             self.inner.render_frame()
         }
         fn render_preview(&mut self, stride: u32) -> Option<FrameStats> {
             self.inner.render_preview(stride)
+        }
+        fn guides(&self) -> Option<Guides> {
+            self.inner.guides()
         }
         fn image(&self) -> Image {
             self.inner.image()
@@ -678,7 +737,7 @@ mod tests {
         }
     }
 
-    struct GatedModes(Arc<Mutex<mpsc::Receiver<()>>>);
+    struct GatedModes(Gate);
 
     impl ModeMaker for GatedModes {
         fn supports(&self, kind: ModeKind, d: Device, scene: &Scene) -> Result<(), ModeError> {
@@ -694,8 +753,10 @@ mod tests {
             prepare: Prepare,
         ) -> Result<Box<dyn RenderMode>, ModeError> {
             let inner = CoreModes.create(kind, device, scene, width, height, prepare)?;
-            let go = Arc::clone(&self.0);
-            Ok(Box::new(Gated { inner, go }))
+            Ok(Box::new(Gated {
+                inner,
+                gate: self.0.clone(),
+            }))
         }
     }
 
@@ -717,9 +778,8 @@ mod tests {
     #[test]
     fn a_restart_shows_a_preview_before_the_whole_frame() {
         const SIZE: u32 = 256;
-        let (go, gate) = mpsc::channel();
-        let worker =
-            RenderWorker::spawn_with(None, Arc::new(GatedModes(Arc::new(Mutex::new(gate)))));
+        let (gate, go, _) = gate();
+        let worker = RenderWorker::spawn_with(None, Arc::new(GatedModes(gate)));
         let path = crate::studio::default_scene_path().with_file_name("cornell.toml");
         let scene = meso_core::scene::load_scene(&path).expect("the Cornell scene");
         let fresh = |scene: &Scene| {
@@ -782,5 +842,86 @@ mod tests {
         go.send(()).expect("the thread waits");
         let whole = next_frame(&worker);
         assert!(!whole.preview && (whole.version, whole.progress.min_samples) == (3, 1));
+        // A closed gate lets the thread's next frame run, so it can be joined.
+        drop(go);
+    }
+
+    /// An emission edit while the view is still denoised shows at once through the
+    /// half-resolution filter, and the next frame through the full one.
+    #[test]
+    fn an_emission_edit_shows_the_halved_filter_first_then_the_full_one() {
+        const SIZE: u32 = 64;
+        let (gate, go, starts) = gate();
+        let worker = RenderWorker::spawn_with(None, Arc::new(GatedModes(gate)));
+        let path = crate::studio::default_scene_path().with_file_name("cornell.toml");
+        let scene = meso_core::scene::load_scene(&path).expect("the Cornell scene");
+        assert_eq!(
+            preview::stride_for(SIZE, SIZE),
+            1,
+            "no preview at this size"
+        );
+        let mut direct = CoreModes
+            .create(
+                ModeKind::Spmm,
+                Device::Cpu,
+                scene.clone(),
+                SIZE,
+                SIZE,
+                Prepare::quietly(),
+            )
+            .expect("the CPU mode");
+        worker.send(Command::Load {
+            version: 1,
+            scene: Box::new(scene.clone()),
+            mode: ModeKind::Spmm,
+            device: Device::Cpu,
+            width: SIZE,
+            height: SIZE,
+        });
+        for spp in 1..=2 {
+            go.send(()).expect("the thread waits");
+            let f = next_frame(&worker);
+            assert_eq!((f.version, f.progress.min_samples), (1, spp));
+            direct.render_frame();
+        }
+        // The edit arrives while the thread waits in its third frame.
+        for _ in 0..3 {
+            starts.recv().expect("frames start");
+        }
+        let light = scene.lights[0].with_emission(scene.lights[0].emission() * 0.5);
+        let edit = SceneEdit::Light { index: 0, light };
+        worker.send(Command::Edit {
+            version: 2,
+            edit: Box::new(edit.clone()),
+        });
+        go.send(()).expect("the thread waits");
+        direct.render_frame();
+        direct.apply(edit).expect("an emission edit");
+        let image = direct.image();
+        let guides = direct.guides().expect("guides");
+        let denoiser = Denoiser::for_samples(3);
+        let strength = denoise::viewport_strength(3);
+        // Frame 3 is published with version 1, then the edit's quick picture; frame 4
+        // waits for the test.
+        let quick = std::iter::repeat_with(|| next_frame(&worker))
+            .find(|f| f.version == 2)
+            .expect("a frame of the edit");
+        assert_eq!(quick.progress.min_samples, 3);
+        assert_eq!(*quick.image, image);
+        let halved = denoiser
+            .apply_halved(&image, &guides.halved())
+            .expect("sizes");
+        assert_eq!(*quick.shown, denoise::blend(&image, &halved, strength));
+        go.send(()).expect("the thread waits");
+        let full = next_frame(&worker);
+        assert_eq!((full.version, full.progress.min_samples), (2, 4));
+        direct.render_frame();
+        let image = direct.image();
+        let filtered = Denoiser::for_samples(4)
+            .apply(&image, &guides)
+            .expect("sizes");
+        let strength = denoise::viewport_strength(4);
+        assert_eq!(*full.shown, denoise::blend(&image, &filtered, strength));
+        drop(go);
     }
 }

@@ -1,10 +1,12 @@
 //! The editor's responsiveness (issues 7 and 16), side by side in one process:
 //! - edit to first updated frame at 256, 512 and 1024 pixels square: a material edit
 //!   (a basis normal tilted, which re-prepares the pack and restarts the pixels that
-//!   show it), a light-colour edit (which keeps every sample) and a camera edit (which
-//!   restarts every pixel), from sending the versioned edit to the render thread until
-//!   a frame of that version is published; each with the frame in flight yielding to
-//!   the edit between tiles and without (the edit waits for the whole frame);
+//!   show it), a light-colour edit (which keeps every sample) while the view is still
+//!   denoised and once it has 32 samples per pixel, and a camera edit (which restarts
+//!   every pixel: to its preview, and to its whole frame), from sending the versioned
+//!   edit to the render thread until a frame of that version is published; each with
+//!   the frame in flight yielding to the edit between tiles (and previews) and without
+//!   (the edit waits for the whole frame);
 //! - the studio's UI frame (all panels, headless egui) while the renderer works.
 
 use std::sync::Arc;

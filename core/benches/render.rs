@@ -11,7 +11,8 @@
 //!   with the film's bytes; `MESO_MANY_LIGHTS_REPORT=1` instead prints the frame
 //!   times, film bytes and an equal-time convergence comparison (docs/performance.md);
 //! - the viewport denoiser on the default scene's first frame at 256^2 and 512^2: the
-//!   filter as used against its straightforward reference, 1 thread and all threads.
+//!   filter as used against its straightforward reference, and the half-resolution
+//!   filter of the first picture after an emission edit, 1 thread and all threads.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -315,6 +316,11 @@ fn bench_denoise(c: &mut Criterion) {
             });
             group.bench_function(BenchmarkId::new("fast", threads), |b| {
                 b.iter(|| run(&|| denoiser.apply(&image, &guides)))
+            });
+            // The studio's first picture after an emission edit (guides halved as
+            // the render thread does, each time).
+            group.bench_function(BenchmarkId::new("halved", threads), |b| {
+                b.iter(|| run(&|| denoiser.apply_halved(&image, &guides.halved())))
             });
         }
         group.finish();

@@ -449,7 +449,9 @@ impl<'a> RowPass<'a> {
 /// (such weights are below any f32 image's rounding).
 #[inline(always)]
 fn exp_neg(x: f32) -> f32 {
-    // `max` returns -127 for NaN too; `min` keeps a negative x's t at 0.
+    // `max` returns -127 for NaN too (`clamp` would keep the NaN); `min` keeps a
+    // negative x's t at 0.
+    #[allow(clippy::manual_clamp)]
     let t = (-x * std::f32::consts::LOG2_E).max(-127.0).min(0.0);
     // floor(t) by truncation (t <= 0): `f32::floor` is a library call on the x86-64
     // baseline and would not vectorise, nor would `as` (its saturation and NaN rule

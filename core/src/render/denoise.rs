@@ -500,7 +500,7 @@ impl Denoiser {
     /// long: the image averaged over 2 x 2 blocks, filtered with `half_guides`
     /// (`Guides::halved`) by one pass fewer (the same footprint in full pixels) and
     /// half the colour tolerance (a block's mean has half a pixel's noise), then
-    /// spread back bilinearly. About a fifth of `apply`'s time; softer by about a
+    /// spread back bilinearly. About a quarter of `apply`'s time; softer by about a
     /// pixel at edges. `None` when the guides are not the halved image's size.
     pub fn apply_halved(&self, image: &Image, half_guides: &Guides) -> Option<Image> {
         let (w, h) = (image.width(), image.height());

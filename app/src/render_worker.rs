@@ -527,29 +527,69 @@ mod tests {
     use super::*;
     use crate::mode_maker::CoreModes;
 
-    /// Core's CPU spmm mode posing as a GPU mode whose device fails on its third
-    /// frame, as a lost GPU does: nothing more is added after it.
-    struct FailsOnThirdFrame {
+    /// Core's CPU spmm mode in a test's clothes: posing as a GPU mode whose device
+    /// fails on its third frame, as a lost GPU does (nothing more is added after it),
+    /// or with frames that say they started and wait for the test's go-ahead (previews
+    /// do not), so the test sees each frame the thread publishes.
+    struct Wrapped {
         inner: Box<dyn RenderMode>,
+        fails_as_gpu: bool,
         frames: u32,
+        gate: Option<Gate>,
     }
 
-    impl RenderMode for FailsOnThirdFrame {
+    #[derive(Clone)]
+    struct Gate {
+        go: Arc<Mutex<mpsc::Receiver<()>>>,
+        started: mpsc::Sender<()>,
+    }
+
+    /// A gate for a thread's modes, the test's go-ahead and the frame-start signal.
+    fn gate() -> (Gate, mpsc::Sender<()>, mpsc::Receiver<()>) {
+        let (go, gate) = mpsc::channel();
+        let (started, starts) = mpsc::channel();
+        let go_gate = Arc::new(Mutex::new(gate));
+        (
+            Gate {
+                go: go_gate,
+                started,
+            },
+            go,
+            starts,
+        )
+    }
+
+    impl RenderMode for Wrapped {
         fn kind(&self) -> ModeKind {
-            ModeKind::Spmm
+            self.inner.kind()
         }
         fn device(&self) -> Device {
-            Device::Gpu
+            if self.fails_as_gpu {
+                Device::Gpu
+            } else {
+                self.inner.device()
+            }
         }
         fn scene(&self) -> &Scene {
             self.inner.scene()
         }
         fn render_frame(&mut self) -> FrameStats {
+            if let Some(gate) = &self.gate {
+                let _ = gate.started.send(());
+                // Bounded, so a failed test cannot leave the thread waiting forever.
+                let _ = (gate.go.lock()).map(|go| go.recv_timeout(Duration::from_secs(20)));
+            }
             self.frames += 1;
-            if self.frames >= 3 {
+            if self.fails_as_gpu && self.frames >= 3 {
                 return FrameStats::default();
             }
             self.inner.render_frame()
+        }
+        fn render_preview(&mut self, stride: u32) -> Option<FrameStats> {
+            self.inner.render_preview(stride)
+        }
+        fn guides(&self) -> Option<Guides> {
+            self.inner.guides()
         }
         fn image(&self) -> Image {
             self.inner.image()
@@ -567,7 +607,8 @@ mod tests {
             self.inner.preparation()
         }
         fn failure(&self) -> Option<ModeError> {
-            (self.frames >= 3).then(|| ModeError::DeviceFailed("the GPU `fake` failed".into()))
+            (self.fails_as_gpu && self.frames >= 3)
+                .then(|| ModeError::DeviceFailed("the GPU `fake` failed".into()))
         }
     }
 
@@ -591,7 +632,12 @@ mod tests {
         ) -> Result<Box<dyn RenderMode>, ModeError> {
             let inner = CoreModes.create(kind, Device::Cpu, scene, width, height, prepare)?;
             Ok(match device {
-                Device::Gpu => Box::new(FailsOnThirdFrame { inner, frames: 0 }),
+                Device::Gpu => Box::new(Wrapped {
+                    inner,
+                    fails_as_gpu: true,
+                    frames: 0,
+                    gate: None,
+                }),
                 Device::Cpu => {
                     self.cpu_made.fetch_add(1, Ordering::Relaxed);
                     inner
@@ -670,73 +716,6 @@ mod tests {
         assert_eq!(frame.image.pixels(), reference.image().pixels());
     }
 
-    /// Core's CPU spmm mode whose frames say they started and wait for the test's
-    /// go-ahead (previews do not), so the test sees each frame the thread publishes.
-    struct Gated {
-        inner: Box<dyn RenderMode>,
-        gate: Gate,
-    }
-
-    #[derive(Clone)]
-    struct Gate {
-        go: Arc<Mutex<mpsc::Receiver<()>>>,
-        started: mpsc::Sender<()>,
-    }
-
-    /// A gate for a thread's modes, the test's go-ahead and the frame-start signal.
-    fn gate() -> (Gate, mpsc::Sender<()>, mpsc::Receiver<()>) {
-        let (go, gate) = mpsc::channel();
-        let (started, starts) = mpsc::channel();
-        let go_gate = Arc::new(Mutex::new(gate));
-        (
-            Gate {
-                go: go_gate,
-                started,
-            },
-            go,
-            starts,
-        )
-    }
-
-    impl RenderMode for Gated {
-        fn kind(&self) -> ModeKind {
-            self.inner.kind()
-        }
-        fn device(&self) -> Device {
-            self.inner.device()
-        }
-        fn scene(&self) -> &Scene {
-            self.inner.scene()
-        }
-        fn render_frame(&mut self) -> FrameStats {
-            let _ = self.gate.started.send(());
-            // Bounded, so a failed test cannot leave the thread waiting forever.
-            let _ = (self.gate.go.lock()).map(|go| go.recv_timeout(Duration::from_secs(20)));
-            self.inner.render_frame()
-        }
-        fn render_preview(&mut self, stride: u32) -> Option<FrameStats> {
-            self.inner.render_preview(stride)
-        }
-        fn guides(&self) -> Option<Guides> {
-            self.inner.guides()
-        }
-        fn image(&self) -> Image {
-            self.inner.image()
-        }
-        fn progress(&self) -> Progress {
-            self.inner.progress()
-        }
-        fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
-            self.inner.apply(edit)
-        }
-        fn set_samples_per_frame(&mut self, samples: u32) {
-            self.inner.set_samples_per_frame(samples);
-        }
-        fn preparation(&self) -> PreparationReport {
-            self.inner.preparation()
-        }
-    }
-
     struct GatedModes(Gate);
 
     impl ModeMaker for GatedModes {
@@ -753,9 +732,11 @@ mod tests {
             prepare: Prepare,
         ) -> Result<Box<dyn RenderMode>, ModeError> {
             let inner = CoreModes.create(kind, device, scene, width, height, prepare)?;
-            Ok(Box::new(Gated {
+            Ok(Box::new(Wrapped {
                 inner,
-                gate: self.0.clone(),
+                fails_as_gpu: false,
+                frames: 0,
+                gate: Some(self.0.clone()),
             }))
         }
     }

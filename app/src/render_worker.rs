@@ -612,12 +612,15 @@ mod tests {
         }
     }
 
-    /// Core's modes, but the GPU is the failing one; counts CPU modes made.
-    struct FailingGpu {
-        cpu_made: Arc<AtomicU32>,
+    /// Core's modes on the CPU, each made `Wrapped`: with `cpu_made`, a GPU mode is
+    /// the failing one and CPU modes made are counted; with `gate`, frames wait for the
+    /// test.
+    struct TestModes {
+        cpu_made: Option<Arc<AtomicU32>>,
+        gate: Option<Gate>,
     }
 
-    impl ModeMaker for FailingGpu {
+    impl ModeMaker for TestModes {
         fn supports(&self, kind: ModeKind, _: Device, scene: &Scene) -> Result<(), ModeError> {
             CoreModes.supports(kind, Device::Cpu, scene)
         }
@@ -631,18 +634,15 @@ mod tests {
             prepare: Prepare,
         ) -> Result<Box<dyn RenderMode>, ModeError> {
             let inner = CoreModes.create(kind, Device::Cpu, scene, width, height, prepare)?;
-            Ok(match device {
-                Device::Gpu => Box::new(Wrapped {
-                    inner,
-                    fails_as_gpu: true,
-                    frames: 0,
-                    gate: None,
-                }),
-                Device::Cpu => {
-                    self.cpu_made.fetch_add(1, Ordering::Relaxed);
-                    inner
-                }
-            })
+            if let (Device::Cpu, Some(made)) = (device, &self.cpu_made) {
+                made.fetch_add(1, Ordering::Relaxed);
+            }
+            Ok(Box::new(Wrapped {
+                inner,
+                fails_as_gpu: device == Device::Gpu && self.cpu_made.is_some(),
+                frames: 0,
+                gate: self.gate.clone(),
+            }))
         }
     }
 
@@ -653,8 +653,9 @@ mod tests {
         let cpu_made = Arc::new(AtomicU32::new(0));
         let worker = RenderWorker::spawn_with(
             None,
-            Arc::new(FailingGpu {
-                cpu_made: Arc::clone(&cpu_made),
+            Arc::new(TestModes {
+                cpu_made: Some(Arc::clone(&cpu_made)),
+                gate: None,
             }),
         );
         let path = crate::studio::default_scene_path().with_file_name("cornell.toml");
@@ -716,31 +717,6 @@ mod tests {
         assert_eq!(frame.image.pixels(), reference.image().pixels());
     }
 
-    struct GatedModes(Gate);
-
-    impl ModeMaker for GatedModes {
-        fn supports(&self, kind: ModeKind, d: Device, scene: &Scene) -> Result<(), ModeError> {
-            CoreModes.supports(kind, d, scene)
-        }
-        fn create(
-            &self,
-            kind: ModeKind,
-            device: Device,
-            scene: Scene,
-            width: u32,
-            height: u32,
-            prepare: Prepare,
-        ) -> Result<Box<dyn RenderMode>, ModeError> {
-            let inner = CoreModes.create(kind, device, scene, width, height, prepare)?;
-            Ok(Box::new(Wrapped {
-                inner,
-                fails_as_gpu: false,
-                frames: 0,
-                gate: Some(self.0.clone()),
-            }))
-        }
-    }
-
     fn next_frame(worker: &RenderWorker) -> Frame {
         let deadline = Instant::now() + Duration::from_secs(60);
         loop {
@@ -760,7 +736,13 @@ mod tests {
     fn a_restart_shows_a_preview_before_the_whole_frame() {
         const SIZE: u32 = 256;
         let (gate, go, _) = gate();
-        let worker = RenderWorker::spawn_with(None, Arc::new(GatedModes(gate)));
+        let worker = RenderWorker::spawn_with(
+            None,
+            Arc::new(TestModes {
+                cpu_made: None,
+                gate: Some(gate),
+            }),
+        );
         let path = crate::studio::default_scene_path().with_file_name("cornell.toml");
         let scene = meso_core::scene::load_scene(&path).expect("the Cornell scene");
         let fresh = |scene: &Scene| {
@@ -833,7 +815,13 @@ mod tests {
     fn an_emission_edit_shows_the_halved_filter_first_then_the_full_one() {
         const SIZE: u32 = 64;
         let (gate, go, starts) = gate();
-        let worker = RenderWorker::spawn_with(None, Arc::new(GatedModes(gate)));
+        let worker = RenderWorker::spawn_with(
+            None,
+            Arc::new(TestModes {
+                cpu_made: None,
+                gate: Some(gate),
+            }),
+        );
         let path = crate::studio::default_scene_path().with_file_name("cornell.toml");
         let scene = meso_core::scene::load_scene(&path).expect("the Cornell scene");
         assert_eq!(

@@ -717,6 +717,20 @@ mod tests {
         assert_eq!(frame.image.pixels(), reference.image().pixels());
     }
 
+    /// A render thread whose frames wait for the test (`Gate`), its go-ahead and
+    /// frame-start signal, and the Cornell scene.
+    fn gated_cornell() -> (RenderWorker, mpsc::Sender<()>, mpsc::Receiver<()>, Scene) {
+        let (gate, go, starts) = gate();
+        let modes = TestModes {
+            cpu_made: None,
+            gate: Some(gate),
+        };
+        let worker = RenderWorker::spawn_with(None, Arc::new(modes));
+        let path = crate::studio::default_scene_path().with_file_name("cornell.toml");
+        let scene = meso_core::scene::load_scene(&path).expect("the Cornell scene");
+        (worker, go, starts, scene)
+    }
+
     fn next_frame(worker: &RenderWorker) -> Frame {
         let deadline = Instant::now() + Duration::from_secs(60);
         loop {
@@ -735,16 +749,7 @@ mod tests {
     #[test]
     fn a_restart_shows_a_preview_before_the_whole_frame() {
         const SIZE: u32 = 256;
-        let (gate, go, _) = gate();
-        let worker = RenderWorker::spawn_with(
-            None,
-            Arc::new(TestModes {
-                cpu_made: None,
-                gate: Some(gate),
-            }),
-        );
-        let path = crate::studio::default_scene_path().with_file_name("cornell.toml");
-        let scene = meso_core::scene::load_scene(&path).expect("the Cornell scene");
+        let (worker, go, _, scene) = gated_cornell();
         let fresh = |scene: &Scene| {
             CoreModes
                 .create(
@@ -814,16 +819,7 @@ mod tests {
     #[test]
     fn an_emission_edit_shows_the_halved_filter_first_then_the_full_one() {
         const SIZE: u32 = 64;
-        let (gate, go, starts) = gate();
-        let worker = RenderWorker::spawn_with(
-            None,
-            Arc::new(TestModes {
-                cpu_made: None,
-                gate: Some(gate),
-            }),
-        );
-        let path = crate::studio::default_scene_path().with_file_name("cornell.toml");
-        let scene = meso_core::scene::load_scene(&path).expect("the Cornell scene");
+        let (worker, go, starts, scene) = gated_cornell();
         assert_eq!(
             preview::stride_for(SIZE, SIZE),
             1,

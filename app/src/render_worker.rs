@@ -473,7 +473,7 @@ fn run(
             // A command stops the frame between tiles; it is applied at once and the
             // frame resumes after it. A film with unsampled pixels and no preview
             // renders its frame whole, so a stream of edits still shows frames (a
-            // camera drag shows a preview per step).
+            // wheel zoom shows a preview per step).
             m.render_frame_yielding(&mut || match rx.try_recv() {
                 Ok(c) => {
                     early.push(c);

@@ -243,19 +243,44 @@ fn changes_guides(command: &Command) -> bool {
     }
 }
 
-/// The preview frame of `m`'s film after `render_preview` did `stats`.
+/// The preview frame of `m`'s film after `render_preview` did `stats`: shown through
+/// the denoiser when it is on and the mode gives the preview's guides.
 fn preview_of(
     m: &dyn RenderMode,
     stats: meso_core::render::FrameStats,
     stride: u32,
     version: u64,
+    denoise: bool,
 ) -> Frame {
-    let image = Arc::new(preview::spread(&m.image(), stride));
+    let estimate = m.image();
+    let image = Arc::new(preview::spread(&estimate, stride));
+    let shown = denoise
+        .then(|| denoised_preview(m, &estimate, stride))
+        .flatten()
+        .map_or_else(|| Arc::clone(&image), Arc::new);
     Frame {
         preview: true,
         overlays: Vec::new(),
-        ..frame_with(m, stats, version, Arc::clone(&image), image)
+        ..frame_with(m, stats, version, image, shown)
     }
+}
+
+/// The preview through the viewport denoiser at the grid's resolution: the previewed
+/// pixels (one sample each) filtered with their own guides, by one pass fewer per
+/// factor of two of the stride (about the full filter's footprint in image pixels),
+/// then spread.
+fn denoised_preview(m: &dyn RenderMode, estimate: &Image, stride: u32) -> Option<Image> {
+    let guides = m.preview_guides(stride)?;
+    let full = Denoiser::for_samples(1);
+    let coarse = Denoiser {
+        passes: full.passes.saturating_sub(stride.max(1).ilog2()).max(1),
+        ..full
+    };
+    let grid = coarse.apply(&preview::gather(estimate, stride), &guides)?;
+    Some(preview::spread(
+        &preview::scatter(estimate, &grid, stride)?,
+        stride,
+    ))
 }
 
 /// The frame to publish at once after commands changed the image without restarting
@@ -458,7 +483,7 @@ fn run(
             && m.progress().min_samples == 0
             && match m.render_preview(stride) {
                 Some(stats) => {
-                    publish(preview_of(m.as_ref(), stats, stride, version));
+                    publish(preview_of(m.as_ref(), stats, stride, version, denoise));
                     true
                 }
                 None => false,
@@ -590,6 +615,9 @@ mod tests {
         }
         fn guides(&self) -> Option<Guides> {
             self.inner.guides()
+        }
+        fn preview_guides(&self, stride: u32) -> Option<Guides> {
+            self.inner.preview_guides(stride)
         }
         fn image(&self) -> Image {
             self.inner.image()
@@ -791,9 +819,20 @@ mod tests {
             let mut direct = fresh(scene);
             direct.render_preview(stride).expect("a preview");
             assert_eq!(*first.image, preview::spread(&direct.image(), stride));
+            // Shown through the denoiser on the grid, which smooths it.
+            let denoised = denoised_preview(direct.as_ref(), &direct.image(), stride);
             assert!(
-                Arc::ptr_eq(&first.image, &first.shown),
-                "a preview is not denoised"
+                Some(&*first.shown) == denoised.as_ref(),
+                "the preview is not shown through the denoiser on its grid"
+            );
+            let roughness = |img: &Image| {
+                let grid = preview::gather(img, stride);
+                let p = grid.pixels();
+                p.windows(2).map(|w| (w[0][1] - w[1][1]).abs()).sum::<f32>()
+            };
+            assert!(
+                roughness(&first.shown) < 0.5 * roughness(&first.image),
+                "the denoised preview is not smoother"
             );
             go.send(()).expect("the thread waits");
             let whole = next_frame(&worker);

@@ -289,6 +289,14 @@ pub trait RenderMode: Send {
         let _ = stride;
         None
     }
+    /// The guides of the pixels a preview with this `stride` renders
+    /// (`preview::grid_pixels`), as an image of one pixel per block
+    /// (`preview::grid_size`), so the viewport can denoise a preview; `None` where
+    /// the mode has no guides or does not preview.
+    fn preview_guides(&self, stride: u32) -> Option<Guides> {
+        let _ = stride;
+        None
+    }
     /// The image accumulated so far, with the current emissions.
     fn image(&self) -> Image;
     fn progress(&self) -> Progress;

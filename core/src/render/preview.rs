@@ -30,6 +30,37 @@ fn blocks(len: u32, stride: u32) -> u32 {
     len.div_ceil(stride)
 }
 
+/// The size of the image of one pixel per block (`gather`).
+pub fn grid_size(width: u32, height: u32, stride: u32) -> (u32, u32) {
+    let stride = stride.max(1);
+    (blocks(width, stride), blocks(height, stride))
+}
+
+/// The previewed pixels of `image` as an image of one pixel per block.
+pub fn gather(image: &Image, stride: u32) -> Image {
+    let (w, h) = (image.width(), image.height());
+    let (gw, gh) = grid_size(w, h, stride);
+    let pixels = grid_pixels(w, h, stride)
+        .iter()
+        .map(|&p| image.pixels()[p as usize])
+        .collect();
+    Image::from_pixels(gw, gh, pixels).unwrap_or_else(|_| Image::new(gw, gh))
+}
+
+/// `image` with its previewed pixels replaced by `grid`'s (from `gather`'s layout);
+/// `None` when `grid` is not the grid's size.
+pub fn scatter(image: &Image, grid: &Image, stride: u32) -> Option<Image> {
+    let (w, h) = (image.width(), image.height());
+    if (grid.width(), grid.height()) != grid_size(w, h, stride) {
+        return None;
+    }
+    let mut out = image.clone();
+    for (&p, &v) in grid_pixels(w, h, stride).iter().zip(grid.pixels()) {
+        out.pixels_mut()[p as usize] = v;
+    }
+    Some(out)
+}
+
 /// The previewed pixels, row-major indices, one per block.
 pub fn grid_pixels(width: u32, height: u32, stride: u32) -> Vec<u32> {
     let stride = stride.max(1);
@@ -158,6 +189,36 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn gather_and_scatter_move_the_grid_pixels_and_nothing_else() {
+        let (w, h, s) = (37u32, 22u32, 4u32);
+        let (img, _) = ramp_on_grid(w, h, s);
+        let grid = gather(&img, s);
+        assert_eq!((grid.width(), grid.height()), grid_size(w, h, s));
+        assert!(grid.pixels().iter().flatten().all(|v| v.is_finite()));
+        let doubled = Image::from_pixels(
+            grid.width(),
+            grid.height(),
+            grid.pixels().iter().map(|p| p.map(|v| 2.0 * v)).collect(),
+        )
+        .expect("size");
+        let back = scatter(&img, &doubled, s).expect("the grid's size");
+        for (p, (a, b)) in img.pixels().iter().zip(back.pixels()).enumerate() {
+            if grid_pixels(w, h, s).contains(&(p as u32)) {
+                assert_eq!(b.map(|v| v / 2.0), *a);
+            } else {
+                assert!(
+                    a[0].is_nan() && b[0].is_nan(),
+                    "pixel {p} off the grid changed"
+                );
+            }
+        }
+        assert!(
+            scatter(&img, &img, s).is_none(),
+            "a full-size image is not a grid"
+        );
     }
 
     #[test]

@@ -549,6 +549,20 @@ fn a_preview_takes_the_frames_own_samples_of_one_pixel_per_block() {
         previewed.render_preview(STRIDE).is_none(),
         "previewed twice"
     );
+    // The preview's guides are the full guides at the previewed pixels.
+    let (full, small) = (
+        previewed.guides().expect("guides"),
+        previewed.preview_guides(STRIDE).expect("preview guides"),
+    );
+    let size = crate::render::preview::grid_size(W, W, STRIDE);
+    assert_eq!((small.width, small.height), size);
+    for (i, &p) in grid.iter().enumerate() {
+        let p = p as usize;
+        assert_eq!(
+            (small.normal[i], small.depth[i], small.albedo[i]),
+            (full.normal[p], full.depth[p], full.albedo[p])
+        );
+    }
 
     let rest = previewed.render_frame();
     assert_eq!(rest.counters.samples, u64::from(W * W) - grid.len() as u64);

@@ -27,12 +27,19 @@ impl SpmmMode {
 
     pub(super) fn compute_guides(&self) -> Guides {
         let (w, h) = (self.film.width(), self.film.height());
+        self.guides_of(&(0..w * h).collect::<Vec<_>>(), (w, h))
+    }
+
+    /// The guides of `pixels` (row-major indices into the film), as an image of
+    /// `size` whose pixels are those, in order.
+    pub(super) fn guides_of(&self, pixels: &[u32], (gw, gh): (u32, u32)) -> Guides {
+        let w = self.film.width();
         let albedos: Vec<Option<DVec3>> = (0..self.scene.materials.len())
             .map(|i| self.uniform_albedo(i))
             .collect();
-        let texels: Vec<([f32; 3], f32, [f32; 3])> = (0..w * h)
-            .into_par_iter()
-            .map(|p| {
+        let texels: Vec<([f32; 3], f32, [f32; 3])> = pixels
+            .par_iter()
+            .map(|&p| {
                 let ray = self.camera.ray(p % w, p / w, DVec2::splat(0.5));
                 let Some(hit) = self.bvh.closest_hit(
                     &self.scene.meshes,
@@ -58,8 +65,8 @@ impl SpmmMode {
             })
             .collect();
         Guides {
-            width: w,
-            height: h,
+            width: gw,
+            height: gh,
             normal: texels.iter().map(|t| t.0).collect(),
             depth: texels.iter().map(|t| t.1).collect(),
             albedo: texels.iter().map(|t| t.2).collect(),

@@ -579,6 +579,13 @@ impl RenderMode for SpmmMode {
         Some(self.compute_guides())
     }
 
+    fn preview_guides(&self, stride: u32) -> Option<crate::render::Guides> {
+        use crate::render::preview;
+        let (w, h) = (self.film.width(), self.film.height());
+        let grid = preview::grid_pixels(w, h, stride);
+        Some(self.guides_of(&grid, preview::grid_size(w, h, stride)))
+    }
+
     fn material_bytes(&self) -> Option<MaterialBytes> {
         let sum = |f: fn(&Shader, &Material) -> usize| {
             let each = self.shaders.iter().zip(&self.scene.materials);

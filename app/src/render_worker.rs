@@ -184,10 +184,9 @@ impl Drop for RenderWorker {
 }
 
 /// How the viewport's denoiser runs for a frame.
-#[derive(Clone, Copy, PartialEq)]
-enum Filter {
-    /// `Denoiser::apply`.
-    Full,
+enum Filter<'a> {
+    /// `Denoiser::apply_unless`: the frame is not shown if `stop` says yes first.
+    Full(&'a mut dyn FnMut() -> bool),
     /// `Denoiser::apply_halved`: the first picture after an edit that keeps the
     /// samples, which the next frame replaces with the full filter's.
     Halved,
@@ -197,29 +196,30 @@ enum Filter {
 /// its denoised version while the blend's strength is positive and the mode gives
 /// guides. `guides` caches the mode's guides until a command changes the scene, the
 /// view or the mode (they trace a ray per pixel: most of the denoiser's cost).
+/// `None` when a full filter was stopped.
 fn shown(
     mode: &dyn RenderMode,
     image: &Arc<Image>,
     samples: u32,
     guides: &mut Option<Option<Guides>>,
     filter: Filter,
-) -> Arc<Image> {
+) -> Option<Arc<Image>> {
     let strength = denoise::viewport_strength(samples);
     if strength <= 0.0 {
-        return Arc::clone(image);
+        return Some(Arc::clone(image));
     }
     let denoiser = Denoiser::for_samples(samples);
-    guides
-        .get_or_insert_with(|| mode.guides())
-        .as_ref()
-        .and_then(|g| match filter {
-            Filter::Full => denoiser.apply(image, g),
-            Filter::Halved => denoiser.apply_halved(image, &g.halved()),
-        })
-        .map_or_else(
-            || Arc::clone(image),
-            |d| Arc::new(denoise::blend(image, &d, strength)),
-        )
+    let Some(g) = guides.get_or_insert_with(|| mode.guides()).as_ref() else {
+        return Some(Arc::clone(image));
+    };
+    let filtered = match filter {
+        Filter::Full(stop) => Some(denoiser.apply_unless(image, g, stop)?),
+        Filter::Halved => denoiser.apply_halved(image, &g.halved()),
+    };
+    Some(filtered.map_or_else(
+        || Arc::clone(image),
+        |d| Arc::new(denoise::blend(image, &d, strength)),
+    ))
 }
 
 /// Whether `command` may change what the pixels' centre rays see first (the
@@ -243,25 +243,31 @@ fn changes_guides(command: &Command) -> bool {
     }
 }
 
-/// The preview frame of `m`'s film after `render_preview` did `stats`: shown through
-/// the denoiser when it is on and the mode gives the preview's guides.
-fn preview_of(
+/// Publishes the preview of `m`'s film after `render_preview` did `stats`: at once as
+/// it is, then, when the denoiser is on and the mode gives the preview's guides,
+/// through the denoiser on its grid (a few milliseconds later).
+fn publish_preview(
     m: &dyn RenderMode,
-    stats: meso_core::render::FrameStats,
-    stride: u32,
-    version: u64,
+    (stats, stride, version): (meso_core::render::FrameStats, u32, u64),
     denoise: bool,
-) -> Frame {
+    publish: &dyn Fn(Frame),
+) {
     let estimate = m.image();
     let image = Arc::new(preview::spread(&estimate, stride));
-    let shown = denoise
-        .then(|| denoised_preview(m, &estimate, stride))
-        .flatten()
-        .map_or_else(|| Arc::clone(&image), Arc::new);
-    Frame {
+    let frame = Frame {
         preview: true,
         overlays: Vec::new(),
-        ..frame_with(m, stats, version, image, shown)
+        ..frame_with(m, stats, version, Arc::clone(&image), image)
+    };
+    publish(frame.clone());
+    if let Some(denoised) = denoise
+        .then(|| denoised_preview(m, &estimate, stride))
+        .flatten()
+    {
+        publish(Frame {
+            shown: Arc::new(denoised),
+            ..frame
+        });
     }
 }
 
@@ -295,20 +301,23 @@ fn edited_frame_of(
     let image = Arc::new(m.image());
     let shown = if denoise {
         shown(m, &image, m.progress().min_samples, guides, Filter::Halved)
+            .unwrap_or_else(|| Arc::clone(&image))
     } else {
         Arc::clone(&image)
     };
     frame_with(m, Default::default(), version, image, shown)
 }
 
-/// The frame to publish of `m`'s film now, after a call that did `stats`.
+/// The frame to publish of `m`'s film now, after a call that did `stats`; `None` when
+/// `stop` said yes before the denoiser was done (a command is waiting: the frame is
+/// stale).
 fn frame_of(
     m: &dyn RenderMode,
     stats: meso_core::render::FrameStats,
     version: u64,
-    denoise: bool,
-    guides: &mut Option<Option<Guides>>,
-) -> Frame {
+    (denoise, guides): (bool, &mut Option<Option<Guides>>),
+    stop: &mut dyn FnMut() -> bool,
+) -> Option<Frame> {
     let image = Arc::new(m.image());
     let progress = m.progress();
     // A frame that traced only the pixels an edit restarted (a brush stroke step)
@@ -316,11 +325,11 @@ fn frame_of(
     let pixels = u64::from(progress.width) * u64::from(progress.height);
     let partial = stats.counters.samples > 0 && stats.counters.samples * 2 <= pixels;
     let shown = if denoise && !partial {
-        shown(m, &image, progress.min_samples, guides, Filter::Full)
+        shown(m, &image, progress.min_samples, guides, Filter::Full(stop))?
     } else {
         Arc::clone(&image)
     };
-    frame_with(m, stats, version, image, shown)
+    Some(frame_with(m, stats, version, image, shown))
 }
 
 fn frame_with(
@@ -464,14 +473,16 @@ fn run(
             let quick = edited_frame_of(m.as_ref(), version, denoise, &mut guides);
             let filtered = !Arc::ptr_eq(&quick.image, &quick.shown);
             publish(quick);
-            if filtered {
-                publish(frame_of(
+            if filtered
+                && let Some(f) = frame_of(
                     m.as_ref(),
                     Default::default(),
                     version,
-                    denoise,
-                    &mut guides,
-                ));
+                    (denoise, &mut guides),
+                    &mut || false,
+                )
+            {
+                publish(f);
             }
             continue;
         }
@@ -483,7 +494,7 @@ fn run(
             && m.progress().min_samples == 0
             && match m.render_preview(stride) {
                 Some(stats) => {
-                    publish(preview_of(m.as_ref(), stats, stride, version, denoise));
+                    publish_preview(m.as_ref(), (stats, stride, version), denoise, &publish);
                     true
                 }
                 None => false,
@@ -537,7 +548,25 @@ fn run(
         if !early.is_empty() {
             continue;
         }
-        publish(frame_of(m.as_ref(), stats, version, denoise, &mut guides));
+        // A command arriving while the frame is filtered stops the filter: the frame
+        // is stale, the command is applied at once.
+        let mut stop = || match rx.try_recv() {
+            Ok(c) => {
+                early.push(c);
+                true
+            }
+            Err(mpsc::TryRecvError::Empty) => false,
+            Err(mpsc::TryRecvError::Disconnected) => true,
+        };
+        if let Some(f) = frame_of(
+            m.as_ref(),
+            stats,
+            version,
+            (denoise, &mut guides),
+            &mut stop,
+        ) {
+            publish(f);
+        }
     }
 }
 
@@ -810,11 +839,17 @@ mod tests {
                     edit: Box::new(SceneEdit::Camera(moved.camera)),
                 });
             }
-            let first = next_frame(&worker);
+            let mut first = next_frame(&worker);
             assert!(
                 first.preview,
                 "version {version}: the first frame is a preview"
             );
+            // Published as it is, then denoised (the whole frame waits for the test).
+            if Arc::ptr_eq(&first.image, &first.shown) {
+                let denoised = next_frame(&worker);
+                assert!(denoised.preview && Arc::ptr_eq(&denoised.image, &first.image));
+                first = denoised;
+            }
             assert_eq!((first.version, first.progress.min_samples), (version, 0));
             let mut direct = fresh(scene);
             direct.render_preview(stride).expect("a preview");

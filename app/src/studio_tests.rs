@@ -932,7 +932,14 @@ fn a_click_in_the_library_assigns_the_pack_and_undo_restores_the_object() {
     h.state_mut().selected_material = Some(floor);
     h.run_steps(2);
     h.get_by_label("woven_wool").click();
-    h.step();
+    // Read on a background job too: wait for it (one step was not always enough on
+    // a loaded machine, which made this test fail now and then).
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while pack_path(&h).map(|p| p.0) != Some(floor) {
+        assert!(Instant::now() < deadline, "the assignment within 60 s");
+        h.step();
+        std::thread::sleep(Duration::from_millis(5));
+    }
     loaded(&mut h);
     let doc = h.state().doc.as_ref().expect("doc");
     assert!(matches!(doc.scene.materials[floor], Material::Spmm { .. }));

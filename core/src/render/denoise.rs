@@ -101,6 +101,17 @@ impl Denoiser {
     /// divisions per neighbour are one per pixel and `exp` is a polynomial
     /// (`exp_neg`). The two agree within 1e-4 relative (tested).
     pub fn apply(&self, image: &Image, guides: &Guides) -> Option<Image> {
+        self.apply_unless(image, guides, &mut || false)
+    }
+
+    /// `apply`, asking `stop` before each pass and giving up (`None`) once it says
+    /// yes: the render thread stops filtering a frame an edit has already made stale.
+    pub fn apply_unless(
+        &self,
+        image: &Image,
+        guides: &Guides,
+        stop: &mut dyn FnMut() -> bool,
+    ) -> Option<Image> {
         let (w, h) = (image.width() as usize, image.height() as usize);
         if (guides.width as usize, guides.height as usize) != (w, h) {
             return None;
@@ -108,6 +119,9 @@ impl Denoiser {
         let g = PlanarGuides::new(self, guides);
         let mut current = Planar::of(image.pixels());
         for pass in 0..self.passes {
+            if stop() {
+                return None;
+            }
             let step = 1usize << pass;
             let sigma_c = self.sigma_color / (1u32 << pass) as f32;
             let compressed = Planar(
@@ -670,6 +684,20 @@ mod tests {
                 assert!((got - want).abs() < 0.02, "({x}, {y}): {got} vs {want}");
             }
         }
+    }
+
+    #[test]
+    fn a_stopped_filter_gives_up_between_passes() {
+        let (img, g) = (noisy(16, 16, 0.5, 0.2), flat_guides(16, 16));
+        let d = Denoiser::default();
+        let mut asked = 0;
+        let mut after_two = || {
+            asked += 1;
+            asked > 2
+        };
+        assert!(d.apply_unless(&img, &g, &mut after_two).is_none());
+        assert_eq!(asked, 3, "asked before each pass until it said yes");
+        assert_eq!(d.apply_unless(&img, &g, &mut || false), d.apply(&img, &g));
     }
 
     #[test]

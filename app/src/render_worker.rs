@@ -548,15 +548,16 @@ fn run(
         if !early.is_empty() {
             continue;
         }
-        // A command arriving while the frame is filtered stops the filter: the frame
-        // is stale, the command is applied at once.
-        let mut stop = || match rx.try_recv() {
-            Ok(c) => {
+        // A command arriving while the frame is filtered stops the filter (when edits
+        // may stop frames): the frame is stale, the command is applied at once.
+        let mut stop = || match yield_to_edits.then(|| rx.try_recv()) {
+            None => false,
+            Some(Ok(c)) => {
                 early.push(c);
                 true
             }
-            Err(mpsc::TryRecvError::Empty) => false,
-            Err(mpsc::TryRecvError::Disconnected) => true,
+            Some(Err(mpsc::TryRecvError::Empty)) => false,
+            Some(Err(mpsc::TryRecvError::Disconnected)) => true,
         };
         if let Some(f) = frame_of(
             m.as_ref(),

@@ -256,7 +256,6 @@ fn publish_preview(
     let image = Arc::new(preview::spread(&estimate, stride));
     let frame = Frame {
         preview: true,
-        overlays: Vec::new(),
         ..frame_with(m, stats, version, Arc::clone(&image), image)
     };
     publish(frame.clone());
@@ -464,7 +463,9 @@ fn run(
             }
         }
         let Some(m) = mode.as_mut() else { continue };
-        let converged = m.progress().min_samples >= max_samples;
+        // Once: `min_samples` reads every pixel of the film.
+        let progress = m.progress();
+        let converged = progress.min_samples >= max_samples;
         if converged && !changed {
             continue;
         }
@@ -488,10 +489,9 @@ fn run(
         }
         // No pixel has a sample (a camera edit restarted them all): a few pixels of
         // the frame first, spread over the viewport, then the rest of the frame.
-        let (width, height) = (m.progress().width, m.progress().height);
-        let stride = preview::stride_for(width, height);
+        let stride = preview::stride_for(progress.width, progress.height);
         let previewed = yield_to_edits
-            && m.progress().min_samples == 0
+            && progress.min_samples == 0
             && match m.render_preview(stride) {
                 Some(stats) => {
                     publish_preview(m.as_ref(), (stats, stride, version), denoise, &publish);
@@ -500,8 +500,9 @@ fn run(
                 None => false,
             };
         // Every pixel keeps a sample (an emission edit re-weights, a stopped frame
-        // left its rows): show the edit now, then go on with the frame.
-        let shows_whole = m.progress().min_samples > 0;
+        // left its rows): show the edit now, then go on with the frame. (A preview
+        // leaves unsampled pixels, so this holds as it did before it.)
+        let shows_whole = progress.min_samples > 0;
         if changed && shows_whole && yield_to_edits {
             publish(edited_frame_of(m.as_ref(), version, denoise, &mut guides));
         }
@@ -775,6 +776,18 @@ mod tests {
         assert_eq!(frame.image.pixels(), reference.image().pixels());
     }
 
+    /// Loads `scene` at `size` square into the CPU spmm mode as version 1.
+    fn load(worker: &RenderWorker, scene: &Scene, size: u32) {
+        worker.send(Command::Load {
+            version: 1,
+            scene: Box::new(scene.clone()),
+            mode: ModeKind::Spmm,
+            device: Device::Cpu,
+            width: size,
+            height: size,
+        });
+    }
+
     /// A render thread whose frames wait for the test (`Gate`), its go-ahead and
     /// frame-start signal, and the Cornell scene.
     fn gated_cornell() -> (RenderWorker, mpsc::Sender<()>, mpsc::Receiver<()>, Scene) {
@@ -823,14 +836,7 @@ mod tests {
         let stride = preview::stride_for(SIZE, SIZE);
         assert!(stride > 1);
         worker.send(Command::MaxSamples(1));
-        worker.send(Command::Load {
-            version: 1,
-            scene: Box::new(scene.clone()),
-            mode: ModeKind::Spmm,
-            device: Device::Cpu,
-            width: SIZE,
-            height: SIZE,
-        });
+        load(&worker, &scene, SIZE);
         let mut moved = scene.clone();
         moved.camera.position.x += 0.2;
         for (version, scene) in [(1, &scene), (2, &moved)] {
@@ -910,14 +916,7 @@ mod tests {
                 Prepare::quietly(),
             )
             .expect("the CPU mode");
-        worker.send(Command::Load {
-            version: 1,
-            scene: Box::new(scene.clone()),
-            mode: ModeKind::Spmm,
-            device: Device::Cpu,
-            width: SIZE,
-            height: SIZE,
-        });
+        load(&worker, &scene, SIZE);
         for spp in 1..=2 {
             go.send(()).expect("the thread waits");
             let f = next_frame(&worker);

@@ -514,8 +514,8 @@ impl Denoiser {
     /// long: the image averaged over 2 x 2 blocks, filtered with `half_guides`
     /// (`Guides::halved`) by one pass fewer (the same footprint in full pixels) and
     /// half the colour tolerance (a block's mean has half a pixel's noise), then
-    /// spread back bilinearly. About a quarter of `apply`'s time; softer by about a
-    /// pixel at edges. `None` when the guides are not the halved image's size.
+    /// spread back bilinearly. About a quarter of `apply`'s time; softer at edges
+    /// (within two pixels of a depth edge, tested). `None` when the guides are not the halved image's size.
     pub fn apply_halved(&self, image: &Image, half_guides: &Guides) -> Option<Image> {
         let (w, h) = (image.width(), image.height());
         if (half_guides.width, half_guides.height) != (w.div_ceil(2), h.div_ceil(2)) {
@@ -572,21 +572,7 @@ fn double(small: &Image, w: u32, h: u32) -> Image {
             .collect()
     };
     let (cols, rows) = (axis(w, sw), axis(h, sh));
-    let mut out = Image::new(w, h);
-    out.pixels_mut()
-        .par_chunks_mut(w as usize)
-        .zip(rows.par_iter())
-        .for_each(|(row, &(y0, y1, ty))| {
-            for (p, &(x0, x1, tx)) in row.iter_mut().zip(&cols) {
-                let lerp = |a: [f32; 3], b: [f32; 3], t: f32| {
-                    std::array::from_fn(|k| a[k] + (b[k] - a[k]) * t)
-                };
-                let top = lerp(small.get(x0, y0), small.get(x1, y0), tx);
-                let bottom = lerp(small.get(x0, y1), small.get(x1, y1), tx);
-                *p = lerp(top, bottom, ty);
-            }
-        });
-    out
+    crate::render::preview::bilinear(small, (&cols, &rows))
 }
 
 /// `noisy` where `strength` is 0, `denoised` where it is 1, linear in between.

@@ -99,19 +99,26 @@ pub fn spread(image: &Image, stride: u32) -> Image {
     let (w, h) = (image.width(), image.height());
     let stride = stride.max(1);
     let (cols, rows) = (axis_weights(w, stride), axis_weights(h, stride));
-    let src = image.pixels();
-    let at = |x: u32, y: u32| src[(y * w + x) as usize];
-    let mut out = Image::new(w, h);
+    bilinear(image, (&cols, &rows))
+}
+
+/// Per output column (or row): the two source columns (rows) around it and the
+/// second's weight.
+pub(crate) type AxisWeights = [(u32, u32, f32)];
+
+/// An image of `cols.len()` x `rows.len()` pixels, each bilinear between four pixels
+/// of `src`: per column and per row, the two source columns (rows) and the second's
+/// weight. Shared by the preview's spread and the half-resolution denoiser's.
+pub(crate) fn bilinear(src: &Image, (cols, rows): (&AxisWeights, &AxisWeights)) -> Image {
+    let mut out = Image::new(cols.len() as u32, rows.len() as u32);
+    let lerp = |a: [f32; 3], b: [f32; 3], t: f32| std::array::from_fn(|k| a[k] + (b[k] - a[k]) * t);
     out.pixels_mut()
-        .par_chunks_mut(w.max(1) as usize)
+        .par_chunks_mut(cols.len().max(1))
         .zip(rows.par_iter())
         .for_each(|(row, &(y0, y1, ty))| {
-            for (p, &(x0, x1, tx)) in row.iter_mut().zip(&cols) {
-                let lerp = |a: [f32; 3], b: [f32; 3], t: f32| {
-                    std::array::from_fn(|k| a[k] + (b[k] - a[k]) * t)
-                };
-                let top = lerp(at(x0, y0), at(x1, y0), tx);
-                let bottom = lerp(at(x0, y1), at(x1, y1), tx);
+            for (p, &(x0, x1, tx)) in row.iter_mut().zip(cols) {
+                let top = lerp(src.get(x0, y0), src.get(x1, y0), tx);
+                let bottom = lerp(src.get(x0, y1), src.get(x1, y1), tx);
                 *p = lerp(top, bottom, ty);
             }
         });

@@ -776,6 +776,20 @@ mod tests {
         assert_eq!(frame.image.pixels(), reference.image().pixels());
     }
 
+    /// Core's CPU spmm mode of `scene` at `size` square, made directly (the reference).
+    fn cpu_mode(scene: &Scene, size: u32) -> Box<dyn RenderMode> {
+        CoreModes
+            .create(
+                ModeKind::Spmm,
+                Device::Cpu,
+                scene.clone(),
+                size,
+                size,
+                Prepare::quietly(),
+            )
+            .expect("the CPU mode")
+    }
+
     /// Loads `scene` at `size` square into the CPU spmm mode as version 1.
     fn load(worker: &RenderWorker, scene: &Scene, size: u32) {
         worker.send(Command::Load {
@@ -821,18 +835,7 @@ mod tests {
     fn a_restart_shows_a_preview_before_the_whole_frame() {
         const SIZE: u32 = 256;
         let (worker, go, _, scene) = gated_cornell();
-        let fresh = |scene: &Scene| {
-            CoreModes
-                .create(
-                    ModeKind::Spmm,
-                    Device::Cpu,
-                    scene.clone(),
-                    SIZE,
-                    SIZE,
-                    Prepare::quietly(),
-                )
-                .expect("the CPU mode")
-        };
+        let fresh = |scene: &Scene| cpu_mode(scene, SIZE);
         let stride = preview::stride_for(SIZE, SIZE);
         assert!(stride > 1);
         worker.send(Command::MaxSamples(1));
@@ -906,16 +909,7 @@ mod tests {
             1,
             "no preview at this size"
         );
-        let mut direct = CoreModes
-            .create(
-                ModeKind::Spmm,
-                Device::Cpu,
-                scene.clone(),
-                SIZE,
-                SIZE,
-                Prepare::quietly(),
-            )
-            .expect("the CPU mode");
+        let mut direct = cpu_mode(&scene, SIZE);
         load(&worker, &scene, SIZE);
         for spp in 1..=2 {
             go.send(()).expect("the thread waits");

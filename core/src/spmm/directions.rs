@@ -19,7 +19,26 @@ pub struct DirectionTable {
     hull: Vec<u32>,
     /// Triangles whose bounding box overlaps each grid cell.
     cells: Vec<Vec<u32>>,
+    /// Per triangle, what `weights` reads: its corners and doubled signed area, so a
+    /// query reads one record instead of three scattered points.
+    corners: Vec<Corners>,
 }
+
+#[derive(Clone, Debug, PartialEq)]
+struct Corners {
+    index: [u32; 3],
+    at: [DVec2; 3],
+    /// `cross(b - a, c - a)`, exactly as a query would compute it.
+    area: f64,
+    /// The sign of `area`, and `2 * |EPS| * |area|`: a corner's numerator `x` with
+    /// `x * sign < -reject` gives a weight below `2 EPS` whatever the rounding, so
+    /// the triangle is passed over before dividing.
+    sign: f64,
+    reject: f64,
+}
+
+/// Barycentric weights down to this count as inside (shared edges, rounding).
+const EPS: f64 = -1e-12;
 
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
 pub enum DirectionTableError {
@@ -110,11 +129,26 @@ impl DirectionTable {
                 }
             }
         }
+        let corners = triangles
+            .iter()
+            .map(|&index| {
+                let at = index.map(|i| points[i as usize]);
+                let area = cross(at[1] - at[0], at[2] - at[0]);
+                Corners {
+                    index,
+                    at,
+                    area,
+                    sign: area.signum(),
+                    reject: -2.0 * EPS * area.abs(),
+                }
+            })
+            .collect();
         Ok(Self {
             points,
             triangles,
             hull,
             cells,
+            corners,
         })
     }
 
@@ -147,17 +181,23 @@ impl DirectionTable {
         let p = DVec2::new(d.x, d.y);
         let (cx, cy) = cell_of(p);
         for &ti in &self.cells[cy * GRID + cx] {
-            let [a, b, c] = self.triangles[ti as usize];
-            let (pa, pb, pc) = (
-                self.points[a as usize],
-                self.points[b as usize],
-                self.points[c as usize],
-            );
-            let area = cross(pb - pa, pc - pa);
-            let wa = cross(pb - p, pc - p) / area;
-            let wb = cross(pc - p, pa - p) / area;
+            let Corners {
+                index: [a, b, c],
+                at: [pa, pb, pc],
+                area,
+                sign,
+                reject,
+            } = self.corners[ti as usize];
+            let (xa, xb) = (cross(pb - p, pc - p), cross(pc - p, pa - p));
+            // Most triangles of a cell are clearly not the one: skip their divisions.
+            // Only triangles the division itself would refuse are passed over here, so
+            // the weights are bit for bit those of the plain test.
+            if xa * sign < -reject || xb * sign < -reject {
+                continue;
+            }
+            let wa = xa / area;
+            let wb = xb / area;
             let wc = 1.0 - wa - wb;
-            const EPS: f64 = -1e-12;
             if wa >= EPS && wb >= EPS && wc >= EPS {
                 let (wa, wb, wc) = (wa.max(0.0), wb.max(0.0), wc.max(0.0));
                 let s = wa + wb + wc;
@@ -243,6 +283,58 @@ mod tests {
                 (got - (0.3 + 2.0 * d.x - 1.5 * d.y)).abs() < 1e-9,
                 "{d}: {got}"
             );
+        }
+    }
+
+    /// The query with per-triangle records and the early reject gives the weights of
+    /// the plain test (three point look-ups, the area recomputed, two divisions for
+    /// every triangle of the cell) bit for bit: at random directions, at the tabulated
+    /// ones, on the midpoints of every triangle edge (shared by two triangles, where
+    /// the first in the cell's list must still win), and outside the hull.
+    #[test]
+    fn the_fast_query_equals_the_plain_one_bit_for_bit() {
+        let dirs = rings();
+        let t = DirectionTable::new(&dirs).expect("valid set");
+        let plain = |d: DVec3| -> [(u32, f64); 3] {
+            let p = DVec2::new(d.x, d.y);
+            let (cx, cy) = cell_of(p);
+            for &ti in &t.cells[cy * GRID + cx] {
+                let [a, b, c] = t.triangles[ti as usize];
+                let (pa, pb, pc) = (
+                    t.points[a as usize],
+                    t.points[b as usize],
+                    t.points[c as usize],
+                );
+                let area = cross(pb - pa, pc - pa);
+                let wa = cross(pb - p, pc - p) / area;
+                let wb = cross(pc - p, pa - p) / area;
+                let wc = 1.0 - wa - wb;
+                if wa >= EPS && wb >= EPS && wc >= EPS {
+                    let (wa, wb, wc) = (wa.max(0.0), wb.max(0.0), wc.max(0.0));
+                    let s = wa + wb + wc;
+                    return [(a, wa / s), (b, wb / s), (c, wc / s)];
+                }
+            }
+            t.nearest_on_hull(p)
+        };
+        let bits = |w: [(u32, f64); 3]| w.map(|(i, w)| (i, w.to_bits()));
+        let lift = |p: DVec2| DVec3::new(p.x, p.y, (1.0 - p.length_squared()).max(0.0).sqrt());
+        let mut queries: Vec<DVec3> = dirs.clone();
+        for tri in &t.triangles {
+            for e in 0..3 {
+                let (a, b) = (
+                    t.points[tri[e] as usize],
+                    t.points[tri[(e + 1) % 3] as usize],
+                );
+                queries.push(lift((a + b) * 0.5));
+            }
+        }
+        for k in 0..20_000u64 {
+            let mut s = SampleStream::new(&[23, k]);
+            queries.push(spherical(s.next(), 2.0 * std::f64::consts::PI * s.next()));
+        }
+        for d in queries {
+            assert_eq!(bits(t.weights(d)), bits(plain(d)), "{d}");
         }
     }
 

@@ -670,14 +670,20 @@ mod prepared {
         );
     }
 
+    /// Bit for bit, whatever the layout: 3 components (cells packed), 8 (cells padded
+    /// to whole cache lines, `cell_stride`), fewer kept than stored, none, or no
+    /// residual; on x86-64 with AVX this checks the 4-wide cell sum too.
     #[test]
     fn prepared_evaluation_equals_the_reference() {
-        let m = sample_material(6, 5, 4, Some(3));
-        for (residual, max_npca) in [
-            (true, usize::MAX),
-            (true, 2),
-            (true, 0),
-            (false, usize::MAX),
+        let three = sample_material(6, 5, 4, Some(3));
+        let eight = sample_material(6, 5, 4, Some(8));
+        for (m, residual, max_npca) in [
+            (&three, true, usize::MAX),
+            (&three, true, 2),
+            (&three, true, 0),
+            (&three, false, usize::MAX),
+            (&eight, true, usize::MAX),
+            (&eight, true, 7),
         ] {
             let p = m.prepare(&PrepareRequest {
                 used_clusters: None,
@@ -724,9 +730,11 @@ mod prepared {
         assert_eq!((full.clusters_used(), part.clusters_used()), (4, 1));
         full.make_all_resident();
         part.make_all_resident();
-        // Residual bytes: used clusters x L x V x (1 + k) RGB cells, plus k coefficients per texel.
+        // Residual bytes: per used cluster L x V cells of (1 + k) RGB floats, the table
+        // rounded up to whole 64-byte lines (k = 2: 180 floats take 12 lines of 16),
+        // plus k coefficients per texel.
         assert_eq!(full.bytes().residual, (4 * l * v * 4 * 3 + texels * 3) * 4);
-        assert_eq!(part.bytes().residual, (l * v * 3 * 3 + texels * 2) * 4);
+        assert_eq!(part.bytes().residual, (12 * 16 + texels * 2) * 4);
         let off = m.prepare(&PrepareRequest {
             used_clusters: None,
             residual: false,
@@ -757,6 +765,35 @@ mod prepared {
         for (t, wi, wo) in points(300, texels) {
             if m.texel_cluster()[t] == 1 {
                 assert_eq!(part.eval_texel(t, wi, wo), m.eval_texel(t, wi, wo, true, 2));
+            }
+        }
+    }
+
+    /// The parts a device uploads hold the cells packed, `[light][view][1 + k][3]`,
+    /// whatever padding the CPU's tables carry (8 components: padded to 32 floats).
+    #[test]
+    fn device_parts_hold_the_cells_unpadded() {
+        let m = sample_material(6, 5, 4, Some(8));
+        let r = m.residual().expect("residual");
+        let (nl, nv, k) = (r.light_dirs.len(), r.view_dirs.len(), 8);
+        let p = m.prepare(&PrepareRequest {
+            used_clusters: None,
+            residual: true,
+            max_npca: k,
+        });
+        let parts = p.parts();
+        let pr = parts.residual.expect("residual prepared");
+        assert_eq!(pr.cells.len(), 4 * nl * nv * (1 + k) * 3);
+        for c in 0..4 {
+            let base = pr.cluster_offset[c].expect("every cluster prepared");
+            for (l, v) in [(0, 0), (nl - 1, nv - 1), (1, 2)] {
+                let cell = &pr.cells[base + (l * nv + v) * (1 + k) * 3..][..(1 + k) * 3];
+                let m0 = ((c * nl + l) * nv + v) * 3;
+                assert_eq!(cell[..3], r.mean[m0..m0 + 3]);
+                for kk in 0..k {
+                    let b = (((c * r.npca + kk) * nl + l) * nv + v) * 3;
+                    assert_eq!(cell[3 + 3 * kk..6 + 3 * kk], r.components[b..b + 3]);
+                }
             }
         }
     }

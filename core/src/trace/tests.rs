@@ -399,8 +399,9 @@ fn only_the_residual_tables_of_clusters_rays_reach_are_held_and_the_image_is_the
         eager.material_bytes().expect("bytes"),
     );
     assert_eq!((e.resident, l.full), (e.full, e.full));
-    // One cluster's tables: 5 lights x 4 views x (1 + 4) RGB f32 values.
-    let table = (5 * 4 * 5 * 3 * 4) as u64;
+    // One cluster's tables: 5 lights x 4 views cells of (1 + 4) RGB f32 values, each
+    // cell padded from 15 floats to one 64-byte line.
+    let table = (5 * 4 * 16 * 4) as u64;
     assert_eq!(
         e.resident - l.resident,
         2 * table,

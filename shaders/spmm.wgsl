@@ -24,7 +24,7 @@ const SPMM_UV_SCALE_Y: u32 = 14u;
 const SPMM_HEADER_WORDS: u32 = 16u;
 
 const NO_CLUSTER: u32 = 0xffffffffu;
-const DIRECTION_GRID: u32 = 16u;
+const DIRECTION_GRID: u32 = 32u;
 
 fn f32_at(i: u32) -> f32 {
     return bitcast<f32>(data[i]);
@@ -47,7 +47,7 @@ fn cross2(a: vec2<f32>, b: vec2<f32>) -> f32 {
     return a.x * b.y - a.y * b.x;
 }
 
-// Table record: [points, points_at, triangles_at, cell_starts_at (257 words),
+// Table record: [points, points_at, triangles_at, cell_starts_at (1025 words),
 // cell_triangles_at, hull_len, hull_at].
 fn direction_weights(table: u32, d: vec3<f32>) -> DirectionWeights {
     let points = data[table + 1u];

@@ -100,19 +100,11 @@ impl Words {
     /// cell_triangles_at, hull_len, hull_at]` and its arrays.
     fn push_direction_table(&mut self, table: &DirectionTable) -> u32 {
         let parts = table.parts();
-        let (points, triangles, cells, hull) =
-            (parts.points, parts.triangles, parts.cells, parts.hull);
+        let (points, triangles, hull) = (parts.points, parts.triangles, parts.hull);
         let points_at = self.push_f32s(points.iter().flat_map(|p| [p.x as f32, p.y as f32]));
         let triangles_at = self.push_u32s(triangles.iter().flatten().copied());
-        let mut starts = Vec::with_capacity(cells.len() + 1);
-        let mut flat = Vec::new();
-        for c in cells {
-            starts.push(flat.len() as u32);
-            flat.extend_from_slice(c);
-        }
-        starts.push(flat.len() as u32);
-        let cell_tris_at = self.push_u32s(flat);
-        let starts_at = self.push_u32s(starts);
+        let cell_tris_at = self.push_u32s(parts.cell_triangles.iter().copied());
+        let starts_at = self.push_u32s(parts.cell_starts.iter().copied());
         let hull_at = self.push_u32s(hull.iter().copied());
         self.push_u32s([
             points.len() as u32,

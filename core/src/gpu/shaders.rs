@@ -54,3 +54,20 @@ pub(super) fn integrator() -> String {
         BTF_TABLE,
     ])
 }
+
+#[cfg(test)]
+mod tests {
+    /// The shader's direction grid is the CPU table's: the device reads the CPU's
+    /// cell lists by index.
+    #[test]
+    fn the_direction_grid_matches_the_cpu_tables() {
+        let line = format!(
+            "const DIRECTION_GRID: u32 = {}u;",
+            crate::spmm::directions::DirectionTable::GRID
+        );
+        assert!(
+            super::SPMM.contains(&line),
+            "shaders/spmm.wgsl lacks `{line}`"
+        );
+    }
+}

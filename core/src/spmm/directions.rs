@@ -4,12 +4,15 @@
 //! the triangle containing its projection: exact at the tabulated directions,
 //! continuous everywhere, at most 3 table entries. Outside the set's convex hull (near
 //! the horizon) the query is moved to the nearest point of the hull boundary, which
-//! keeps the weights continuous across it.
+//! keeps the weights continuous across it. A query tests the triangles listed for its
+//! cell of a grid over the disk in index order and takes the first that holds it: the
+//! lowest-numbered such triangle, whatever the grid.
 
 use glam::{DVec2, DVec3};
 
-/// Cells per side of the acceleration grid over [-1, 1]^2.
-const GRID: usize = 16;
+/// Cells per side of the acceleration grid over [-1, 1]^2: fine enough that a cell
+/// meets one or two triangles of a measured layout (81 Bonn directions).
+const GRID: usize = 32;
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct DirectionTable {
@@ -17,8 +20,11 @@ pub struct DirectionTable {
     triangles: Vec<[u32; 3]>,
     /// Convex hull, counter-clockwise, as indices into `points`.
     hull: Vec<u32>,
-    /// Triangles whose bounding box overlaps each grid cell.
-    cells: Vec<Vec<u32>>,
+    /// Per grid cell (row-major by the projected y), the start of its triangles in
+    /// `cell_triangles`; one more entry than cells.
+    cell_starts: Vec<u32>,
+    /// The triangles that meet each cell, in index order per cell.
+    cell_triangles: Vec<u32>,
     /// Per triangle, what `weights` reads: its corners and doubled signed area, so a
     /// query reads one record instead of three scattered points.
     corners: Vec<Corners>,
@@ -54,8 +60,10 @@ pub enum DirectionTableError {
 pub struct DirectionTableParts<'a> {
     pub points: &'a [DVec2],
     pub triangles: &'a [[u32; 3]],
-    /// `GRID x GRID` triangle lists, row-major by the projected y.
-    pub cells: &'a [Vec<u32>],
+    /// Per cell of the `GRID x GRID` grid (row-major by the projected y), the start of
+    /// its triangles in `cell_triangles`, and the end.
+    pub cell_starts: &'a [u32],
+    pub cell_triangles: &'a [u32],
     /// Counter-clockwise.
     pub hull: &'a [u32],
 }
@@ -68,6 +76,25 @@ fn cell_of(p: DVec2) -> (usize, usize) {
 
 fn cross(a: DVec2, b: DVec2) -> f64 {
     a.x * b.y - a.y * b.x
+}
+
+/// Whether triangle `t` meets grid cell (x, y), closed and widened by a margin far
+/// above the query's tolerance: a triangle that could hold a point of the cell is
+/// never left out. Separating axes: the cell's sides (the caller's bounding-box
+/// range) and the triangle's edges.
+fn triangle_meets_cell(t: [DVec2; 3], x: usize, y: usize) -> bool {
+    const MARGIN: f64 = 1e-9;
+    let side = 2.0 / GRID as f64;
+    let lo = DVec2::new(-1.0 + side * x as f64, -1.0 + side * y as f64) - MARGIN;
+    let hi = lo + side + 2.0 * MARGIN;
+    let corners = [lo, DVec2::new(hi.x, lo.y), hi, DVec2::new(lo.x, hi.y)];
+    let orient = cross(t[1] - t[0], t[2] - t[0]).signum();
+    (0..3).all(|e| {
+        let (a, b) = (t[e], t[(e + 1) % 3]);
+        corners
+            .iter()
+            .any(|&q| orient * cross(b - a, q - a) >= -MARGIN * (b - a).length())
+    })
 }
 
 impl DirectionTable {
@@ -125,10 +152,19 @@ impl DirectionTable {
             let (x1, y1) = cell_of(hi);
             for y in y0..=y1 {
                 for x in x0..=x1 {
-                    cells[y * GRID + x].push(ti as u32);
+                    if triangle_meets_cell(ps, x, y) {
+                        cells[y * GRID + x].push(ti as u32);
+                    }
                 }
             }
         }
+        let mut cell_starts = Vec::with_capacity(GRID * GRID + 1);
+        let mut cell_triangles = Vec::new();
+        for list in &cells {
+            cell_starts.push(cell_triangles.len() as u32);
+            cell_triangles.extend_from_slice(list);
+        }
+        cell_starts.push(cell_triangles.len() as u32);
         let corners = triangles
             .iter()
             .map(|&index| {
@@ -147,12 +183,13 @@ impl DirectionTable {
             points,
             triangles,
             hull,
-            cells,
+            cell_starts,
+            cell_triangles,
             corners,
         })
     }
 
-    /// The grid's side: `cells()` has `GRID x GRID` lists, row-major by the projected y.
+    /// The grid's side: `parts()` has `GRID x GRID` cells, row-major by the projected y.
     pub const GRID: usize = GRID;
 
     /// The directions projected on the tangent plane, the triangles over them, the
@@ -162,7 +199,8 @@ impl DirectionTable {
         DirectionTableParts {
             points: &self.points,
             triangles: &self.triangles,
-            cells: &self.cells,
+            cell_starts: &self.cell_starts,
+            cell_triangles: &self.cell_triangles,
             hull: &self.hull,
         }
     }
@@ -180,7 +218,9 @@ impl DirectionTable {
     pub fn weights(&self, d: DVec3) -> [(u32, f64); 3] {
         let p = DVec2::new(d.x, d.y);
         let (cx, cy) = cell_of(p);
-        for &ti in &self.cells[cy * GRID + cx] {
+        let cell = cy * GRID + cx;
+        let listed = self.cell_starts[cell] as usize..self.cell_starts[cell + 1] as usize;
+        for &ti in &self.cell_triangles[listed] {
             let Corners {
                 index: [a, b, c],
                 at: [pa, pb, pc],
@@ -286,20 +326,19 @@ mod tests {
         }
     }
 
-    /// The query with per-triangle records and the early reject gives the weights of
-    /// the plain test (three point look-ups, the area recomputed, two divisions for
-    /// every triangle of the cell) bit for bit: at random directions, at the tabulated
-    /// ones, on the midpoints of every triangle edge (shared by two triangles, where
-    /// the first in the cell's list must still win), and outside the hull.
+    /// The query (grid cell lists, per-triangle records, the early reject) gives the
+    /// weights of the plain definition bit for bit: the first triangle in index order
+    /// whose barycentric weights are all above the tolerance, each computed from its
+    /// three points with two divisions, else the hull. At random directions, at the
+    /// tabulated ones, on the midpoints of every triangle edge (shared by two
+    /// triangles: the lower-numbered must win), and outside the hull.
     #[test]
     fn the_fast_query_equals_the_plain_one_bit_for_bit() {
         let dirs = rings();
         let t = DirectionTable::new(&dirs).expect("valid set");
         let plain = |d: DVec3| -> [(u32, f64); 3] {
             let p = DVec2::new(d.x, d.y);
-            let (cx, cy) = cell_of(p);
-            for &ti in &t.cells[cy * GRID + cx] {
-                let [a, b, c] = t.triangles[ti as usize];
+            for &[a, b, c] in &t.triangles {
                 let (pa, pb, pc) = (
                     t.points[a as usize],
                     t.points[b as usize],

@@ -25,22 +25,17 @@ pub struct DirectionTable {
     cell_starts: Vec<u32>,
     /// The triangles that meet each cell, in index order per cell.
     cell_triangles: Vec<u32>,
-    /// Per triangle, what `weights` reads: its corners and doubled signed area, so a
-    /// query reads one record instead of three scattered points.
+    /// Per triangle, what `weights` tests: its corners and doubled signed area, one
+    /// cache line, so a query reads one line per triangle instead of three points.
     corners: Vec<Corners>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
+#[repr(align(64))]
 struct Corners {
-    index: [u32; 3],
     at: [DVec2; 3],
     /// `cross(b - a, c - a)`, exactly as a query would compute it.
     area: f64,
-    /// The sign of `area`, and `2 * |EPS| * |area|`: a corner's numerator `x` with
-    /// `x * sign < -reject` gives a weight below `2 EPS` whatever the rounding, so
-    /// the triangle is passed over before dividing.
-    sign: f64,
-    reject: f64,
 }
 
 /// Barycentric weights down to this count as inside (shared edges, rounding).
@@ -167,16 +162,10 @@ impl DirectionTable {
         cell_starts.push(cell_triangles.len() as u32);
         let corners = triangles
             .iter()
-            .map(|&index| {
+            .map(|index| {
                 let at = index.map(|i| points[i as usize]);
                 let area = cross(at[1] - at[0], at[2] - at[0]);
-                Corners {
-                    index,
-                    at,
-                    area,
-                    sign: area.signum(),
-                    reject: -2.0 * EPS * area.abs(),
-                }
+                Corners { at, area }
             })
             .collect();
         Ok(Self {
@@ -222,16 +211,15 @@ impl DirectionTable {
         let listed = self.cell_starts[cell] as usize..self.cell_starts[cell + 1] as usize;
         for &ti in &self.cell_triangles[listed] {
             let Corners {
-                index: [a, b, c],
                 at: [pa, pb, pc],
                 area,
-                sign,
-                reject,
             } = self.corners[ti as usize];
             let (xa, xb) = (cross(pb - p, pc - p), cross(pc - p, pa - p));
             // Most triangles of a cell are clearly not the one: skip their divisions.
-            // Only triangles the division itself would refuse are passed over here, so
-            // the weights are bit for bit those of the plain test.
+            // A numerator with `x * sign < -2 |EPS| |area|` gives a weight below
+            // `2 EPS` whatever the rounding: only triangles the division itself would
+            // refuse are passed over, so the weights are bit for bit the plain test's.
+            let (sign, reject) = (area.signum(), -2.0 * EPS * area.abs());
             if xa * sign < -reject || xb * sign < -reject {
                 continue;
             }
@@ -241,6 +229,7 @@ impl DirectionTable {
             if wa >= EPS && wb >= EPS && wc >= EPS {
                 let (wa, wb, wc) = (wa.max(0.0), wb.max(0.0), wc.max(0.0));
                 let s = wa + wb + wc;
+                let [a, b, c] = self.triangles[ti as usize];
                 return [(a, wa / s), (b, wb / s), (c, wc / s)];
             }
         }

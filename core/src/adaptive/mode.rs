@@ -610,6 +610,19 @@ impl AdaptiveMode {
             ) + shift;
             DVec2::new(u.x.fract(), u.y.fract())
         };
+        // Each strategy other than the table's visits the strata in its own order (a
+        // permutation drawn once, the same for every pixel): the frames draw the
+        // strategies independently, and pairing them at one stratum would add their
+        // correlation to the variance the allocation predicts.
+        let order = |strategy: u64| -> Vec<u32> {
+            let rng = SampleStream::new(&[self.scene.render.seed, STREAM, 0xBA4D, strategy]);
+            let mut order: Vec<u32> = (0..n_b).collect();
+            for i in (1..order.len()).rev() {
+                let j = (rng.at(i as u64) * (i + 1) as f64) as usize;
+                order.swap(i, j.min(i));
+            }
+            order
+        };
         // The frames' estimator's value per direction k (luminance, emissions applied):
         // its strategies (map, table, light) at the k-th stratum, with its MIS weights.
         let mut value = vec![0.0; n_b as usize];
@@ -681,12 +694,13 @@ impl AdaptiveMode {
                     value[k] += lambda * power(pdf, map_pdf);
                 }
             }
+            let map_order = order(0);
             for (k, v) in value.iter_mut().enumerate() {
-                // The map's strategy at the same stratum.
+                // The map's strategy, at its own stratum.
                 let Some(sampler) = &self.env_sampler else {
                     break;
                 };
-                let e = sampler.sample(&env.map, stratum(k as u32));
+                let e = sampler.sample(&env.map, stratum(map_order[k]));
                 let wi = rotate_y(e.dir, env.rotate_y_deg);
                 let li = s.to_local(wi);
                 if li.z <= 0.0 || e.pdf <= 0.0 {
@@ -701,7 +715,13 @@ impl AdaptiveMode {
                 *v += f * li.z * e.radiance.dot(LUMINANCE) * env.strength * weight / e.pdf;
             }
         }
-        for (light, bw) in self.scene.lights.iter().zip(&self.light_bandwidth) {
+        for (index, (light, bw)) in self
+            .scene
+            .lights
+            .iter()
+            .zip(&self.light_bandwidth)
+            .enumerate()
+        {
             let (
                 Light::Area {
                     corner,
@@ -717,8 +737,9 @@ impl AdaptiveMode {
             let cross = edge_u.cross(edge_v);
             let area = cross.length();
             let emitted = radiance.dot(LUMINANCE);
+            let light_order = order(1 + index as u64);
             for k in 0..n_b {
-                let u = stratum(k);
+                let u = stratum(light_order[k as usize]);
                 let q = corner + edge_u * u.x + edge_v * u.y;
                 let to = q - s.p;
                 let d2 = to.length_squared();

@@ -374,13 +374,14 @@ fn the_predicted_variance_is_that_of_the_importance_sampled_estimator_on_a_hand_
     .bandwidth_pass();
     let with_mis = mis.sigma[centre] * mis.sigma[centre];
     assert!(with_mis < 0.5 * expected, "{with_mis} against {expected}");
-    // And it is of the order of the estimator's measured variance (4096 independent
-    // samples): the pass draws the map's and the table's directions from the same
-    // stratum, whose correlation overstates the MIS sum's variance (measured: 0.039
-    // predicted against 0.024), so within a factor of 2 either way.
+    // And it is the estimator's measured variance (4096 independent samples; about
+    // 3% sampling error): the pass visits the strata in a different order for the
+    // map's strategy than for the table's, as the frames draw them independently
+    // (with both at the same stratum it predicted 0.039 against 0.024 measured; now
+    // 0.0250 against 0.0238), so within 15%.
     let m = measured(true);
     assert!(
-        with_mis < 2.0 * m && with_mis > 0.5 * m,
+        (with_mis - m).abs() < 0.15 * m,
         "predicted {with_mis}, measured {m}"
     );
 }

@@ -145,7 +145,7 @@ fn add_cells_portable(
 
 /// `add_cells_portable` with the three channels in one 4-wide register: the same
 /// multiplies and adds per channel in the same order (no fused multiply-add), so the
-/// same bits, in a third of the instructions.
+/// same bits, one instruction per step for the three channels.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx")]
 fn add_cells_avx(rgb: DVec3, table: &[f32], cells: &[(usize, f64); 9], coef: &[f32]) -> DVec3 {
@@ -154,11 +154,11 @@ fn add_cells_avx(rgb: DVec3, table: &[f32], cells: &[(usize, f64); 9], coef: &[f
         _mm256_set1_pd, _mm256_setr_pd, _mm256_storeu_pd,
     };
     let values = (1 + coef.len()) * 3;
-    // Three floats from `rgb[0]`: the fourth lane is masked out, never read.
-    let load3 = |rgb: &[f32]| -> __m256d {
-        assert!(rgb.len() >= 3);
+    // The first three floats of `from`: the fourth lane is masked out, never read.
+    let load3 = |from: &[f32]| -> __m256d {
+        assert!(from.len() >= 3);
         // SAFETY: three floats are in bounds (asserted); the masked lane is not read.
-        _mm256_cvtps_pd(unsafe { _mm_maskload_ps(rgb.as_ptr(), _mm_setr_epi32(-1, -1, -1, 0)) })
+        _mm256_cvtps_pd(unsafe { _mm_maskload_ps(from.as_ptr(), _mm_setr_epi32(-1, -1, -1, 0)) })
     };
     let mut acc = _mm256_setr_pd(rgb.x, rgb.y, rgb.z, 0.0);
     for &(start, w) in cells {
@@ -557,9 +557,9 @@ impl PreparedSpmm {
 
 /// Hints the cache to load every cache line of `data`; no effect on results. A
 /// packed residual cell can straddle three lines, so asking for the first and last
-/// alone left the middle one to miss. Into the second-level cache (T1): the nine
-/// cells' lines issued at once stalled on the first level's miss slots with T0, and
-/// the spmm bench ran about 9% faster with T1 (T0 and NTA measured alternately).
+/// alone left the middle one to miss. The hint is T1 (second-level cache): with T0
+/// the profile showed the time at the prefetches themselves, and T1 ran the spmm
+/// bench about 9% faster (T0 and NTA measured alternately; NTA was slower).
 #[inline(always)]
 fn prefetch(data: &[f32]) {
     #[cfg(target_arch = "x86_64")]

@@ -147,6 +147,14 @@ fn shares_analysis(g: &GBuffer, i: usize, head: usize) -> bool {
     }
 }
 
+/// The order in which each strategy other than the table's visits the bandwidth
+/// pass's strata (`AdaptiveMode::strata_orders`).
+struct StrataOrders {
+    map: Vec<u32>,
+    /// Per scene light.
+    lights: Vec<Vec<u32>>,
+}
+
 /// What the bandwidth pass finds at one pixel.
 struct PixelAnalysis {
     /// Eq. 5 at the eye.
@@ -491,9 +499,10 @@ impl AdaptiveMode {
         let own: Vec<bool> = (0..w * h)
             .map(|i| head(i) == i || !shares_analysis(&g, i as usize, head(i) as usize))
             .collect();
+        let orders = self.strata_orders();
         let analysed: Vec<Option<PixelAnalysis>> = (0..w * h)
             .into_par_iter()
-            .map(|i| own[i as usize].then(|| self.pixel_bandwidth(&g, i)))
+            .map(|i| own[i as usize].then(|| self.pixel_bandwidth(&g, i, &orders)))
             .collect();
         let per_pixel: Vec<&PixelAnalysis> = (0..w * h)
             .map(|i| {
@@ -557,7 +566,31 @@ impl AdaptiveMode {
     /// Eq. 5's bandwidth at the eye, eq. 9's sums, the visible share of the lambda
     /// weights (our visibility guard, `bandwidth_pass`) and the moments of the frames'
     /// estimator over the n_b directions, for pixel `i`.
-    fn pixel_bandwidth(&self, g: &GBuffer, i: u32) -> PixelAnalysis {
+    /// The order in which the environment map's strategy and each light's visit the
+    /// pass's strata (the table's strategy visits them in order): permutations drawn
+    /// once, the same for every pixel. The frames draw the strategies independently;
+    /// pairing them at one stratum would add their correlation to the variance the
+    /// allocation predicts.
+    fn strata_orders(&self) -> StrataOrders {
+        let n_b = self.options.n_b;
+        let order = |strategy: u64| -> Vec<u32> {
+            let rng = SampleStream::new(&[self.scene.render.seed, STREAM, 0xBA4D, strategy]);
+            let mut order: Vec<u32> = (0..n_b).collect();
+            for i in (1..order.len()).rev() {
+                let j = (rng.at(i as u64) * (i + 1) as f64) as usize;
+                order.swap(i, j.min(i));
+            }
+            order
+        };
+        StrataOrders {
+            map: order(0),
+            lights: (0..self.scene.lights.len())
+                .map(|l| order(1 + l as u64))
+                .collect(),
+        }
+    }
+
+    fn pixel_bandwidth(&self, g: &GBuffer, i: u32, orders: &StrataOrders) -> PixelAnalysis {
         let px = &g.pixels[i as usize];
         let mut moments = allocation::Moments::default();
         let Some(s) = &px.surface else {
@@ -609,19 +642,6 @@ impl AdaptiveMode {
                 ((k / side) as f64 + 0.5) / side as f64,
             ) + shift;
             DVec2::new(u.x.fract(), u.y.fract())
-        };
-        // Each strategy other than the table's visits the strata in its own order (a
-        // permutation drawn once, the same for every pixel): the frames draw the
-        // strategies independently, and pairing them at one stratum would add their
-        // correlation to the variance the allocation predicts.
-        let order = |strategy: u64| -> Vec<u32> {
-            let rng = SampleStream::new(&[self.scene.render.seed, STREAM, 0xBA4D, strategy]);
-            let mut order: Vec<u32> = (0..n_b).collect();
-            for i in (1..order.len()).rev() {
-                let j = (rng.at(i as u64) * (i + 1) as f64) as usize;
-                order.swap(i, j.min(i));
-            }
-            order
         };
         // The frames' estimator's value per direction k (luminance, emissions applied):
         // its strategies (map, table, light) at the k-th stratum, with its MIS weights.
@@ -694,13 +714,12 @@ impl AdaptiveMode {
                     value[k] += lambda * power(pdf, map_pdf);
                 }
             }
-            let map_order = order(0);
             for (k, v) in value.iter_mut().enumerate() {
                 // The map's strategy, at its own stratum.
                 let Some(sampler) = &self.env_sampler else {
                     break;
                 };
-                let e = sampler.sample(&env.map, stratum(map_order[k]));
+                let e = sampler.sample(&env.map, stratum(orders.map[k]));
                 let wi = rotate_y(e.dir, env.rotate_y_deg);
                 let li = s.to_local(wi);
                 if li.z <= 0.0 || e.pdf <= 0.0 {
@@ -737,9 +756,8 @@ impl AdaptiveMode {
             let cross = edge_u.cross(edge_v);
             let area = cross.length();
             let emitted = radiance.dot(LUMINANCE);
-            let light_order = order(1 + index as u64);
             for k in 0..n_b {
-                let u = stratum(light_order[k as usize]);
+                let u = stratum(orders.lights[index][k as usize]);
                 let q = corner + edge_u * u.x + edge_v * u.y;
                 let to = q - s.p;
                 let d2 = to.length_squared();

@@ -79,7 +79,7 @@ impl PreparedResidual {
         let r = &self.source;
         let (nl, nv, npca) = (r.light_dirs.len(), r.view_dirs.len(), r.npca);
         let stride = cell_stride(self.k);
-        let mut lines = vec![CacheLine::zeroed(); (nl * nv * stride).div_ceil(LINE_FLOATS)];
+        let mut lines = vec![bytemuck::Zeroable::zeroed(); table_lines(nl * nv, self.k)];
         let cells: &mut [f32] = bytemuck::cast_slice_mut(&mut lines);
         for l in 0..nl {
             for v in 0..nv {
@@ -186,10 +186,9 @@ const LINE_FLOATS: usize = 16;
 #[repr(C, align(64))]
 struct CacheLine([f32; LINE_FLOATS]);
 
-impl CacheLine {
-    fn zeroed() -> Self {
-        bytemuck::Zeroable::zeroed()
-    }
+/// Lines one cluster's table of `cells` cells with `k` components takes.
+fn table_lines(cells: usize, k: usize) -> usize {
+    (cells * cell_stride(k)).div_ceil(LINE_FLOATS)
 }
 
 /// Floats from one residual cell to the next with `k` components: the cell's
@@ -309,9 +308,7 @@ impl SpmmMaterial {
                 let clusters = (0..self.clusters().len())
                     .filter(|&c| used(c) && self.view().shows_residual(c))
                     .count();
-                let cells = (r.light_dirs.len() * r.view_dirs.len() * cell_stride(k))
-                    .div_ceil(LINE_FLOATS)
-                    * LINE_FLOATS;
+                let cells = table_lines(r.light_dirs.len() * r.view_dirs.len(), k) * LINE_FLOATS;
                 let coefficients = r.coefficients.len() / r.npca.max(1) * k;
                 (clusters * cells + coefficients) * 4
             }

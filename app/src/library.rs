@@ -574,9 +574,9 @@ impl Library {
             }
             ui.horizontal_wrapped(|ui| {
                 for entry in entries {
-                    // Each entry in its own id scope, its button first: the button's
-                    // id stays the same while thumbnails land (a spinner before it
-                    // would shift it, and a click at that moment would be lost).
+                    // Each entry in its own id scope and of one size in every state:
+                    // its id and place stay put while thumbnails land (a click at that
+                    // moment would be lost otherwise).
                     let clicked = ui
                         .push_id(&entry.path, |ui| self.entry_button(ui, entry))
                         .inner;
@@ -589,8 +589,9 @@ impl Library {
         requests
     }
 
-    /// One file: its thumbnail above its name (or its name and a spinner, or its name and
-    /// why there is no thumbnail).
+    /// One file: its thumbnail beside its name, else an empty square of the same size
+    /// with a spinner (being made) or "no preview" (why, on hover). Every state takes the
+    /// same room, so a thumbnail landing never moves the entries under the pointer.
     fn entry_button(&mut self, ui: &mut Ui, entry: &Entry) -> bool {
         let side = THUMB_SIZE as f32 * 0.75;
         let kind = match entry.kind {
@@ -598,8 +599,8 @@ impl Library {
             EntryKind::Merl => "MERL table",
             EntryKind::Btf => "BTF",
         };
-        let hover = format!("{kind}: {}", entry.path.display());
-        match self.thumbs.get_mut(&entry.path) {
+        let mut hover = format!("{kind}: {}", entry.path.display());
+        let image = match self.thumbs.get_mut(&entry.path) {
             Some(Thumb::Ready(t, texture)) => {
                 let tex = texture.get_or_insert_with(|| {
                     let image = ColorImage::from_rgb([t.width as usize, t.height as usize], &t.rgb);
@@ -609,26 +610,36 @@ impl Library {
                         TextureOptions::LINEAR,
                     )
                 });
-                let image = egui::Image::new((tex.id(), egui::vec2(side, side)));
-                ui.add(egui::Button::image_and_text(image, &entry.name))
-                    .on_hover_text(hover)
-                    .clicked()
+                egui::Image::new((tex.id(), egui::vec2(side, side)))
             }
-            Some(Thumb::Failed(e)) => {
-                let why = e.clone();
-                ui.add(egui::Button::new(&entry.name))
-                    .on_hover_text(format!("{hover}\n{why}"))
-                    .clicked()
+            other => {
+                if let Some(Thumb::Failed(e)) = other {
+                    hover = format!("{hover}\n{e}");
+                }
+                // Fully transparent: it only holds the thumbnail's place.
+                egui::Image::new((egui::TextureId::default(), egui::vec2(side, side)))
+                    .tint(egui::Color32::TRANSPARENT)
             }
-            _ => {
-                let clicked = ui
-                    .add(egui::Button::new(&entry.name))
-                    .on_hover_text(hover)
-                    .clicked();
-                ui.spinner();
-                clicked
+        };
+        let response = ui.add(egui::Button::image_and_text(image, &entry.name));
+        let square = egui::Rect::from_min_size(
+            response.rect.left_top() + ui.spacing().button_padding,
+            egui::vec2(side, side),
+        );
+        match self.thumbs.get(&entry.path) {
+            Some(Thumb::Ready(..)) => {}
+            Some(Thumb::Failed(_)) => {
+                ui.painter().text(
+                    square.center(),
+                    egui::Align2::CENTER_CENTER,
+                    "no preview",
+                    egui::TextStyle::Small.resolve(ui.style()),
+                    ui.visuals().weak_text_color(),
+                );
             }
+            _ => egui::Spinner::new().paint_at(ui, square.shrink(side * 0.3)),
         }
+        response.on_hover_text(hover).clicked()
     }
 }
 
@@ -756,6 +767,45 @@ mod tests {
         wait(&mut third);
         assert_eq!(third.rendered, 1);
         assert_ne!(third.thumbnail(&pack), Some(&shown));
+    }
+
+    /// An entry takes the same room while its thumbnail is being made, once it is
+    /// ready and when it failed: a thumbnail landing never moves the entry under the
+    /// pointer (a click at that moment went to the old place and was lost).
+    #[test]
+    fn an_entry_keeps_its_place_and_size_whatever_its_thumbnail_state() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let btf = dir.path().join("cloth.btf");
+        std::fs::write(&btf, b"not read").expect("write");
+        let lib = Library::open(
+            &[dir.path().to_path_buf()],
+            ThumbnailCache::new(dir.path().join("cache")),
+            None,
+        );
+        use egui_kittest::kittest::Queryable as _;
+        let mut h = egui_kittest::Harness::new_ui_state(
+            |ui, lib: &mut Library| {
+                lib.show(ui, "the floor");
+            },
+            lib,
+        );
+        h.run();
+        let failed = h.get_by_label("cloth").rect();
+        h.state_mut().thumbs.insert(btf.clone(), Thumb::Pending);
+        h.step();
+        h.step();
+        assert_eq!(h.get_by_label("cloth").rect(), failed, "pending");
+        let t = Thumbnail {
+            width: THUMB_SIZE,
+            height: THUMB_SIZE,
+            rgb: vec![200; (THUMB_SIZE * THUMB_SIZE * 3) as usize],
+        };
+        h.state_mut()
+            .thumbs
+            .insert(btf.clone(), Thumb::Ready(t, None));
+        h.run();
+        assert_eq!(h.get_by_label("cloth").rect(), failed, "ready");
+        assert!(failed.width() > THUMB_SIZE as f32 * 0.75);
     }
 
     #[test]

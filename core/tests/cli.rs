@@ -2226,6 +2226,8 @@ fn report_fit_measures_a_pack_against_its_btf_as_compare_does() {
     for key in [
         "image_relative_rmse",
         "image_mssim",
+        "fit_image_relative_rmse",
+        "fit_image_mssim",
         "table_relative_rmse",
         "table_grazing_relative_rmse",
         "table_elsewhere_relative_rmse",
@@ -2238,7 +2240,7 @@ fn report_fit_measures_a_pack_against_its_btf_as_compare_does() {
     assert!(v["table_relative_rmse"].as_f64() < v["table_basis_relative_rmse"].as_f64());
     let scenes = v["scenes"].as_array().expect("scenes");
     assert_eq!(scenes.len(), 2);
-    let mut worst_mssim = 1.0f64;
+    let (mut worst_mssim, mut worst_fit_mssim) = (1.0f64, 1.0f64);
     for s in scenes {
         let file = |k: &str| out.join(s[k].as_str().expect("file name"));
         assert!(file("side_by_side").is_file());
@@ -2262,8 +2264,37 @@ fn report_fit_measures_a_pack_against_its_btf_as_compare_does() {
         assert_eq!(c["rmse"], s["image_rmse"], "{}", s["scene"]);
         assert_eq!(c["psnr_db"], s["image_psnr_db"], "{}", s["scene"]);
         worst_mssim = worst_mssim.min(s["image_mssim"].as_f64().expect("mssim"));
+        // The split: the fit's part is the BTF against the pack's tabulation, the
+        // interpolation's the tabulation against the pack; RMSE is a norm, so the two
+        // parts bound the whole.
+        assert!(file("fit_side_by_side").is_file());
+        for (reference, test, part) in [
+            ("btf_image", "tabulated_image", "fit"),
+            ("tabulated_image", "pack_image", "interpolation"),
+        ] {
+            let c = meso(
+                &[
+                    "compare",
+                    file(reference).to_str().expect("utf-8"),
+                    file(test).to_str().expect("utf-8"),
+                    "--json",
+                ],
+                "",
+            );
+            let c: serde_json::Value = serde_json::from_str(&stdout(&c)).expect("JSON");
+            assert_eq!(c["mssim"], s[format!("{part}_image_mssim")], "{part}");
+            assert_eq!(c["rmse"], s[format!("{part}_image_rmse")], "{part}");
+        }
+        let rmse = |k: &str| s[k].as_f64().expect("an RMSE");
+        assert!(
+            rmse("image_rmse")
+                <= (rmse("fit_image_rmse") + rmse("interpolation_image_rmse")) * (1.0 + 1e-9),
+            "{s}"
+        );
+        worst_fit_mssim = worst_fit_mssim.min(rmse("fit_image_mssim"));
     }
     assert_eq!(v["image_mssim"].as_f64(), Some(worst_mssim));
+    assert_eq!(v["fit_image_mssim"].as_f64(), Some(worst_fit_mssim));
     let saved: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).expect("report"))
             .expect("JSON");

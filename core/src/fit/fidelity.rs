@@ -4,6 +4,13 @@
 //! images (one scene rendered by the spmm mode once with the BTF as a `btf` material
 //! and once with the pack in its place, the same random numbers for both: the two
 //! materials sample alike, so the difference is the material's, not the noise's).
+//!
+//! Between its tabulated directions a `btf` material interpolates, while a pack's basis
+//! sum is analytic everywhere: even a pack equal to the BTF at every tabulated pair
+//! renders differently. A third render, the pack tabulated at the BTF's pairs and shown
+//! as a `btf` material (`tabulate_pack`), splits the image error into the fit's part
+//! (BTF against that tabulation: both interpolated alike) and the interpolation's part
+//! (the tabulation against the pack), which no fit can remove.
 
 use std::sync::Arc;
 
@@ -62,8 +69,7 @@ fn grazing(d: DVec3) -> bool {
     d.z < GRAZING_DEG.to_radians().cos()
 }
 
-/// Table-space errors of `pack` against `btf` (same texel grid).
-pub fn table_errors(btf: &Btf, pack: &SpmmMaterial) -> Result<TableErrors, FidelityError> {
+fn check_grid(btf: &Btf, pack: &SpmmMaterial) -> Result<(), FidelityError> {
     if (btf.width(), btf.height()) != (pack.width(), pack.height()) {
         return Err(FidelityError::GridMismatch {
             btf_width: btf.width(),
@@ -72,6 +78,12 @@ pub fn table_errors(btf: &Btf, pack: &SpmmMaterial) -> Result<TableErrors, Fidel
             pack_height: pack.height(),
         });
     }
+    Ok(())
+}
+
+/// Table-space errors of `pack` against `btf` (same texel grid).
+pub fn table_errors(btf: &Btf, pack: &SpmmMaterial) -> Result<TableErrors, FidelityError> {
+    check_grid(btf, pack)?;
     let (lights, views) = (btf.light_dirs(), btf.view_dirs());
     // Per texel: squared errors (grazing, elsewhere, basis only).
     let sums = (0..btf.texels())
@@ -174,38 +186,77 @@ fn render(scene: &Scene, r: &RenderRequest) -> Result<Image, FidelityError> {
     Ok(mode.image())
 }
 
+/// The pack (residual on, all its components) evaluated at every texel and direction
+/// pair of `btf`, as a BTF on the same grid and direction sets.
+pub fn tabulate_pack(btf: &Btf, pack: &SpmmMaterial) -> Result<Btf, FidelityError> {
+    check_grid(btf, pack)?;
+    let (lights, views) = (btf.light_dirs(), btf.view_dirs());
+    let per_texel = lights.len() * views.len() * 3;
+    let mut data = vec![0.0f32; btf.texels() * per_texel];
+    data.par_chunks_mut(per_texel)
+        .enumerate()
+        .for_each(|(t, out)| {
+            let pairs = lights
+                .iter()
+                .flat_map(|&wi| views.iter().map(move |&wo| (wi, wo)));
+            for ((wi, wo), rgb) in pairs.zip(out.chunks_exact_mut(3)) {
+                let v = pack.eval_texel(t, wi, wo, true, usize::MAX);
+                rgb.copy_from_slice(&v.to_array().map(|x| x as f32));
+            }
+        });
+    Btf::new(
+        format!("{} tabulated", btf.name()),
+        "a pack evaluated at a BTF's direction pairs (meso report fit)".into(),
+        btf.width(),
+        btf.height(),
+        lights.to_vec(),
+        views.to_vec(),
+        data,
+    )
+    .map_err(|e| FidelityError::Mode(format!("the pack tabulated at the BTF's pairs: {e}")))
+}
+
+/// The three renders of one scene.
+pub struct Renders {
+    /// With the BTF (the reference).
+    pub btf: Image,
+    /// With the pack.
+    pub pack: Image,
+    /// With the pack tabulated at the BTF's pairs, shown as a `btf` material.
+    pub tabulated: Image,
+}
+
 /// Renders `scene` with material `r.material` replaced by the BTF, then by the pack
-/// (residual on, all its components); each keeps the replaced material's tiling when
-/// that was a pack or a BTF. Returns (BTF image, pack image).
-pub fn render_pair(
+/// (residual on, all its components), then by the pack's tabulation (`tabulate_pack`,
+/// already made into a table); each keeps the replaced material's tiling when that was
+/// a pack or a BTF.
+pub fn render_all(
     scene: &Scene,
     btf: Arc<BtfTable>,
     pack: Arc<SpmmMaterial>,
+    tabulated: Arc<BtfTable>,
     r: &RenderRequest,
-) -> Result<(Image, Image), FidelityError> {
+) -> Result<Renders, FidelityError> {
     let with = |m: Material| {
         let mut s = scene.clone();
         substitute(&mut s, &r.material, m, false).map_err(FidelityError::Scene)?;
-        Ok::<_, FidelityError>(s)
+        render(&s, r)
+    };
+    let as_btf = |table| Material::Btf {
+        table,
+        uv_scale: glam::DVec2::ONE,
     };
     let npca = pack.npca();
-    let a = render(
-        &with(Material::Btf {
-            table: btf,
-            uv_scale: glam::DVec2::ONE,
-        })?,
-        r,
-    )?;
-    let b = render(
-        &with(Material::Spmm {
+    Ok(Renders {
+        btf: with(as_btf(btf))?,
+        pack: with(Material::Spmm {
             material: pack,
             uv_scale: glam::DVec2::ONE,
             residual: true,
             npca,
         })?,
-        r,
-    )?;
-    Ok((a, b))
+        tabulated: with(as_btf(tabulated))?,
+    })
 }
 
 /// Three panels left to right: `a`, `b` and `|a - b| * gain` per channel.
@@ -274,28 +325,35 @@ mod tests {
         let pack = sample_material(4, 3, 2, Some(2));
         let r = pack.residual().expect("a residual");
         let (lights, views) = (r.light_dirs.clone(), r.view_dirs.clone());
-        let mut data = Vec::new();
-        let mut bumped = Vec::new();
-        for t in 0..12 {
-            for &wi in &lights {
-                for &wo in &views {
-                    let v = pack.eval_texel(t, wi, wo, true, usize::MAX);
-                    data.extend(v.to_array().map(|x| x as f32));
-                    let k = if grazing(wi) || grazing(wo) { 1.5 } else { 1.0 };
-                    bumped.extend(v.to_array().map(|x| (x * k) as f32));
-                }
-            }
-        }
-        let btf = Btf::new(
+        let zeros = vec![0.0; 12 * lights.len() * views.len() * 3];
+        let grid = Btf::new(
             "t".into(),
             "t".into(),
             4,
             3,
             lights.clone(),
             views.clone(),
-            data,
+            zeros,
         )
         .expect("valid");
+        let btf = tabulate_pack(&grid, &pack).expect("same grid");
+        // Laid out texel, light, view, channel, as the pack evaluates there.
+        let (t, l, v) = (5, 1, 2);
+        let direct = pack.eval_texel(t, lights[l], views[v], true, usize::MAX);
+        assert_eq!(btf.value(t, l, v), direct.to_array().map(|x| x as f32));
+        let bumped: Vec<f32> = btf
+            .data()
+            .chunks_exact(3)
+            .enumerate()
+            .flat_map(|(i, rgb)| {
+                let (wi, wo) = (
+                    lights[i / views.len() % lights.len()],
+                    views[i % views.len()],
+                );
+                let k = if grazing(wi) || grazing(wo) { 1.5 } else { 1.0 };
+                rgb.iter().map(move |x| x * k)
+            })
+            .collect();
         let e = table_errors(&btf, &pack).expect("same grid");
         assert!(e.relative_rmse < 1e-6, "{e:?}");
         assert!(
@@ -320,5 +378,45 @@ mod tests {
             table_errors(&btf, &small),
             Err(FidelityError::GridMismatch { .. })
         ));
+        assert!(matches!(
+            tabulate_pack(&btf, &small),
+            Err(FidelityError::GridMismatch { .. })
+        ));
+    }
+
+    /// With the pack's own tabulation as the BTF, the fit's part of the image error is
+    /// nil (the two `btf` renders agree bit for bit) and what is left is the
+    /// interpolation's: the pack between the tabulated directions is not their linear
+    /// interpolation.
+    #[test]
+    fn the_fit_part_is_nil_for_a_btf_that_is_the_pack_s_own_table() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/scenes");
+        let scene = crate::scene::load_scene(&dir.join("fit_grazing.toml")).expect("scene");
+        let pack = sample_material(4, 3, 2, Some(2));
+        let r = pack.residual().expect("a residual");
+        let zeros = vec![0.0; 12 * r.light_dirs.len() * r.view_dirs.len() * 3];
+        let grid = Btf::new(
+            "t".into(),
+            "t".into(),
+            4,
+            3,
+            r.light_dirs.clone(),
+            r.view_dirs.clone(),
+            zeros,
+        )
+        .expect("valid");
+        let own =
+            Arc::new(BtfTable::new(&tabulate_pack(&grid, &pack).expect("grid")).expect("table"));
+        let request = RenderRequest {
+            width: 24,
+            height: 24,
+            frames: 2,
+            material: "sample".into(),
+        };
+        let renders =
+            render_all(&scene, Arc::clone(&own), Arc::new(pack), own, &request).expect("renders");
+        assert!(renders.btf.pixels() == renders.tabulated.pixels());
+        let e = image_errors(&renders.tabulated, &renders.pack).expect("same size");
+        assert!(e.relative_rmse > 1e-3, "{e:?}");
     }
 }

@@ -1,7 +1,9 @@
 //! `meso report fit BTF PACK [--scene SCENE] -o DIR [--json]`: how a fitted pack looks
 //! against its BTF (`meso_core::fit::fidelity`): table-space RMSE (overall, grazing,
 //! elsewhere, basis sum alone), then per scene the BTF and the pack rendered alike,
-//! their `meso compare` metrics, and a side-by-side PNG (BTF, pack, difference).
+//! their `meso compare` metrics, and a side-by-side PNG (BTF, pack, difference); and
+//! the image error split into the fit's part and the direction interpolation's, by a
+//! third render of the pack tabulated at the BTF's pairs.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -13,7 +15,7 @@ use meso_core::atomic::write_bytes_atomic;
 use meso_core::btf::file::read_btf;
 use meso_core::btf::table::BtfTable;
 use meso_core::fit::fidelity::{
-    ImageErrors, RenderRequest, image_errors, render_pair, side_by_side, table_errors,
+    ImageErrors, RenderRequest, image_errors, render_all, side_by_side, table_errors, tabulate_pack,
 };
 use meso_core::image::{write_exr, write_image};
 use meso_core::scene::{RenderSettings, load_scene};
@@ -106,6 +108,13 @@ pub fn run(args: &FitReportArgs) -> Result<(), CliError> {
         BtfTable::new(&btf)
             .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", args.btf.display())))?,
     );
+    // The pack at the BTF's pairs, shown as a BTF: the third render's material.
+    let tabulated = tabulate_pack(&btf, &pack)
+        .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", args.pack.display())))?;
+    let tabulated =
+        Arc::new(BtfTable::new(&tabulated).map_err(|e| {
+            CliError::failure(anyhow!("the pack tabulated at the BTF's pairs: {e}"))
+        })?);
     drop(btf);
     let pack = Arc::new(pack);
     std::fs::create_dir_all(&args.output)
@@ -119,49 +128,73 @@ pub fn run(args: &FitReportArgs) -> Result<(), CliError> {
     let out = |name: &str| args.output.join(name);
     let mut rows = Vec::new();
     let mut worst: Option<ImageErrors> = None;
+    let mut worst_fit: Option<ImageErrors> = None;
     for path in &scenes {
         let scene = load_scene(path).map_err(CliError::bad_input)?;
         let name = stem(path);
-        let (a, b) = render_pair(&scene, Arc::clone(&shaded), Arc::clone(&pack), &request)
-            .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", path.display())))?;
-        let e = image_errors(&a, &b).map_err(CliError::failure)?;
-        let (btf_exr, pack_exr, panels) = (
-            format!("{name}_btf.exr"),
-            format!("{name}_pack.exr"),
-            format!("{name}_side_by_side.png"),
-        );
-        write_exr(&out(&btf_exr), &a).failure_ctx(|| format!("writing `{btf_exr}`"))?;
-        write_exr(&out(&pack_exr), &b).failure_ctx(|| format!("writing `{pack_exr}`"))?;
-        write_image(
-            &out(&panels),
-            &side_by_side(&a, &b, args.diff_gain),
-            args.exposure,
+        let r = render_all(
+            &scene,
+            Arc::clone(&shaded),
+            Arc::clone(&pack),
+            Arc::clone(&tabulated),
+            &request,
         )
-        .failure_ctx(|| format!("writing `{panels}`"))?;
-        worst = Some(match worst {
-            None => e,
-            Some(w) => ImageErrors {
-                relative_rmse: w.relative_rmse.max(e.relative_rmse),
-                rmse: w.rmse.max(e.rmse),
-                psnr_db: match (w.psnr_db, e.psnr_db) {
-                    (Some(x), Some(y)) => Some(x.min(y)),
-                    (x, y) => x.or(y),
-                },
-                mssim: w.mssim.min(e.mssim),
-            },
-        });
+        .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", path.display())))?;
+        let e = image_errors(&r.btf, &r.pack).map_err(CliError::failure)?;
+        let fit = image_errors(&r.btf, &r.tabulated).map_err(CliError::failure)?;
+        let interpolation = image_errors(&r.tabulated, &r.pack).map_err(CliError::failure)?;
+        let files = [
+            "btf.exr",
+            "pack.exr",
+            "tabulated.exr",
+            "side_by_side.png",
+            "fit_side_by_side.png",
+        ]
+        .map(|suffix| format!("{name}_{suffix}"));
+        let [btf_exr, pack_exr, tab_exr, panels, fit_panels] = &files;
+        for (file, image) in [
+            (btf_exr, &r.btf),
+            (pack_exr, &r.pack),
+            (tab_exr, &r.tabulated),
+        ] {
+            write_exr(&out(file), image).failure_ctx(|| format!("writing `{file}`"))?;
+        }
+        for (file, (a, b)) in [
+            (panels, (&r.btf, &r.pack)),
+            (fit_panels, (&r.btf, &r.tabulated)),
+        ] {
+            write_image(
+                &out(file),
+                &side_by_side(a, b, args.diff_gain),
+                args.exposure,
+            )
+            .failure_ctx(|| format!("writing `{file}`"))?;
+        }
+        worst = Some(worse(worst, e));
+        worst_fit = Some(worse(worst_fit, fit));
         rows.push(json!({
             "scene": path.display().to_string(),
             "btf_image": btf_exr,
             "pack_image": pack_exr,
+            "tabulated_image": tab_exr,
             "side_by_side": panels,
+            "fit_side_by_side": fit_panels,
             "image_relative_rmse": e.relative_rmse,
             "image_rmse": e.rmse,
             "image_psnr_db": e.psnr_db,
             "image_mssim": e.mssim,
+            "fit_image_relative_rmse": fit.relative_rmse,
+            "fit_image_rmse": fit.rmse,
+            "fit_image_mssim": fit.mssim,
+            "interpolation_image_relative_rmse": interpolation.relative_rmse,
+            "interpolation_image_rmse": interpolation.rmse,
+            "interpolation_image_mssim": interpolation.mssim,
         }));
     }
-    let worst = worst.expect("at least one scene");
+    let (worst, worst_fit) = (
+        worst.expect("at least one scene"),
+        worst_fit.expect("at least one scene"),
+    );
     let report = json!({
         "btf": args.btf.display().to_string(),
         "pack": args.pack.display().to_string(),
@@ -175,6 +208,8 @@ pub fn run(args: &FitReportArgs) -> Result<(), CliError> {
         "image_relative_rmse": worst.relative_rmse,
         "image_psnr_db": worst.psnr_db,
         "image_mssim": worst.mssim,
+        "fit_image_relative_rmse": worst_fit.relative_rmse,
+        "fit_image_mssim": worst_fit.mssim,
         "table_relative_rmse": table.relative_rmse,
         "table_grazing_relative_rmse": table.grazing_relative_rmse,
         "table_elsewhere_relative_rmse": table.elsewhere_relative_rmse,
@@ -199,17 +234,36 @@ pub fn run(args: &FitReportArgs) -> Result<(), CliError> {
         100.0 * table.elsewhere_relative_rmse,
         100.0 * table.basis_relative_rmse
     );
+    let number = |r: &serde_json::Value, k: &str| r[k].as_f64().unwrap_or(f64::NAN);
     for r in &rows {
         println!(
-            "{:<12} relative RMSE {:.2}%  PSNR {}  MSSIM {:.4}",
+            "{:<12} relative RMSE {:.2}%  PSNR {}  MSSIM {:.4}  (fit {:.2}%, MSSIM {:.4}; interpolation {:.2}%, MSSIM {:.4})",
             stem(Path::new(r["scene"].as_str().unwrap_or("scene"))),
-            100.0 * r["image_relative_rmse"].as_f64().unwrap_or(f64::NAN),
+            100.0 * number(r, "image_relative_rmse"),
             r["image_psnr_db"]
                 .as_f64()
                 .map_or("inf".into(), |p| format!("{p:.2} dB")),
-            r["image_mssim"].as_f64().unwrap_or(f64::NAN)
+            number(r, "image_mssim"),
+            100.0 * number(r, "fit_image_relative_rmse"),
+            number(r, "fit_image_mssim"),
+            100.0 * number(r, "interpolation_image_relative_rmse"),
+            number(r, "interpolation_image_mssim"),
         );
     }
     println!("wrote {}", args.output.display());
     Ok(())
+}
+
+/// The worse of two scenes' errors: largest RMSE, smallest PSNR and MSSIM.
+fn worse(w: Option<ImageErrors>, e: ImageErrors) -> ImageErrors {
+    let Some(w) = w else { return e };
+    ImageErrors {
+        relative_rmse: w.relative_rmse.max(e.relative_rmse),
+        rmse: w.rmse.max(e.rmse),
+        psnr_db: match (w.psnr_db, e.psnr_db) {
+            (Some(x), Some(y)) => Some(x.min(y)),
+            (x, y) => x.or(y),
+        },
+        mssim: w.mssim.min(e.mssim),
+    }
 }

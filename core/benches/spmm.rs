@@ -1,6 +1,9 @@
 //! Shading-point evaluations per second of a realistic SPMM material (32 clusters, 9
 //! bases per texel, N_PCA = 8 on the 81 x 81 Bonn direction layout), with the residual
-//! on and off, on one thread and on all threads.
+//! on and off, on one thread and on all threads. The residual's values are half floats,
+//! as a pack file stores them by default; the prepared evaluation also runs on the same
+//! material with values that are not (a pack stored with `--f32`), whose tables stay
+//! f32: the side-by-side figure of the half-float tables.
 
 use std::hint::black_box;
 
@@ -38,7 +41,8 @@ fn bonn_directions() -> Vec<DVec3> {
     d
 }
 
-fn realistic_material() -> SpmmMaterial {
+/// The bench's material; `half`: residual values rounded to half floats.
+fn realistic_material(half: bool) -> SpmmMaterial {
     let u = |k: &[u64]| SampleStream::new(k).at(0);
     let model = |c: usize, j: usize| -> AnalyticBrdf {
         let r = |d: u64| u(&[c as u64, j as u64, d]);
@@ -93,6 +97,13 @@ fn realistic_material() -> SpmmMaterial {
     let noise = |n: usize, key: u64| -> Vec<f32> {
         (0..n)
             .map(|i| (u(&[key, i as u64]) - 0.5) as f32 * 0.02)
+            .map(|x| {
+                if half {
+                    half::f16::from_f32(x).to_f32()
+                } else {
+                    x
+                }
+            })
             .collect()
     };
     let residual = Residual {
@@ -131,7 +142,7 @@ fn shading_points() -> Vec<(usize, DVec3, DVec3)> {
 }
 
 fn bench_eval(c: &mut Criterion) {
-    let m = realistic_material();
+    let m = realistic_material(true);
     let points = shading_points();
     let mut group = c.benchmark_group("spmm_eval");
     group.throughput(Throughput::Elements(POINTS as u64));
@@ -157,22 +168,30 @@ fn bench_eval(c: &mut Criterion) {
         });
         group.bench_function(format!("{label}, all threads"), |b| b.iter(run));
     }
-    // The prepared data (cell-major residual layout) against the reference layout.
-    let prepared = m.prepare(&PrepareRequest {
-        used_clusters: None,
-        residual: true,
-        max_npca: NPCA,
-    });
-    let run = || {
-        points
-            .par_iter()
-            .map(|&(t, wi, wo)| prepared.eval_texel(t, black_box(wi), black_box(wo)))
-            .reduce(|| DVec3::ZERO, |a, b| a + b)
-    };
-    group.bench_function("prepared, residual on, 1 thread", |b| {
-        b.iter(|| one.install(run))
-    });
-    group.bench_function("prepared, residual on, all threads", |b| b.iter(run));
+    // The prepared data (cell-major residual layout) against the reference layout, with
+    // half-float tables and with f32 ones.
+    let single = realistic_material(false);
+    for (material, tables) in [(&m, "half"), (&single, "f32")] {
+        let prepared = material.prepare(&PrepareRequest {
+            used_clusters: None,
+            residual: true,
+            max_npca: NPCA,
+        });
+        let run = || {
+            points
+                .par_iter()
+                .map(|&(t, wi, wo)| prepared.eval_texel(t, black_box(wi), black_box(wo)))
+                .reduce(|| DVec3::ZERO, |a, b| a + b)
+        };
+        group.bench_function(
+            format!("prepared, residual on, {tables} tables, 1 thread"),
+            |b| b.iter(|| one.install(run)),
+        );
+        group.bench_function(
+            format!("prepared, residual on, {tables} tables, all threads"),
+            |b| b.iter(run),
+        );
+    }
     group.finish();
 }
 

@@ -63,6 +63,10 @@ pub struct SpmmMaterial {
     view: BasisView,
     /// Interpolation tables of the residual's light and view directions, built once.
     residual_tables: Option<(DirectionTable, DirectionTable)>,
+    /// Every value of the residual's tables (mean and components) is a half float
+    /// exactly, as in a pack read from a file stored in f16 (the default): prepared
+    /// tables then hold the same values in half the bytes.
+    residual_half: bool,
 }
 
 /// What is wrong with a material; each message names the part, the element index and
@@ -286,6 +290,10 @@ impl SpmmMaterial {
             clusters,
             texel_cluster,
             weights,
+            residual_half: residual.as_ref().is_some_and(|r| {
+                let exact = |v: &[f32]| v.iter().all(|&x| half::f16::from_f32(x).to_f32() == x);
+                exact(&r.mean) && exact(&r.components)
+            }),
             residual: residual.map(Arc::new),
             residual_tables,
             view: BasisView::default(),
@@ -355,6 +363,11 @@ impl SpmmMaterial {
     }
     pub(crate) fn residual_tables(&self) -> Option<&(DirectionTable, DirectionTable)> {
         self.residual_tables.as_ref()
+    }
+    /// True when the residual's tables hold only half floats (`prepare` then keeps
+    /// them as such).
+    pub(crate) fn residual_is_half(&self) -> bool {
+        self.residual_half
     }
     /// Which bases the view shows; a pack file never holds it.
     pub fn view(&self) -> &BasisView {

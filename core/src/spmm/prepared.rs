@@ -3,7 +3,8 @@
 //! GPU would upload) only what it evaluates. Its size is reported by `bytes()`. The
 //! residual tables are re-laid out cell-major ([cluster][light][view][mean, b_1..b_K]
 //! x RGB) so one interpolation cell is one contiguous read, padded to whole cache
-//! lines where that costs little (`cell_stride`).
+//! lines where that costs little (`cell_stride`), in half floats when the pack's values
+//! are half floats (`Precision`: the same values, half the cache lines per cell).
 
 use std::sync::{Arc, OnceLock};
 
@@ -59,9 +60,10 @@ struct PreparedResidual {
     views: DirectionTable,
     /// Components kept (<= the pack's N_PCA).
     k: usize,
+    precision: Precision,
     /// Per cluster: `None` when unused or hidden, else its tables once laid out,
-    /// `[light][view][1 + k][3]` with the mean first, each cell `cell_stride(k)`
-    /// floats from the start of a cache line.
+    /// `[light][view][1 + k][3]` with the mean first, each cell `cell_stride(k, _)`
+    /// values from the start of a cache line, in `precision`.
     clusters: Vec<Option<OnceLock<Box<[CacheLine]>>>>,
     /// [texel][k]: only the kept components.
     coefficients: Vec<f32>,
@@ -70,29 +72,84 @@ struct PreparedResidual {
 impl PreparedResidual {
     /// Cluster `c`'s tables, laid out now if no evaluation needed them before (one
     /// thread lays them out, others needing them wait; later reads are one atomic load).
-    fn cluster_cells(&self, c: usize) -> Option<&[f32]> {
+    fn cluster_lines(&self, c: usize) -> Option<&[CacheLine]> {
         let slot = self.clusters.get(c)?.as_ref()?;
-        Some(bytemuck::cast_slice(slot.get_or_init(|| self.lay_out(c))))
+        Some(slot.get_or_init(|| self.lay_out(c)))
     }
 
     fn lay_out(&self, c: usize) -> Box<[CacheLine]> {
+        let (nl, nv) = (self.source.light_dirs.len(), self.source.view_dirs.len());
+        let lines = table_lines(nl * nv, self.k, self.precision);
+        let mut lines = vec![bytemuck::Zeroable::zeroed(); lines];
+        match self.precision {
+            Precision::Single => self.fill(c, bytemuck::cast_slice_mut(&mut lines), |x| x),
+            Precision::Half => self.fill(c, bytemuck::cast_slice_mut(&mut lines), |x| {
+                half::f16::from_f32(x).to_bits()
+            }),
+        }
+        lines.into_boxed_slice()
+    }
+
+    /// Writes cluster `c`'s cells into `cells`, each value through `store`.
+    fn fill<T: Copy>(&self, c: usize, cells: &mut [T], store: impl Fn(f32) -> T) {
         let r = &self.source;
         let (nl, nv, npca) = (r.light_dirs.len(), r.view_dirs.len(), r.npca);
-        let stride = cell_stride(self.k);
-        let mut lines = vec![bytemuck::Zeroable::zeroed(); table_lines(nl * nv, self.k)];
-        let cells: &mut [f32] = bytemuck::cast_slice_mut(&mut lines);
+        let stride = cell_stride(self.k, self.precision);
+        let put = |at: &mut [T], from: &[f32]| {
+            for (a, &x) in at.iter_mut().zip(from) {
+                *a = store(x);
+            }
+        };
         for l in 0..nl {
             for v in 0..nv {
                 let cell = &mut cells[(l * nv + v) * stride..];
                 let m = ((c * nl + l) * nv + v) * 3;
-                cell[..3].copy_from_slice(&r.mean[m..m + 3]);
+                put(&mut cell[..3], &r.mean[m..m + 3]);
                 for kk in 0..self.k {
                     let b = (((c * npca + kk) * nl + l) * nv + v) * 3;
-                    cell[3 + 3 * kk..6 + 3 * kk].copy_from_slice(&r.components[b..b + 3]);
+                    put(&mut cell[3 + 3 * kk..6 + 3 * kk], &r.components[b..b + 3]);
                 }
             }
         }
-        lines.into_boxed_slice()
+    }
+
+    /// `rgb` plus cluster `c`'s residual at the interpolation cells `cells` (start in
+    /// values, weight) of a texel with coefficients `coef`.
+    fn add(
+        &self,
+        rgb: DVec3,
+        lines: &[CacheLine],
+        cells: &[(usize, f64); 9],
+        coef: &[f32],
+    ) -> DVec3 {
+        match self.precision {
+            Precision::Single => add_cells(rgb, bytemuck::cast_slice(lines), cells, coef),
+            Precision::Half => add_half_cells(rgb, bytemuck::cast_slice(lines), cells, coef),
+        }
+    }
+
+    /// Cluster `c`'s cells as f32, unpadded, appended to `out` (what a device uploads).
+    fn append_unpadded(&self, lines: &[CacheLine], out: &mut Vec<f32>) {
+        let (values, stride) = ((1 + self.k) * 3, cell_stride(self.k, self.precision));
+        let count = self.lights.len() * self.views.len();
+        match self.precision {
+            Precision::Single => {
+                let table: &[f32] = bytemuck::cast_slice(lines);
+                for cell in table.chunks(stride).take(count) {
+                    out.extend_from_slice(&cell[..values]);
+                }
+            }
+            Precision::Half => {
+                let table: &[u16] = bytemuck::cast_slice(lines);
+                for cell in table.chunks(stride).take(count) {
+                    out.extend(
+                        cell[..values]
+                            .iter()
+                            .map(|&b| half::f16::from_bits(b).to_f32()),
+                    );
+                }
+            }
+        }
     }
 
     /// Bytes held now: the laid-out clusters' tables and the coefficients.
@@ -179,26 +236,127 @@ fn add_cells_avx(rgb: DVec3, table: &[f32], cells: &[(usize, f64); 9], coef: &[f
     DVec3::new(out[0], out[1], out[2])
 }
 
-const LINE_FLOATS: usize = 16;
+/// `add_cells` for tables of half floats: each value widened to f32 (exact) and then
+/// to f64, as `add_cells` widens the same values held as f32, so the same bits.
+#[inline]
+fn add_half_cells(rgb: DVec3, table: &[u16], cells: &[(usize, f64); 9], coef: &[f32]) -> DVec3 {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") && std::arch::is_x86_feature_detected!("f16c") {
+        // SAFETY: the CPU has AVX and F16C (checked above).
+        return unsafe { add_half_cells_avx(rgb, table, cells, coef) };
+    }
+    add_half_cells_portable(rgb, table, cells, coef)
+}
+
+fn add_half_cells_portable(
+    mut rgb: DVec3,
+    table: &[u16],
+    cells: &[(usize, f64); 9],
+    coef: &[f32],
+) -> DVec3 {
+    let values = (1 + coef.len()) * 3;
+    let wide = |b: &[u16]| {
+        DVec3::from_array([0, 1, 2].map(|i| f64::from(half::f16::from_bits(b[i]).to_f32())))
+    };
+    for &(start, w) in cells {
+        if w == 0.0 {
+            continue;
+        }
+        let cell = &table[start..][..values];
+        let mut e = wide(cell);
+        for (k, &a) in coef.iter().enumerate() {
+            e += a as f64 * wide(&cell[3 + 3 * k..]);
+        }
+        rgb += w * e;
+    }
+    rgb
+}
+
+/// `add_half_cells_portable` 4-wide: each triple read as four halves (the table ends
+/// with a spare line, so the read stays inside it), the fourth zeroed, converted by
+/// F16C; then the same multiplies and adds as `add_cells_avx`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx,f16c")]
+fn add_half_cells_avx(rgb: DVec3, table: &[u16], cells: &[(usize, f64); 9], coef: &[f32]) -> DVec3 {
+    use std::arch::x86_64::{
+        __m128i, __m256d, _mm_and_si128, _mm_cvtph_ps, _mm_loadl_epi64, _mm_set_epi64x,
+        _mm256_add_pd, _mm256_cvtps_pd, _mm256_mul_pd, _mm256_set1_pd, _mm256_setr_pd,
+        _mm256_storeu_pd,
+    };
+    let low_three = _mm_set_epi64x(0, 0x0000_ffff_ffff_ffff);
+    let load3 = |from: &[u16]| -> __m256d {
+        assert!(from.len() >= 4);
+        // SAFETY: four halves (eight bytes) are in bounds (asserted); no alignment needed.
+        let four = unsafe { _mm_loadl_epi64(from.as_ptr().cast::<__m128i>()) };
+        _mm256_cvtps_pd(_mm_cvtph_ps(_mm_and_si128(four, low_three)))
+    };
+    let mut acc = _mm256_setr_pd(rgb.x, rgb.y, rgb.z, 0.0);
+    for &(start, w) in cells {
+        if w == 0.0 {
+            continue;
+        }
+        let cell = &table[start..];
+        let mut e = load3(cell);
+        for (k, &a) in coef.iter().enumerate() {
+            let b = load3(&cell[3 + 3 * k..]);
+            e = _mm256_add_pd(e, _mm256_mul_pd(_mm256_set1_pd(a as f64), b));
+        }
+        acc = _mm256_add_pd(acc, _mm256_mul_pd(_mm256_set1_pd(w), e));
+    }
+    let mut out = [0.0; 4];
+    // SAFETY: `out` holds four doubles.
+    unsafe { _mm256_storeu_pd(out.as_mut_ptr(), acc) };
+    DVec3::new(out[0], out[1], out[2])
+}
+
+const LINE_BYTES: usize = 64;
 
 /// 64 bytes on a 64-byte boundary: the residual tables' storage unit.
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C, align(64))]
-struct CacheLine([f32; LINE_FLOATS]);
+struct CacheLine([u8; LINE_BYTES]);
 
-/// Lines one cluster's table of `cells` cells with `k` components takes.
-fn table_lines(cells: usize, k: usize) -> usize {
-    (cells * cell_stride(k)).div_ceil(LINE_FLOATS)
+/// How prepared residual tables hold their values: as half floats when every value of
+/// the pack's residual is one (packs are stored so by default), else as f32. Both give
+/// the same values, so the same images.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Precision {
+    Half,
+    Single,
 }
 
-/// Floats from one residual cell to the next with `k` components: the cell's
-/// `(1 + k) x 3` values, rounded up to whole cache lines when that adds at most a
-/// quarter. A cell then starts on a line and touches the fewest lines (N_PCA 8: 27
-/// values padded to 32 read two lines, where unpadded two cells in three straddle
-/// three); when rounding would cost more (N_PCA 5: 18 values to 32) cells stay packed.
-fn cell_stride(k: usize) -> usize {
+impl Precision {
+    fn of(material: &SpmmMaterial) -> Self {
+        if material.residual_is_half() {
+            Self::Half
+        } else {
+            Self::Single
+        }
+    }
+
+    fn bytes(self) -> usize {
+        match self {
+            Self::Half => 2,
+            Self::Single => 4,
+        }
+    }
+}
+
+/// Lines one cluster's table of `cells` cells with `k` components takes; in half
+/// floats one more, so `add_half_cells_avx` may read a fourth half after the last.
+fn table_lines(cells: usize, k: usize, p: Precision) -> usize {
+    (cells * cell_stride(k, p) * p.bytes()).div_ceil(LINE_BYTES) + usize::from(p == Precision::Half)
+}
+
+/// Values from one residual cell to the next with `k` components in precision `p`: the
+/// cell's `(1 + k) x 3` values, rounded up to whole cache lines when that adds at most a
+/// quarter. A cell then starts on a line and touches the fewest lines (N_PCA 8 in f32:
+/// 27 values padded to 32 read two lines, where unpadded two cells in three straddle
+/// three; in halves one line); when rounding would cost more (N_PCA 5 in f32: 18 values
+/// to 32) cells stay packed.
+fn cell_stride(k: usize, p: Precision) -> usize {
     let values = (1 + k) * 3;
-    let padded = values.next_multiple_of(LINE_FLOATS);
+    let padded = values.next_multiple_of(LINE_BYTES / p.bytes());
     if 4 * padded <= 5 * values {
         padded
     } else {
@@ -308,9 +466,13 @@ impl SpmmMaterial {
                 let clusters = (0..self.clusters().len())
                     .filter(|&c| used(c) && self.view().shows_residual(c))
                     .count();
-                let cells = table_lines(r.light_dirs.len() * r.view_dirs.len(), k) * LINE_FLOATS;
+                let lines = table_lines(
+                    r.light_dirs.len() * r.view_dirs.len(),
+                    k,
+                    Precision::of(self),
+                );
                 let coefficients = r.coefficients.len() / r.npca.max(1) * k;
-                (clusters * cells + coefficients) * 4
+                clusters * lines * LINE_BYTES + coefficients * 4
             }
             None => 0,
         };
@@ -370,6 +532,7 @@ impl SpmmMaterial {
                     lights: lights.clone(),
                     views: views.clone(),
                     k,
+                    precision: Precision::of(self),
                     clusters,
                     coefficients,
                 }))
@@ -424,18 +587,20 @@ impl PreparedSpmm {
         // of them first, so their cache misses overlap with each other and with the
         // basis sum instead of queueing after it (same arithmetic, same order).
         let cells = match (&self.residual, residual) {
-            (Some(r), true) => r.cluster_cells(c).map(|table| {
-                let (values, stride) = ((1 + r.k) * 3, cell_stride(r.k));
+            (Some(r), true) => r.cluster_lines(c).map(|lines| {
+                let (values, stride) = ((1 + r.k) * 3, cell_stride(r.k, r.precision));
                 let nv = r.views.len();
                 let (lw, vw) = (r.lights.weights(wi), r.views.weights(wo));
                 let mut cells = [(0usize, 0.0f64); 9];
+                let bytes: &[u8] = bytemuck::cast_slice(lines);
+                let size = r.precision.bytes();
                 for (i, cell) in cells.iter_mut().enumerate() {
                     let (l, v) = (lw[i / 3], vw[i % 3]);
                     let start = (l.0 as usize * nv + v.0 as usize) * stride;
                     *cell = (start, l.1 * v.1);
-                    prefetch(&table[start..start + values]);
+                    prefetch(&bytes[start * size..(start + values) * size]);
                 }
-                (r, table, cells)
+                (r, lines, cells)
             }),
             _ => None,
         };
@@ -447,9 +612,9 @@ impl PreparedSpmm {
                 * bases[usize::from(self.basis[i])].eval(wi, wo);
         }
         match cells {
-            Some((r, table, cells)) => {
+            Some((r, lines, cells)) => {
                 let coef = &r.coefficients[t * r.k..(t + 1) * r.k];
-                add_cells(rgb, table, &cells, coef)
+                r.add(rgb, lines, &cells, coef)
             }
             None => rgb,
         }
@@ -468,7 +633,7 @@ impl PreparedSpmm {
     pub fn make_resident_at(&self, uv: DVec2, s: &EvalSettings) {
         if let (Some(r), true) = (&self.residual, s.residual) {
             self.grid.filter(uv, s, |t| {
-                r.cluster_cells(self.texel_cluster[t] as usize);
+                r.cluster_lines(self.texel_cluster[t] as usize);
                 DVec3::ZERO
             });
         }
@@ -478,7 +643,7 @@ impl PreparedSpmm {
     pub fn make_all_resident(&self) {
         if let Some(r) = &self.residual {
             (0..r.clusters.len()).for_each(|c| {
-                r.cluster_cells(c);
+                r.cluster_lines(c);
             });
         }
     }
@@ -505,15 +670,11 @@ impl PreparedSpmm {
             rgb: &self.rgb,
             residual: self.residual.as_ref().map(|r| {
                 let mut cells = Vec::new();
-                let (values, stride) = ((1 + r.k) * 3, cell_stride(r.k));
                 let cluster_offset = (0..r.clusters.len())
                     .map(|c| {
-                        r.cluster_cells(c).map(|table| {
+                        r.cluster_lines(c).map(|lines| {
                             let offset = cells.len();
-                            let count = r.lights.len() * r.views.len();
-                            for cell in table.chunks(stride).take(count) {
-                                cells.extend_from_slice(&cell[..values]);
-                            }
+                            r.append_unpadded(lines, &mut cells);
                             offset
                         })
                     })
@@ -558,7 +719,7 @@ impl PreparedSpmm {
 /// the profile showed the time at the prefetches themselves, and T1 ran the spmm
 /// bench about 9% faster (T0 and NTA measured alternately; NTA was slower).
 #[inline(always)]
-fn prefetch(data: &[f32]) {
+fn prefetch(data: &[u8]) {
     #[cfg(target_arch = "x86_64")]
     {
         use std::arch::x86_64::{_MM_HINT_T1, _mm_prefetch};
@@ -582,14 +743,84 @@ mod tests {
 
     #[test]
     fn cells_are_padded_to_lines_only_when_that_costs_a_quarter_or_less() {
-        // (1 + k) x 3 values: 27 -> 32 (+19%), 12 and 18 and 51 stay (+33%, +78%, +25.5%).
-        assert_eq!(cell_stride(8), 32);
-        assert_eq!(cell_stride(3), 12);
-        assert_eq!(cell_stride(5), 18);
-        assert_eq!(cell_stride(16), 51);
-        assert_eq!(cell_stride(0), 3);
+        use Precision::{Half, Single};
+        // f32, 16 a line. (1 + k) x 3 values: 27 -> 32 (+19%), 12 and 18 and 51 stay
+        // (+33%, +78%, +25.5%).
+        assert_eq!(cell_stride(8, Single), 32);
+        assert_eq!(cell_stride(3, Single), 12);
+        assert_eq!(cell_stride(5, Single), 18);
+        assert_eq!(cell_stride(16, Single), 51);
+        assert_eq!(cell_stride(0, Single), 3);
         // 15 components: 48 values, already three lines.
-        assert_eq!(cell_stride(15), 48);
+        assert_eq!(cell_stride(15, Single), 48);
+        // Halves, 32 a line: 27 -> 32 (one line), 30 -> 32; 18, 33 and 51 stay
+        // (+78%, +94%, +25.5%).
+        assert_eq!(cell_stride(8, Half), 32);
+        assert_eq!(cell_stride(9, Half), 32);
+        assert_eq!(cell_stride(5, Half), 18);
+        assert_eq!(cell_stride(10, Half), 33);
+        assert_eq!(cell_stride(16, Half), 51);
+        assert_eq!(cell_stride(21, Half), 66);
+        // Half tables end with a spare line (the 4-wide read of the last triple).
+        assert_eq!(table_lines(20, 8, Single), 40);
+        assert_eq!(table_lines(20, 8, Half), 21);
+        assert_eq!(
+            table_lines(20, 5, Half),
+            (20 * 18 * 2usize).div_ceil(64) + 1
+        );
+    }
+
+    /// The half-float cell sums give the bits of `add_cells_portable` on the same
+    /// values held as f32, portable and (where the CPU has AVX and F16C) 4-wide, with
+    /// the last cell of a table that ends with its spare line.
+    #[test]
+    fn the_half_cell_sums_equal_the_f32_one_bit_for_bit() {
+        for k in [0usize, 1, 5, 8] {
+            let values = (1 + k) * 3;
+            let mut s = SampleStream::new(&[6, k as u64]);
+            let mut wild = || {
+                let u = s.next();
+                (u - 0.4) * 10f64.powf(6.0 * s.next() - 3.0)
+            };
+            let halves: Vec<half::f16> = (0..40 * values)
+                .map(|_| half::f16::from_f64(wild()))
+                .collect();
+            let single: Vec<f32> = halves.iter().map(|h| h.to_f32()).collect();
+            let mut bits: Vec<u16> = halves.iter().map(|h| h.to_bits()).collect();
+            bits.extend([0x7c00; 32]); // the spare line, here infinities: never read
+            let coef: Vec<f32> = (0..k).map(|_| wild() as f32).collect();
+            for trial in 0..200 {
+                let mut cells = [(0usize, 0.0f64); 9];
+                for (i, cell) in cells.iter_mut().enumerate() {
+                    let start = if i == 8 { 39 } else { (trial * 7 + i * 5) % 40 };
+                    let w = if (trial + i) % 4 == 0 {
+                        0.0
+                    } else {
+                        wild().abs()
+                    };
+                    *cell = (start * values, w);
+                }
+                let rgb = DVec3::new(wild(), wild(), wild());
+                let want = add_cells_portable(rgb, &single, &cells, &coef).to_array();
+                let portable = add_half_cells_portable(rgb, &bits, &cells, &coef);
+                assert_eq!(
+                    portable.to_array().map(f64::to_bits),
+                    want.map(f64::to_bits)
+                );
+                #[cfg(target_arch = "x86_64")]
+                if std::arch::is_x86_feature_detected!("avx")
+                    && std::arch::is_x86_feature_detected!("f16c")
+                {
+                    // SAFETY: the CPU has AVX and F16C (checked above).
+                    let avx = unsafe { add_half_cells_avx(rgb, &bits, &cells, &coef) };
+                    assert_eq!(
+                        avx.to_array().map(f64::to_bits),
+                        want.map(f64::to_bits),
+                        "k {k}, trial {trial}"
+                    );
+                }
+            }
+        }
     }
 
     /// The 4-wide cell sum gives the portable sum's bits: the same products and sums

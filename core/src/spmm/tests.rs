@@ -96,6 +96,28 @@ pub(crate) fn sample_material(
     .expect("the sample material is valid")
 }
 
+/// `m` with its residual's mean and components rounded to half floats, as a pack read
+/// from a file stored in f16 holds them (prepared tables are then half floats).
+pub(crate) fn with_half_residual(m: &SpmmMaterial) -> SpmmMaterial {
+    let mut r = m.residual().expect("a residual").clone();
+    for x in r.mean.iter_mut().chain(r.components.iter_mut()) {
+        *x = half::f16::from_f32(*x).to_f32();
+    }
+    let h = SpmmMaterial::new(
+        m.name().into(),
+        m.provenance().into(),
+        m.width(),
+        m.height(),
+        m.clusters().to_vec(),
+        m.texel_cluster().to_vec(),
+        m.weights().clone(),
+        Some(r),
+    )
+    .expect("valid");
+    assert!(h.residual_is_half() && !m.residual_is_half());
+    h
+}
+
 #[test]
 fn save_load_save_is_byte_identical() {
     for (residual, precision) in [
@@ -610,10 +632,10 @@ mod evaluation {
 mod prepared {
     use glam::{DVec2, DVec3};
 
-    use super::sample_material;
+    use super::{sample_material, with_half_residual};
     use crate::brdf::warp::spherical;
     use crate::rng::SampleStream;
-    use crate::spmm::{EvalSettings, PrepareRequest, TexelFilter};
+    use crate::spmm::{EvalSettings, PrepareRequest, SpmmMaterial, TexelFilter};
 
     fn points(n: u64, texels: usize) -> Vec<(usize, DVec3, DVec3)> {
         (0..n)
@@ -672,11 +694,14 @@ mod prepared {
 
     /// Bit for bit, whatever the layout: 3 components (cells packed), 8 (cells padded
     /// to whole cache lines, `cell_stride`), fewer kept than stored, none, or no
-    /// residual; on x86-64 with AVX this checks the 4-wide cell sum too.
+    /// residual, in f32 and in half floats; on x86-64 with AVX (and F16C) this checks
+    /// the 4-wide cell sums too.
     #[test]
     fn prepared_evaluation_equals_the_reference() {
         let three = sample_material(6, 5, 4, Some(3));
         let eight = sample_material(6, 5, 4, Some(8));
+        // Tables of half floats: 3 components packed, 8 padded to one line per cell.
+        let (half_three, half_eight) = (with_half_residual(&three), with_half_residual(&eight));
         for (m, residual, max_npca) in [
             (&three, true, usize::MAX),
             (&three, true, 2),
@@ -684,6 +709,10 @@ mod prepared {
             (&three, false, usize::MAX),
             (&eight, true, usize::MAX),
             (&eight, true, 7),
+            (&half_three, true, usize::MAX),
+            (&half_three, true, 0),
+            (&half_eight, true, usize::MAX),
+            (&half_eight, true, 5),
         ] {
             let p = m.prepare(&PrepareRequest {
                 used_clusters: None,
@@ -742,6 +771,18 @@ mod prepared {
         });
         assert_eq!(off.bytes().residual, 0);
         assert!(off.bytes().total() < part.bytes().total());
+        // Half-float tables: k = 3, 12 halves a cell, 20 cells in 8 lines plus the
+        // spare one, per cluster; the estimate says the same.
+        let half = with_half_residual(&m);
+        let request = PrepareRequest {
+            used_clusters: None,
+            residual: true,
+            max_npca: 3,
+        };
+        let halved = half.prepare(&request);
+        halved.make_all_resident();
+        assert_eq!(halved.bytes().residual, 4 * 9 * 64 + texels * 3 * 4);
+        assert_eq!(halved.bytes(), half.prepared_bytes(&request));
         // The estimate a render reports for materials it has not prepared.
         for (prepared, request) in [
             (&full, (None, true, 3)),
@@ -773,7 +814,14 @@ mod prepared {
     /// whatever padding the CPU's tables carry (8 components: padded to 32 floats).
     #[test]
     fn device_parts_hold_the_cells_unpadded() {
-        let m = sample_material(6, 5, 4, Some(8));
+        let single = sample_material(6, 5, 4, Some(8));
+        // Half-float tables reach the device as f32, unpadded, like f32 ones.
+        for m in [&single, &with_half_residual(&single)] {
+            device_parts_of(m);
+        }
+    }
+
+    fn device_parts_of(m: &SpmmMaterial) {
         let r = m.residual().expect("residual");
         let (nl, nv, k) = (r.light_dirs.len(), r.view_dirs.len(), 8);
         let p = m.prepare(&PrepareRequest {

@@ -113,8 +113,8 @@ impl PreparedResidual {
         }
     }
 
-    /// `rgb` plus cluster `c`'s residual at the interpolation cells `cells` (start in
-    /// values, weight) of a texel with coefficients `coef`.
+    /// `rgb` plus the residual of one cluster's `lines` at the interpolation `cells`
+    /// (start in values, weight) of a texel with coefficients `coef`.
     fn add(
         &self,
         rgb: DVec3,

@@ -178,9 +178,9 @@ fn add_cells(rgb: DVec3, table: &[f32], cells: &[(usize, f64); 9], coef: &[f32])
     add_cells_portable(rgb, table, cells, coef)
 }
 
-fn add_cells_portable(
+fn add_cells_portable<T: TableValue>(
     mut rgb: DVec3,
-    table: &[f32],
+    table: &[T],
     cells: &[(usize, f64); 9],
     coef: &[f32],
 ) -> DVec3 {
@@ -190,14 +190,31 @@ fn add_cells_portable(
             continue;
         }
         let cell = &table[start..][..values];
-        let mut e = DVec3::new(cell[0] as f64, cell[1] as f64, cell[2] as f64);
+        let mut e = T::triple(cell);
         for (k, &a) in coef.iter().enumerate() {
-            let b = &cell[3 + 3 * k..6 + 3 * k];
-            e += a as f64 * DVec3::new(b[0] as f64, b[1] as f64, b[2] as f64);
+            e += a as f64 * T::triple(&cell[3 + 3 * k..]);
         }
         rgb += w * e;
     }
     rgb
+}
+
+/// A value as a residual table stores it: an f32, or a half float's bits.
+trait TableValue: Copy {
+    /// The first three values of `at`, widened to f64 (exactly, for both).
+    fn triple(at: &[Self]) -> DVec3;
+}
+
+impl TableValue for f32 {
+    fn triple(at: &[f32]) -> DVec3 {
+        DVec3::new(at[0] as f64, at[1] as f64, at[2] as f64)
+    }
+}
+
+impl TableValue for u16 {
+    fn triple(at: &[u16]) -> DVec3 {
+        DVec3::from_array([0, 1, 2].map(|i| f64::from(half::f16::from_bits(at[i]).to_f32())))
+    }
 }
 
 /// `add_cells_portable` with the three channels in one 4-wide register: the same
@@ -245,34 +262,10 @@ fn add_half_cells(rgb: DVec3, table: &[u16], cells: &[(usize, f64); 9], coef: &[
         // SAFETY: the CPU has AVX and F16C (checked above).
         return unsafe { add_half_cells_avx(rgb, table, cells, coef) };
     }
-    add_half_cells_portable(rgb, table, cells, coef)
+    add_cells_portable(rgb, table, cells, coef)
 }
 
-fn add_half_cells_portable(
-    mut rgb: DVec3,
-    table: &[u16],
-    cells: &[(usize, f64); 9],
-    coef: &[f32],
-) -> DVec3 {
-    let values = (1 + coef.len()) * 3;
-    let wide = |b: &[u16]| {
-        DVec3::from_array([0, 1, 2].map(|i| f64::from(half::f16::from_bits(b[i]).to_f32())))
-    };
-    for &(start, w) in cells {
-        if w == 0.0 {
-            continue;
-        }
-        let cell = &table[start..][..values];
-        let mut e = wide(cell);
-        for (k, &a) in coef.iter().enumerate() {
-            e += a as f64 * wide(&cell[3 + 3 * k..]);
-        }
-        rgb += w * e;
-    }
-    rgb
-}
-
-/// `add_half_cells_portable` 4-wide: each triple read as four halves (the table ends
+/// `add_cells_portable` of half floats, 4-wide: each triple read as four halves (the table ends
 /// with a spare line, so the read stays inside it), the fourth zeroed, converted by
 /// F16C; then the same multiplies and adds as `add_cells_avx`.
 #[cfg(target_arch = "x86_64")]
@@ -741,6 +734,24 @@ mod tests {
     use super::*;
     use crate::rng::SampleStream;
 
+    /// Nine cells of a 40-cell table of `values`-value cells for `trial`: every fourth
+    /// weight zero (skipped), the last cell of the table among them.
+    fn test_cells(
+        trial: usize,
+        values: usize,
+        wild: &mut impl FnMut() -> f64,
+    ) -> [(usize, f64); 9] {
+        std::array::from_fn(|i| {
+            let start = if i == 8 { 39 } else { (trial * 7 + i * 5) % 40 };
+            let w = if (trial + i) % 4 == 0 {
+                0.0
+            } else {
+                wild().abs()
+            };
+            (start * values, w)
+        })
+    }
+
     #[test]
     fn cells_are_padded_to_lines_only_when_that_costs_a_quarter_or_less() {
         use Precision::{Half, Single};
@@ -790,19 +801,10 @@ mod tests {
             bits.extend([0x7c00; 32]); // the spare line, here infinities: never read
             let coef: Vec<f32> = (0..k).map(|_| wild() as f32).collect();
             for trial in 0..200 {
-                let mut cells = [(0usize, 0.0f64); 9];
-                for (i, cell) in cells.iter_mut().enumerate() {
-                    let start = if i == 8 { 39 } else { (trial * 7 + i * 5) % 40 };
-                    let w = if (trial + i) % 4 == 0 {
-                        0.0
-                    } else {
-                        wild().abs()
-                    };
-                    *cell = (start * values, w);
-                }
+                let cells = test_cells(trial, values, &mut wild);
                 let rgb = DVec3::new(wild(), wild(), wild());
                 let want = add_cells_portable(rgb, &single, &cells, &coef).to_array();
-                let portable = add_half_cells_portable(rgb, &bits, &cells, &coef);
+                let portable = add_cells_portable(rgb, &bits, &cells, &coef);
                 assert_eq!(
                     portable.to_array().map(f64::to_bits),
                     want.map(f64::to_bits)
@@ -840,16 +842,7 @@ mod tests {
                 let table: Vec<f32> = (0..40 * values).map(|_| wild() as f32).collect();
                 let coef: Vec<f32> = (0..k).map(|_| wild() as f32).collect();
                 for trial in 0..200 {
-                    let mut cells = [(0usize, 0.0f64); 9];
-                    for (i, cell) in cells.iter_mut().enumerate() {
-                        let start = if i == 8 { 39 } else { (trial * 7 + i * 5) % 40 };
-                        let w = if (trial + i) % 4 == 0 {
-                            0.0
-                        } else {
-                            wild().abs()
-                        };
-                        *cell = (start * values, w);
-                    }
+                    let cells = test_cells(trial, values, &mut wild);
                     let rgb = DVec3::new(wild(), wild(), wild());
                     let portable = add_cells_portable(rgb, &table, &cells, &coef);
                     // SAFETY: the CPU has AVX (checked above).

@@ -743,7 +743,7 @@ mod tests {
     ) -> [(usize, f64); 9] {
         std::array::from_fn(|i| {
             let start = if i == 8 { 39 } else { (trial * 7 + i * 5) % 40 };
-            let w = if (trial + i) % 4 == 0 {
+            let w = if (trial + i).is_multiple_of(4) {
                 0.0
             } else {
                 wild().abs()

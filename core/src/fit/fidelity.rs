@@ -283,6 +283,24 @@ mod tests {
     use super::*;
     use crate::spmm::tests::sample_material;
 
+    /// A black BTF on `pack`'s texel grid and residual directions.
+    fn black_btf_like(pack: &SpmmMaterial) -> Btf {
+        let r = pack.residual().expect("a residual");
+        let (lights, views) = (r.light_dirs.clone(), r.view_dirs.clone());
+        let texels = (pack.width() * pack.height()) as usize;
+        let data = vec![0.0; texels * lights.len() * views.len() * 3];
+        Btf::new(
+            "black".into(),
+            "test".into(),
+            pack.width(),
+            pack.height(),
+            lights,
+            views,
+            data,
+        )
+        .expect("valid")
+    }
+
     /// The pack's render is the one the defensive sampling gives (what the BTF's
     /// render uses), not the bases' sampling, so both draw the same directions.
     #[test]
@@ -325,18 +343,7 @@ mod tests {
         let pack = sample_material(4, 3, 2, Some(2));
         let r = pack.residual().expect("a residual");
         let (lights, views) = (r.light_dirs.clone(), r.view_dirs.clone());
-        let zeros = vec![0.0; 12 * lights.len() * views.len() * 3];
-        let grid = Btf::new(
-            "t".into(),
-            "t".into(),
-            4,
-            3,
-            lights.clone(),
-            views.clone(),
-            zeros,
-        )
-        .expect("valid");
-        let btf = tabulate_pack(&grid, &pack).expect("same grid");
+        let btf = tabulate_pack(&black_btf_like(&pack), &pack).expect("same grid");
         // Laid out texel, light, view, channel, as the pack evaluates there.
         let (t, l, v) = (5, 1, 2);
         let direct = pack.eval_texel(t, lights[l], views[v], true, usize::MAX);
@@ -393,20 +400,8 @@ mod tests {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/scenes");
         let scene = crate::scene::load_scene(&dir.join("fit_grazing.toml")).expect("scene");
         let pack = sample_material(4, 3, 2, Some(2));
-        let r = pack.residual().expect("a residual");
-        let zeros = vec![0.0; 12 * r.light_dirs.len() * r.view_dirs.len() * 3];
-        let grid = Btf::new(
-            "t".into(),
-            "t".into(),
-            4,
-            3,
-            r.light_dirs.clone(),
-            r.view_dirs.clone(),
-            zeros,
-        )
-        .expect("valid");
-        let own =
-            Arc::new(BtfTable::new(&tabulate_pack(&grid, &pack).expect("grid")).expect("table"));
+        let own = tabulate_pack(&black_btf_like(&pack), &pack).expect("same grid");
+        let own = Arc::new(BtfTable::new(&own).expect("table"));
         let request = RenderRequest {
             width: 24,
             height: 24,

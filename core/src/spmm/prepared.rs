@@ -82,22 +82,20 @@ impl PreparedResidual {
         let lines = table_lines(nl * nv, self.k, self.precision);
         let mut lines = vec![bytemuck::Zeroable::zeroed(); lines];
         match self.precision {
-            Precision::Single => self.fill(c, bytemuck::cast_slice_mut(&mut lines), |x| x),
-            Precision::Half => self.fill(c, bytemuck::cast_slice_mut(&mut lines), |x| {
-                half::f16::from_f32(x).to_bits()
-            }),
+            Precision::Single => self.fill::<f32>(c, bytemuck::cast_slice_mut(&mut lines)),
+            Precision::Half => self.fill::<u16>(c, bytemuck::cast_slice_mut(&mut lines)),
         }
         lines.into_boxed_slice()
     }
 
-    /// Writes cluster `c`'s cells into `cells`, each value through `store`.
-    fn fill<T: Copy>(&self, c: usize, cells: &mut [T], store: impl Fn(f32) -> T) {
+    /// Writes cluster `c`'s cells into `cells`.
+    fn fill<T: TableValue>(&self, c: usize, cells: &mut [T]) {
         let r = &self.source;
         let (nl, nv, npca) = (r.light_dirs.len(), r.view_dirs.len(), r.npca);
         let stride = cell_stride(self.k, self.precision);
         let put = |at: &mut [T], from: &[f32]| {
             for (a, &x) in at.iter_mut().zip(from) {
-                *a = store(x);
+                *a = T::from_f32(x);
             }
         };
         for l in 0..nl {
@@ -130,25 +128,17 @@ impl PreparedResidual {
 
     /// Cluster `c`'s cells as f32, unpadded, appended to `out` (what a device uploads).
     fn append_unpadded(&self, lines: &[CacheLine], out: &mut Vec<f32>) {
+        match self.precision {
+            Precision::Single => self.append_cells::<f32>(bytemuck::cast_slice(lines), out),
+            Precision::Half => self.append_cells::<u16>(bytemuck::cast_slice(lines), out),
+        }
+    }
+
+    fn append_cells<T: TableValue>(&self, table: &[T], out: &mut Vec<f32>) {
         let (values, stride) = ((1 + self.k) * 3, cell_stride(self.k, self.precision));
         let count = self.lights.len() * self.views.len();
-        match self.precision {
-            Precision::Single => {
-                let table: &[f32] = bytemuck::cast_slice(lines);
-                for cell in table.chunks(stride).take(count) {
-                    out.extend_from_slice(&cell[..values]);
-                }
-            }
-            Precision::Half => {
-                let table: &[u16] = bytemuck::cast_slice(lines);
-                for cell in table.chunks(stride).take(count) {
-                    out.extend(
-                        cell[..values]
-                            .iter()
-                            .map(|&b| half::f16::from_bits(b).to_f32()),
-                    );
-                }
-            }
+        for cell in table.chunks(stride).take(count) {
+            out.extend(cell[..values].iter().map(|&x| x.to_f32()));
         }
     }
 
@@ -199,21 +189,32 @@ fn add_cells_portable<T: TableValue>(
     rgb
 }
 
-/// A value as a residual table stores it: an f32, or a half float's bits.
+/// A value as a residual table stores it: an f32, or a half float's bits (only ever
+/// made from values that are half floats exactly, so both widen back exactly).
 trait TableValue: Copy {
-    /// The first three values of `at`, widened to f64 (exactly, for both).
-    fn triple(at: &[Self]) -> DVec3;
+    fn from_f32(x: f32) -> Self;
+    fn to_f32(self) -> f32;
+    /// The first three values of `at`, widened to f64.
+    fn triple(at: &[Self]) -> DVec3 {
+        DVec3::from_array([0, 1, 2].map(|i| f64::from(at[i].to_f32())))
+    }
 }
 
 impl TableValue for f32 {
-    fn triple(at: &[f32]) -> DVec3 {
-        DVec3::new(at[0] as f64, at[1] as f64, at[2] as f64)
+    fn from_f32(x: f32) -> Self {
+        x
+    }
+    fn to_f32(self) -> f32 {
+        self
     }
 }
 
 impl TableValue for u16 {
-    fn triple(at: &[u16]) -> DVec3 {
-        DVec3::from_array([0, 1, 2].map(|i| f64::from(half::f16::from_bits(at[i]).to_f32())))
+    fn from_f32(x: f32) -> Self {
+        half::f16::from_f32(x).to_bits()
+    }
+    fn to_f32(self) -> f32 {
+        half::f16::from_bits(self).to_f32()
     }
 }
 
@@ -223,17 +224,31 @@ impl TableValue for u16 {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx")]
 fn add_cells_avx(rgb: DVec3, table: &[f32], cells: &[(usize, f64); 9], coef: &[f32]) -> DVec3 {
-    use std::arch::x86_64::{
-        __m256d, _mm_maskload_ps, _mm_setr_epi32, _mm256_add_pd, _mm256_cvtps_pd, _mm256_mul_pd,
-        _mm256_set1_pd, _mm256_setr_pd, _mm256_storeu_pd,
-    };
-    let values = (1 + coef.len()) * 3;
+    use std::arch::x86_64::{_mm_maskload_ps, _mm_setr_epi32, _mm256_cvtps_pd};
     // The first three floats of `from`: the fourth lane is masked out, never read.
-    let load3 = |from: &[f32]| -> __m256d {
+    sum_cells_avx(rgb, table, cells, coef, |from: &[f32]| {
         assert!(from.len() >= 3);
         // SAFETY: three floats are in bounds (asserted); the masked lane is not read.
         _mm256_cvtps_pd(unsafe { _mm_maskload_ps(from.as_ptr(), _mm_setr_epi32(-1, -1, -1, 0)) })
+    })
+}
+
+/// The 4-wide cell sum of both table kinds, given how to read a value triple into the
+/// first three lanes (the fourth zero).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+#[inline]
+fn sum_cells_avx<T>(
+    rgb: DVec3,
+    table: &[T],
+    cells: &[(usize, f64); 9],
+    coef: &[f32],
+    load3: impl Fn(&[T]) -> std::arch::x86_64::__m256d,
+) -> DVec3 {
+    use std::arch::x86_64::{
+        _mm256_add_pd, _mm256_mul_pd, _mm256_set1_pd, _mm256_setr_pd, _mm256_storeu_pd,
     };
+    let values = (1 + coef.len()) * 3;
     let mut acc = _mm256_setr_pd(rgb.x, rgb.y, rgb.z, 0.0);
     for &(start, w) in cells {
         if w == 0.0 {
@@ -265,41 +280,26 @@ fn add_half_cells(rgb: DVec3, table: &[u16], cells: &[(usize, f64); 9], coef: &[
     add_cells_portable(rgb, table, cells, coef)
 }
 
-/// `add_cells_portable` of half floats, 4-wide: each triple read as four halves (the table ends
-/// with a spare line, so the read stays inside it), the fourth zeroed, converted by
-/// F16C; then the same multiplies and adds as `add_cells_avx`.
+/// `add_cells_portable` of half floats, 4-wide: each triple read as four halves (the
+/// table ends with a spare line, so the read of the last cell's last triple stays inside
+/// it), the fourth zeroed, converted by F16C; then `sum_cells_avx` as for f32 tables.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx,f16c")]
 fn add_half_cells_avx(rgb: DVec3, table: &[u16], cells: &[(usize, f64); 9], coef: &[f32]) -> DVec3 {
     use std::arch::x86_64::{
-        __m128i, __m256d, _mm_and_si128, _mm_cvtph_ps, _mm_loadl_epi64, _mm_set_epi64x,
-        _mm256_add_pd, _mm256_cvtps_pd, _mm256_mul_pd, _mm256_set1_pd, _mm256_setr_pd,
-        _mm256_storeu_pd,
+        __m128i, _mm_and_si128, _mm_cvtph_ps, _mm_loadl_epi64, _mm_set_epi64x, _mm256_cvtps_pd,
     };
     let low_three = _mm_set_epi64x(0, 0x0000_ffff_ffff_ffff);
-    let load3 = |from: &[u16]| -> __m256d {
-        assert!(from.len() >= 4);
-        // SAFETY: four halves (eight bytes) are in bounds (asserted); no alignment needed.
+    // `sum_cells_avx` hands over slices that end with the cell; the fourth half is read
+    // from the whole table past it.
+    let end = table.as_ptr_range().end;
+    sum_cells_avx(rgb, table, cells, coef, |from: &[u16]| {
+        assert!(from.len() >= 3 && from.as_ptr().wrapping_add(4) <= end);
+        // SAFETY: four halves (eight bytes) lie inside `table` (asserted); no alignment
+        // is needed.
         let four = unsafe { _mm_loadl_epi64(from.as_ptr().cast::<__m128i>()) };
         _mm256_cvtps_pd(_mm_cvtph_ps(_mm_and_si128(four, low_three)))
-    };
-    let mut acc = _mm256_setr_pd(rgb.x, rgb.y, rgb.z, 0.0);
-    for &(start, w) in cells {
-        if w == 0.0 {
-            continue;
-        }
-        let cell = &table[start..];
-        let mut e = load3(cell);
-        for (k, &a) in coef.iter().enumerate() {
-            let b = load3(&cell[3 + 3 * k..]);
-            e = _mm256_add_pd(e, _mm256_mul_pd(_mm256_set1_pd(a as f64), b));
-        }
-        acc = _mm256_add_pd(acc, _mm256_mul_pd(_mm256_set1_pd(w), e));
-    }
-    let mut out = [0.0; 4];
-    // SAFETY: `out` holds four doubles.
-    unsafe { _mm256_storeu_pd(out.as_mut_ptr(), acc) };
-    DVec3::new(out[0], out[1], out[2])
+    })
 }
 
 const LINE_BYTES: usize = 64;

@@ -79,27 +79,6 @@ pub fn footprint_variance(mean: &[f64], w: u32, h: u32) -> Vec<f64> {
         .collect()
 }
 
-/// The mean over each pixel's 3 x 3 neighbourhood (clipped at the borders): pools the
-/// n_b-direction estimates of neighbours, so one pixel's unlucky draws do not starve it.
-pub fn box3(values: &[f64], w: u32, h: u32) -> Vec<f64> {
-    (0..w * h)
-        .map(|i| {
-            let (x, y) = ((i % w) as i64, (i / w) as i64);
-            let (mut s, mut n) = (0.0, 0.0);
-            for dy in -1..=1 {
-                for dx in -1..=1 {
-                    let (nx, ny) = (x + dx, y + dy);
-                    if nx >= 0 && ny >= 0 && nx < i64::from(w) && ny < i64::from(h) {
-                        s += values[(ny * i64::from(w) + nx) as usize];
-                        n += 1.0;
-                    }
-                }
-            }
-            s / n
-        })
-        .collect()
-}
-
 /// Samples a pixel takes in frame `frame` at `rate` samples per frame (any positive
 /// real): floor((frame + 1) rate + phase) - floor(frame rate + phase), so over F frames
 /// it takes F rate samples within one, and a rate below one spreads its samples over
@@ -167,15 +146,6 @@ mod tests {
         // ones nothing.
         let step = [0.0, 0.0, 6.0, 6.0];
         assert_eq!(footprint_variance(&step, 4, 1), vec![0.0, 3.0, 3.0, 0.0]);
-    }
-
-    #[test]
-    fn box3_averages_the_clipped_neighbourhood() {
-        let v = [9.0, 0.0, 0.0, 0.0];
-        // Every pixel of a 2 x 2 image sees all four: 9 / 4.
-        assert_eq!(box3(&v, 2, 2), vec![2.25; 4]);
-        let row = [3.0, 0.0, 0.0];
-        assert_eq!(box3(&row, 3, 1), vec![1.5, 1.0, 0.0]);
     }
 
     #[test]

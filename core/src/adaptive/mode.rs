@@ -123,28 +123,8 @@ pub struct Buffers {
     sigma_mip: Vec<Vec<f64>>,
     /// Seconds of the G-buffer (part of `seconds`).
     pub gbuffer_seconds: f64,
-    /// The share of pixels the per-pixel analysis ran on (the rest copy their block's).
-    pub analysed_share: f64,
     /// Seconds the pass took.
     pub seconds: f64,
-}
-
-/// Side of the pixel blocks the bandwidth pass analyses once (`bandwidth_pass`).
-pub const PASS_STRIDE: u32 = 2;
-
-/// True if pixel `i` may take the analysis of pixel `head`: both miss, or both see
-/// the same mesh at depths within the up-sampling's depth tolerance.
-fn shares_analysis(g: &GBuffer, i: usize, head: usize) -> bool {
-    let (a, b) = (&g.pixels[i], &g.pixels[head]);
-    match (&a.surface, &b.surface) {
-        (None, None) => true,
-        (Some(sa), Some(sb)) => {
-            a.mesh == b.mesh
-                && sa.material == sb.material
-                && upsample::depth_weight(a.depth, b.depth) > 0.5
-        }
-        _ => false,
-    }
 }
 
 /// The order in which each strategy other than the table's visits the bandwidth
@@ -483,36 +463,15 @@ impl AdaptiveMode {
         let guide = g.guide(right, down);
         let gbuffer_seconds = start.elapsed().as_secs_f64();
         let (fx, fy) = self.fov();
-        // The analysis runs on one pixel of each `PASS_STRIDE`^2 block (its top-left);
-        // the block's other pixels take its result unless they see another surface
-        // (another mesh or a depth step; `shares_analysis`), which are analysed
-        // themselves. Levels at or above log2 PASS_STRIDE are block-wise anyway.
-        let stride = if w.min(h) >= 4 * PASS_STRIDE {
-            PASS_STRIDE
-        } else {
-            1
-        };
-        let head = |i: u32| {
-            let (x, y) = (i % w, i / w);
-            (y / stride * stride) * w + x / stride * stride
-        };
-        let own: Vec<bool> = (0..w * h)
-            .map(|i| head(i) == i || !shares_analysis(&g, i as usize, head(i) as usize))
-            .collect();
+        // Every pixel is analysed: sharing one analysis per 2 x 2 block (as this pass
+        // once did) left the block's pixels one mean and one variance, which hid the
+        // footprint's steps inside blocks and cost most of the allocation's gain
+        // (on the dragon 3.3x with every pixel against 1.7x; docs/reports/adaptive).
         let orders = self.strata_orders();
-        let analysed: Vec<Option<PixelAnalysis>> = (0..w * h)
+        let per_pixel: Vec<PixelAnalysis> = (0..w * h)
             .into_par_iter()
-            .map(|i| own[i as usize].then(|| self.pixel_bandwidth(&g, i, &orders)))
+            .map(|i| self.pixel_bandwidth(&g, i, &orders))
             .collect();
-        let per_pixel: Vec<&PixelAnalysis> = (0..w * h)
-            .map(|i| {
-                analysed[i as usize]
-                    .as_ref()
-                    .or(analysed[head(i) as usize].as_ref())
-                    .expect("a block's head is analysed")
-            })
-            .collect();
-        let analysed_share = own.iter().filter(|&&o| o).count() as f64 / own.len() as f64;
         let rate: Vec<f64> = per_pixel
             .iter()
             .map(|p| operators::screen_rate(p.nu.y, fx, fy, w, h))
@@ -525,14 +484,10 @@ impl AdaptiveMode {
         // smaller sum assumes an environment convolved with the whole lobe, and
         // scaling by it (a Lambertian's eq. 10 is 0) starved diffuse pixels that the
         // ladder, filtered at most to the lobe's rate, still leaves noisy.
-        let sigma2: Vec<f64> = per_pixel
+        let sigma: Vec<f64> = per_pixel
             .iter()
             .zip(&footprint)
-            .map(|(p, f)| p.moments.variance() + f)
-            .collect();
-        let sigma: Vec<f64> = allocation::box3(&sigma2, w, h)
-            .into_iter()
-            .map(f64::sqrt)
+            .map(|(p, f)| (p.moments.variance() + f).sqrt())
             .collect();
         let dark = 1e-3 * mean.iter().map(|m| m.abs()).sum::<f64>() / mean.len().max(1) as f64;
         let level = rate
@@ -558,7 +513,6 @@ impl AdaptiveMode {
             rate,
             sigma_mip,
             gbuffer_seconds,
-            analysed_share,
             seconds: start.elapsed().as_secs_f64(),
         }
     }

@@ -99,13 +99,12 @@ fn rays(mesh: &TriangleMesh, bvh: &SceneBvh, n: usize) -> Rays {
         shadow: Vec::new(),
         ambient: Vec::new(),
     };
-    let meshes = std::slice::from_ref(mesh);
     for i in 0..n as u64 {
         let mut rng = SampleStream::new(&[42, i]);
         let target = lo + (hi - lo) * DVec3::new(rng.next(), rng.next(), rng.next());
         let dir = (target - eye).normalize();
         out.primary.push((eye, dir));
-        if let Some(h) = bvh.closest_hit(meshes, eye, dir, 0.0, f64::INFINITY) {
+        if let Some(h) = bvh.closest_hit(eye, dir, 0.0, f64::INFINITY) {
             let p = eye + dir * h.t;
             let [a, b, c] = mesh.indices[h.triangle].map(|k| mesh.positions[k as usize]);
             let mut n = (b - a).cross(c - a).normalize();
@@ -137,7 +136,6 @@ fn bench_rays(c: &mut Criterion) {
     ] {
         let bvh = SceneBvh::build(std::slice::from_ref(mesh));
         let r = rays(mesh, &bvh, n);
-        let meshes = std::slice::from_ref(mesh);
         let mut group = c.benchmark_group(format!("rays {label}"));
         group.sample_size(10);
         for threads in [1, 0] {
@@ -155,10 +153,7 @@ fn bench_rays(c: &mut Criterion) {
                     run(&|| {
                         r.primary
                             .par_iter()
-                            .filter(|(o, d)| {
-                                bvh.closest_hit(meshes, *o, *d, 0.0, f64::INFINITY)
-                                    .is_some()
-                            })
+                            .filter(|(o, d)| bvh.closest_hit(*o, *d, 0.0, f64::INFINITY).is_some())
                             .count()
                     })
                 })

@@ -37,7 +37,7 @@ impl GBuffer {
             .into_par_iter()
             .map(|i| {
                 let ray = camera.ray(i % width, i / width, DVec2::splat(0.5));
-                match bvh.closest_hit(&scene.meshes, ray.origin, ray.dir, 0.0, f64::INFINITY) {
+                match bvh.closest_hit(ray.origin, ray.dir, 0.0, f64::INFINITY) {
                     Some(hit) => GPixel {
                         surface: Some(Surface::at(scene, &hit, ray.dir)),
                         mesh: hit.mesh,

@@ -878,9 +878,9 @@ impl AdaptiveMode {
         let mut rng = SampleStream::for_sample(render.sampler, render.seed ^ STREAM, index, pixel);
         let ray = self.camera.ray(x, y, rng.next_2d());
         counts.primary += 1;
-        let Some(hit) =
-            self.bvh
-                .closest_hit(&self.scene.meshes, ray.origin, ray.dir, 0.0, f64::INFINITY)
+        let Some(hit) = self
+            .bvh
+            .closest_hit(ray.origin, ray.dir, 0.0, f64::INFINITY)
         else {
             if let Some((layer, radiance)) = layers::escaped(&self.scene, ray.dir) {
                 out[layer] += radiance;

@@ -293,9 +293,9 @@ impl BiscaleMode {
         let pixel = u64::from(y) * u64::from(self.film.width()) + u64::from(x);
         let mut rng = SampleStream::new(&[self.scene.render.seed, index, pixel]);
         let ray = self.camera.ray(x, y, rng.next_2d());
-        let Some(hit) =
-            self.bvh
-                .closest_hit(&self.scene.meshes, ray.origin, ray.dir, 0.0, f64::INFINITY)
+        let Some(hit) = self
+            .bvh
+            .closest_hit(ray.origin, ray.dir, 0.0, f64::INFINITY)
         else {
             return (layers::escaped(&self.scene, ray.dir), 0);
         };

@@ -36,7 +36,7 @@ pub fn pick(
     let camera = PinholeCamera::new(&scene.camera, width, height);
     let (px, py) = (x.floor(), y.floor());
     let ray = camera.ray(px as u32, py as u32, DVec2::new(x - px, y - py));
-    let hit = bvh.closest_hit(&scene.meshes, ray.origin, ray.dir, 0.0, f64::INFINITY)?;
+    let hit = bvh.closest_hit(ray.origin, ray.dir, 0.0, f64::INFINITY)?;
     let mesh = &scene.meshes[hit.mesh];
     let [i0, i1, i2] = mesh.indices[hit.triangle].map(|i| i as usize);
     let w0 = 1.0 - hit.b1 - hit.b2;

@@ -370,7 +370,7 @@ fn primary_hits_match(scene_file: &str, size: u32) {
     let prims: Vec<(u32, u32)> = bvh.primitives().map(|(_, r)| r).collect();
     let (mut hits, mut ties) = (0, 0);
     for (i, (r, g)) in rays.iter().zip(results).enumerate() {
-        let cpu = bvh.closest_hit(&scene.meshes, r.origin, r.dir, 0.0, f64::INFINITY);
+        let cpu = bvh.closest_hit(r.origin, r.dir, 0.0, f64::INFINITY);
         let prim = if g[1] < 0.0 { u32::MAX } else { g[1] as u32 };
         match cpu {
             None => assert_eq!(

@@ -41,13 +41,10 @@ impl SpmmMode {
             .par_iter()
             .map(|&p| {
                 let ray = self.camera.ray(p % w, p / w, DVec2::splat(0.5));
-                let Some(hit) = self.bvh.closest_hit(
-                    &self.scene.meshes,
-                    ray.origin,
-                    ray.dir,
-                    0.0,
-                    f64::INFINITY,
-                ) else {
+                let Some(hit) = self
+                    .bvh
+                    .closest_hit(ray.origin, ray.dir, 0.0, f64::INFINITY)
+                else {
                     return ([0.0; 3], f32::INFINITY, [0.0; 3]);
                 };
                 let s = self.shading(&hit, ray.dir);

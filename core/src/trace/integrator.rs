@@ -468,10 +468,7 @@ impl SpmmMode {
 
     /// Follows the ray and adds `throughput` times what it finds to the layers.
     fn trace(&self, origin: DVec3, dir: DVec3, depth: u32, throughput: DVec3, path: &mut Path) {
-        let Some(hit) = self
-            .bvh
-            .closest_hit(&self.scene.meshes, origin, dir, 0.0, f64::INFINITY)
-        else {
+        let Some(hit) = self.bvh.closest_hit(origin, dir, 0.0, f64::INFINITY) else {
             if let Some((layer, radiance)) = layers::escaped(&self.scene, dir) {
                 path.out[layer] += throughput * radiance;
             }
@@ -711,7 +708,7 @@ fn surfaces_seen(
         .flat_map_iter(|y| {
             (0..w).filter_map(move |x| {
                 let ray = camera.ray(x, y, glam::DVec2::splat(0.5));
-                bvh.closest_hit(&scene.meshes, ray.origin, ray.dir, 0.0, f64::INFINITY)
+                bvh.closest_hit(ray.origin, ray.dir, 0.0, f64::INFINITY)
                     .map(|hit| {
                         let s = shading_at(scene, &hit, ray.dir);
                         (s.material, s.uv)

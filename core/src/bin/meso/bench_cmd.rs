@@ -125,19 +125,14 @@ enum Tracer {
 }
 
 /// Traces every ray once; returns (seconds, rays that hit).
-fn trace_once(
-    bvh: &SceneBvh,
-    meshes: &[TriangleMesh],
-    rays: &Rays,
-    tracer: Tracer,
-) -> (f64, usize) {
+fn trace_once(bvh: &SceneBvh, rays: &Rays, tracer: Tracer) -> (f64, usize) {
     let start = Instant::now();
     let hits = rays
         .par_iter()
         .filter(|(o, d)| {
             match tracer {
-                Tracer::Cpu => bvh.closest_hit(meshes, *o, *d, 0.0, f64::INFINITY),
-                Tracer::Obvhs => bvh.closest_hit_reference(meshes, *o, *d, 0.0, f64::INFINITY),
+                Tracer::Cpu => bvh.closest_hit(*o, *d, 0.0, f64::INFINITY),
+                Tracer::Obvhs => bvh.closest_hit_reference(*o, *d, 0.0, f64::INFINITY),
             }
             .is_some()
         })
@@ -147,16 +142,11 @@ fn trace_once(
 
 /// Traces every ray three times with each tracer, alternating; per tracer (fastest
 /// Mrays/s, rays that hit).
-fn trace(
-    bvh: &SceneBvh,
-    meshes: &[TriangleMesh],
-    rays: &Rays,
-    tracers: &[Tracer],
-) -> Vec<(f64, usize)> {
+fn trace(bvh: &SceneBvh, rays: &Rays, tracers: &[Tracer]) -> Vec<(f64, usize)> {
     let mut best = vec![(f64::INFINITY, 0); tracers.len()];
     for _ in 0..3 {
         for (b, &tracer) in best.iter_mut().zip(tracers) {
-            let (seconds, hits) = trace_once(bvh, meshes, rays, tracer);
+            let (seconds, hits) = trace_once(bvh, rays, tracer);
             *b = (b.0.min(seconds), hits);
         }
     }
@@ -170,7 +160,6 @@ fn trace(
 fn save_rays(
     dir: &std::path::Path,
     bvh: &SceneBvh,
-    meshes: &[TriangleMesh],
     kinds: [(&str, &Rays); 2],
 ) -> Result<(), CliError> {
     std::fs::create_dir_all(dir)
@@ -198,7 +187,7 @@ fn save_rays(
             &format!("{kind}_t.f32"),
             rays.iter()
                 .map(|(o, d)| {
-                    bvh.closest_hit(meshes, *o, *d, 0.0, f64::INFINITY)
+                    bvh.closest_hit(*o, *d, 0.0, f64::INFINITY)
                         .map_or(f32::INFINITY, |h| h.t as f32)
                 })
                 .collect(),
@@ -257,7 +246,6 @@ fn rays(args: &RaysArgs) -> Result<(), CliError> {
         save_rays(
             dir,
             &bvh,
-            meshes,
             [("coherent", &coherent), ("incoherent", &incoherent)],
         )?;
     }
@@ -268,8 +256,8 @@ fn rays(args: &RaysArgs) -> Result<(), CliError> {
     };
     let (coherent_runs, incoherent_runs) = pool.install(|| {
         (
-            trace(&bvh, meshes, &coherent, tracers),
-            trace(&bvh, meshes, &incoherent, tracers),
+            trace(&bvh, &coherent, tracers),
+            trace(&bvh, &incoherent, tracers),
         )
     });
     let ((coherent_mrays, coherent_hits), (incoherent_mrays, incoherent_hits)) =

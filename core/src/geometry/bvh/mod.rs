@@ -2,8 +2,8 @@
 //! al. 2017) built by obvhs on scene load, closest-hit and occlusion (any-hit) queries.
 //! Traversal runs in f32 on the same tree unpacked for the CPU (`wide.rs`: SIMD
 //! box tests, ordered traversal; obvhs's own traversal is kept as the reference it is
-//! tested and benchmarked against); the hit point's barycentrics are recomputed in f64
-//! for shading. Degenerate (zero-area) triangles are left out of the BVH. Moved
+//! tested and benchmarked against); a hit's barycentrics are the hit test's own (f32),
+//! which shading combines with the mesh's f64 vertices. Degenerate (zero-area) triangles are left out of the BVH. Moved
 //! geometry with the same triangles is refitted (the binary BVH's boxes updated
 //! bottom-up, then re-compressed) instead of rebuilt; docs/performance.md has both costs.
 
@@ -155,16 +155,10 @@ impl SceneBvh {
     }
 
     /// The closest hit with `t` in [tmin, tmax].
-    pub fn closest_hit(
-        &self,
-        meshes: &[TriangleMesh],
-        origin: DVec3,
-        dir: DVec3,
-        tmin: f64,
-        tmax: f64,
-    ) -> Option<Hit> {
-        let (slot, t) = self.wide.closest(&query(origin, dir, tmin, tmax))?;
-        Some(self.hit(meshes, origin, dir, slot, t))
+    pub fn closest_hit(&self, origin: DVec3, dir: DVec3, tmin: f64, tmax: f64) -> Option<Hit> {
+        let q = query(origin, dir, tmin, tmax);
+        let (slot, t) = self.wide.closest(&q)?;
+        Some(self.hit(&q, slot, t))
     }
 
     /// `closest_hit` with a chosen node test (`Kernel::Avx2` only where the CPU has it:
@@ -172,7 +166,6 @@ impl SceneBvh {
     pub fn closest_hit_with(
         &self,
         kernel: Kernel,
-        meshes: &[TriangleMesh],
         origin: DVec3,
         dir: DVec3,
         tmin: f64,
@@ -181,17 +174,15 @@ impl SceneBvh {
         if kernel == Kernel::Avx2 {
             assert_eq!(Kernel::detect(), Kernel::Avx2, "this CPU has no AVX2");
         }
-        let (slot, t) = self
-            .wide
-            .closest_with(kernel, &query(origin, dir, tmin, tmax))?;
-        Some(self.hit(meshes, origin, dir, slot, t))
+        let q = query(origin, dir, tmin, tmax);
+        let (slot, t) = self.wide.closest_with(kernel, &q)?;
+        Some(self.hit(&q, slot, t))
     }
 
     /// The closest hit by obvhs's own CWBVH traversal: the reference the CPU traversal
     /// is tested against and `meso bench rays --baseline` measures.
     pub fn closest_hit_reference(
         &self,
-        meshes: &[TriangleMesh],
         origin: DVec3,
         dir: DVec3,
         tmin: f64,
@@ -205,36 +196,23 @@ impl SceneBvh {
         let found = self
             .bvh
             .ray_traverse(ray, &mut hit, |r, id| self.intersect(r, id));
-        found.then(|| self.hit(meshes, origin, dir, hit.primitive_id, hit.t))
+        found.then(|| self.hit(&query(origin, dir, tmin, tmax), hit.primitive_id, hit.t))
     }
 
-    /// The hit record of BVH primitive slot `slot` at distance `t` along the ray.
-    fn hit(&self, meshes: &[TriangleMesh], origin: DVec3, dir: DVec3, slot: u32, t: f32) -> Hit {
+    /// The hit record of BVH primitive slot `slot` at distance `t` along `q`'s ray.
+    fn hit(&self, q: &Query, slot: u32, t: f32) -> Hit {
         let (m, tri) = self.wide.owner(slot);
-        let idx = meshes[m as usize].indices[tri as usize];
-        let [a, b, c] = idx.map(|i| meshes[m as usize].positions[i as usize]);
-        // Barycentrics of the f32 hit distance's point, in f64, clamped into the triangle.
-        let p = origin + dir * t as f64;
-        let (e1, e2, ep) = (b - a, c - a, p - a);
-        let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
-        let (dp1, dp2) = (ep.dot(e1), ep.dot(e2));
-        let denom = d11 * d22 - d12 * d12;
-        let (mut b1, mut b2) = if denom > 0.0 {
-            (
-                (d22 * dp1 - d12 * dp2) / denom,
-                (d11 * dp2 - d12 * dp1) / denom,
-            )
-        } else {
-            (0.0, 0.0)
-        };
-        b1 = b1.clamp(0.0, 1.0);
-        b2 = b2.clamp(0.0, 1.0 - b1);
+        // The hit test's f32 barycentrics (inside the triangle: the test refuses any
+        // negative weight). Shading combines the f64 vertices with them, so the point
+        // stays on the triangle's plane; reading those vertices here instead cost a
+        // cache miss per incoherent ray (docs/performance.md).
+        let (b1, b2) = self.wide.barycentrics(slot, q);
         Hit {
             t: t as f64,
             mesh: m as usize,
             triangle: tri as usize,
-            b1,
-            b2,
+            b1: b1 as f64,
+            b2: b2 as f64,
         }
     }
 
@@ -332,7 +310,6 @@ mod tests {
         // Straight down onto the floor at (0.5, 0, 0.25).
         let h = bvh
             .closest_hit(
-                &meshes,
                 DVec3::new(0.5, 1.0, 0.25),
                 DVec3::NEG_Y,
                 1e-4,
@@ -347,29 +324,17 @@ mod tests {
         assert!((p - DVec3::new(0.5, 0.0, 0.25)).length() < 1e-6, "{p}");
         // Towards the wall, the floor behind is farther: the wall wins.
         let h = bvh
-            .closest_hit(
-                &meshes,
-                DVec3::new(0.0, 0.5, 0.5),
-                DVec3::NEG_Z,
-                1e-4,
-                f64::INFINITY,
-            )
+            .closest_hit(DVec3::new(0.0, 0.5, 0.5), DVec3::NEG_Z, 1e-4, f64::INFINITY)
             .expect("hits the wall");
         assert_eq!(h.mesh, 1);
         assert!((h.t - 1.5).abs() < 1e-6);
         // Away from everything: no hit; tmax shorter than the distance: no hit.
         assert!(
-            bvh.closest_hit(
-                &meshes,
-                DVec3::new(0.0, 0.5, 0.5),
-                DVec3::Y,
-                1e-4,
-                f64::INFINITY
-            )
-            .is_none()
+            bvh.closest_hit(DVec3::new(0.0, 0.5, 0.5), DVec3::Y, 1e-4, f64::INFINITY)
+                .is_none()
         );
         assert!(
-            bvh.closest_hit(&meshes, DVec3::new(0.5, 1.0, 0.25), DVec3::NEG_Y, 1e-4, 0.5)
+            bvh.closest_hit(DVec3::new(0.5, 1.0, 0.25), DVec3::NEG_Y, 1e-4, 0.5)
                 .is_none()
         );
     }
@@ -396,17 +361,17 @@ mod tests {
             p.y += 0.25;
         }
         assert!(bvh.update(&meshes), "same topology refits");
-        let down = |bvh: &SceneBvh, meshes: &[TriangleMesh]| {
-            bvh.closest_hit(meshes, DVec3::new(0.5, 1.0, 0.25), DVec3::NEG_Y, 1e-4, 9.0)
+        let down = |bvh: &SceneBvh| {
+            bvh.closest_hit(DVec3::new(0.5, 1.0, 0.25), DVec3::NEG_Y, 1e-4, 9.0)
                 .map(|h| h.t)
         };
-        assert!((down(&bvh, &meshes).expect("floor") - 0.75).abs() < 1e-6);
+        assert!((down(&bvh).expect("floor") - 0.75).abs() < 1e-6);
         // Moving it far beyond the old box: a refit must grow the boxes.
         for p in &mut meshes[0].positions {
             p.y -= 5.0;
         }
         assert!(bvh.update(&meshes));
-        assert!((down(&bvh, &meshes).expect("floor") - 5.75).abs() < 1e-5);
+        assert!((down(&bvh).expect("floor") - 5.75).abs() < 1e-5);
         assert!(bvh.occluded(DVec3::new(0.0, 0.5, 0.5), DVec3::NEG_Z, 1e-4, 10.0));
         // A mesh fewer: rebuilt.
         meshes.pop();
@@ -425,11 +390,7 @@ mod tests {
         let bvh = SceneBvh::build(&meshes);
         assert_eq!(bvh.triangle_counts(), (4, 1));
         let empty = SceneBvh::build(&[]);
-        assert!(
-            empty
-                .closest_hit(&[], DVec3::ZERO, DVec3::Y, 0.0, 1.0)
-                .is_none()
-        );
+        assert!(empty.closest_hit(DVec3::ZERO, DVec3::Y, 0.0, 1.0).is_none());
         assert!(!empty.occluded(DVec3::ZERO, DVec3::Y, 0.0, 1.0));
     }
 
@@ -491,7 +452,7 @@ mod tests {
             let o = centre + radius * DVec3::new(r * phi.cos(), r * phi.sin(), z);
             let target = lo + (hi - lo) * DVec3::new(rng.next(), rng.next(), rng.next());
             let d = (target - o).normalize();
-            let bvh_hit = bvh.closest_hit(meshes, o, d, 0.0, 1e3);
+            let bvh_hit = bvh.closest_hit(o, d, 0.0, 1e3);
             let brute = brute_force(meshes, o, d, 1e3);
             match (bvh_hit, brute) {
                 (None, None) => {}
@@ -502,6 +463,17 @@ mod tests {
                         (h.t - t).abs() <= 1e-5 * t,
                         "ray {o} {d}: bvh t {} brute {t}",
                         h.t
+                    );
+                    // The hit test's f32 barycentrics put the point where the ray
+                    // meets the triangle (weights of vertices 1 and 2, inside it).
+                    let [a, b, c] = meshes[h.mesh].indices[h.triangle]
+                        .map(|i| meshes[h.mesh].positions[i as usize]);
+                    let p = a * (1.0 - h.b1 - h.b2) + b * h.b1 + c * h.b2;
+                    assert!(h.b1 >= 0.0 && h.b2 >= 0.0 && h.b1 + h.b2 <= 1.0 + 1e-6);
+                    assert!(
+                        p.distance(o + d * t) <= 1e-5 * radius,
+                        "ray {o} {d}: barycentric point {p} against {}",
+                        o + d * t
                     );
                     if (h.mesh, h.triangle) != (m, tri) {
                         // A tie: two triangles (an edge or vertex) at the same distance.
@@ -555,14 +527,8 @@ mod tests {
     /// exactly that distance (an edge both share); the same occlusion answer.
     /// obvhs culls boxes that end nearer than 1e-4 whatever tmin is, so it can miss a
     /// hit nearer than that which the CPU traversal finds: returns true for such a ray.
-    fn same_as_reference(
-        meshes: &[TriangleMesh],
-        bvh: &SceneBvh,
-        o: DVec3,
-        d: DVec3,
-        tmax: f64,
-    ) -> bool {
-        let reference = bvh.closest_hit_reference(meshes, o, d, 0.0, tmax);
+    fn same_as_reference(bvh: &SceneBvh, o: DVec3, d: DVec3, tmax: f64) -> bool {
+        let reference = bvh.closest_hit_reference(o, d, 0.0, tmax);
         let occluded = bvh.occluded_reference(o, d, 0.0, tmax);
         let mut kernels = vec![Kernel::Portable];
         if Kernel::detect() == Kernel::Avx2 {
@@ -570,7 +536,7 @@ mod tests {
         }
         let mut near_extra = false;
         for kernel in kernels {
-            let hit = bvh.closest_hit_with(kernel, meshes, o, d, 0.0, tmax);
+            let hit = bvh.closest_hit_with(kernel, o, d, 0.0, tmax);
             match (hit, reference) {
                 (None, None) => {}
                 (Some(h), Some(r)) if h.t.to_bits() == r.t.to_bits() => {
@@ -640,8 +606,8 @@ mod tests {
                 };
                 (p, w, tmax)
             };
-            near_extra += usize::from(same_as_reference(meshes, bvh, o, d, tmax));
-            hits += usize::from(bvh.closest_hit(meshes, o, d, 0.0, tmax).is_some());
+            near_extra += usize::from(same_as_reference(bvh, o, d, tmax));
+            hits += usize::from(bvh.closest_hit(o, d, 0.0, tmax).is_some());
         }
         eprintln!("{hits} of {rays} rays hit; {near_extra} hits nearer than 1e-4 obvhs culls");
         assert!(hits > rays / 5 && hits < rays, "{hits} of {rays}");
@@ -693,13 +659,13 @@ mod tests {
                 DVec3::NEG_X,
                 DVec3::new(0.0, -1.0, -1.0).normalize(),
             ] {
-                same_as_reference(&meshes, &bvh, o, d, f64::INFINITY);
-                same_as_reference(&meshes, &bvh, o, d, 0.5);
+                same_as_reference(&bvh, o, d, f64::INFINITY);
+                same_as_reference(&bvh, o, d, 0.5);
             }
         }
         // Straight down onto a point of the floor's diagonal (a tie between its halves).
         let h = bvh
-            .closest_hit(&meshes, DVec3::new(0.0, 1.0, 0.0), DVec3::NEG_Y, 0.0, 9.0)
+            .closest_hit(DVec3::new(0.0, 1.0, 0.0), DVec3::NEG_Y, 0.0, 9.0)
             .expect("the floor");
         assert_eq!((h.mesh, h.t), (0, 1.0));
     }

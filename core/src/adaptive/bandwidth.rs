@@ -50,6 +50,33 @@ fn lobe_coords(w: DVec3) -> (f64, f64) {
     (0.5 + 0.5 * r * phi.cos(), 0.5 + 0.5 * r * phi.sin())
 }
 
+/// The lobe-image pixel (row-major on the `GRID`^2 grid) that local direction `w`
+/// falls in.
+fn lobe_pixel(w: DVec3) -> usize {
+    let (u, v) = lobe_coords(w);
+    let x = ((u * GRID as f64) as usize).min(GRID - 1);
+    let y = ((v * GRID as f64) as usize).min(GRID - 1);
+    y * GRID + x
+}
+
+/// Where a local direction falls in a `MaterialBandwidth`'s tables, as a fixed
+/// direction (its cell) and as a lobe's argument (its pixel): the trigonometry of
+/// a lookup, done once per direction.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LobeIndex {
+    cell: usize,
+    pixel: usize,
+}
+
+impl LobeIndex {
+    pub fn of(w: DVec3) -> Self {
+        Self {
+            cell: grid_cell(w),
+            pixel: lobe_pixel(w),
+        }
+    }
+}
+
 /// The direction at the centre of lobe pixel (x, y) of a `res`^2 image; outside the
 /// disc, the horizon direction of the same azimuth (so the image has no false edge).
 fn lobe_direction(x: usize, y: usize, res: usize) -> DVec3 {
@@ -110,10 +137,14 @@ impl MaterialBandwidth {
     /// The rate (samples per radian) of the lobe of `fixed` around direction `at`,
     /// both local and in the upper hemisphere.
     pub fn rate(&self, fixed: DVec3, at: DVec3) -> f64 {
-        let (u, v) = lobe_coords(at);
-        let x = ((u * GRID as f64) as usize).min(GRID - 1);
-        let y = ((v * GRID as f64) as usize).min(GRID - 1);
-        f64::from(self.rates[grid_cell(fixed) * GRID * GRID + y * GRID + x])
+        f64::from(self.rates[grid_cell(fixed) * GRID * GRID + lobe_pixel(at)])
+    }
+
+    /// `rate` of two directions already placed in the tables: the same value, for
+    /// callers that look up many pairs sharing one direction (the bandwidth pass:
+    /// each of its directions both ways against the pixel's view).
+    pub fn rate_of(&self, fixed: LobeIndex, at: LobeIndex) -> f64 {
+        f64::from(self.rates[fixed.cell * GRID * GRID + at.pixel])
     }
 
     /// The highest rate of the lobe of `fixed` (local, upper hemisphere).
@@ -294,6 +325,15 @@ mod tests {
         let far = DVec3::new(0.0, 0.9f64.sin(), 0.9f64.cos());
         assert!(b.rate(wo, mirror) > 4.0 * b.rate(wo, far).max(1e-9) || b.rate(wo, far) == 0.0);
         assert!(b.rate(wo, mirror) > 10.0, "{}", b.rate(wo, mirror));
+        // Directions placed once give the very lookups `rate` makes, both ways round.
+        let mut rng = crate::rng::SampleStream::new(&[11]);
+        for _ in 0..500 {
+            let a = crate::brdf::warp::cosine_hemisphere(rng.next_2d());
+            let c = crate::brdf::warp::cosine_hemisphere(rng.next_2d());
+            let (ia, ic) = (LobeIndex::of(a), LobeIndex::of(c));
+            assert_eq!(b.rate_of(ia, ic).to_bits(), b.rate(a, c).to_bits());
+            assert_eq!(b.rate_of(ic, ia).to_bits(), b.rate(c, a).to_bits());
+        }
     }
 
     #[test]

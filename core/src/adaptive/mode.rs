@@ -14,7 +14,7 @@ use std::time::Instant;
 use glam::{DVec2, DVec3};
 
 use super::allocation;
-use super::bandwidth::{EnvironmentBandwidth, LightBandwidth, MaterialBandwidth};
+use super::bandwidth::{EnvironmentBandwidth, LightBandwidth, LobeIndex, MaterialBandwidth};
 use super::gbuffer::GBuffer;
 use super::operators::{self, Bandwidth, Bounce};
 use super::preconvolved::Prefiltered;
@@ -607,6 +607,7 @@ impl AdaptiveMode {
         let mut variance_full = 0.0;
         let (mut visible, mut guarded) = (0.0, 0.0);
         let preconvolved = self.options.preconvolved;
+        let at_lo = LobeIndex::of(lo);
         let mut bounce = |li: DVec3,
                           l_in: Bandwidth,
                           d_light: f64,
@@ -614,11 +615,12 @@ impl AdaptiveMode {
                           weight: f64,
                           seen: Option<bool>| {
             let f = surface::brdf(material, li, lo).dot(LUMINANCE);
+            let at_li = LobeIndex::of(li);
             let b = Bounce {
                 cos_i: li.z,
                 cos_o: lo.z,
                 curvature: px.curvature,
-                rho: mat_bw.rate(li, lo),
+                rho: mat_bw.rate_of(at_li, at_lo),
             };
             let nu = operators::one_bounce(l_in, d_light, &b, px.depth);
             let lambda = radiance * f * li.z * weight;
@@ -631,10 +633,9 @@ impl AdaptiveMode {
             }
             let incident = operators::transport(l_in, d_light).y.abs();
             let chi = radiance * f;
-            variance +=
-                operators::variance_term(incident, mat_bw.rate(lo, li), chi, preconvolved) * weight;
-            variance_full +=
-                operators::variance_term(incident, mat_bw.rate(lo, li), chi, false) * weight;
+            let rho_view = mat_bw.rate_of(at_lo, at_li);
+            variance += operators::variance_term(incident, rho_view, chi, preconvolved) * weight;
+            variance_full += operators::variance_term(incident, rho_view, chi, false) * weight;
             lambda
         };
         // Table-drawn directions (cosine where the material draws none), shared by the

@@ -62,7 +62,7 @@ fn lobe_pixel(w: DVec3) -> usize {
 /// Where a local direction falls in a `MaterialBandwidth`'s tables, as a fixed
 /// direction (its cell) and as a lobe's argument (its pixel): the trigonometry of
 /// a lookup, done once per direction.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug)]
 pub struct LobeIndex {
     cell: usize,
     pixel: usize,
@@ -135,14 +135,9 @@ impl MaterialBandwidth {
     }
 
     /// The rate (samples per radian) of the lobe of `fixed` around direction `at`,
-    /// both local and in the upper hemisphere.
-    pub fn rate(&self, fixed: DVec3, at: DVec3) -> f64 {
-        f64::from(self.rates[grid_cell(fixed) * GRID * GRID + lobe_pixel(at)])
-    }
-
-    /// `rate` of two directions already placed in the tables: the same value, for
-    /// callers that look up many pairs sharing one direction (the bandwidth pass:
-    /// each of its directions both ways against the pixel's view).
+    /// both local and in the upper hemisphere, each placed in the tables once
+    /// (`LobeIndex::of`): the bandwidth pass looks each of its directions up both
+    /// ways against the pixel's view.
     pub fn rate_of(&self, fixed: LobeIndex, at: LobeIndex) -> f64 {
         f64::from(self.rates[fixed.cell * GRID * GRID + at.pixel])
     }
@@ -320,19 +315,23 @@ mod tests {
             albedo: DVec3::ONE,
         })
         .expect("brdf");
+        // The plain definition: the fixed direction's cell, the lobe pixel of `at`.
+        let rate = |fixed: DVec3, at: DVec3| {
+            f64::from(b.rates[grid_cell(fixed) * GRID * GRID + lobe_pixel(at)])
+        };
         let wo = DVec3::new(0.5f64.sin(), 0.0, 0.5f64.cos());
         let mirror = DVec3::new(-wo.x, -wo.y, wo.z);
         let far = DVec3::new(0.0, 0.9f64.sin(), 0.9f64.cos());
-        assert!(b.rate(wo, mirror) > 4.0 * b.rate(wo, far).max(1e-9) || b.rate(wo, far) == 0.0);
-        assert!(b.rate(wo, mirror) > 10.0, "{}", b.rate(wo, mirror));
-        // Directions placed once give the very lookups `rate` makes, both ways round.
+        assert!(rate(wo, mirror) > 4.0 * rate(wo, far).max(1e-9) || rate(wo, far) == 0.0);
+        assert!(rate(wo, mirror) > 10.0, "{}", rate(wo, mirror));
+        // Directions placed once give the plain definition's lookups, both ways round.
         let mut rng = crate::rng::SampleStream::new(&[11]);
         for _ in 0..500 {
             let a = crate::brdf::warp::cosine_hemisphere(rng.next_2d());
             let c = crate::brdf::warp::cosine_hemisphere(rng.next_2d());
             let (ia, ic) = (LobeIndex::of(a), LobeIndex::of(c));
-            assert_eq!(b.rate_of(ia, ic).to_bits(), b.rate(a, c).to_bits());
-            assert_eq!(b.rate_of(ic, ia).to_bits(), b.rate(c, a).to_bits());
+            assert_eq!(b.rate_of(ia, ic).to_bits(), rate(a, c).to_bits());
+            assert_eq!(b.rate_of(ic, ia).to_bits(), rate(c, a).to_bits());
         }
     }
 

@@ -260,7 +260,7 @@ impl WideBvh {
     /// traversal has just read (the mesh's vertices, elsewhere in memory, stay unread).
     #[inline]
     pub(super) fn barycentrics(&self, slot: u32, q: &Query) -> (f32, f32) {
-        let (u, v, _, _) = solve(&self.triangles[slot as usize], q);
+        let (u, v, ..) = solve(&self.triangles[slot as usize], q);
         (u, v)
     }
 
@@ -469,10 +469,11 @@ fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
 }
 
 /// The Moller-Trumbore terms of obvhs's `Triangle::intersect` on precomputed edges:
-/// the barycentric weights u (of v1) and v (of v2), 1 / det and the distance's
-/// numerator.
+/// the barycentric weights u (of v1) and v (of v2), 1 / det, and the normal and
+/// origin offset whose dot product is the distance's numerator (left to the caller,
+/// so a miss does not pay for it).
 #[inline(always)]
-fn solve(tri: &LeafTriangle, q: &Query) -> (f32, f32, f32, f32) {
+fn solve(tri: &LeafTriangle, q: &Query) -> (f32, f32, f32, [f32; 3], [f32; 3]) {
     let (e1, e2) = (tri.e1, tri.e2);
     // Component by component as glam's cross product rounds it.
     let n = [
@@ -490,19 +491,19 @@ fn solve(tri: &LeafTriangle, q: &Query) -> (f32, f32, f32, f32) {
     let inv_det = 1.0 / dot(n, d);
     let u = dot(r, tri.e2) * inv_det;
     let v = dot(r, tri.e1) * inv_det;
-    (u, v, inv_det, dot(n, c))
+    (u, v, inv_det, n, c)
 }
 
 /// obvhs's `Triangle::intersect` on precomputed edges: the distance, or infinity when
 /// the ray misses or the distance is outside [tmin, tmax].
 #[inline(always)]
 fn intersect(tri: &LeafTriangle, q: &Query, tmax: f32) -> f32 {
-    let (u, v, inv_det, t_numerator) = solve(tri, q);
+    let (u, v, inv_det, n, c) = solve(tri, q);
     let w = 1.0 - u - v;
     // A negative barycentric (including -0.0) misses, as in obvhs.
     let signs = u.to_bits() | v.to_bits() | w.to_bits();
     if inv_det != 0.0 && signs & 0x8000_0000 == 0 {
-        let t = t_numerator * inv_det;
+        let t = dot(n, c) * inv_det;
         if t >= q.tmin && t <= tmax {
             return t;
         }

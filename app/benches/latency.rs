@@ -7,6 +7,8 @@
 //!   edit to the render thread until a frame of that version is published; each with
 //!   the frame in flight yielding to the edit between tiles (and previews) and without
 //!   (the edit waits for the whole frame);
+//! - the adaptive mode's camera edit on the MERL dragon at 256 and 512 pixels square,
+//!   to its preview and to its first whole frame (issue 14);
 //! - the studio's UI frame (all panels, headless egui) while the renderer works.
 
 use std::sync::Arc;
@@ -61,6 +63,110 @@ struct Timed<'a> {
     film: FilmState,
 }
 
+/// A render thread with `scene` loaded in `mode` at `size` square, and its first
+/// whole frame.
+fn timed<'a>(
+    name: &'a str,
+    edit: Box<dyn Fn(u64) -> SceneEdit + 'a>,
+    whole: bool,
+    film: FilmState,
+) -> Timed<'a> {
+    Timed {
+        name,
+        edit,
+        whole,
+        film,
+    }
+}
+
+fn load(scene: &meso_core::scene::Scene, mode: ModeKind, size: u32) -> (RenderWorker, Frame) {
+    let worker = RenderWorker::spawn(None);
+    worker.send(Command::Load {
+        version: 1,
+        scene: Box::new(scene.clone()),
+        mode,
+        device: meso_core::render::Device::Cpu,
+        width: size,
+        height: size,
+    });
+    let first = wait_for(&worker, 1, true);
+    (worker, first)
+}
+
+/// Times each of `edits` on `worker` with the frame in flight yielding to the edit
+/// (tiles) and without (the edit waits for the whole frame). An edit is sent at a
+/// pseudo-random point of a frame: after a pause of a random fraction of the last
+/// frame's time, as a user's edit falls anywhere in the frame in flight. `restart`
+/// (a camera edit) resets a film that has too many samples for the edit's state.
+fn time_edits(
+    c: &mut Criterion,
+    group: &str,
+    (worker, first): (&RenderWorker, Frame),
+    edits: &[Timed],
+    restart: &dyn Fn(u64) -> SceneEdit,
+) {
+    let (mut frame_ms, mut spp) = (first.frame_ms, first.progress.min_samples);
+    let mut version = first.version;
+    let mut phase = 0x9e37_79b9_7f4a_7c15u64;
+    let mut group = c.benchmark_group(group);
+    group.sample_size(10);
+    for t in edits {
+        // A preview is shown only when tiles yield.
+        for yielding in [true, false].into_iter().filter(|y| *y || !t.whole) {
+            worker.send(Command::YieldToEdits(yielding));
+            let label = if yielding {
+                "tiles yield"
+            } else {
+                "whole frames"
+            };
+            group.bench_function(format!("{}, {label}", t.name), |b| {
+                b.iter_custom(|iters| {
+                    let mut total = Duration::ZERO;
+                    for _ in 0..iters {
+                        // The film as the edit wants it, not timed.
+                        if t.film == FilmState::Denoised && spp >= 16 {
+                            version += 1;
+                            worker.send(Command::Edit {
+                                version,
+                                edit: Box::new(restart(version)),
+                            });
+                            spp = wait_for(worker, version, true).progress.min_samples;
+                        }
+                        if t.film == FilmState::Clean && spp < denoise::FADE_SAMPLES {
+                            spp = wait_until(worker, |f| {
+                                f.progress.min_samples >= denoise::FADE_SAMPLES
+                            })
+                            .progress
+                            .min_samples;
+                        }
+                        phase = phase
+                            .wrapping_mul(6_364_136_223_846_793_005)
+                            .wrapping_add(1);
+                        let fraction = (phase >> 11) as f64 / (1u64 << 53) as f64;
+                        std::thread::sleep(Duration::from_secs_f64(
+                            fraction * frame_ms.max(1.0) * 1e-3,
+                        ));
+                        version += 1;
+                        let start = Instant::now();
+                        worker.send(Command::Edit {
+                            version,
+                            edit: Box::new((t.edit)(version)),
+                        });
+                        let f = wait_for(worker, version, t.whole);
+                        total += start.elapsed();
+                        spp = f.progress.min_samples;
+                        if f.frame_ms > 0.0 && !f.preview {
+                            frame_ms = f.frame_ms;
+                        }
+                    }
+                    total
+                })
+            });
+        }
+    }
+    group.finish();
+}
+
 fn bench_latency(c: &mut Criterion) {
     let scene = load_scene(&default_scene_path()).expect("default scene");
     let index = scene
@@ -103,12 +209,6 @@ fn bench_latency(c: &mut Criterion) {
         index: 0,
         light: light.with_emission(light.emission() * if v.is_multiple_of(2) { 1.0 } else { 0.8 }),
     };
-    let timed = |name, edit: Box<dyn Fn(u64) -> SceneEdit>, whole, film| Timed {
-        name,
-        edit,
-        whole,
-        film,
-    };
     let edits: Vec<Timed> = vec![
         timed(
             "material edit (basis normal)",
@@ -146,80 +246,44 @@ fn bench_latency(c: &mut Criterion) {
     ];
 
     // Each size, each edit, with the frame in flight yielding to the edit (tiles) and
-    // without (the edit waits for the whole frame), alternated in one process. An edit
-    // is sent at a pseudo-random point of a frame: after a pause of a random fraction of
-    // the last frame's time, as a user's edit falls anywhere in the frame in flight.
+    // without (the edit waits for the whole frame), alternated in one process.
     for size in [256u32, 512, 1024] {
-        let worker = RenderWorker::spawn(None);
-        worker.send(Command::Load {
-            version: 1,
-            scene: Box::new(scene.clone()),
-            mode: ModeKind::Spmm,
-            device: meso_core::render::Device::Cpu,
-            width: size,
-            height: size,
-        });
-        let first = wait_for(&worker, 1, true);
-        let (mut frame_ms, mut spp) = (first.frame_ms, first.progress.min_samples);
-        let mut version = 1u64;
-        let mut phase = 0x9e37_79b9_7f4a_7c15u64;
-        let mut group = c.benchmark_group(format!("edit to first frame {size}x{size}"));
-        group.sample_size(10);
-        for t in &edits {
-            // A preview is shown only when tiles yield.
-            for yielding in [true, false].into_iter().filter(|y| *y || !t.whole) {
-                worker.send(Command::YieldToEdits(yielding));
-                let label = if yielding {
-                    "tiles yield"
-                } else {
-                    "whole frames"
-                };
-                group.bench_function(format!("{}, {label}", t.name), |b| {
-                    b.iter_custom(|iters| {
-                        let mut total = Duration::ZERO;
-                        for _ in 0..iters {
-                            // The film as the edit wants it, not timed.
-                            if t.film == FilmState::Denoised && spp >= 16 {
-                                version += 1;
-                                worker.send(Command::Edit {
-                                    version,
-                                    edit: Box::new(camera_edit(version)),
-                                });
-                                spp = wait_for(&worker, version, true).progress.min_samples;
-                            }
-                            if t.film == FilmState::Clean && spp < denoise::FADE_SAMPLES {
-                                spp = wait_until(&worker, |f| {
-                                    f.progress.min_samples >= denoise::FADE_SAMPLES
-                                })
-                                .progress
-                                .min_samples;
-                            }
-                            phase = phase
-                                .wrapping_mul(6_364_136_223_846_793_005)
-                                .wrapping_add(1);
-                            let fraction = (phase >> 11) as f64 / (1u64 << 53) as f64;
-                            std::thread::sleep(Duration::from_secs_f64(
-                                fraction * frame_ms.max(1.0) * 1e-3,
-                            ));
-                            version += 1;
-                            let start = Instant::now();
-                            worker.send(Command::Edit {
-                                version,
-                                edit: Box::new((t.edit)(version)),
-                            });
-                            let f = wait_for(&worker, version, t.whole);
-                            total += start.elapsed();
-                            spp = f.progress.min_samples;
-                            if f.frame_ms > 0.0 && !f.preview {
-                                frame_ms = f.frame_ms;
-                            }
-                        }
-                        total
-                    })
-                });
-            }
-        }
-        group.finish();
+        let (worker, first) = load(&scene, ModeKind::Spmm, size);
+        let group = format!("edit to first frame {size}x{size}");
+        time_edits(c, &group, (&worker, first), &edits, &camera_edit);
+    }
+
+    // The adaptive mode on the shipped MERL dragon: a camera edit restarts its
+    // bandwidth pass (1.6 s at 512 x 512 on 2 cores), which yields to edits and is
+    // preceded by a preview when tiles yield; whole frames are what the mode did before.
+    let dragon = load_scene(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/scenes/merl_dragon.toml"),
+    )
+    .expect("the shipped MERL dragon scene");
+    let dragon_camera = dragon.camera;
+    let dragon_edit = move |v: u64| {
+        let mut moved = dragon_camera;
+        moved.position.x += if v.is_multiple_of(2) { 0.0 } else { 0.05 };
+        SceneEdit::Camera(moved)
+    };
+    let adaptive_edits = [
+        timed(
+            "adaptive: camera edit (a preview first when tiles yield)",
+            Box::new(dragon_edit),
+            false,
+            FilmState::Any,
+        ),
+        timed(
+            "adaptive: camera edit to the whole first frame",
+            Box::new(dragon_edit),
+            true,
+            FilmState::Any,
+        ),
+    ];
+    for size in [256u32, 512] {
+        let (worker, first) = load(&dragon, ModeKind::Adaptive, size);
+        let group = format!("adaptive edit to first frame {size}x{size}");
+        time_edits(c, &group, (&worker, first), &adaptive_edits, &dragon_edit);
     }
 
     // The whole window, headless, while its render thread renders the default scene.

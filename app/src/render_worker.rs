@@ -502,7 +502,7 @@ fn run(
         // Every pixel keeps a sample (an emission edit re-weights, a stopped frame
         // left its rows): show the edit now, then go on with the frame. (A preview
         // leaves unsampled pixels, so this holds as it did before it.)
-        let shows_whole = progress.min_samples > 0;
+        let shows_whole = m.shows_every_pixel();
         if changed && shows_whole && yield_to_edits {
             publish(edited_frame_of(m.as_ref(), version, denoise, &mut guides));
         }
@@ -652,6 +652,9 @@ mod tests {
         }
         fn image(&self) -> Image {
             self.inner.image()
+        }
+        fn shows_every_pixel(&self) -> bool {
+            self.inner.shows_every_pixel()
         }
         fn progress(&self) -> Progress {
             self.inner.progress()

@@ -251,7 +251,40 @@ pub struct AdaptiveMode {
     own: Vec<u32>,
     buffers: Option<Buffers>,
     plan: Option<Plan>,
+    /// Work a yielding call left for the next call (`render_frame_yielding`).
+    unfinished: Option<Unfinished>,
+    /// The preview shown until the first frame is done (`render_preview`): one sample
+    /// at each previewed pixel, kept apart from the film.
+    preview: Option<Image>,
     preparation: PreparationReport,
+}
+
+/// Pixels per step of a yielding frame's shading (rows of about this many pixels): a
+/// step costs about what the spmm mode's 16K-pixel tiles do, since only some pixels
+/// of a frame are shaded.
+const TILE_PIXELS: u32 = 8_192;
+/// Pixels per step of a yielding bandwidth pass: its analysis costs 6-10 us a pixel on
+/// one core, so a step takes about 10 ms on 2 cores.
+const PASS_TILE_PIXELS: u32 = 2_048;
+
+/// A frame left unfinished by `render_frame_yielding`, resumed by the next call of
+/// either `render_frame` kind, so the film ends as an uninterrupted frame's.
+enum Unfinished {
+    /// The bandwidth pass: the G-buffer and the analyses of the first rows.
+    Pass(PassProgress),
+    /// The frame's shading by `plan`: rows below `rows_done` are shaded.
+    Shading { plan: Plan, rows_done: u32 },
+}
+
+/// The bandwidth pass so far.
+struct PassProgress {
+    g: GBuffer,
+    orders: StrataOrders,
+    /// Per pixel of the rows analysed so far, row-major.
+    per_pixel: Vec<PixelAnalysis>,
+    gbuffer_seconds: f64,
+    /// Seconds spent on it so far (a yielded pass pauses between rows).
+    seconds: f64,
 }
 
 impl AdaptiveMode {
@@ -372,6 +405,8 @@ impl AdaptiveMode {
             own: vec![0; (width * height) as usize],
             buffers: None,
             plan: None,
+            unfinished: None,
+            preview: None,
             preparation: PreparationReport::default(),
             scene,
         };
@@ -455,23 +490,62 @@ impl AdaptiveMode {
     /// frames' estimator's MIS weights, estimate the per-sample variance that the
     /// frames' allocation reads (`allocation.rs`).
     pub fn bandwidth_pass(&self) -> Buffers {
-        use rayon::prelude::*;
+        let mut pass = self.begin_pass();
+        self.analyse_rows(&mut pass, self.height());
+        self.finish_pass(pass)
+    }
+
+    /// The pass's first step: the G-buffer and the strata.
+    fn begin_pass(&self) -> PassProgress {
         let start = Instant::now();
         let (w, h) = (self.width(), self.height());
         let g = GBuffer::build(&self.scene, &self.bvh, w, h);
+        let gbuffer_seconds = start.elapsed().as_secs_f64();
+        PassProgress {
+            g,
+            orders: self.strata_orders(),
+            per_pixel: Vec::with_capacity((w * h) as usize),
+            gbuffer_seconds,
+            seconds: start.elapsed().as_secs_f64(),
+        }
+    }
+
+    /// Analyses up to `rows` more rows of the pass. Every pixel is analysed: sharing
+    /// one analysis per 2 x 2 block (as this pass once did) left the block's pixels
+    /// one mean and one variance, which hid the footprint's steps inside blocks and
+    /// cost most of the allocation's gain (on the dragon 3.3x with every pixel
+    /// against 1.7x; docs/reports/adaptive).
+    fn analyse_rows(&self, pass: &mut PassProgress, rows: u32) {
+        use rayon::prelude::*;
+        let start = Instant::now();
+        let w = self.width();
+        let first = pass.per_pixel.len() as u32;
+        let end = (first + rows.saturating_mul(w)).min(w * self.height());
+        let (g, orders) = (&pass.g, &pass.orders);
+        pass.per_pixel.par_extend(
+            (first..end)
+                .into_par_iter()
+                .map(|i| self.pixel_bandwidth(g, i, orders)),
+        );
+        pass.seconds += start.elapsed().as_secs_f64();
+    }
+
+    /// The pass's last step, once every row is analysed: eq. 6 and 11 per pixel, the
+    /// guards, the predicted deviations and their mip-map.
+    fn finish_pass(&self, pass: PassProgress) -> Buffers {
+        let start = Instant::now();
+        let (w, h) = (self.width(), self.height());
+        let PassProgress {
+            g,
+            per_pixel,
+            gbuffer_seconds,
+            seconds,
+            ..
+        } = pass;
+        debug_assert_eq!(per_pixel.len(), (w * h) as usize, "every row analysed");
         let (right, down) = self.screen_axes();
         let guide = g.guide(right, down);
-        let gbuffer_seconds = start.elapsed().as_secs_f64();
         let (fx, fy) = self.fov();
-        // Every pixel is analysed: sharing one analysis per 2 x 2 block (as this pass
-        // once did) left the block's pixels one mean and one variance, which hid the
-        // footprint's steps inside blocks and cost most of the allocation's gain
-        // (on the dragon 3.3x with every pixel against 1.7x; docs/reports/adaptive).
-        let orders = self.strata_orders();
-        let per_pixel: Vec<PixelAnalysis> = (0..w * h)
-            .into_par_iter()
-            .map(|i| self.pixel_bandwidth(&g, i, &orders))
-            .collect();
         let rate: Vec<f64> = per_pixel
             .iter()
             .map(|p| operators::screen_rate(p.nu.y, fx, fy, w, h))
@@ -513,7 +587,7 @@ impl AdaptiveMode {
             rate,
             sigma_mip,
             gbuffer_seconds,
-            seconds: start.elapsed().as_secs_f64(),
+            seconds: seconds + start.elapsed().as_secs_f64(),
         }
     }
 
@@ -1046,6 +1120,113 @@ impl AdaptiveMode {
             surface::brdf(material, li, lo) * li.z.max(0.0) * radiance_of(wi) * (weight / pdf);
     }
 
+    /// A frame, in steps of rows when `stop` is given: the rest of the bandwidth pass
+    /// if there is no buffer yet, then the shading by the frame's plan; `stop` is asked
+    /// between steps and a yes leaves the rest in `unfinished` for the next call.
+    fn render_tiles(&mut self, mut stop: Option<&mut dyn FnMut() -> bool>) -> FrameStats {
+        let start = Instant::now();
+        let (width, height) = (self.width(), self.height());
+        let rows_of = |pixels: u32| match stop {
+            Some(_) => (pixels / width.max(1)).max(1),
+            None => height.max(1),
+        };
+        let (tile_rows, pass_rows) = (rows_of(TILE_PIXELS), rows_of(PASS_TILE_PIXELS));
+        // Asked before each step but the first, so every call moves the frame on.
+        let mut stepped = false;
+        let mut stopped = |stepped: bool| stepped && stop.as_mut().is_some_and(|s| s());
+        let (plan, mut y) = match self.unfinished.take() {
+            Some(Unfinished::Shading { plan, rows_done }) => (plan, rows_done),
+            pass => {
+                if self.buffers.is_none() {
+                    let mut pass = match pass {
+                        Some(Unfinished::Pass(p)) => p,
+                        _ => {
+                            stepped = true;
+                            self.begin_pass()
+                        }
+                    };
+                    while (pass.per_pixel.len() as u32) < width * height {
+                        if stopped(stepped) {
+                            self.unfinished = Some(Unfinished::Pass(pass));
+                            return FrameStats {
+                                seconds: start.elapsed().as_secs_f64(),
+                                ..FrameStats::default()
+                            };
+                        }
+                        self.analyse_rows(&mut pass, pass_rows);
+                        stepped = true;
+                    }
+                    self.buffers = Some(self.finish_pass(pass));
+                }
+                let b = self.buffers.as_ref().expect("computed above");
+                (self.plan_frame(b, self.frames), 0)
+            }
+        };
+        let layers = self.film.layers();
+        let active = self.layers.active(&self.scene);
+        let dropped_before = self.film.dropped();
+        let mut totals = Counters::default();
+        while y < height {
+            if stopped(stepped) {
+                break;
+            }
+            stepped = true;
+            let rows = y..(y + tile_rows).min(height);
+            y = rows.end;
+            let own = std::mem::take(&mut self.own);
+            let mut film = std::mem::replace(&mut self.film, Film::new(0, 0, 0));
+            let tile = film.par_rows_in(rows.clone(), |row| {
+                let mut counts = RayCounts::default();
+                let mut samples = 0u64;
+                let mut shading_points = 0u64;
+                let mut out = vec![DVec3::ZERO; layers];
+                for x in 0..width {
+                    let i = (row.y * width + x) as usize;
+                    let n = plan.samples[i];
+                    for k in 0..n {
+                        out.iter_mut().for_each(|o| *o = DVec3::ZERO);
+                        let index = u64::from(own[i]) + u64::from(k);
+                        let mask = self.sample_into(x, row.y, index, &mut out, &mut counts);
+                        if mask != 0 {
+                            shading_points += 1;
+                        }
+                        for &l in &active {
+                            row.add(x, l, out[l]);
+                        }
+                        row.touch(x, mask);
+                    }
+                    samples += u64::from(n);
+                }
+                Counters {
+                    samples,
+                    shading_points,
+                    rays: counts,
+                }
+            });
+            self.film = film;
+            self.own = own;
+            let pixels = (rows.start * width) as usize..(rows.end * width) as usize;
+            for (o, n) in self.own[pixels.clone()]
+                .iter_mut()
+                .zip(&plan.samples[pixels])
+            {
+                *o += n;
+            }
+            totals = tile.into_iter().fold(totals, |a, c| a + c);
+        }
+        if y < height {
+            self.unfinished = Some(Unfinished::Shading { plan, rows_done: y });
+        } else {
+            self.plan = Some(plan);
+            self.frames += 1;
+        }
+        FrameStats {
+            counters: totals,
+            seconds: start.elapsed().as_secs_f64(),
+            dropped: self.film.dropped() - dropped_before,
+        }
+    }
+
     /// Forgets every sample and the bandwidth buffer.
     fn restart_all(&mut self) -> Invalidation {
         self.film.reset();
@@ -1053,6 +1234,8 @@ impl AdaptiveMode {
         self.frames = 0;
         self.buffers = None;
         self.plan = None;
+        self.unfinished = None;
+        self.preview = None;
         Invalidation::All
     }
 
@@ -1094,60 +1277,69 @@ impl RenderMode for AdaptiveMode {
     }
 
     fn render_frame(&mut self) -> FrameStats {
+        self.render_tiles(None)
+    }
+
+    fn render_frame_yielding(&mut self, stop: &mut dyn FnMut() -> bool) -> FrameStats {
+        self.render_tiles(Some(stop))
+    }
+
+    /// One sample at each previewed pixel (`preview::grid_pixels`) before the first
+    /// frame after a restart, which waits for the bandwidth pass (1.6 s at 512 x 512
+    /// on 2 cores). The samples stay out of the film (the frames' plan decides each
+    /// pixel's samples), so the film is an uninterrupted render's; they cost about a
+    /// 128 x 128 frame.
+    fn render_preview(&mut self, stride: u32) -> Option<FrameStats> {
+        use crate::render::preview;
+        use rayon::prelude::*;
+        let untouched = self.frames == 0 && self.unfinished.is_none() && self.preview.is_none();
+        if stride <= 1 || !untouched {
+            return None;
+        }
         let start = Instant::now();
-        if self.buffers.is_none() {
-            self.buffers = Some(self.bandwidth_pass());
-        }
-        let plan = self.plan_frame(self.buffers.as_ref().expect("computed above"), self.frames);
-        let width = self.width();
+        let (w, h) = (self.width(), self.height());
+        let weights = self.layers.weights(&self.scene);
         let layers = self.film.layers();
-        let active = self.layers.active(&self.scene);
-        let dropped_before = self.film.dropped();
-        let own = std::mem::take(&mut self.own);
-        let mut film = std::mem::replace(&mut self.film, Film::new(0, 0, 0));
-        let rows = film.par_rows(|row| {
-            let mut counts = RayCounts::default();
-            let mut samples = 0u64;
-            let mut shading_points = 0u64;
-            let mut out = vec![DVec3::ZERO; layers];
-            for x in 0..width {
-                let i = (row.y * width + x) as usize;
-                let n = plan.samples[i];
-                for k in 0..n {
-                    out.iter_mut().for_each(|o| *o = DVec3::ZERO);
-                    let index = u64::from(own[i]) + u64::from(k);
-                    let mask = self.sample_into(x, row.y, index, &mut out, &mut counts);
-                    if mask != 0 {
-                        shading_points += 1;
-                    }
-                    for &l in &active {
-                        row.add(x, l, out[l]);
-                    }
-                    row.touch(x, mask);
-                }
-                samples += u64::from(n);
-            }
-            Counters {
-                samples,
-                shading_points,
-                rays: counts,
-            }
-        });
-        self.film = film;
-        self.own = own;
-        for (o, n) in self.own.iter_mut().zip(&plan.samples) {
-            *o += n;
+        let shaded: Vec<(u32, DVec3, Counters)> = preview::grid_pixels(w, h, stride)
+            .into_par_iter()
+            .map(|i| {
+                let mut out = vec![DVec3::ZERO; layers];
+                let mut rays = RayCounts::default();
+                let mask = self.sample_into(i % w, i / w, 0, &mut out, &mut rays);
+                let value = out.iter().zip(&weights).map(|(o, w)| *o * *w).sum();
+                let counters = Counters {
+                    samples: 1,
+                    shading_points: u64::from(mask != 0),
+                    rays,
+                };
+                (i, value, counters)
+            })
+            .collect();
+        let mut image = Image::new(w, h);
+        let mut counters = Counters::default();
+        for (i, v, c) in shaded {
+            image.pixels_mut()[i as usize] = [v.x as f32, v.y as f32, v.z as f32];
+            counters = counters + c;
         }
-        self.plan = Some(plan);
-        self.frames += 1;
-        FrameStats {
-            counters: rows.into_iter().fold(Counters::default(), |a, c| a + c),
+        self.preview = Some(image);
+        Some(FrameStats {
+            counters,
             seconds: start.elapsed().as_secs_f64(),
-            dropped: self.film.dropped() - dropped_before,
-        }
+            dropped: 0,
+        })
+    }
+
+    fn shows_every_pixel(&self) -> bool {
+        // After a frame every pixel has its own samples or up-sampled ones.
+        self.frames > 0
     }
 
     fn image(&self) -> Image {
+        if self.frames == 0
+            && let Some(preview) = &self.preview
+        {
+            return preview.clone();
+        }
         let (w, h) = (self.width(), self.height());
         let mut values = self.own_means();
         if let Some(b) = &self.buffers {

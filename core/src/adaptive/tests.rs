@@ -411,3 +411,75 @@ fn the_predicted_deviation_recovers_most_of_the_oracle_allocation_gain() {
     assert!(study.oracle > 1.5, "{study:?}");
     assert!(study.predicted >= 0.55 * study.oracle, "{study:?}");
 }
+
+/// Frames stopped at every step (the pass's rows, the shading's rows) and resumed,
+/// with a preview first and an emission edit between two steps, end with the image
+/// of frames rendered whole, bit for bit: the film never sees the preview's samples.
+#[test]
+fn frames_that_yield_and_a_preview_leave_the_image_of_whole_frames() {
+    use crate::render::SceneEdit;
+    let scene = merl_test_scene();
+    // 200 x 200 pixels: the pass yields every 10 rows (2,048 pixels), the shading every
+    // 40 (8,192 pixels).
+    let size = 200;
+    let prepare =
+        || AdaptiveMode::prepare(scene.clone(), size, size, Prepare::quietly()).expect("adaptive");
+    let mut env = scene.environment.clone().expect("has one");
+    env.strength = 1.5;
+    let brighter = SceneEdit::Environment(Some(env));
+    let mut whole = prepare();
+    whole.render_frame();
+    whole.apply(brighter.clone()).expect("applies");
+    whole.render_frame();
+
+    let mut yielding = prepare();
+    assert!(!yielding.shows_every_pixel());
+    assert!(yielding.render_preview(1).is_none(), "stride 1: no preview");
+    let stats = yielding
+        .render_preview(4)
+        .expect("a preview before the first frame");
+    assert_eq!(stats.counters.samples, u64::from(size.div_ceil(4).pow(2)));
+    assert!(
+        yielding.render_preview(4).is_none(),
+        "one preview per restart"
+    );
+    // The preview is what the image shows: the previewed pixels (block centres) lit.
+    let shown = yielding.image();
+    let grid = crate::render::preview::grid_pixels(size, size, 4);
+    let lit = grid
+        .iter()
+        .filter(|&&p| shown.pixels()[p as usize][0] > 0.0)
+        .count();
+    assert!(
+        lit * 2 > grid.len(),
+        "{lit} of {} previewed pixels lit",
+        grid.len()
+    );
+    assert_eq!(yielding.own_samples().iter().sum::<u32>(), 0);
+
+    let (mut calls, mut edited) = (0, false);
+    while yielding.progress().frames < 2 {
+        calls += 1;
+        assert!(calls < 10_000, "the frames never finish");
+        yielding.render_frame_yielding(&mut || true);
+        let shading = yielding.own_samples().iter().any(|&n| n > 0);
+        if yielding.progress().frames == 1 && !edited && shading {
+            yielding.apply(brighter.clone()).expect("applies");
+            edited = true;
+        }
+    }
+    assert!(
+        edited && calls > 10,
+        "{calls} calls: the frames did not yield"
+    );
+    assert!(yielding.shows_every_pixel());
+    let (a, b) = (whole.image(), yielding.image());
+    assert!(
+        a.pixels()
+            .iter()
+            .zip(b.pixels())
+            .all(|(p, q)| p.map(f32::to_bits) == q.map(f32::to_bits)),
+        "a yielded frame differs from a whole one"
+    );
+    assert_eq!(whole.own_samples(), yielding.own_samples());
+}

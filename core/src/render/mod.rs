@@ -297,6 +297,12 @@ pub trait RenderMode: Send {
         let _ = stride;
         None
     }
+    /// Whether `image` has a value at every pixel: each pixel's own samples, or (the
+    /// adaptive mode) a value up-sampled from its neighbours'. The render thread then
+    /// shows an edit that keeps samples at once and lets commands stop frames.
+    fn shows_every_pixel(&self) -> bool {
+        self.progress().min_samples > 0
+    }
     /// The image accumulated so far, with the current emissions.
     fn image(&self) -> Image;
     fn progress(&self) -> Progress;

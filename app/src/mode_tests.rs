@@ -117,7 +117,14 @@ impl ModeMaker for TestModes {
             step += 1;
             std::thread::sleep(Duration::from_millis(2));
         }
-        let inner = CoreModes::default().create(ModeKind::Spmm, Device::Cpu, scene, width, height, prepare)?;
+        let inner = CoreModes::default().create(
+            ModeKind::Spmm,
+            Device::Cpu,
+            scene,
+            width,
+            height,
+            prepare,
+        )?;
         Ok(Box::new(Tagged {
             kind,
             inner,
@@ -492,7 +499,12 @@ fn a_scene_that_names_a_mode_asks_for_it_once_loaded() {
         .with_size(egui::vec2(1280.0, 800.0))
         .build_ui_state(
             |ui, s: &mut Studio| s.show(ui),
-            Studio::with_maker(None, Some(copy.clone()), small(), Arc::new(CoreModes::default())),
+            Studio::with_maker(
+                None,
+                Some(copy.clone()),
+                small(),
+                Arc::new(CoreModes::default()),
+            ),
         );
     loaded(&mut h);
     wait_for_current_frame(&mut h);
@@ -675,7 +687,14 @@ fn a_window_device_too_small_to_share_is_named_in_the_summary() {
     let scene = crate::studio::default_scene_path();
     let scene = meso_core::scene::load_scene(&scene).expect("the default scene");
     let mode = modes
-        .create(ModeKind::Spmm, Device::Gpu, scene, 16, 16, Prepare::quietly())
+        .create(
+            ModeKind::Spmm,
+            Device::Gpu,
+            scene,
+            16,
+            16,
+            Prepare::quietly(),
+        )
         .expect("a GPU mode on its own device");
     let summary = mode.summary().unwrap_or_default();
     assert!(

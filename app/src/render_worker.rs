@@ -692,7 +692,8 @@ mod tests {
             height: u32,
             prepare: Prepare,
         ) -> Result<Box<dyn RenderMode>, ModeError> {
-            let inner = CoreModes::default().create(kind, Device::Cpu, scene, width, height, prepare)?;
+            let inner =
+                CoreModes::default().create(kind, Device::Cpu, scene, width, height, prepare)?;
             if let (Device::Cpu, Some(made)) = (device, &self.cpu_made) {
                 made.fetch_add(1, Ordering::Relaxed);
             }

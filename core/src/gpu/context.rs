@@ -290,7 +290,9 @@ mod tests {
         let why = shortfall(&needed, &wgpu::Limits::default()).expect("too small");
         assert!(why.contains("max_buffer_size is 268435456"), "{why}");
         assert!(
-            why.contains("max_storage_buffer_binding_size is 134217728, the GPU mode needs 2147483648"),
+            why.contains(
+                "max_storage_buffer_binding_size is 134217728, the GPU mode needs 2147483648"
+            ),
             "{why}"
         );
         let fewer = wgpu::Limits {
@@ -298,6 +300,9 @@ mod tests {
             ..needed.clone()
         };
         let why = shortfall(&needed, &fewer).expect("too few");
-        assert!(why.contains("max_storage_buffers_per_shader_stage is 4"), "{why}");
+        assert!(
+            why.contains("max_storage_buffers_per_shader_stage is 4"),
+            "{why}"
+        );
     }
 }

@@ -723,7 +723,9 @@ fn a_lost_device_is_reported_and_keeps_the_film() {
 
 /// The adapter `GpuContext::new` picks, with a device made the way the studio's window
 /// makes it (`needed_limits`, its own label): what `from_device` is given there.
-fn window_device(limits: impl Fn(&wgpu::Adapter) -> wgpu::Limits) -> (wgpu::Adapter, wgpu::Device, wgpu::Queue) {
+fn window_device(
+    limits: impl Fn(&wgpu::Adapter) -> wgpu::Limits,
+) -> (wgpu::Adapter, wgpu::Device, wgpu::Queue) {
     let desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
     let instance = wgpu::Instance::new(desc);
     let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
@@ -751,7 +753,10 @@ fn a_shared_device_renders_what_an_own_device_renders() {
     assert!(shared.is_shared() && !context().is_shared());
     assert_eq!(shared.sharing(), &super::Sharing::Shared);
     assert_eq!(shared.adapter_name(), context().adapter_name());
-    assert!(shared.device == device, "the context renders on the device it was given");
+    assert!(
+        shared.device == device,
+        "the context renders on the device it was given"
+    );
     let scene = test_scene("default.toml");
     let mut on_shared = super::GpuSpmmMode::prepare(
         shared,
@@ -766,7 +771,9 @@ fn a_shared_device_renders_what_an_own_device_renders() {
     run_frames(&mut on_own, 3, |_, _| {});
     assert!(on_shared.failure().is_none());
     assert!(
-        on_shared.summary().is_some_and(|s| s.contains("shared with the window")),
+        on_shared
+            .summary()
+            .is_some_and(|s| s.contains("shared with the window")),
         "{:?}",
         on_shared.summary()
     );
@@ -782,7 +789,10 @@ fn a_device_with_too_low_limits_is_not_shared() {
     let (adapter, device, queue) = window_device(|_| wgpu::Limits::downlevel_defaults());
     let err = GpuContext::from_device(&adapter, device, queue).expect_err("too low");
     let message = err.to_string();
-    assert!(message.contains("max_storage_buffers_per_shader_stage is 4"), "{message}");
+    assert!(
+        message.contains("max_storage_buffers_per_shader_stage is 4"),
+        "{message}"
+    );
     assert!(message.contains("cannot be shared"), "{message}");
 }
 

@@ -1,8 +1,8 @@
 //! Meso Studio, the desktop material editor, as a library: the window (`studio`)
 //! over the document (`document`), the render thread (`render_worker`) and the modes
 //! it runs (`mode_maker`, with the lights a mode renders without in `disabled`), the
-//! viewport and the compare view's reference (`reference`), the material and scene
-//! panels, background jobs (`jobs`), and the BRDF explorer. `main.rs` runs it in eframe;
+//! viewport and the compare view's reference (`reference`), the window's wgpu device
+//! that the GPU mode shares (`window_device`), the material and scene panels, background jobs (`jobs`), and the BRDF explorer. `main.rs` runs it in eframe;
 //! benchmarks and tests drive it headless.
 
 pub mod disabled;
@@ -19,3 +19,4 @@ pub mod scene_panel;
 pub mod sphere_preview;
 pub mod studio;
 pub mod viewport;
+pub mod window_device;

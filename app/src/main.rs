@@ -1,11 +1,14 @@
 //! `meso-studio`: Meso's desktop material editor. Opens the scene given on the command
 //! line, or the built-in default scene (the bunny in leather), with its SPMM pack in
-//! the material panel and the progressive viewport (studio.rs). A thin shell: all it
-//! computes comes from `meso-core`'s public API.
+//! the material panel and the progressive viewport (studio.rs), its GPU mode on the
+//! window's wgpu device where it can be shared (window_device.rs). A thin shell: all
+//! it computes comes from `meso-core`'s public API.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use meso_studio::studio::{Settings, Studio};
+use meso_studio::window_device;
 
 fn main() -> eframe::Result<()> {
     let scene = std::env::args_os().nth(1).map(PathBuf::from);
@@ -14,6 +17,9 @@ fn main() -> eframe::Result<()> {
             .with_title("Meso Studio")
             .with_inner_size([1280.0, 800.0])
             .with_min_inner_size([900.0, 560.0]),
+        // The window's device is asked for with the GPU mode's limits, so the mode
+        // renders on it instead of a device of its own.
+        wgpu_options: window_device::wgpu_configuration(),
         ..Default::default()
     };
     eframe::run_native(
@@ -24,10 +30,12 @@ fn main() -> eframe::Result<()> {
                 .storage
                 .and_then(|s| eframe::get_value::<Settings>(s, eframe::APP_KEY))
                 .unwrap_or_default();
-            Ok(Box::new(App(Studio::new(
+            let modes = window_device::modes_for(cc.wgpu_render_state.as_ref());
+            Ok(Box::new(App(Studio::with_maker(
                 Some(cc.egui_ctx.clone()),
                 scene,
                 settings,
+                Arc::new(modes),
             ))))
         }),
     )

@@ -2,10 +2,12 @@
 //! scene, and if not, which parts stop it) and `create` (prepare the mode, with
 //! progress and cancel). The studio and its render thread ask a `ModeMaker`, never a
 //! mode's type; the default is core's registry (`meso_core::modes`), and tests inject
-//! slow or refusing makers to drive the mode switch through the real window.
+//! slow or refusing makers to drive the mode switch through the real window. Given the
+//! window's wgpu device (`CoreModes::on_device`), the GPU mode renders on it.
 
 use std::sync::Arc;
 
+use meso_core::gpu::GpuContext;
 use meso_core::modes;
 use meso_core::render::{Device, ModeError, ModeKind, Prepare, RenderMode};
 use meso_core::scene::Scene;
@@ -28,9 +30,38 @@ pub trait ModeMaker: Send + Sync {
     ) -> Result<Box<dyn RenderMode>, ModeError>;
 }
 
-/// Core's registry: the modes this build has.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct CoreModes;
+/// Core's registry: the modes this build has; the GPU mode on `gpu` when set (the
+/// window's device, shared), else on a device of its own made per mode, which says
+/// why the window's was not shared when `unshared` holds a reason.
+#[derive(Clone, Debug, Default)]
+pub struct CoreModes {
+    gpu: Option<GpuContext>,
+    unshared: Option<String>,
+}
+
+impl CoreModes {
+    /// The registry with every GPU mode on `gpu` (cloned: one device for all).
+    pub fn on_device(gpu: GpuContext) -> Self {
+        Self {
+            gpu: Some(gpu),
+            unshared: None,
+        }
+    }
+
+    /// The registry with GPU modes on devices of their own, because the window's
+    /// device could not be shared (`why`, shown in the status bar).
+    pub fn unshared(why: impl Into<String>) -> Self {
+        Self {
+            gpu: None,
+            unshared: Some(why.into()),
+        }
+    }
+
+    /// The device GPU modes are made on, if one was given.
+    pub fn gpu(&self) -> Option<&GpuContext> {
+        self.gpu.as_ref()
+    }
+}
 
 impl ModeMaker for CoreModes {
     fn supports(&self, kind: ModeKind, device: Device, scene: &Scene) -> Result<(), ModeError> {
@@ -46,13 +77,25 @@ impl ModeMaker for CoreModes {
         height: u32,
         prepare: Prepare,
     ) -> Result<Box<dyn RenderMode>, ModeError> {
-        modes::create(kind, device, scene, width, height, prepare)
+        let own;
+        let gpu = match (&self.gpu, &self.unshared, device) {
+            (None, Some(why), Device::Gpu) if modes::is_built(kind, device) => {
+                // The scene is checked first, as core's registry does.
+                modes::supports(kind, device, &scene)?;
+                own = GpuContext::new()
+                    .map_err(|e| ModeError::NoDevice(e.to_string()))?
+                    .own_because(why.clone());
+                Some(&own)
+            }
+            _ => self.gpu.as_ref(),
+        };
+        modes::create_on(gpu, kind, device, scene, width, height, prepare)
     }
 }
 
 /// The maker the studio uses unless told otherwise.
 pub fn core_modes() -> Arc<dyn ModeMaker> {
-    Arc::new(CoreModes)
+    Arc::new(CoreModes::default())
 }
 
 /// A mode and device as the UI names them: "spmm (cpu)".

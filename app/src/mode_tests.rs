@@ -80,7 +80,7 @@ struct TestModes {
 impl ModeMaker for TestModes {
     fn supports(&self, kind: ModeKind, device: Device, scene: &Scene) -> Result<(), ModeError> {
         match (kind, device) {
-            (ModeKind::Spmm, Device::Cpu) => CoreModes.supports(kind, device, scene),
+            (ModeKind::Spmm, Device::Cpu) => CoreModes::default().supports(kind, device, scene),
             (ModeKind::Biscale, Device::Cpu) => Ok(()),
             (ModeKind::Adaptive, Device::Cpu) => {
                 let parts = scene
@@ -109,7 +109,7 @@ impl ModeMaker for TestModes {
     ) -> Result<Box<dyn RenderMode>, ModeError> {
         self.supports(kind, device, &scene)?;
         if kind == ModeKind::Spmm {
-            return CoreModes.create(kind, device, scene, width, height, prepare);
+            return CoreModes::default().create(kind, device, scene, width, height, prepare);
         }
         let mut step = 0u32;
         while kind == ModeKind::Biscale && !self.release.load(Ordering::Relaxed) {
@@ -117,7 +117,14 @@ impl ModeMaker for TestModes {
             step += 1;
             std::thread::sleep(Duration::from_millis(2));
         }
-        let inner = CoreModes.create(ModeKind::Spmm, Device::Cpu, scene, width, height, prepare)?;
+        let inner = CoreModes::default().create(
+            ModeKind::Spmm,
+            Device::Cpu,
+            scene,
+            width,
+            height,
+            prepare,
+        )?;
         Ok(Box::new(Tagged {
             kind,
             inner,
@@ -156,7 +163,7 @@ fn shipped_scene(name: &str) -> Harness<'static, Studio> {
         .with_size(egui::vec2(1280.0, 800.0))
         .build_ui_state(
             |ui, s: &mut Studio| s.show(ui),
-            Studio::with_maker(None, Some(scene), small(), Arc::new(CoreModes)),
+            Studio::with_maker(None, Some(scene), small(), Arc::new(CoreModes::default())),
         );
     loaded(&mut h);
     h
@@ -361,7 +368,7 @@ fn the_compare_view_shows_exactly_what_metrics_compare_says() {
         reference_spp: 8,
         ..small()
     };
-    let mut h = harness_with(Arc::new(CoreModes), settings);
+    let mut h = harness_with(Arc::new(CoreModes::default()), settings);
     wait_for_current_frame(&mut h);
     h.get_by_label("View").click();
     h.run_steps(2);
@@ -407,7 +414,7 @@ fn the_compare_view_shows_exactly_what_metrics_compare_says() {
 
 #[test]
 fn environment_edits_are_undoable_and_reach_the_renderer() {
-    let mut h = harness_with(Arc::new(CoreModes), small());
+    let mut h = harness_with(Arc::new(CoreModes::default()), small());
     wait_for_current_frame(&mut h);
     assert!(
         h.state()
@@ -492,7 +499,12 @@ fn a_scene_that_names_a_mode_asks_for_it_once_loaded() {
         .with_size(egui::vec2(1280.0, 800.0))
         .build_ui_state(
             |ui, s: &mut Studio| s.show(ui),
-            Studio::with_maker(None, Some(copy.clone()), small(), Arc::new(CoreModes)),
+            Studio::with_maker(
+                None,
+                Some(copy.clone()),
+                small(),
+                Arc::new(CoreModes::default()),
+            ),
         );
     loaded(&mut h);
     wait_for_current_frame(&mut h);
@@ -604,4 +616,90 @@ fn the_biscale_mode_renders_a_shipped_scene_turns_its_light_and_reprepares_for_n
         h.state().mode_message
     );
     wait_for_mode_frame(&mut h, ModeKind::Spmm);
+}
+
+/// The GPU mode on the window's own wgpu device: the window's render state is made as
+/// eframe makes it with main.rs's configuration (`window_device::wgpu_configuration`),
+/// the studio's registry is given that device, and a switch to the GPU renders frames
+/// on it (the status bar's summary says so) while the window draws with it too. Needs
+/// a wgpu adapter (CI: lavapipe, WGPU_BACKEND=vulkan).
+#[test]
+fn the_gpu_mode_renders_on_the_windows_own_device() {
+    use crate::window_device;
+    let rs = egui_kittest::wgpu::create_render_state(
+        window_device::wgpu_configuration().wgpu_setup,
+        eframe::egui_wgpu::RendererOptions::PREDICTABLE,
+    );
+    let modes = window_device::modes_for(Some(&rs));
+    let ctx = modes.gpu().expect("the window's device is shared");
+    assert!(ctx.is_shared());
+    assert!(ctx.device == rs.device, "the window's device itself");
+    let info = rs.adapter.get_info();
+    let adapter = format!("{} ({})", info.name, info.backend);
+    assert_eq!(ctx.adapter_name(), adapter);
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1280.0, 800.0))
+        .renderer(egui_kittest::wgpu::WgpuTestRenderer::from_render_state(
+            rs.clone(),
+        ))
+        .build_ui_state(
+            |ui, s: &mut Studio| s.show(ui),
+            Studio::with_maker(None, None, small(), Arc::new(modes)),
+        );
+    loaded(&mut h);
+    h.state_mut().request_mode(ModeKind::Spmm, Device::Gpu);
+    step_until(&mut h, "a frame of the GPU mode", |h| {
+        h.state().frame().is_some_and(|f| f.device == Device::Gpu)
+    });
+    let frame = h.state().frame().expect("a frame").clone();
+    let summary = frame.summary.clone().unwrap_or_default();
+    assert!(summary.starts_with(&adapter), "{summary}");
+    assert!(summary.contains("shared with the window"), "{summary}");
+    assert!(
+        frame.image.pixels().iter().flatten().any(|v| *v > 0.0),
+        "the GPU frame is not black"
+    );
+    // The window draws with the device the mode renders on, and the mode keeps going.
+    h.render().expect("the window draws");
+    next_frame_mode(&mut h);
+    let now = h.state().frame().expect("a frame");
+    assert_eq!(now.device, Device::Gpu, "no fallback to the CPU");
+}
+
+/// A window device made with less than the GPU mode needs is not shared: each GPU
+/// mode makes a device of its own and its summary says why.
+#[test]
+fn a_window_device_too_small_to_share_is_named_in_the_summary() {
+    use eframe::egui_wgpu::WgpuSetup;
+    let mut config = crate::window_device::wgpu_configuration();
+    if let WgpuSetup::CreateNew(create) = &mut config.wgpu_setup {
+        create.device_descriptor = Arc::new(|_| eframe::wgpu::DeviceDescriptor {
+            required_limits: eframe::wgpu::Limits::downlevel_defaults(),
+            ..Default::default()
+        });
+    }
+    let rs = egui_kittest::wgpu::create_render_state(
+        config.wgpu_setup,
+        eframe::egui_wgpu::RendererOptions::PREDICTABLE,
+    );
+    let modes = crate::window_device::modes_for(Some(&rs));
+    assert!(modes.gpu().is_none());
+    let scene = crate::studio::default_scene_path();
+    let scene = meso_core::scene::load_scene(&scene).expect("the default scene");
+    let mode = modes
+        .create(
+            ModeKind::Spmm,
+            Device::Gpu,
+            scene,
+            16,
+            16,
+            Prepare::quietly(),
+        )
+        .expect("a GPU mode on its own device");
+    let summary = mode.summary().unwrap_or_default();
+    assert!(
+        summary.contains("own device (the device on")
+            && summary.contains("max_storage_buffers_per_shader_stage is 4"),
+        "{summary}"
+    );
 }

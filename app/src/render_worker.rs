@@ -684,7 +684,7 @@ mod tests {
 
     impl ModeMaker for TestModes {
         fn supports(&self, kind: ModeKind, _: Device, scene: &Scene) -> Result<(), ModeError> {
-            CoreModes.supports(kind, Device::Cpu, scene)
+            CoreModes::default().supports(kind, Device::Cpu, scene)
         }
         fn create(
             &self,
@@ -695,7 +695,8 @@ mod tests {
             height: u32,
             prepare: Prepare,
         ) -> Result<Box<dyn RenderMode>, ModeError> {
-            let inner = CoreModes.create(kind, Device::Cpu, scene, width, height, prepare)?;
+            let inner =
+                CoreModes::default().create(kind, Device::Cpu, scene, width, height, prepare)?;
             if let (Device::Cpu, Some(made)) = (device, &self.cpu_made) {
                 made.fetch_add(1, Ordering::Relaxed);
             }
@@ -764,7 +765,7 @@ mod tests {
         // edited scene after as many frames, bit for bit.
         let mut edited = scene;
         edited.lights[0] = light;
-        let mut reference = CoreModes
+        let mut reference = CoreModes::default()
             .create(
                 ModeKind::Spmm,
                 Device::Cpu,
@@ -781,7 +782,7 @@ mod tests {
 
     /// Core's CPU spmm mode of `scene` at `size` square, made directly (the reference).
     fn cpu_mode(scene: &Scene, size: u32) -> Box<dyn RenderMode> {
-        CoreModes
+        CoreModes::default()
             .create(
                 ModeKind::Spmm,
                 Device::Cpu,

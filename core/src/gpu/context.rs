@@ -1,6 +1,8 @@
 //! The wgpu instance, adapter and device the GPU mode runs on. The backends come from
 //! `WGPU_BACKEND` (wgpu's own variable; CI sets `vulkan` for Mesa's lavapipe), so a
 //! backend that does not exist on this system yields no adapter and a one-line error.
+//! A context is either the mode's own device or one made elsewhere (the studio's
+//! window) and shared, if its limits are what the mode needs (`from_device`).
 
 use std::sync::{Arc, Mutex};
 
@@ -15,6 +17,20 @@ pub enum GpuError {
     /// returns from here on can be trusted.
     #[error("the GPU `{adapter}` failed: {reason}")]
     Lost { adapter: String, reason: String },
+    /// A device made elsewhere lacks what the mode needs (`GpuContext::from_device`).
+    #[error("the device on `{adapter}` cannot be shared: {reason}")]
+    NotShareable { adapter: String, reason: String },
+}
+
+/// Whose device a context renders on, for status lines.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Sharing {
+    /// A device of its own (`new`, `from_adapter`).
+    Own,
+    /// A device made elsewhere, the studio's window's (`from_device`).
+    Shared,
+    /// A device of its own because the one made elsewhere could not be shared: why.
+    OwnBecause(String),
 }
 
 /// True for an adapter that is a GPU (discrete, integrated or virtual), false for a
@@ -54,6 +70,7 @@ pub struct GpuContext {
     pub queue: wgpu::Queue,
     info: Arc<wgpu::AdapterInfo>,
     limits: wgpu::Limits,
+    sharing: Sharing,
     /// The first failure the device reported (lost, or an error no one caught), kept
     /// here instead of wgpu's default of panicking on the thread that noticed it.
     failure: Arc<Mutex<Option<String>>>,
@@ -100,6 +117,64 @@ impl GpuContext {
             adapter: info.name.clone(),
             reason: e.to_string(),
         })?;
+        Ok(Self::watching(device, queue, info, limits, Sharing::Own))
+    }
+
+    /// The limits the mode needs of a device on `adapter`: WebGPU's defaults (eight
+    /// storage buffers per stage, 64-invocation workgroups) with the adapter's largest
+    /// buffers, since one sample's film and the scene's data each sit in one buffer.
+    /// The studio asks for these when it makes its window's device, so it can share it.
+    pub fn needed_limits(adapter: &wgpu::Adapter) -> wgpu::Limits {
+        let allowed = adapter.limits();
+        wgpu::Limits {
+            max_buffer_size: allowed.max_buffer_size,
+            max_storage_buffer_binding_size: allowed.max_storage_buffer_binding_size,
+            ..wgpu::Limits::default()
+        }
+    }
+
+    /// A context on `device` and `queue`, made elsewhere on `adapter` (the studio's
+    /// window's): the mode renders on them instead of a device of its own. Refused,
+    /// naming each limit, when the device was made with less than `needed_limits` or
+    /// the adapter has no compute shaders.
+    ///
+    /// wgpu keeps one uncaptured-error handler and one lost callback per device; this
+    /// takes both (eframe 0.37 sets neither), so an error on the device, the window's
+    /// drawing included, is recorded as the mode's failure (the studio goes on on the
+    /// CPU) instead of wgpu's default panic, which would close the window.
+    pub fn from_device(
+        adapter: &wgpu::Adapter,
+        device: wgpu::Device,
+        queue: wgpu::Queue,
+    ) -> Result<Self, GpuError> {
+        let info = adapter.get_info();
+        let limits = device.limits();
+        let compute = adapter
+            .get_downlevel_capabilities()
+            .flags
+            .contains(wgpu::DownlevelFlags::COMPUTE_SHADERS);
+        let problem = if compute {
+            shortfall(&Self::needed_limits(adapter), &limits)
+        } else {
+            Some("the adapter runs no compute shaders".into())
+        };
+        if let Some(reason) = problem {
+            return Err(GpuError::NotShareable {
+                adapter: format!("{} ({})", info.name, info.backend),
+                reason,
+            });
+        }
+        Ok(Self::watching(device, queue, info, limits, Sharing::Shared))
+    }
+
+    /// `device` with its failures recorded in the context (`failure`).
+    fn watching(
+        device: wgpu::Device,
+        queue: wgpu::Queue,
+        info: wgpu::AdapterInfo,
+        limits: wgpu::Limits,
+        sharing: Sharing,
+    ) -> Self {
         let failure = Arc::new(Mutex::new(None));
         let record = |failure: &Arc<Mutex<Option<String>>>, reason: String| {
             if let Ok(mut f) = failure.lock() {
@@ -114,13 +189,31 @@ impl GpuContext {
         device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
             record(&errors, e.to_string());
         }));
-        Ok(Self {
+        Self {
             device,
             queue,
             info: Arc::new(info),
             limits,
+            sharing,
             failure,
-        })
+        }
+    }
+
+    /// This context, a device of its own, marked as made because a shared one could
+    /// not be (`reason`), so status lines say why the window's device is not used.
+    pub fn own_because(mut self, reason: impl Into<String>) -> Self {
+        self.sharing = Sharing::OwnBecause(reason.into());
+        self
+    }
+
+    /// Whose device this is.
+    pub fn sharing(&self) -> &Sharing {
+        &self.sharing
+    }
+
+    /// True when the device was made elsewhere and is shared (`from_device`).
+    pub fn is_shared(&self) -> bool {
+        self.sharing == Sharing::Shared
     }
 
     /// The device's first failure, if it has failed: every later result is void.
@@ -164,5 +257,52 @@ impl GpuContext {
         limited.limits.max_buffer_size = bytes;
         limited.limits.max_storage_buffer_binding_size = bytes;
         limited
+    }
+}
+
+/// Each limit in `needed` that `got` does not reach, named with both values (`None`:
+/// all reached).
+fn shortfall(needed: &wgpu::Limits, got: &wgpu::Limits) -> Option<String> {
+    let mut short = Vec::new();
+    needed.check_limits_with_fail_fn(got, false, |name, needed, got| {
+        short.push(format!("{name} is {got}, the GPU mode needs {needed}"));
+    });
+    (!short.is_empty()).then(|| short.join("; "))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::shortfall;
+
+    #[test]
+    fn a_device_with_smaller_buffers_than_needed_is_named_limit_by_limit() {
+        let needed = wgpu::Limits {
+            max_buffer_size: 1 << 32,
+            max_storage_buffer_binding_size: 1 << 31,
+            ..wgpu::Limits::default()
+        };
+        assert_eq!(shortfall(&needed, &needed), None);
+        let bigger = wgpu::Limits {
+            max_buffer_size: 1 << 33,
+            ..needed.clone()
+        };
+        assert_eq!(shortfall(&needed, &bigger), None);
+        let why = shortfall(&needed, &wgpu::Limits::default()).expect("too small");
+        assert!(why.contains("max_buffer_size is 268435456"), "{why}");
+        assert!(
+            why.contains(
+                "max_storage_buffer_binding_size is 134217728, the GPU mode needs 2147483648"
+            ),
+            "{why}"
+        );
+        let fewer = wgpu::Limits {
+            max_storage_buffers_per_shader_stage: 4,
+            ..needed.clone()
+        };
+        let why = shortfall(&needed, &fewer).expect("too few");
+        assert!(
+            why.contains("max_storage_buffers_per_shader_stage is 4"),
+            "{why}"
+        );
     }
 }

@@ -1,5 +1,6 @@
 //! The `spmm` mode on the GPU (wgpu compute; WGSL in the workspace's `shaders/`):
-//! the device and its adapter (`context.rs`), the WGSL sources and how they are put
+//! the device and its adapter, its own or one shared with the studio's window
+//! (`context.rs`), the WGSL sources and how they are put
 //! together (`shaders.rs`), the words a shader reads (`data.rs`: BRDFs, SPMM packs,
 //! materials; `reach.rs`: the clusters of each pack the scene can reach, the only
 //! ones uploaded), the scene's geometry on the device (`geometry.rs`: the obvhs CWBVH's
@@ -18,7 +19,7 @@ mod mode;
 mod reach;
 mod shaders;
 
-pub use context::{GpuContext, GpuError, hardware_adapter, is_hardware};
+pub use context::{GpuContext, GpuError, Sharing, hardware_adapter, is_hardware};
 pub use mode::{DeviceBytes, GpuSpmmMode};
 
 #[cfg(test)]

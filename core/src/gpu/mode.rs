@@ -16,7 +16,7 @@ use super::geometry::GeometryBuffers;
 use super::kernel::{self, Kernel, Slot};
 use super::reach::{Reach, reachable_clusters};
 use super::shaders;
-use super::{GpuContext, GpuError};
+use super::{GpuContext, GpuError, Sharing};
 use crate::environment::EnvironmentSampler;
 use crate::geometry::SceneBvh;
 use crate::image::Image;
@@ -863,6 +863,11 @@ impl RenderMode for GpuSpmmMode {
             self.ctx.adapter_name(),
             self.device_bytes().total() as f64 / 1e6
         );
+        match self.ctx.sharing() {
+            Sharing::Own => {}
+            Sharing::Shared => s.push_str(" · shared with the window"),
+            Sharing::OwnBecause(why) => s.push_str(&format!(" · own device ({why})")),
+        }
         if stack + steps > 0 {
             s.push_str(&format!(" · {stack} stack and {steps} step overflows"));
         }

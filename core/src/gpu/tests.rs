@@ -721,6 +721,81 @@ fn a_lost_device_is_reported_and_keeps_the_film() {
     assert_eq!(gpu.render_frame().counters.samples, 0);
 }
 
+/// The adapter `GpuContext::new` picks, with a device made the way the studio's window
+/// makes it (`needed_limits`, its own label): what `from_device` is given there.
+fn window_device(
+    limits: impl Fn(&wgpu::Adapter) -> wgpu::Limits,
+) -> (wgpu::Adapter, wgpu::Device, wgpu::Queue) {
+    let desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+    let instance = wgpu::Instance::new(desc);
+    let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+        power_preference: wgpu::PowerPreference::HighPerformance,
+        ..Default::default()
+    }))
+    .expect("an adapter (CI: lavapipe, WGPU_BACKEND=vulkan)");
+    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some("window"),
+        required_limits: limits(&adapter),
+        ..Default::default()
+    }))
+    .expect("a device");
+    (adapter, device, queue)
+}
+
+/// A context on a device made elsewhere (the studio's window's) renders what a
+/// context of its own renders, bit for bit: the same adapter, shader and samples, and
+/// the device's limits only bound sizes. The shared device is the one given.
+#[test]
+fn a_shared_device_renders_what_an_own_device_renders() {
+    use crate::render::{RenderMode, run_frames};
+    let (adapter, device, queue) = window_device(GpuContext::needed_limits);
+    let shared = GpuContext::from_device(&adapter, device.clone(), queue).expect("shareable");
+    assert!(shared.is_shared() && !context().is_shared());
+    assert_eq!(shared.sharing(), &super::Sharing::Shared);
+    assert_eq!(shared.adapter_name(), context().adapter_name());
+    assert!(
+        shared.device == device,
+        "the context renders on the device it was given"
+    );
+    let scene = test_scene("default.toml");
+    let mut on_shared = super::GpuSpmmMode::prepare(
+        shared,
+        scene.clone(),
+        24,
+        24,
+        crate::render::Prepare::quietly(),
+    )
+    .expect("prepares on the shared device");
+    let mut on_own = gpu_mode(scene, 24);
+    run_frames(&mut on_shared, 3, |_, _| {});
+    run_frames(&mut on_own, 3, |_, _| {});
+    assert!(on_shared.failure().is_none());
+    assert!(
+        on_shared
+            .summary()
+            .is_some_and(|s| s.contains("shared with the window")),
+        "{:?}",
+        on_shared.summary()
+    );
+    let (a, b) = (on_shared.image(), on_own.image());
+    assert!(a.pixels().iter().flatten().any(|v| *v > 0.0), "not black");
+    assert_eq!(a.pixels(), b.pixels(), "bit for bit");
+}
+
+/// A device made with fewer storage buffers per stage than the integrator binds is
+/// refused by name, whatever the adapter (so the studio makes a device of its own).
+#[test]
+fn a_device_with_too_low_limits_is_not_shared() {
+    let (adapter, device, queue) = window_device(|_| wgpu::Limits::downlevel_defaults());
+    let err = GpuContext::from_device(&adapter, device, queue).expect_err("too low");
+    let message = err.to_string();
+    assert!(
+        message.contains("max_storage_buffers_per_shader_stage is 4"),
+        "{message}"
+    );
+    assert!(message.contains("cannot be shared"), "{message}");
+}
+
 /// BRDF importance sampling in WGSL (the environment's MIS) against core's f64
 /// `sample` and `pdf`: each model at its defaults and five random parameter sets, the
 /// pdf on the pairs of `direction_pairs`, and directions drawn from the same uniform

@@ -45,6 +45,20 @@ pub fn create(
     height: u32,
     prepare: Prepare,
 ) -> Result<Box<dyn RenderMode>, ModeError> {
+    create_on(None, kind, device, scene, width, height, prepare)
+}
+
+/// `create`, with a GPU mode on `gpu` (a device made elsewhere, the studio's window's,
+/// or one kept for several modes) instead of a device of its own; `None`: `create`.
+pub fn create_on(
+    gpu: Option<&GpuContext>,
+    kind: ModeKind,
+    device: Device,
+    scene: Scene,
+    width: u32,
+    height: u32,
+    prepare: Prepare,
+) -> Result<Box<dyn RenderMode>, ModeError> {
     match (kind, device) {
         (ModeKind::Spmm, Device::Cpu) => {
             Ok(Box::new(SpmmMode::prepare(scene, width, height, prepare)?))
@@ -53,7 +67,10 @@ pub fn create(
             // The scene is checked before a device is looked for, so a scene at fault
             // is named whether or not this machine has an adapter.
             GpuSpmmMode::supports(&scene)?;
-            let ctx = GpuContext::new().map_err(|e| ModeError::NoDevice(e.to_string()))?;
+            let ctx = match gpu {
+                Some(ctx) => ctx.clone(),
+                None => GpuContext::new().map_err(|e| ModeError::NoDevice(e.to_string()))?,
+            };
             Ok(Box::new(GpuSpmmMode::prepare(
                 ctx, scene, width, height, prepare,
             )?))

@@ -79,6 +79,15 @@ fn timed<'a>(
     }
 }
 
+/// A camera edit for an iteration number: `camera`, moved 5 cm sideways on odd ones.
+fn nudge(camera: meso_core::scene::Camera) -> impl Fn(u64) -> SceneEdit + Copy {
+    move |v: u64| {
+        let mut moved = camera;
+        moved.position.x += if v.is_multiple_of(2) { 0.0 } else { 0.05 };
+        SceneEdit::Camera(moved)
+    }
+}
+
 fn load(scene: &meso_core::scene::Scene, mode: ModeKind, size: u32) -> (RenderWorker, Frame) {
     let worker = RenderWorker::spawn(None);
     worker.send(Command::Load {
@@ -199,12 +208,7 @@ fn bench_latency(c: &mut Criterion) {
     })
     .collect();
     let light = scene.lights[0];
-    let camera = scene.camera;
-    let camera_edit = move |v: u64| {
-        let mut moved = camera;
-        moved.position.x += if v.is_multiple_of(2) { 0.0 } else { 0.05 };
-        SceneEdit::Camera(moved)
-    };
+    let camera_edit = nudge(scene.camera);
     let light_edit = move |v: u64| SceneEdit::Light {
         index: 0,
         light: light.with_emission(light.emission() * if v.is_multiple_of(2) { 1.0 } else { 0.8 }),
@@ -260,12 +264,7 @@ fn bench_latency(c: &mut Criterion) {
         &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/scenes/merl_dragon.toml"),
     )
     .expect("the shipped MERL dragon scene");
-    let dragon_camera = dragon.camera;
-    let dragon_edit = move |v: u64| {
-        let mut moved = dragon_camera;
-        moved.position.x += if v.is_multiple_of(2) { 0.0 } else { 0.05 };
-        SceneEdit::Camera(moved)
-    };
+    let dragon_edit = nudge(dragon.camera);
     let adaptive_edits = [
         timed(
             "adaptive: camera edit (a preview first when tiles yield)",

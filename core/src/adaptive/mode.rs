@@ -263,8 +263,9 @@ pub struct AdaptiveMode {
 /// step costs about what the spmm mode's 16K-pixel tiles do, since only some pixels
 /// of a frame are shaded.
 const TILE_PIXELS: u32 = 8_192;
-/// Pixels per step of a yielding bandwidth pass: its analysis costs 6-10 us a pixel on
-/// one core, so a step takes about 10 ms on 2 cores.
+/// Pixels per step of a yielding bandwidth pass: its analysis costs 12-20 us a pixel on
+/// one core (100-160 ms at 128 x 128 and 1.6 s at 512 x 512 on 2 cores), so a step
+/// takes 12-20 ms on 2 cores.
 const PASS_TILE_PIXELS: u32 = 2_048;
 
 /// A frame left unfinished by `render_frame_yielding`, resumed by the next call of
@@ -1219,6 +1220,8 @@ impl AdaptiveMode {
         } else {
             self.plan = Some(plan);
             self.frames += 1;
+            // The image is the film's from now on.
+            self.preview = None;
         }
         FrameStats {
             counters: totals,

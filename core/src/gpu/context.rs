@@ -4,6 +4,7 @@
 //! A context is either the mode's own device or one made elsewhere (the studio's
 //! window) and shared, if its limits are what the mode needs (`from_device`).
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 /// Why there is no device to render on.
@@ -74,6 +75,8 @@ pub struct GpuContext {
     /// The first failure the device reported (lost, or an error no one caught), kept
     /// here instead of wgpu's default of panicking on the thread that noticed it.
     failure: Arc<Mutex<Option<String>>>,
+    /// Bytes read back from the device since it was made (all clones together).
+    read_back: Arc<AtomicU64>,
 }
 
 impl std::fmt::Debug for GpuContext {
@@ -196,6 +199,7 @@ impl GpuContext {
             limits,
             sharing,
             failure,
+            read_back: Arc::default(),
         }
     }
 
@@ -220,6 +224,16 @@ impl GpuContext {
     pub fn failure(&self) -> Option<GpuError> {
         let reason = self.failure.lock().ok()?.clone()?;
         Some(self.lost(reason))
+    }
+
+    /// Bytes read back from the device so far, by every user of this context (a frame
+    /// of the GPU mode reads back only its counters; docs/gpu.md).
+    pub fn bytes_read_back(&self) -> u64 {
+        self.read_back.load(Ordering::Relaxed)
+    }
+
+    pub(super) fn count_read_back(&self, bytes: u64) {
+        self.read_back.fetch_add(bytes, Ordering::Relaxed);
     }
 
     /// A failure of this device for `reason`.

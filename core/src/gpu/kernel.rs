@@ -219,6 +219,7 @@ impl ReadBack {
                 Some(Err(e)) => return Err(ctx.lost(format!("reading a result back: {e}"))),
                 None => return Err(ctx.lost("a read-back never completed")),
             }
+            ctx.count_read_back(s.size());
             let bytes = s
                 .get_mapped_range(..)
                 .map_err(|e| ctx.lost(format!("reading a result back: {e}")))?

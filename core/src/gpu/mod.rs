@@ -6,13 +6,16 @@
 //! ones uploaded), the scene's geometry on the device (`geometry.rs`: the obvhs CWBVH's
 //! nodes as they are, the leaf-ordered triangles and their shading data), the
 //! environment map with its sampling tables and the background image
-//! (`environment.rs`), one compute
-//! dispatch with its buffers (`kernel.rs`) and the mode itself (`mode.rs`). The CPU's
+//! (`environment.rs`), one compute dispatch with its buffers (`kernel.rs`), the film
+//! kept on the device (`film.rs`), a resolved image and the texture a window shows it
+//! in (`display.rs`), and the mode itself (`mode.rs`). The CPU's
 //! `trace::SpmmMode` is the reference every part here is tested against.
 
 mod context;
 mod data;
+mod display;
 mod environment;
+mod film;
 mod geometry;
 mod kernel;
 mod mode;
@@ -20,7 +23,10 @@ mod reach;
 mod shaders;
 
 pub use context::{GpuContext, GpuError, Sharing, hardware_adapter, is_hardware};
+pub use display::{DeviceImage, DisplayTexture};
 pub use mode::{DeviceBytes, GpuSpmmMode};
 
+#[cfg(test)]
+mod film_tests;
 #[cfg(test)]
 mod tests;

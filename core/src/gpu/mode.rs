@@ -1,8 +1,8 @@
 //! `GpuSpmmMode`: the spmm mode with its per-pixel work on a wgpu device. Each frame
-//! dispatches `shaders/integrator.wgsl` once per sample (one invocation per pixel),
-//! reads back the sample's layers and adds them to the same f64 `Film` the CPU mode
-//! uses, so the film semantics (layers per light, edits that keep samples, the moving
-//! flag, per-pixel invalidation) are the CPU's own code. Geometry (BVH nodes and
+//! dispatches `shaders/integrator.wgsl` once per sample (one invocation per pixel)
+//! and adds the sample to the film on the device (`film.rs`, the CPU film's rules:
+//! layers per light, edits that keep samples, the moving flag, per-pixel
+//! invalidation); a frame reads back only its counters. Geometry (BVH nodes and
 //! triangles), the prepared SPMM data, BRDFs, materials and lights live on the device.
 
 use std::time::Instant;
@@ -11,7 +11,9 @@ use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
 
 use super::data::{DataBytes, Words};
+use super::display::DeviceImage;
 use super::environment;
+use super::film::{self, DeviceFilm, MAX_LAYERS};
 use super::geometry::GeometryBuffers;
 use super::kernel::{self, Kernel, Slot};
 use super::reach::{Reach, reachable_clusters};
@@ -20,11 +22,11 @@ use super::{GpuContext, GpuError, Sharing};
 use crate::environment::EnvironmentSampler;
 use crate::geometry::SceneBvh;
 use crate::image::Image;
-use crate::render::film::{EMPTY_UV_BOX, material_bit, memory_limit_bytes};
+use crate::render::film::{LayeredFilm, material_bit};
 use crate::render::layers::{Before, Layers, MANY_LIGHTS};
 use crate::render::reach::EditedTexels;
 use crate::render::{
-    Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind,
+    Counters, Device, EditError, FrameStats, Invalidation, ModeError, ModeKind,
     PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit,
     Unsupported,
 };
@@ -35,7 +37,6 @@ use crate::trace::light_selection::{LightSampling, LightSelection};
 const MATERIAL_WORDS: usize = 8;
 /// Words of one light record (`shaders/lights.wgsl`).
 const LIGHT_WORDS: usize = 24;
-const AUX_WORDS: usize = 6;
 /// Counter slots of `shaders/integrator.wgsl` (two traversal overflows, then rays;
 /// the last is the environment's, `shaders/environment.wgsl`).
 const COUNTERS: usize = 8;
@@ -57,7 +58,8 @@ pub struct DeviceBytes {
     pub merl_tables: u64,
     /// `btf` materials' values and direction tables.
     pub btf_tables: u64,
-    /// One sample's layers and per-pixel masks (the f64 film itself is on the host).
+    /// The film (f32 sums per layer, per-pixel marks, the resolved image) and one
+    /// sample's layers.
     pub film: u64,
 }
 
@@ -103,10 +105,10 @@ struct Params {
     cam_up: [f32; 4],
 }
 
-/// Why one sample's layers at `width` x `height` would not fit in one buffer of the
-/// device (`None` if they fit): refused before anything is allocated.
+/// Why the film's sums at `width` x `height` (its largest buffer) would not fit in one
+/// buffer of the device (`None` if they fit): refused before anything is allocated.
 fn device_size_problem(ctx: &GpuContext, width: u32, height: u32, layers: usize) -> Option<String> {
-    let bytes = u64::from(width) * u64::from(height) * layers as u64 * 12;
+    let bytes = film::largest_buffer(width, height, layers);
     let limits = ctx.limits();
     let limit = limits
         .max_buffer_size
@@ -335,8 +337,6 @@ struct Resources {
     data: wgpu::Buffer,
     data_bytes: DataBytes,
     params: wgpu::Buffer,
-    frame: wgpu::Buffer,
-    aux: wgpu::Buffer,
     counters: wgpu::Buffer,
     env: wgpu::Buffer,
     bind: wgpu::BindGroup,
@@ -347,7 +347,7 @@ pub struct GpuSpmmMode {
     ctx: GpuContext,
     scene: Scene,
     bvh: SceneBvh,
-    film: Film,
+    film: DeviceFilm,
     layers: Layers,
     kernel: Kernel,
     res: Resources,
@@ -417,13 +417,9 @@ impl GpuSpmmMode {
         }
         Self::supports(&scene)?;
         let layers = Layers::new(&scene);
-        let film = Film::try_new(
-            width,
-            height,
-            layers.layer_count(&scene),
-            memory_limit_bytes(),
-        )?;
-        if let Some(p) = device_size_problem(&ctx, width, height, film.layers()) {
+        let layer_count = layers.layer_count(&scene);
+        debug_assert!(layer_count <= MAX_LAYERS, "render::layers bounds the layers");
+        if let Some(p) = device_size_problem(&ctx, width, height, layer_count) {
             return Err(ModeError::Size(p));
         }
         let mut report = PreparationReport::default();
@@ -459,14 +455,14 @@ impl GpuSpmmMode {
         prepare.report("device", 0.0)?;
         let start = Instant::now();
         let kernel = Kernel::new(&ctx, &shaders::integrator(), "render", &SLOTS);
+        let film = DeviceFilm::new(&ctx, width, height, layer_count);
         let res = Resources::upload(
             &ctx,
             &kernel,
             &bvh,
             &scene,
             (&scene_data, &env_words),
-            width,
-            height,
+            &film,
         );
         stage("device", start);
         if let Some(e) = ctx.failure() {
@@ -508,7 +504,7 @@ impl GpuSpmmMode {
             environment: self.res.env.size(),
             merl_tables: d.merl_tables,
             btf_tables: d.btf_tables,
-            film: self.res.frame.size() + self.res.aux.size(),
+            film: self.film.bytes(),
         }
     }
 
@@ -518,8 +514,9 @@ impl GpuSpmmMode {
         (self.overflows[0], self.overflows[1])
     }
 
-    pub fn film(&self) -> &Film {
-        &self.film
+    /// The film's layers (one per emitter, or a bounded film's).
+    pub fn film_layers(&self) -> usize {
+        self.film.layers()
     }
 
     fn params(&self, sample: u64) -> Params {
@@ -558,59 +555,46 @@ impl GpuSpmmMode {
         }
     }
 
-    /// One sample per pixel: dispatch, read back, add to the film. A failed device
-    /// adds nothing.
-    fn render_sample(&mut self, sample: u64) -> Result<Counters, GpuError> {
+    /// `count` samples per pixel from sample index `first`: per sample a dispatch of
+    /// the integrator and one of the film's accumulation, then one read-back of the
+    /// frame's counters (no image). A failed device adds nothing more.
+    fn render_samples(&mut self, first: u64, count: u32) -> Result<Counters, GpuError> {
         let ctx = &self.ctx;
-        ctx.queue.write_buffer(
-            &self.res.params,
-            0,
-            bytemuck::bytes_of(&self.params(sample)),
-        );
+        let active = self.layers.active(&self.scene);
+        let (w, h) = (self.film.width(), self.film.height());
         let mut enc = kernel::encoder(ctx);
         enc.clear_buffer(&self.res.counters, 0, None);
-        let (w, h) = (self.film.width(), self.film.height());
-        self.kernel.record(&mut enc, &self.res.bind, w * h);
-        let layers = self.film.layers();
-        let frame_size = u64::from(w) * u64::from(h) * layers as u64 * 12;
-        let aux_size = u64::from(w) * u64::from(h) * AUX_WORDS as u64 * 4;
+        ctx.queue.submit([enc.finish()]);
+        for i in 0..u64::from(count) {
+            // Written before the submission that reads them (the queue keeps order).
+            ctx.queue.write_buffer(
+                &self.res.params,
+                0,
+                bytemuck::bytes_of(&self.params(first + i)),
+            );
+            self.film.set_params(&active, false, &[]);
+            let mut enc = kernel::encoder(ctx);
+            self.kernel.record(&mut enc, &self.res.bind, w * h);
+            self.film.record_accumulate(&mut enc);
+            if i + 1 == u64::from(count) {
+                self.film.record_min_samples(&mut enc);
+            }
+            ctx.queue.submit([enc.finish()]);
+        }
         let bytes = kernel::submit_and_read(
             ctx,
-            enc,
+            kernel::encoder(ctx),
             &[
-                (&self.res.frame, frame_size),
-                (&self.res.aux, aux_size),
                 (&self.res.counters, COUNTERS as u64 * 4),
+                (self.film.stats(), 8),
             ],
         )?;
-        let frame: &[f32] = bytemuck::cast_slice(&bytes[0]);
-        let aux: &[u32] = bytemuck::cast_slice(&bytes[1]);
-        let counters: &[u32] = bytemuck::cast_slice(&bytes[2]);
+        let counters: &[u32] = bytemuck::cast_slice(&bytes[0]);
+        self.film.refresh(bytemuck::cast_slice(&bytes[1]));
         self.overflows[0] += u64::from(counters[0]);
         self.overflows[1] += u64::from(counters[1]);
-        let active = self.layers.active(&self.scene);
-        let width = w as usize;
-        self.film.par_rows(|row| {
-            for x in 0..w {
-                let p = row.y as usize * width + x as usize;
-                for &l in &active {
-                    let at = (p * layers + l) * 3;
-                    let v =
-                        DVec3::new(frame[at] as f64, frame[at + 1] as f64, frame[at + 2] as f64);
-                    row.add(x, l, v);
-                }
-                let a = &aux[p * AUX_WORDS..(p + 1) * AUX_WORDS];
-                row.touch(x, u64::from(a[0]) | (u64::from(a[1]) << 32));
-                let b = [a[2], a[3], a[4], a[5]].map(f32::from_bits);
-                if b[0] <= b[2] && b[1] <= b[3] {
-                    row.reach_box(x, &b);
-                } else {
-                    row.reach_box(x, &EMPTY_UV_BOX);
-                }
-            }
-        });
         Ok(Counters {
-            samples: u64::from(w) * u64::from(h),
+            samples: u64::from(w) * u64::from(h) * u64::from(count),
             shading_points: u64::from(counters[6]),
             rays: RayCounts {
                 primary: u64::from(counters[2]),
@@ -629,6 +613,18 @@ impl GpuSpmmMode {
             .enumerate()
             .filter(|(_, r)| **r)
             .fold(0, |m, (i, _)| m | material_bit(i))
+    }
+
+    /// The pixels an edit restarted; a device that failed while they were found
+    /// restarts nothing more (the mode reports the failure).
+    fn restarted(&mut self, pixels: Result<Vec<u32>, GpuError>) -> Invalidation {
+        match pixels {
+            Ok(p) => Invalidation::Pixels(p.len()),
+            Err(e) => {
+                self.failure = Some(e);
+                Invalidation::All
+            }
+        }
     }
 
     fn restart_all(&mut self) -> Invalidation {
@@ -668,8 +664,7 @@ impl GpuSpmmMode {
             &self.bvh,
             &self.scene,
             (&self.scene_data, &self.env_words),
-            self.film.width(),
-            self.film.height(),
+            &self.film,
         );
     }
 
@@ -725,16 +720,11 @@ impl Resources {
         bvh: &SceneBvh,
         scene: &Scene,
         (data, env_words): (&SceneData, &[u32]),
-        width: u32,
-        height: u32,
+        film: &DeviceFilm,
     ) -> Self {
         let geometry = GeometryBuffers::upload(ctx, bvh, &scene.meshes);
         let data_buf = kernel::storage(ctx, "data", bytemuck::cast_slice(&data.words.words));
         let params = kernel::uniform(ctx, "params", bytemuck::bytes_of(&Params::default()));
-        let pixels = u64::from(width) * u64::from(height);
-        let layers = crate::render::layers::layer_count(scene) as u64;
-        let frame = kernel::zeroed(ctx, "frame", pixels * layers * 12);
-        let aux = kernel::zeroed(ctx, "aux", pixels * AUX_WORDS as u64 * 4);
         let counters = kernel::zeroed(ctx, "counters", COUNTERS as u64 * 4);
         let env = kernel::storage(ctx, "environment", bytemuck::cast_slice(env_words));
         let bind = kernel.bind(
@@ -745,8 +735,8 @@ impl Resources {
                 &geometry.tris,
                 &geometry.shade,
                 &data_buf,
-                &frame,
-                &aux,
+                &film.frame,
+                &film.aux,
                 &counters,
                 &env,
             ],
@@ -756,8 +746,6 @@ impl Resources {
             data: data_buf,
             data_bytes: data.words.bytes,
             params,
-            frame,
-            aux,
             counters,
             env,
             bind,
@@ -781,19 +769,16 @@ impl RenderMode for GpuSpmmMode {
     fn render_frame(&mut self) -> FrameStats {
         let start = Instant::now();
         let dropped_before = self.film.dropped();
-        let mut counters = Counters::default();
         if self.failure.is_some() {
             return FrameStats::default();
         }
-        for i in 0..u64::from(self.samples_per_frame) {
-            match self.render_sample(self.next_sample + i) {
-                Ok(c) => counters = counters + c,
-                Err(e) => {
-                    self.failure = Some(e);
-                    break;
-                }
+        let counters = match self.render_samples(self.next_sample, self.samples_per_frame) {
+            Ok(c) => c,
+            Err(e) => {
+                self.failure = Some(e);
+                Counters::default()
             }
-        }
+        };
         self.next_sample += u64::from(self.samples_per_frame);
         self.frames += 1;
         FrameStats {
@@ -803,14 +788,31 @@ impl RenderMode for GpuSpmmMode {
         }
     }
 
+    /// The film resolved on the device and read back; black once the device failed
+    /// (its film is gone with it: `failure` says why).
     fn image(&self) -> Image {
-        self.film.resolve(&self.layers.weights(&self.scene))
+        self.image_on_device()
+            .and_then(|d| d.read().ok())
+            .map_or_else(
+                || Image::new(self.film.width(), self.film.height()),
+                |img| (*img).clone(),
+            )
+    }
+
+    fn image_on_device(&self) -> Option<DeviceImage> {
+        if self.failure.is_some() {
+            return None;
+        }
+        Some(self.film.resolve(
+            &self.layers.active(&self.scene),
+            &self.layers.weights(&self.scene),
+        ))
     }
 
     fn progress(&self) -> Progress {
         Progress {
             frames: self.frames,
-            min_samples: self.film.min_samples(&self.layers.active(&self.scene)),
+            min_samples: self.film.min_samples(),
             dropped: self.film.dropped(),
             width: self.film.width(),
             height: self.film.height(),
@@ -875,13 +877,21 @@ impl RenderMode for GpuSpmmMode {
     }
 
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
+        let result = self.apply_edit(edit);
+        // The film's fewest samples as the edit left them (one small read-back).
+        if result.is_ok()
+            && self.failure.is_none()
+            && let Err(e) = self.film.recount(&self.layers.active(&self.scene))
+        {
+            self.failure = Some(e);
+        }
+        result
+    }
+}
+
+impl GpuSpmmMode {
+    fn apply_edit(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
         if let SceneEdit::Resize { width, height } = edit {
-            Film::check(
-                width,
-                height,
-                self.film.layers(),
-                memory_limit_bytes() + self.film.bytes(),
-            )?;
             if let Some(p) = device_size_problem(&self.ctx, width, height, self.film.layers()) {
                 return Err(EditError::Size(p));
             }
@@ -979,17 +989,20 @@ impl RenderMode for GpuSpmmMode {
                 self.rebind();
                 let after = &self.scene.materials[index];
                 let bit = material_bit(index);
-                Invalidation::Pixels(
-                    match material_before.and_then(|b| EditedTexels::between(&b, after)) {
-                        Some(texels) => self.film.reset_reaching(bit, |b| texels.reaches(b)),
-                        None => self.film.reset_touching(bit),
-                    },
-                )
+                let restarted = match material_before.and_then(|b| EditedTexels::between(&b, after)) {
+                    Some(texels) => self
+                        .film
+                        .reset_where(|mask, b| mask & bit != 0 && texels.reaches(b)),
+                    None => self.film.reset_where(|mask, _| mask & bit != 0),
+                };
+                self.restarted(restarted)
             }
             SceneEdit::Moving(moving) if moving == self.moving => Invalidation::Nothing,
             SceneEdit::Moving(moving) => {
                 self.moving = moving;
-                Invalidation::Pixels(self.film.reset_touching(self.residual_mask()))
+                let residual = self.residual_mask();
+                let restarted = self.film.reset_where(|mask, _| mask & residual != 0);
+                self.restarted(restarted)
             }
             SceneEdit::Light { .. }
             | SceneEdit::AddLight(_)

@@ -12,6 +12,8 @@ pub(super) const ENVIRONMENT: &str = include_str!("../../../shaders/environment.
 pub(super) const MERL: &str = include_str!("../../../shaders/merl.wgsl");
 pub(super) const CDF: &str = include_str!("../../../shaders/cdf.wgsl");
 pub(super) const BTF_TABLE: &str = include_str!("../../../shaders/btf.wgsl");
+pub(super) const FILM: &str = include_str!("../../../shaders/film.wgsl");
+pub(super) const DISPLAY: &str = include_str!("../../../shaders/display.wgsl");
 
 /// The test kernels: evaluations of BRDFs and SPMM texels, and primary-ray hits.
 #[cfg(test)]

@@ -102,6 +102,38 @@ pub fn extend_uv_box(b: &mut UvBox, uv: glam::DVec2) {
     }
 }
 
+/// What the light layout (`render::layers::Layers`) does to a film: the host's
+/// `Film` and the GPU mode's film on the device.
+pub trait LayeredFilm {
+    fn layers(&self) -> usize;
+    /// Forgets one layer's samples (its light moved).
+    fn reset_layer(&mut self, layer: usize);
+    /// Keeps layers `0..keep` and makes the rest, up to `layers`, empty.
+    fn keep_layers(&mut self, layers: usize, keep: usize);
+    /// Appends an empty layer (a light was added).
+    fn push_layer(&mut self);
+    /// Removes a layer (a light was removed); the others keep their samples.
+    fn remove_layer(&mut self, layer: usize);
+}
+
+impl LayeredFilm for Film {
+    fn layers(&self) -> usize {
+        self.layers
+    }
+    fn reset_layer(&mut self, layer: usize) {
+        Film::reset_layer(self, layer);
+    }
+    fn keep_layers(&mut self, layers: usize, keep: usize) {
+        Film::keep_layers(self, layers, keep);
+    }
+    fn push_layer(&mut self) {
+        Film::push_layer(self);
+    }
+    fn remove_layer(&mut self, layer: usize) {
+        Film::remove_layer(self, layer);
+    }
+}
+
 /// The bit of material `index` in a pixel's touched mask.
 pub fn material_bit(index: usize) -> u64 {
     1 << (index % 64)

@@ -9,7 +9,7 @@
 use glam::DVec3;
 
 use super::edit::{Invalidation, SceneEdit};
-use super::film::Film;
+use super::film::LayeredFilm;
 use crate::scene::{Background, Environment, Light, Scene};
 
 pub const BACKGROUND: usize = 0;
@@ -244,7 +244,7 @@ impl Layers {
 
     /// Gives light `k` the least recently used own slot (its former light joins the
     /// shared layer); restarts that slot and the shared layer.
-    fn promote(&mut self, film: &mut Film, k: usize) -> Invalidation {
+    fn promote(&mut self, film: &mut impl LayeredFilm, k: usize) -> Invalidation {
         let s = (0..OWN_LIGHT_LAYERS)
             .min_by_key(|&s| self.used[s])
             .expect("at least one own slot");
@@ -258,7 +258,7 @@ impl Layers {
 
     /// A light count crossed `MANY_LIGHTS`: the light layers are laid out again and
     /// restart; the other layers keep their samples.
-    fn relayout(&mut self, film: &mut Film, scene: &Scene) -> Invalidation {
+    fn relayout(&mut self, film: &mut impl LayeredFilm, scene: &Scene) -> Invalidation {
         self.lay_out_lights(scene);
         let count = self.layer_count(scene);
         film.keep_layers(count, FIRST_LIGHT);
@@ -274,7 +274,7 @@ impl Layers {
     /// the same light (a slider drag) free or restart only its slot.
     pub fn apply(
         &mut self,
-        film: &mut Film,
+        film: &mut impl LayeredFilm,
         before: &Before,
         edit: &SceneEdit,
         scene: &Scene,

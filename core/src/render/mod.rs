@@ -305,6 +305,11 @@ pub trait RenderMode: Send {
     }
     /// The image accumulated so far, with the current emissions.
     fn image(&self) -> Image;
+    /// The same image left on the mode's GPU device (`None`: the mode's film is on the
+    /// host): a window drawn with that device shows it without a read-back.
+    fn image_on_device(&self) -> Option<crate::gpu::DeviceImage> {
+        None
+    }
     fn progress(&self) -> Progress;
     /// Applies an edit and restarts only what it invalidates. An edit that brings
     /// what the mode cannot render is refused (`EditError::Unsupported`).

@@ -1,9 +1,9 @@
 // A resolved image (film.wgsl's `resolve`) to the viewport's texture, as
 // core/src/image/tonemap.rs encodes it for a PNG or the host's texture: exposure
 // (a scale of 2^stops), clamp to [0, 1] (NaN shows black), the sRGB curve of
-// IEC 61966-2-1, then 8-bit quantisation. The texture is `rgba8unorm` written with
-// the encoded values; the window samples it through an sRGB view, as egui's own
-// textures. One invocation per pixel.
+// IEC 61966-2-1, then 8-bit quantisation. The texture is `rgba8unorm` holding the
+// encoded values, which the window (egui's renderer) samples as they are. One
+// invocation per pixel.
 
 struct DisplayParams {
     width: u32,

@@ -36,7 +36,8 @@ fn main() -> eframe::Result<()> {
                 scene,
                 settings,
                 Arc::new(modes),
-            ))))
+            )
+            .drawn_by(cc.wgpu_render_state.clone()))))
         }),
     )
 }

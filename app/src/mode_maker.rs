@@ -8,7 +8,7 @@
 use std::sync::Arc;
 
 use meso_core::gpu::GpuContext;
-use meso_core::modes;
+use meso_core::modes::{self, GpuDevice};
 use meso_core::render::{Device, ModeError, ModeKind, Prepare, RenderMode};
 use meso_core::scene::Scene;
 
@@ -77,17 +77,10 @@ impl ModeMaker for CoreModes {
         height: u32,
         prepare: Prepare,
     ) -> Result<Box<dyn RenderMode>, ModeError> {
-        let own;
-        let gpu = match (&self.gpu, &self.unshared, device) {
-            (None, Some(why), Device::Gpu) if modes::is_built(kind, device) => {
-                // The scene is checked first, as core's registry does.
-                modes::supports(kind, device, &scene)?;
-                own = GpuContext::new()
-                    .map_err(|e| ModeError::NoDevice(e.to_string()))?
-                    .own_because(why.clone());
-                Some(&own)
-            }
-            _ => self.gpu.as_ref(),
+        let gpu = match (&self.gpu, &self.unshared) {
+            (Some(ctx), _) => GpuDevice::Shared(ctx),
+            (None, Some(why)) => GpuDevice::OwnBecause(why),
+            (None, None) => GpuDevice::Own,
         };
         modes::create_on(gpu, kind, device, scene, width, height, prepare)
     }

@@ -356,7 +356,10 @@ fn a_mode_that_is_not_built_says_so_and_the_old_mode_keeps_rendering() {
     assert_eq!(next_frame_mode(&mut h), ModeKind::Spmm);
     let f = h.state().frame().expect("frame");
     assert!(
-        f.image.pixels().iter().any(|p| p.iter().any(|&c| c > 0.0)),
+        f.image()
+            .pixels()
+            .iter()
+            .any(|p| p.iter().any(|&c| c > 0.0)),
         "not black"
     );
 }
@@ -385,7 +388,7 @@ fn the_compare_view_shows_exactly_what_metrics_compare_says() {
                 .state()
                 .frame()
                 .filter(|f| f.progress.min_samples >= 4)
-                .map(|f| Arc::clone(&f.image));
+                .map(|f| f.image());
             h.state().measured().is_some_and(|m| {
                 m.reference_spp >= 8
                     && final_frame
@@ -535,10 +538,7 @@ fn the_adaptive_mode_renders_a_shipped_merl_scene_and_shows_its_debug_overlays()
     let names: Vec<&str> = frame.overlays.iter().map(|o| o.0).collect();
     assert_eq!(names, ["bandwidth level", "samples per pixel"]);
     for (_, img) in &frame.overlays {
-        assert_eq!(
-            (img.width(), img.height()),
-            (frame.image.width(), frame.image.height())
-        );
+        assert_eq!((img.width(), img.height()), frame.estimate.size());
     }
     h.state_mut()
         .viewport
@@ -578,7 +578,7 @@ fn the_biscale_mode_renders_a_shipped_scene_turns_its_light_and_reprepares_for_n
         h.query_by_label_contains("FLOP ratio").is_some(),
         "in the status bar"
     );
-    let before = h.state().frame().expect("frame").image.clone();
+    let before = h.state().frame().expect("frame").image();
 
     h.get_by_role_and_label(Role::Slider, "environment rotation (deg)")
         .set_value_accesskit(120.0);
@@ -593,7 +593,7 @@ fn the_biscale_mode_renders_a_shipped_scene_turns_its_light_and_reprepares_for_n
     let changed = before
         .pixels()
         .iter()
-        .zip(frame.image.pixels())
+        .zip(frame.image().pixels())
         .filter(|(a, b)| (a[0] - b[0]).abs() > 1e-3)
         .count();
     assert!(changed > 0, "turning the map changes the image");
@@ -656,7 +656,7 @@ fn the_gpu_mode_renders_on_the_windows_own_device() {
     assert!(summary.starts_with(&adapter), "{summary}");
     assert!(summary.contains("shared with the window"), "{summary}");
     assert!(
-        frame.image.pixels().iter().flatten().any(|v| *v > 0.0),
+        frame.image().pixels().iter().flatten().any(|v| *v > 0.0),
         "the GPU frame is not black"
     );
     // The window draws with the device the mode renders on, and the mode keeps going.
@@ -664,6 +664,106 @@ fn the_gpu_mode_renders_on_the_windows_own_device() {
     next_frame_mode(&mut h);
     let now = h.state().frame().expect("a frame");
     assert_eq!(now.device, Device::Gpu, "no fallback to the CPU");
+}
+
+/// On the window's own device, a GPU frame reaches the screen without leaving the
+/// device: the render thread publishes the estimate on the device (the denoiser off),
+/// the viewport encodes it there into the texture the window samples, and while
+/// frames go on only their counters are read back (under 100 bytes a frame, against
+/// 16 bytes a pixel for an image). What the window draws in the viewport is the
+/// frame's image as `to_srgb8` encodes it: the mean code within 1.5 and the same
+/// contrast (the texture is stretched over the viewport, so pixels are compared in
+/// bulk). Needs a wgpu adapter (CI: lavapipe).
+#[test]
+fn a_gpu_frame_reaches_the_window_without_a_read_back() {
+    use crate::window_device;
+    let rs = egui_kittest::wgpu::create_render_state(
+        window_device::wgpu_configuration().wgpu_setup,
+        eframe::egui_wgpu::RendererOptions::PREDICTABLE,
+    );
+    let modes = window_device::modes_for(Some(&rs));
+    let ctx = modes.gpu().expect("the window's device is shared").clone();
+    let settings = Settings {
+        denoise: false,
+        exposure: 0.5,
+        ..small()
+    };
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1280.0, 800.0))
+        .renderer(egui_kittest::wgpu::WgpuTestRenderer::from_render_state(
+            rs.clone(),
+        ))
+        .build_ui_state(
+            |ui, s: &mut Studio| s.show(ui),
+            Studio::with_maker(None, None, settings, Arc::new(modes)).drawn_by(Some(rs.clone())),
+        );
+    loaded(&mut h);
+    h.state_mut().request_mode(ModeKind::Spmm, Device::Gpu);
+    step_until(&mut h, "a frame of the GPU mode", |h| {
+        h.state()
+            .frame()
+            .is_some_and(|f| f.device == Device::Gpu && f.progress.min_samples >= 2)
+    });
+    let (before, samples) = (
+        ctx.bytes_read_back(),
+        h.state().frame().expect("a frame").progress.min_samples,
+    );
+    step_until(&mut h, "four more samples", |h| {
+        h.state()
+            .frame()
+            .is_some_and(|f| f.progress.min_samples >= samples + 4)
+    });
+    let frames = h.state().frame().expect("a frame").progress.min_samples - samples;
+    let per_frame = (ctx.bytes_read_back() - before) / u64::from(frames);
+    assert!(per_frame < 100, "{per_frame} bytes read back per frame");
+    h.state_mut().set_max_samples(1);
+    next_frame_mode(&mut h);
+    h.step();
+    let frame = h.state().frame().expect("a frame").clone();
+    assert!(
+        frame.estimate.on_device().is_some(),
+        "the estimate stays on the device"
+    );
+    assert!(
+        h.state().shows_frames_from_device(),
+        "shown from the device"
+    );
+    let screen = h.render().expect("the window draws");
+    let rect = h.state().viewport.rect.expect("the viewport was shown");
+    let ppp = h.ctx.pixels_per_point();
+    let (x0, y0) = (
+        (rect.min.x * ppp).ceil() as u32 + 1,
+        (rect.min.y * ppp).ceil() as u32 + 1,
+    );
+    let (x1, y1) = (
+        (rect.max.x * ppp).floor() as u32 - 1,
+        (rect.max.y * ppp).floor() as u32 - 1,
+    );
+    let drawn: Vec<f64> = (y0..y1)
+        .flat_map(|y| (x0..x1).map(move |x| (x, y)))
+        .flat_map(|(x, y)| screen.get_pixel(x, y).0[..3].to_vec())
+        .map(f64::from)
+        .collect();
+    let want: Vec<f64> = meso_core::image::to_srgb8(&frame.image(), 0.5)
+        .into_iter()
+        .flatten()
+        .map(f64::from)
+        .collect();
+    let stats = |v: &[f64]| {
+        let mean = v.iter().sum::<f64>() / v.len() as f64;
+        let sd = (v.iter().map(|c| (c - mean).powi(2)).sum::<f64>() / v.len() as f64).sqrt();
+        (mean, sd)
+    };
+    let ((m_drawn, sd_drawn), (m_want, sd_want)) = (stats(&drawn), stats(&want));
+    assert!(sd_want > 5.0, "the image has structure: {sd_want}");
+    assert!(
+        (m_drawn - m_want).abs() < 1.5,
+        "mean code on screen {m_drawn:.2}, of the image {m_want:.2}"
+    );
+    assert!(
+        (sd_drawn - sd_want).abs() < 0.1 * sd_want,
+        "contrast on screen {sd_drawn:.2}, of the image {sd_want:.2}"
+    );
 }
 
 /// A window device made with less than the GPU mode needs is not shared: each GPU

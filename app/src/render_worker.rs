@@ -5,12 +5,16 @@
 //! asks egui to repaint. It idles once every pixel has `max_samples` samples.
 //! A mode prepared elsewhere (the studio's mode-switch job) is swapped in by
 //! `Install`; until then the previous mode keeps rendering.
+//! A GPU mode's frame stays on its device (`Estimate::Device`) unless the denoiser
+//! needs it on the host: the viewport shows it from there, and the host reads it back
+//! only when it asks for the image (saving, comparing).
 
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use meso_core::gpu::DeviceImage;
 use meso_core::image::Image;
 use meso_core::render::{
     Denoiser, Device, Guides, ModeKind, Prepare, Progress, RenderMode, SceneEdit, denoise, preview,
@@ -55,6 +59,42 @@ pub enum Command {
     YieldToEdits(bool),
 }
 
+/// A frame's estimate: on the host, or left on the GPU mode's device.
+#[derive(Clone, Debug)]
+pub enum Estimate {
+    Host(Arc<Image>),
+    /// Read back the first time the host asks for it (`image`).
+    Device(DeviceImage),
+}
+
+impl Estimate {
+    /// The estimate on the host. A read-back the device fails gives a black image of
+    /// the frame's size (the render thread reports the failure with the next frame).
+    pub fn image(&self) -> Arc<Image> {
+        match self {
+            Self::Host(img) => Arc::clone(img),
+            Self::Device(d) => d
+                .read()
+                .unwrap_or_else(|_| Arc::new(Image::new(d.width(), d.height()))),
+        }
+    }
+
+    pub fn size(&self) -> (u32, u32) {
+        match self {
+            Self::Host(img) => (img.width(), img.height()),
+            Self::Device(d) => (d.width(), d.height()),
+        }
+    }
+
+    /// The estimate on the device, when it is there.
+    pub fn on_device(&self) -> Option<&DeviceImage> {
+        match self {
+            Self::Host(_) => None,
+            Self::Device(d) => Some(d),
+        }
+    }
+}
+
 /// A finished frame.
 #[derive(Clone)]
 pub struct Frame {
@@ -63,16 +103,17 @@ pub struct Frame {
     /// The mode that rendered it.
     pub mode: ModeKind,
     pub device: Device,
-    /// The estimate: what is saved, compared and measured.
-    pub image: Arc<Image>,
+    /// The estimate: what is saved, compared and measured (`image`).
+    pub estimate: Estimate,
     /// The mode's debug images by name (`RenderMode::debug_overlays`; the adaptive
     /// mode's bandwidth level and samples per pixel), empty for other modes.
     pub overlays: Vec<(&'static str, Arc<Image>)>,
-    /// What the viewport shows: the estimate, blended with its denoised version
-    /// during the first frames when the denoiser is on (the same `Arc` otherwise).
-    pub shown: Arc<Image>,
+    /// What the viewport shows when it is not the estimate itself: the estimate
+    /// blended with its denoised version during the first frames when the denoiser is
+    /// on (`None`: the estimate).
+    pub shown: Option<Arc<Image>>,
     /// A preview after an edit that restarted every pixel: one pixel per block has
-    /// its first sample and `image` and `shown` are those pixels spread over the
+    /// its first sample and the estimate and `shown` are those pixels spread over the
     /// image (`render::preview`), for the viewport only: not an estimate to measure.
     pub preview: bool,
     pub progress: Progress,
@@ -83,6 +124,18 @@ pub struct Frame {
     pub summary: Option<String>,
     /// Prepared material data held and what preparing everything would hold.
     pub material_bytes: Option<meso_core::render::MaterialBytes>,
+}
+
+impl Frame {
+    /// The estimate on the host (read back from the device the first time).
+    pub fn image(&self) -> Arc<Image> {
+        self.estimate.image()
+    }
+
+    /// What the viewport shows, on the host.
+    pub fn shown_image(&self) -> Arc<Image> {
+        self.shown.clone().unwrap_or_else(|| self.image())
+    }
 }
 
 /// Something the thread did on its own: a failed device replaced.
@@ -192,34 +245,40 @@ enum Filter<'a> {
     Halved,
 }
 
-/// The viewport's picture of `image` after `samples` samples per pixel: blended with
-/// its denoised version while the blend's strength is positive and the mode gives
-/// guides. `guides` caches the mode's guides until a command changes the scene, the
-/// view or the mode (they trace a ray per pixel: most of the denoiser's cost).
-/// `None` when a full filter was stopped.
-fn shown(
-    mode: &dyn RenderMode,
-    image: &Arc<Image>,
+/// The viewport's picture of `m`'s film after `samples` samples per pixel, with the
+/// estimate: the estimate blended with its denoised version while the blend's strength
+/// is positive and the mode gives guides (the estimate then read to the host); else
+/// the estimate alone, left on the device where the mode's film is. `guides` caches
+/// the mode's guides until a command changes the scene, the view or the mode (they
+/// trace a ray per pixel: most of the denoiser's cost). `None` when a full filter was
+/// stopped.
+fn estimate_and_shown(
+    m: &dyn RenderMode,
     samples: u32,
-    guides: &mut Option<Option<Guides>>,
+    (denoise, guides): (bool, &mut Option<Option<Guides>>),
     filter: Filter,
-) -> Option<Arc<Image>> {
+) -> Option<(Estimate, Option<Arc<Image>>)> {
     let strength = denoise::viewport_strength(samples);
-    if strength <= 0.0 {
-        return Some(Arc::clone(image));
-    }
+    let g = if denoise && strength > 0.0 {
+        guides.get_or_insert_with(|| m.guides()).as_ref()
+    } else {
+        None
+    };
+    let Some(g) = g else {
+        let estimate = match m.image_on_device() {
+            Some(d) => Estimate::Device(d),
+            None => Estimate::Host(Arc::new(m.image())),
+        };
+        return Some((estimate, None));
+    };
+    let image = m.image();
     let denoiser = Denoiser::for_samples(samples);
-    let Some(g) = guides.get_or_insert_with(|| mode.guides()).as_ref() else {
-        return Some(Arc::clone(image));
-    };
     let filtered = match filter {
-        Filter::Full(stop) => Some(denoiser.apply_unless(image, g, stop)?),
-        Filter::Halved => denoiser.apply_halved(image, &g.halved()),
+        Filter::Full(stop) => Some(denoiser.apply_unless(&image, g, stop)?),
+        Filter::Halved => denoiser.apply_halved(&image, &g.halved()),
     };
-    Some(filtered.map_or_else(
-        || Arc::clone(image),
-        |d| Arc::new(denoise::blend(image, &d, strength)),
-    ))
+    let shown = filtered.map(|d| Arc::new(denoise::blend(&image, &d, strength)));
+    Some((Estimate::Host(Arc::new(image)), shown))
 }
 
 /// Whether `command` may change what the pixels' centre rays see first (the
@@ -256,7 +315,7 @@ fn publish_preview(
     let image = Arc::new(preview::spread(&estimate, stride));
     let frame = Frame {
         preview: true,
-        ..frame_with(m, stats, version, Arc::clone(&image), image)
+        ..frame_with(m, stats, version, Estimate::Host(image), None)
     };
     publish(frame.clone());
     if let Some(denoised) = denoise
@@ -264,7 +323,7 @@ fn publish_preview(
         .flatten()
     {
         publish(Frame {
-            shown: Arc::new(denoised),
+            shown: Some(Arc::new(denoised)),
             ..frame
         });
     }
@@ -297,14 +356,10 @@ fn edited_frame_of(
     denoise: bool,
     guides: &mut Option<Option<Guides>>,
 ) -> Frame {
-    let image = Arc::new(m.image());
-    let shown = if denoise {
-        shown(m, &image, m.progress().min_samples, guides, Filter::Halved)
-            .unwrap_or_else(|| Arc::clone(&image))
-    } else {
-        Arc::clone(&image)
-    };
-    frame_with(m, Default::default(), version, image, shown)
+    let samples = m.progress().min_samples;
+    let (estimate, shown) = estimate_and_shown(m, samples, (denoise, guides), Filter::Halved)
+        .expect("a halved filter is never stopped");
+    frame_with(m, Default::default(), version, estimate, shown)
 }
 
 /// The frame to publish of `m`'s film now, after a call that did `stats`; `None` when
@@ -317,33 +372,33 @@ fn frame_of(
     (denoise, guides): (bool, &mut Option<Option<Guides>>),
     stop: &mut dyn FnMut() -> bool,
 ) -> Option<Frame> {
-    let image = Arc::new(m.image());
     let progress = m.progress();
     // A frame that traced only the pixels an edit restarted (a brush stroke step)
     // is shown as it is: denoising the whole image would cost far more than it.
     let pixels = u64::from(progress.width) * u64::from(progress.height);
     let partial = stats.counters.samples > 0 && stats.counters.samples * 2 <= pixels;
-    let shown = if denoise && !partial {
-        shown(m, &image, progress.min_samples, guides, Filter::Full(stop))?
-    } else {
-        Arc::clone(&image)
-    };
-    Some(frame_with(m, stats, version, image, shown))
+    let (estimate, shown) = estimate_and_shown(
+        m,
+        progress.min_samples,
+        (denoise && !partial, guides),
+        Filter::Full(stop),
+    )?;
+    Some(frame_with(m, stats, version, estimate, shown))
 }
 
 fn frame_with(
     m: &dyn RenderMode,
     stats: meso_core::render::FrameStats,
     version: u64,
-    image: Arc<Image>,
-    shown: Arc<Image>,
+    estimate: Estimate,
+    shown: Option<Arc<Image>>,
 ) -> Frame {
     Frame {
         version,
         mode: m.kind(),
         device: m.device(),
         shown,
-        image,
+        estimate,
         preview: false,
         progress: m.progress(),
         overlays: m
@@ -472,7 +527,7 @@ fn run(
         if converged {
             // The quick picture first, then the full filter's (the same without it).
             let quick = edited_frame_of(m.as_ref(), version, denoise, &mut guides);
-            let filtered = !Arc::ptr_eq(&quick.image, &quick.shown);
+            let filtered = quick.shown.is_some();
             publish(quick);
             if filtered
                 && let Some(f) = frame_of(
@@ -653,6 +708,9 @@ mod tests {
         fn image(&self) -> Image {
             self.inner.image()
         }
+        fn image_on_device(&self) -> Option<DeviceImage> {
+            self.inner.image_on_device()
+        }
         fn shows_every_pixel(&self) -> bool {
             self.inner.shows_every_pixel()
         }
@@ -777,7 +835,7 @@ mod tests {
             .expect("the CPU mode");
         meso_core::render::run_frames(reference.as_mut(), frame.progress.frames, |_, _| {});
         assert!(frame.progress.frames > 0);
-        assert_eq!(frame.image.pixels(), reference.image().pixels());
+        assert_eq!(frame.image().pixels(), reference.image().pixels());
     }
 
     /// Core's CPU spmm mode of `scene` at `size` square, made directly (the reference).
@@ -859,19 +917,19 @@ mod tests {
                 "version {version}: the first frame is a preview"
             );
             // Published as it is, then denoised (the whole frame waits for the test).
-            if Arc::ptr_eq(&first.image, &first.shown) {
+            if first.shown.is_none() {
                 let denoised = next_frame(&worker);
-                assert!(denoised.preview && Arc::ptr_eq(&denoised.image, &first.image));
+                assert!(denoised.preview && Arc::ptr_eq(&denoised.image(), &first.image()));
                 first = denoised;
             }
             assert_eq!((first.version, first.progress.min_samples), (version, 0));
             let mut direct = fresh(scene);
             direct.render_preview(stride).expect("a preview");
-            assert_eq!(*first.image, preview::spread(&direct.image(), stride));
+            assert_eq!(*first.image(), preview::spread(&direct.image(), stride));
             // Shown through the denoiser on the grid, which smooths it.
             let denoised = denoised_preview(direct.as_ref(), &direct.image(), stride);
             assert!(
-                Some(&*first.shown) == denoised.as_ref(),
+                first.shown.as_deref() == denoised.as_ref(),
                 "the preview is not shown through the denoiser on its grid"
             );
             let roughness = |img: &Image| {
@@ -880,14 +938,14 @@ mod tests {
                 p.windows(2).map(|w| (w[0][1] - w[1][1]).abs()).sum::<f32>()
             };
             assert!(
-                roughness(&first.shown) < 0.5 * roughness(&first.image),
+                roughness(&first.shown_image()) < 0.5 * roughness(&first.image()),
                 "the denoised preview is not smoother"
             );
             go.send(()).expect("the thread waits");
             let whole = next_frame(&worker);
             assert!(!whole.preview && whole.progress.min_samples == 1);
             direct.render_frame();
-            assert_eq!(whole.image.pixels(), direct.image().pixels());
+            assert_eq!(whole.image().pixels(), direct.image().pixels());
         }
         worker.send(Command::YieldToEdits(false));
         moved.camera.position.x += 0.2;
@@ -944,11 +1002,14 @@ mod tests {
             .find(|f| f.version == 2)
             .expect("a frame of the edit");
         assert_eq!(quick.progress.min_samples, 3);
-        assert_eq!(*quick.image, image);
+        assert_eq!(*quick.image(), image);
         let halved = denoiser
             .apply_halved(&image, &guides.halved())
             .expect("sizes");
-        assert_eq!(*quick.shown, denoise::blend(&image, &halved, strength));
+        assert_eq!(
+            *quick.shown_image(),
+            denoise::blend(&image, &halved, strength)
+        );
         go.send(()).expect("the thread waits");
         let full = next_frame(&worker);
         assert_eq!((full.version, full.progress.min_samples), (2, 4));
@@ -958,7 +1019,10 @@ mod tests {
             .apply(&image, &guides)
             .expect("sizes");
         let strength = denoise::viewport_strength(4);
-        assert_eq!(*full.shown, denoise::blend(&image, &filtered, strength));
+        assert_eq!(
+            *full.shown_image(),
+            denoise::blend(&image, &filtered, strength)
+        );
         drop(go);
     }
 }

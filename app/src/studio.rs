@@ -339,6 +339,20 @@ impl Studio {
         s
     }
 
+    /// The window is drawn by `render_state`'s wgpu renderer: a GPU mode's frames on
+    /// its device are shown from there (`window_device`).
+    pub fn drawn_by(mut self, render_state: Option<eframe::egui_wgpu::RenderState>) -> Self {
+        if let Some(rs) = render_state {
+            self.viewport.set_window(rs);
+        }
+        self
+    }
+
+    /// Whether the viewport's image was shown without leaving the device.
+    pub fn shows_frames_from_device(&self) -> bool {
+        self.viewport.shows_from_device()
+    }
+
     /// Stops the renderer after this many samples per pixel (tests pin images).
     pub fn set_max_samples(&self, n: u32) {
         self.worker.send(Command::MaxSamples(n));
@@ -966,7 +980,8 @@ impl Studio {
             self.error = Some("no frame has been rendered yet".into());
             return;
         };
-        if let Err(e) = meso_core::image::write_image(path, &frame.image, self.settings.exposure) {
+        if let Err(e) = meso_core::image::write_image(path, &frame.image(), self.settings.exposure)
+        {
             self.error = Some(format!("exporting failed: {e}"));
         }
     }
@@ -1592,7 +1607,7 @@ impl Studio {
         let key = (live.finished, r.seq);
         let comparable = live.version == r.version
             && !live.preview
-            && (live.image.width(), live.image.height()) == (r.image.width(), r.image.height());
+            && live.estimate.size() == (r.image.width(), r.image.height());
         if comparable
             && self.measure_job.is_none()
             && self.measure_key != Some(key)
@@ -1600,8 +1615,7 @@ impl Studio {
         {
             self.measure_key = Some(key);
             self.measure_started = Instant::now();
-            let (reference, live, reference_spp) =
-                (Arc::clone(&r.image), Arc::clone(&live.image), r.spp);
+            let (reference, live, reference_spp) = (Arc::clone(&r.image), live.image(), r.spp);
             self.measure_job = Some(Job::spawn("comparing", self.repaint.clone(), move || {
                 let comparison =
                     metrics::compare(&reference, &live, 0.0).map_err(|e| e.to_string())?;

@@ -320,7 +320,7 @@ fn assert_only_the_object_restarted(
     let unedited = frames_between(before, w, h, m, n);
     let (mut edited_px, mut object) = (0, 0);
     for (i, s) in seen.iter().enumerate() {
-        let got = after.image.pixels()[i];
+        let got = after.image().pixels()[i];
         match s {
             Some(None) => assert_eq!(got, fresh.pixels()[i], "pixel {i} off the object"),
             Some(Some(_)) => {
@@ -578,7 +578,11 @@ fn a_saved_pack_renders_in_core_exactly_as_in_the_viewport() {
     )
     .expect("size");
     run_frames(mode.as_mut(), frame.progress.frames, |_, _| {});
-    assert_eq!(*frame.image, mode.image(), "viewport and core render agree");
+    assert_eq!(
+        *frame.image(),
+        mode.image(),
+        "viewport and core render agree"
+    );
 }
 
 #[test]

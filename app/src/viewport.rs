@@ -6,11 +6,16 @@
 //! skipped; the studio sends those edits, this module only reports what happened.
 //! In the compare view a draggable vertical divider splits the image: the live frame
 //! on its left, the reference on its right, each half labelled.
+//! A frame left on the device the window draws with (a GPU mode sharing it) is
+//! encoded there into a texture the window samples: no copy through the host.
 
 use std::sync::Arc;
 
-use egui::{ColorImage, Sense, TextureHandle, TextureOptions, Ui, Vec2};
+use eframe::egui_wgpu::RenderState;
+use eframe::wgpu;
+use egui::{ColorImage, Sense, TextureHandle, TextureId, TextureOptions, Ui, Vec2};
 use glam::DVec3;
+use meso_core::gpu::DisplayTexture;
 use meso_core::image::{Image, to_srgb8};
 use meso_core::scene::Camera;
 
@@ -92,8 +97,50 @@ pub struct CompareLabels {
     pub reference: String,
 }
 
+/// The window's wgpu renderer and the texture frames on its device are shown in.
+struct WindowTexture {
+    render_state: RenderState,
+    texture: DisplayTexture,
+    /// The id egui knows the texture by, and the texture's generation it shows.
+    id: Option<(TextureId, u64)>,
+}
+
+impl WindowTexture {
+    /// The texture's id in the window's renderer, registered again when the texture
+    /// was made anew (a new size).
+    fn id(&mut self) -> TextureId {
+        let generation = self.texture.generation();
+        let rs = &self.render_state;
+        let mut renderer = rs.renderer.write();
+        let filter = wgpu::FilterMode::Linear;
+        match self.id {
+            Some((id, g)) if g == generation => id,
+            Some((id, _)) => {
+                renderer.update_egui_texture_from_wgpu_texture(
+                    &rs.device,
+                    self.texture.view(),
+                    filter,
+                    id,
+                );
+                self.id = Some((id, generation));
+                id
+            }
+            None => {
+                let id = renderer.register_native_texture(&rs.device, self.texture.view(), filter);
+                self.id = Some((id, generation));
+                id
+            }
+        }
+    }
+}
+
 pub struct Viewport {
     texture: Option<TextureHandle>,
+    /// Set when the window draws with wgpu: frames on its device are shown from there.
+    window: Option<WindowTexture>,
+    /// The texture the image is painted from, and whether it is the window's (a frame
+    /// shown without leaving the device).
+    painted: Option<(TextureId, bool)>,
     /// The debug overlay shown instead of the image, by name, and the one uploaded.
     overlay: Option<&'static str>,
     uploaded_overlay: Option<&'static str>,
@@ -112,6 +159,8 @@ impl Default for Viewport {
     fn default() -> Self {
         Self {
             texture: None,
+            window: None,
+            painted: None,
             overlay: None,
             uploaded_overlay: None,
             shown: None,
@@ -134,6 +183,21 @@ fn upload(ui: &Ui, texture: &mut Option<TextureHandle>, name: &str, img: &Image,
 }
 
 impl Viewport {
+    /// The window is drawn by `render_state`'s renderer: frames left on its device
+    /// are shown from there.
+    pub fn set_window(&mut self, render_state: RenderState) {
+        self.window = Some(WindowTexture {
+            texture: DisplayTexture::new(&render_state.device),
+            render_state,
+            id: None,
+        });
+    }
+
+    /// Whether the image on screen was shown without leaving the device.
+    pub fn shows_from_device(&self) -> bool {
+        self.painted.is_some_and(|(_, on_device)| on_device)
+    }
+
     /// Takes a newer reference image for the compare view.
     pub fn set_reference(&mut self, image: Arc<Image>) {
         self.reference = Some((image, f64::NAN));
@@ -190,20 +254,34 @@ impl Viewport {
                 || self.uploaded_overlay != self.overlay)
         {
             // A debug overlay is a colour map: shown as it is, without exposure.
-            match self
+            let overlay = self
                 .overlay
-                .and_then(|name| frame.overlays.iter().find(|o| o.0 == name))
-            {
-                Some((_, img)) => upload(ui, &mut self.texture, "viewport", img, 0.0),
-                None => {
-                    let image = if compare.is_some() {
-                        &frame.image
-                    } else {
-                        &frame.shown
-                    };
-                    upload(ui, &mut self.texture, "viewport", image, exposure);
+                .and_then(|name| frame.overlays.iter().find(|o| o.0 == name));
+            // The estimate itself (not a denoised blend), on the window's device.
+            let on_device = (overlay.is_none() && (compare.is_some() || frame.shown.is_none()))
+                .then(|| frame.estimate.on_device())
+                .flatten()
+                .and_then(|d| {
+                    let w = self.window.as_mut()?;
+                    (w.render_state.device == *d.device()).then_some((d, w))
+                });
+            self.painted = if let Some((d, w)) = on_device {
+                d.show_in(&mut w.texture, exposure);
+                Some((w.id(), true))
+            } else {
+                match overlay {
+                    Some((_, img)) => upload(ui, &mut self.texture, "viewport", img, 0.0),
+                    None => {
+                        let image = if compare.is_some() {
+                            frame.image()
+                        } else {
+                            frame.shown_image()
+                        };
+                        upload(ui, &mut self.texture, "viewport", &image, exposure);
+                    }
                 }
-            }
+                self.texture.as_ref().map(|t| (t.id(), false))
+            };
             *made_with = key;
             self.uploaded_overlay = self.overlay;
         }
@@ -218,9 +296,9 @@ impl Viewport {
         self.rect = Some(rect);
         ui.painter()
             .rect_filled(rect, 0.0, egui::Color32::from_gray(18));
-        if let Some(t) = &self.texture {
+        if let Some((id, _)) = self.painted {
             ui.painter().image(
-                t.id(),
+                id,
                 rect,
                 egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)),
                 egui::Color32::WHITE,

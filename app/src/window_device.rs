@@ -1,8 +1,9 @@
 //! The window's wgpu device, made so the GPU mode can render on it too: eframe is asked
 //! for a device with the limits the mode needs (`wgpu_configuration`), and the studio's
 //! registry is given that device (`modes_for`), or, when it cannot be shared, told why
-//! so each GPU mode makes its own and the status bar says so. The image still reaches
-//! the window through the host: the mode accumulates its film there (docs/gpu.md).
+//! so each GPU mode makes its own and the status bar says so. On a shared device a
+//! frame reaches the window without leaving it (the viewport's `DisplayTexture`,
+//! docs/gpu.md "No round trip").
 
 use std::sync::Arc;
 

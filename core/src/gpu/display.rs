@@ -104,7 +104,7 @@ impl DeviceImage {
                     },
                     wgpu::BindGroupEntry {
                         binding: 2,
-                        resource: wgpu::BindingResource::TextureView(&target.storage_view),
+                        resource: wgpu::BindingResource::TextureView(&target.view),
                     },
                 ],
             });
@@ -130,24 +130,21 @@ struct DisplayParams {
 }
 
 /// A texture on a window's device that `DeviceImage::show_in` writes (8-bit sRGB
-/// codes) and a window samples through `view` (an sRGB view, so sampling gives linear
-/// values as for egui's own textures). It follows the size of the images shown in it;
-/// `generation` changes when the texture is made anew.
+/// codes in `Rgba8Unorm`, what egui 0.37's renderer asks of a native texture: it
+/// samples gamma-encoded values) and a window samples through `view`. It follows the
+/// size of the images shown in it; `generation` changes when the texture is made anew.
 pub struct DisplayTexture {
     device: wgpu::Device,
     pipeline: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
     params: wgpu::Buffer,
     texture: wgpu::Texture,
-    storage_view: wgpu::TextureView,
     view: wgpu::TextureView,
     generation: u64,
 }
 
 impl DisplayTexture {
-    /// Format the texture is written in; `view` samples it as `VIEW_FORMAT`.
     const FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
-    const VIEW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
 
     pub fn new(device: &wgpu::Device) -> Self {
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -208,24 +205,19 @@ impl DisplayTexture {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let (texture, storage_view, view) = Self::make(device, 1, 1);
+        let (texture, view) = Self::make(device, 1, 1);
         Self {
             device: device.clone(),
             pipeline,
             layout,
             params,
             texture,
-            storage_view,
             view,
             generation: 0,
         }
     }
 
-    fn make(
-        device: &wgpu::Device,
-        width: u32,
-        height: u32,
-    ) -> (wgpu::Texture, wgpu::TextureView, wgpu::TextureView) {
+    fn make(device: &wgpu::Device, width: u32, height: u32) -> (wgpu::Texture, wgpu::TextureView) {
         let texture = device.create_texture(&wgpu::TextureDescriptor {
             label: Some("viewport"),
             size: wgpu::Extent3d {
@@ -240,28 +232,22 @@ impl DisplayTexture {
             usage: wgpu::TextureUsages::STORAGE_BINDING
                 | wgpu::TextureUsages::TEXTURE_BINDING
                 | wgpu::TextureUsages::COPY_SRC,
-            view_formats: &[Self::VIEW_FORMAT],
+            view_formats: &[],
         });
-        let storage_view = texture.create_view(&wgpu::TextureViewDescriptor::default());
-        // Sampled only: an sRGB format cannot be a storage binding.
-        let view = texture.create_view(&wgpu::TextureViewDescriptor {
-            format: Some(Self::VIEW_FORMAT),
-            usage: Some(wgpu::TextureUsages::TEXTURE_BINDING),
-            ..Default::default()
-        });
-        (texture, storage_view, view)
+        let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+        (texture, view)
     }
 
     /// Makes the texture anew when the images shown change size.
     fn fit(&mut self, width: u32, height: u32) {
         let size = self.texture.size();
         if (size.width, size.height) != (width.max(1), height.max(1)) {
-            (self.texture, self.storage_view, self.view) = Self::make(&self.device, width, height);
+            (self.texture, self.view) = Self::make(&self.device, width, height);
             self.generation += 1;
         }
     }
 
-    /// The view a window samples (sRGB: linear values come out).
+    /// The view a window samples (and the display pass writes).
     pub fn view(&self) -> &wgpu::TextureView {
         &self.view
     }

@@ -76,7 +76,8 @@ fn add(host: &mut Film, device: &DeviceFilm, sample: &Sample, active: &[usize]) 
     assert_eq!(aux.len(), sample.masks.len() * AUX_WORDS);
     ctx.queue
         .write_buffer(&device.frame, 0, bytemuck::cast_slice(&sample.rgb));
-    ctx.queue.write_buffer(&device.aux, 0, bytemuck::cast_slice(&aux));
+    ctx.queue
+        .write_buffer(&device.aux, 0, bytemuck::cast_slice(&aux));
     device.set_params(active, false, &[]);
     let mut enc = encoder(ctx);
     device.record_accumulate(&mut enc);
@@ -240,7 +241,11 @@ fn the_display_texture_holds_what_to_srgb8_encodes() {
             _ => [0, 1, 2].map(|_| (s.next() * 1.5) as f32),
         };
     }
-    let texels: Vec<[f32; 4]> = img.pixels().iter().map(|p| [p[0], p[1], p[2], 1.0]).collect();
+    let texels: Vec<[f32; 4]> = img
+        .pixels()
+        .iter()
+        .map(|p| [p[0], p[1], p[2], 1.0])
+        .collect();
     let buffer = storage(ctx, "image", bytemuck::cast_slice(&texels));
     let device_image = DeviceImage::new(ctx.clone(), buffer, w, h);
     let back = device_image.read().expect("reads back");
@@ -297,7 +302,10 @@ fn a_frame_reads_back_its_counters_and_no_image() {
     assert_eq!(ctx.bytes_read_back() - before, 24 * 16 * 16);
     run_frames(&mut gpu, 2, |_, _| {});
     let kept = shown.read().expect("reads back");
-    assert_eq!(*kept, image, "a device image is one frame's, not the film's");
+    assert_eq!(
+        *kept, image,
+        "a device image is one frame's, not the film's"
+    );
     assert_ne!(gpu.image(), image, "the film went on");
     assert_eq!(gpu.progress().min_samples, 6);
 }

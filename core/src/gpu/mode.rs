@@ -26,9 +26,8 @@ use crate::render::film::{LayeredFilm, material_bit};
 use crate::render::layers::{Before, Layers, MANY_LIGHTS};
 use crate::render::reach::EditedTexels;
 use crate::render::{
-    Counters, Device, EditError, FrameStats, Invalidation, ModeError, ModeKind,
-    PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit,
-    Unsupported,
+    Counters, Device, EditError, FrameStats, Invalidation, ModeError, ModeKind, PreparationReport,
+    PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unsupported,
 };
 use crate::scene::{Light, Material, RenderSettings, Scene};
 use crate::spmm::PrepareRequest;
@@ -418,7 +417,10 @@ impl GpuSpmmMode {
         Self::supports(&scene)?;
         let layers = Layers::new(&scene);
         let layer_count = layers.layer_count(&scene);
-        debug_assert!(layer_count <= MAX_LAYERS, "render::layers bounds the layers");
+        debug_assert!(
+            layer_count <= MAX_LAYERS,
+            "render::layers bounds the layers"
+        );
         if let Some(p) = device_size_problem(&ctx, width, height, layer_count) {
             return Err(ModeError::Size(p));
         }
@@ -989,7 +991,8 @@ impl GpuSpmmMode {
                 self.rebind();
                 let after = &self.scene.materials[index];
                 let bit = material_bit(index);
-                let restarted = match material_before.and_then(|b| EditedTexels::between(&b, after)) {
+                let restarted = match material_before.and_then(|b| EditedTexels::between(&b, after))
+                {
                     Some(texels) => self
                         .film
                         .reset_where(|mask, b| mask & bit != 0 && texels.reaches(b)),

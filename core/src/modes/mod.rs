@@ -45,13 +45,24 @@ pub fn create(
     height: u32,
     prepare: Prepare,
 ) -> Result<Box<dyn RenderMode>, ModeError> {
-    create_on(None, kind, device, scene, width, height, prepare)
+    create_on(GpuDevice::Own, kind, device, scene, width, height, prepare)
 }
 
-/// `create`, with a GPU mode on `gpu` (a device made elsewhere, the studio's window's,
-/// or one kept for several modes) instead of a device of its own; `None`: `create`.
+/// The device a GPU mode renders on.
+#[derive(Clone, Copy, Debug)]
+pub enum GpuDevice<'a> {
+    /// One of its own, made for the mode.
+    Own,
+    /// One of its own, because a shared one could not be had (the reason, which the
+    /// mode's summary shows).
+    OwnBecause(&'a str),
+    /// One made elsewhere (the studio's window's) or kept for several modes.
+    Shared(&'a GpuContext),
+}
+
+/// `create`, with a GPU mode on the device `gpu` says.
 pub fn create_on(
-    gpu: Option<&GpuContext>,
+    gpu: GpuDevice,
     kind: ModeKind,
     device: Device,
     scene: Scene,
@@ -67,9 +78,11 @@ pub fn create_on(
             // The scene is checked before a device is looked for, so a scene at fault
             // is named whether or not this machine has an adapter.
             GpuSpmmMode::supports(&scene)?;
+            let own = || GpuContext::new().map_err(|e| ModeError::NoDevice(e.to_string()));
             let ctx = match gpu {
-                Some(ctx) => ctx.clone(),
-                None => GpuContext::new().map_err(|e| ModeError::NoDevice(e.to_string()))?,
+                GpuDevice::Shared(ctx) => ctx.clone(),
+                GpuDevice::Own => own()?,
+                GpuDevice::OwnBecause(why) => own()?.own_because(why),
             };
             Ok(Box::new(GpuSpmmMode::prepare(
                 ctx, scene, width, height, prepare,

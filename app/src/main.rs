@@ -31,13 +31,14 @@ fn main() -> eframe::Result<()> {
                 .and_then(|s| eframe::get_value::<Settings>(s, eframe::APP_KEY))
                 .unwrap_or_default();
             let modes = window_device::modes_for(cc.wgpu_render_state.as_ref());
+            let window = cc.wgpu_render_state.clone().zip(modes.gpu().cloned());
             Ok(Box::new(App(Studio::with_maker(
                 Some(cc.egui_ctx.clone()),
                 scene,
                 settings,
                 Arc::new(modes),
             )
-            .drawn_by(cc.wgpu_render_state.clone()))))
+            .drawn_by(window))))
         }),
     )
 }

@@ -670,7 +670,7 @@ fn the_gpu_mode_renders_on_the_windows_own_device() {
 /// device: the render thread publishes the estimate on the device (the denoiser off),
 /// the viewport encodes it there into the texture the window samples, and while
 /// frames go on only their counters are read back (under 100 bytes a frame, against
-/// 16 bytes a pixel for an image). What the window draws in the viewport is the
+/// 16 bytes a pixel for an image), and the status bar says so. What the window draws in the viewport is the
 /// frame's image as `to_srgb8` encodes it: the mean code within 1.5 and the same
 /// contrast (the texture is stretched over the viewport, so pixels are compared in
 /// bulk). Needs a wgpu adapter (CI: lavapipe).
@@ -695,7 +695,8 @@ fn a_gpu_frame_reaches_the_window_without_a_read_back() {
         ))
         .build_ui_state(
             |ui, s: &mut Studio| s.show(ui),
-            Studio::with_maker(None, None, settings, Arc::new(modes)).drawn_by(Some(rs.clone())),
+            Studio::with_maker(None, None, settings, Arc::new(modes))
+                .drawn_by(Some((rs.clone(), ctx.clone()))),
         );
     loaded(&mut h);
     h.state_mut().request_mode(ModeKind::Spmm, Device::Gpu);
@@ -727,6 +728,11 @@ fn a_gpu_frame_reaches_the_window_without_a_read_back() {
     assert!(
         h.state().shows_frames_from_device(),
         "shown from the device"
+    );
+    h.step();
+    assert!(
+        h.query_by_label_contains("shown from the device").is_some(),
+        "the status bar says so"
     );
     let screen = h.render().expect("the window draws");
     let rect = h.state().viewport.rect.expect("the viewport was shown");

@@ -14,10 +14,10 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use meso_core::gpu::DeviceImage;
 use meso_core::image::Image;
 use meso_core::render::{
-    Denoiser, Device, Guides, ModeKind, Prepare, Progress, RenderMode, SceneEdit, denoise, preview,
+    Denoiser, Device, Guides, ImageOnDevice, ModeKind, Prepare, Progress, RenderMode, SceneEdit,
+    denoise, preview,
 };
 use meso_core::scene::Scene;
 
@@ -64,7 +64,7 @@ pub enum Command {
 pub enum Estimate {
     Host(Arc<Image>),
     /// Read back the first time the host asks for it (`image`).
-    Device(DeviceImage),
+    Device(Arc<dyn ImageOnDevice>),
 }
 
 impl Estimate {
@@ -73,24 +73,25 @@ impl Estimate {
     pub fn image(&self) -> Arc<Image> {
         match self {
             Self::Host(img) => Arc::clone(img),
-            Self::Device(d) => d
-                .read()
-                .unwrap_or_else(|_| Arc::new(Image::new(d.width(), d.height()))),
+            Self::Device(d) => d.read().unwrap_or_else(|_| {
+                let (w, h) = d.size();
+                Arc::new(Image::new(w, h))
+            }),
         }
     }
 
     pub fn size(&self) -> (u32, u32) {
         match self {
             Self::Host(img) => (img.width(), img.height()),
-            Self::Device(d) => (d.width(), d.height()),
+            Self::Device(d) => d.size(),
         }
     }
 
     /// The estimate on the device, when it is there.
-    pub fn on_device(&self) -> Option<&DeviceImage> {
+    pub fn on_device(&self) -> Option<&dyn ImageOnDevice> {
         match self {
             Self::Host(_) => None,
-            Self::Device(d) => Some(d),
+            Self::Device(d) => Some(d.as_ref()),
         }
     }
 }
@@ -708,7 +709,7 @@ mod tests {
         fn image(&self) -> Image {
             self.inner.image()
         }
-        fn image_on_device(&self) -> Option<DeviceImage> {
+        fn image_on_device(&self) -> Option<Arc<dyn ImageOnDevice>> {
             self.inner.image_on_device()
         }
         fn shows_every_pixel(&self) -> bool {

@@ -339,11 +339,15 @@ impl Studio {
         s
     }
 
-    /// The window is drawn by `render_state`'s wgpu renderer: a GPU mode's frames on
-    /// its device are shown from there (`window_device`).
-    pub fn drawn_by(mut self, render_state: Option<eframe::egui_wgpu::RenderState>) -> Self {
-        if let Some(rs) = render_state {
-            self.viewport.set_window(rs);
+    /// The window is drawn by `render_state`'s wgpu renderer on the device of
+    /// `shared`, which the GPU modes share (`window_device::modes_for`): their frames
+    /// are shown from there. `None`: frames reach the window through the host.
+    pub fn drawn_by(
+        mut self,
+        window: Option<(eframe::egui_wgpu::RenderState, meso_core::gpu::GpuContext)>,
+    ) -> Self {
+        if let Some((rs, shared)) = window {
+            self.viewport.set_window(rs, &shared);
         }
         self
     }
@@ -1301,7 +1305,14 @@ impl Studio {
                     }
                     if let Some(summary) = &f.summary {
                         ui.separator();
-                        ui.label(summary);
+                        if self.viewport.shows_from_device() {
+                            ui.label(format!("{summary} · shown from the device"))
+                                .on_hover_text(
+                                    "The frame goes from the GPU mode's film to the window without a copy through the host.",
+                                );
+                        } else {
+                            ui.label(summary);
+                        }
                     }
                 }
                 None => {

@@ -15,7 +15,7 @@ use eframe::egui_wgpu::RenderState;
 use eframe::wgpu;
 use egui::{ColorImage, Sense, TextureHandle, TextureId, TextureOptions, Ui, Vec2};
 use glam::DVec3;
-use meso_core::gpu::DisplayTexture;
+use meso_core::gpu::{DisplayTexture, GpuContext};
 use meso_core::image::{Image, to_srgb8};
 use meso_core::scene::Camera;
 
@@ -183,11 +183,11 @@ fn upload(ui: &Ui, texture: &mut Option<TextureHandle>, name: &str, img: &Image,
 }
 
 impl Viewport {
-    /// The window is drawn by `render_state`'s renderer: frames left on its device
-    /// are shown from there.
-    pub fn set_window(&mut self, render_state: RenderState) {
+    /// The window is drawn by `render_state`'s renderer on the device of `shared`,
+    /// which GPU modes share: their frames are shown from there.
+    pub fn set_window(&mut self, render_state: RenderState, shared: &GpuContext) {
         self.window = Some(WindowTexture {
-            texture: DisplayTexture::new(&render_state.device),
+            texture: DisplayTexture::new(shared),
             render_state,
             id: None,
         });
@@ -257,16 +257,15 @@ impl Viewport {
             let overlay = self
                 .overlay
                 .and_then(|name| frame.overlays.iter().find(|o| o.0 == name));
-            // The estimate itself (not a denoised blend), on the window's device.
-            let on_device = (overlay.is_none() && (compare.is_some() || frame.shown.is_none()))
+            // The estimate itself (not a denoised blend), shown on the window's device
+            // when it is there.
+            let estimate_itself = overlay.is_none() && (compare.is_some() || frame.shown.is_none());
+            let on_device = estimate_itself
                 .then(|| frame.estimate.on_device())
                 .flatten()
-                .and_then(|d| {
-                    let w = self.window.as_mut()?;
-                    (w.render_state.device == *d.device()).then_some((d, w))
-                });
-            self.painted = if let Some((d, w)) = on_device {
-                d.show_in(&mut w.texture, exposure);
+                .zip(self.window.as_mut())
+                .and_then(|(d, w)| w.texture.show(d, exposure).then_some(w));
+            self.painted = if let Some(w) = on_device {
                 Some((w.id(), true))
             } else {
                 match overlay {

@@ -215,6 +215,13 @@ impl GpuContext {
         &self.sharing
     }
 
+    /// True when `other` is this context or a clone of it: the same device. (wgpu's
+    /// own `Device` equality compares ids, which devices of different instances can
+    /// share.)
+    pub fn same_device(&self, other: &GpuContext) -> bool {
+        Arc::ptr_eq(&self.failure, &other.failure)
+    }
+
     /// True when the device was made elsewhere and is shared (`from_device`).
     pub fn is_shared(&self) -> bool {
         self.sharing == Sharing::Shared

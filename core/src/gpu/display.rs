@@ -11,6 +11,7 @@ use bytemuck::{Pod, Zeroable};
 use super::kernel;
 use super::{GpuContext, GpuError, shaders};
 use crate::image::{Image, exposure_scale};
+use crate::render::{ImageOnDevice, ModeError};
 
 /// A resolved image in a device buffer of its own (linear RGB, one `vec4<f32>` per
 /// pixel): one frame's picture, which later frames do not change. Cloning shares it.
@@ -50,11 +51,6 @@ impl DeviceImage {
 
     pub fn height(&self) -> u32 {
         self.height
-    }
-
-    /// The device the image is on.
-    pub fn device(&self) -> &wgpu::Device {
-        &self.ctx.device
     }
 
     /// The image on the host: read back the first time it is asked for.
@@ -119,6 +115,20 @@ impl DeviceImage {
     }
 }
 
+impl ImageOnDevice for DeviceImage {
+    fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    fn read(&self) -> Result<Arc<Image>, ModeError> {
+        DeviceImage::read(self).map_err(|e| ModeError::DeviceFailed(e.to_string()))
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
+
 /// The uniform block of `shaders/display.wgsl`.
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -134,7 +144,7 @@ struct DisplayParams {
 /// samples gamma-encoded values) and a window samples through `view`. It follows the
 /// size of the images shown in it; `generation` changes when the texture is made anew.
 pub struct DisplayTexture {
-    device: wgpu::Device,
+    ctx: GpuContext,
     pipeline: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
     params: wgpu::Buffer,
@@ -146,7 +156,9 @@ pub struct DisplayTexture {
 impl DisplayTexture {
     const FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 
-    pub fn new(device: &wgpu::Device) -> Self {
+    /// A texture on `ctx`'s device, for the images of modes on that context.
+    pub fn new(ctx: &GpuContext) -> Self {
+        let device = &ctx.device;
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("display"),
             source: wgpu::ShaderSource::Wgsl(shaders::module(&[shaders::DISPLAY]).into()),
@@ -207,7 +219,7 @@ impl DisplayTexture {
         });
         let (texture, view) = Self::make(device, 1, 1);
         Self {
-            device: device.clone(),
+            ctx: ctx.clone(),
             pipeline,
             layout,
             params,
@@ -238,11 +250,23 @@ impl DisplayTexture {
         (texture, view)
     }
 
+    /// Encodes `image` into the texture after `exposure_stops` (`DeviceImage::show_in`)
+    /// when it is an image of this texture's device; false (nothing done) otherwise.
+    pub fn show(&mut self, image: &dyn ImageOnDevice, exposure_stops: f64) -> bool {
+        match image.as_any().downcast_ref::<DeviceImage>() {
+            Some(d) if d.ctx.same_device(&self.ctx) => {
+                d.show_in(self, exposure_stops);
+                true
+            }
+            _ => false,
+        }
+    }
+
     /// Makes the texture anew when the images shown change size.
     fn fit(&mut self, width: u32, height: u32) {
         let size = self.texture.size();
         if (size.width, size.height) != (width.max(1), height.max(1)) {
-            (self.texture, self.view) = Self::make(&self.device, width, height);
+            (self.texture, self.view) = Self::make(&self.ctx.device, width, height);
             self.generation += 1;
         }
     }
@@ -263,7 +287,8 @@ impl DisplayTexture {
     }
 
     /// The texture's 8-bit codes, read back (tests; the window never reads it).
-    pub fn read_codes(&self, ctx: &GpuContext) -> Result<Vec<[u8; 3]>, GpuError> {
+    pub fn read_codes(&self) -> Result<Vec<[u8; 3]>, GpuError> {
+        let ctx = &self.ctx;
         let (w, h) = self.size();
         let row = (w * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
         let staging = kernel::zeroed(ctx, "display read", u64::from(row) * u64::from(h));

@@ -252,11 +252,11 @@ fn the_display_texture_holds_what_to_srgb8_encodes() {
     for (a, b) in back.pixels().iter().zip(img.pixels()) {
         assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits));
     }
-    let mut target = DisplayTexture::new(&ctx.device);
+    let mut target = DisplayTexture::new(ctx);
     let first = target.generation();
     for exposure in [0.0, -1.5, 2.0] {
         device_image.show_in(&mut target, exposure);
-        let got = target.read_codes(ctx).expect("reads the texture");
+        let got = target.read_codes().expect("reads the texture");
         let want = to_srgb8(&img, exposure);
         assert_eq!(got.len(), want.len());
         for (i, (a, b)) in got.iter().zip(&want).enumerate() {
@@ -294,10 +294,18 @@ fn a_frame_reads_back_its_counters_and_no_image() {
     let per_frame = (ctx.bytes_read_back() - before) / 4;
     assert!(per_frame < 100, "{per_frame} bytes read back per frame");
     let shown = gpu.image_on_device().expect("the image is on the device");
-    let mut target = DisplayTexture::new(&ctx.device);
+    let mut target = DisplayTexture::new(&ctx);
     let before = ctx.bytes_read_back();
-    shown.show_in(&mut target, 0.0);
+    assert!(
+        target.show(shown.as_ref(), 0.0),
+        "an image of the texture's device"
+    );
     assert_eq!(ctx.bytes_read_back(), before, "showing reads nothing back");
+    let mut other = DisplayTexture::new(context());
+    assert!(
+        !other.show(shown.as_ref(), 0.0),
+        "an image of another device is not shown"
+    );
     let image = gpu.image();
     assert_eq!(ctx.bytes_read_back() - before, 24 * 16 * 16);
     run_frames(&mut gpu, 2, |_, _| {});

@@ -26,8 +26,9 @@ use crate::render::film::{LayeredFilm, material_bit};
 use crate::render::layers::{Before, Layers, MANY_LIGHTS};
 use crate::render::reach::EditedTexels;
 use crate::render::{
-    Counters, Device, EditError, FrameStats, Invalidation, ModeError, ModeKind, PreparationReport,
-    PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unsupported,
+    Counters, Device, EditError, FrameStats, ImageOnDevice, Invalidation, ModeError, ModeKind,
+    PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit,
+    Unsupported,
 };
 use crate::scene::{Light, Material, RenderSettings, Scene};
 use crate::spmm::PrepareRequest;
@@ -617,6 +618,17 @@ impl GpuSpmmMode {
             .fold(0, |m, (i, _)| m | material_bit(i))
     }
 
+    /// The film resolved on the device (`None` once the device failed).
+    fn device_image(&self) -> Option<DeviceImage> {
+        if self.failure.is_some() {
+            return None;
+        }
+        Some(self.film.resolve(
+            &self.layers.active(&self.scene),
+            &self.layers.weights(&self.scene),
+        ))
+    }
+
     /// The pixels an edit restarted; a device that failed while they were found
     /// restarts nothing more (the mode reports the failure).
     fn restarted(&mut self, pixels: Result<Vec<u32>, GpuError>) -> Invalidation {
@@ -793,22 +805,14 @@ impl RenderMode for GpuSpmmMode {
     /// The film resolved on the device and read back; black once the device failed
     /// (its film is gone with it: `failure` says why).
     fn image(&self) -> Image {
-        self.image_on_device()
-            .and_then(|d| d.read().ok())
-            .map_or_else(
-                || Image::new(self.film.width(), self.film.height()),
-                |img| (*img).clone(),
-            )
+        self.device_image().and_then(|d| d.read().ok()).map_or_else(
+            || Image::new(self.film.width(), self.film.height()),
+            |img| (*img).clone(),
+        )
     }
 
-    fn image_on_device(&self) -> Option<DeviceImage> {
-        if self.failure.is_some() {
-            return None;
-        }
-        Some(self.film.resolve(
-            &self.layers.active(&self.scene),
-            &self.layers.weights(&self.scene),
-        ))
+    fn image_on_device(&self) -> Option<std::sync::Arc<dyn ImageOnDevice>> {
+        self.device_image().map(|d| std::sync::Arc::new(d) as _)
     }
 
     fn progress(&self) -> Progress {

@@ -262,6 +262,17 @@ pub enum ModeError {
     DeviceFailed(String),
 }
 
+/// A frame's image left on a GPU mode's device, one frame's and unchanged by later
+/// ones: a window that draws with that device shows it from there (the GPU module's
+/// `DisplayTexture`), and the host reads it back only when it asks (`read`).
+pub trait ImageOnDevice: Send + Sync + std::fmt::Debug {
+    fn size(&self) -> (u32, u32);
+    /// The image on the host: read back the first time it is asked for.
+    fn read(&self) -> Result<std::sync::Arc<Image>, ModeError>;
+    /// The concrete image, for the module that shows it.
+    fn as_any(&self) -> &dyn std::any::Any;
+}
+
 /// A progressive render mode.
 pub trait RenderMode: Send {
     fn kind(&self) -> ModeKind;
@@ -307,7 +318,7 @@ pub trait RenderMode: Send {
     fn image(&self) -> Image;
     /// The same image left on the mode's GPU device (`None`: the mode's film is on the
     /// host): a window drawn with that device shows it without a read-back.
-    fn image_on_device(&self) -> Option<crate::gpu::DeviceImage> {
+    fn image_on_device(&self) -> Option<std::sync::Arc<dyn ImageOnDevice>> {
         None
     }
     fn progress(&self) -> Progress;

@@ -618,25 +618,25 @@ fn the_biscale_mode_renders_a_shipped_scene_turns_its_light_and_reprepares_for_n
     wait_for_mode_frame(&mut h, ModeKind::Spmm);
 }
 
-/// The GPU mode on the window's own wgpu device: the window's render state is made as
-/// eframe makes it with main.rs's configuration (`window_device::wgpu_configuration`),
-/// the studio's registry is given that device, and a switch to the GPU renders frames
-/// on it (the status bar's summary says so) while the window draws with it too. Needs
-/// a wgpu adapter (CI: lavapipe, WGPU_BACKEND=vulkan).
-#[test]
-fn the_gpu_mode_renders_on_the_windows_own_device() {
+/// The studio drawn by a wgpu render state made as eframe makes it with main.rs's
+/// configuration (`window_device::wgpu_configuration`), its registry sharing that
+/// device (`window_device::modes_for`) and its viewport drawing frames there
+/// (`Studio::drawn_by`), as main.rs wires them; loaded. With the render state and the
+/// shared context.
+fn studio_on_the_windows_device(
+    settings: Settings,
+) -> (
+    Harness<'static, Studio>,
+    eframe::egui_wgpu::RenderState,
+    meso_core::gpu::GpuContext,
+) {
     use crate::window_device;
     let rs = egui_kittest::wgpu::create_render_state(
         window_device::wgpu_configuration().wgpu_setup,
         eframe::egui_wgpu::RendererOptions::PREDICTABLE,
     );
     let modes = window_device::modes_for(Some(&rs));
-    let ctx = modes.gpu().expect("the window's device is shared");
-    assert!(ctx.is_shared());
-    assert!(ctx.device == rs.device, "the window's device itself");
-    let info = rs.adapter.get_info();
-    let adapter = format!("{} ({})", info.name, info.backend);
-    assert_eq!(ctx.adapter_name(), adapter);
+    let ctx = modes.gpu().expect("the window's device is shared").clone();
     let mut h = Harness::builder()
         .with_size(egui::vec2(1280.0, 800.0))
         .renderer(egui_kittest::wgpu::WgpuTestRenderer::from_render_state(
@@ -644,9 +644,26 @@ fn the_gpu_mode_renders_on_the_windows_own_device() {
         ))
         .build_ui_state(
             |ui, s: &mut Studio| s.show(ui),
-            Studio::with_maker(None, None, small(), Arc::new(modes)),
+            Studio::with_maker(None, None, settings, Arc::new(modes))
+                .drawn_by(Some((rs.clone(), ctx.clone()))),
         );
     loaded(&mut h);
+    (h, rs, ctx)
+}
+
+/// The GPU mode on the window's own wgpu device: the window's render state is made as
+/// eframe makes it with main.rs's configuration (`window_device::wgpu_configuration`),
+/// the studio's registry is given that device, and a switch to the GPU renders frames
+/// on it (the status bar's summary says so) while the window draws with it too. Needs
+/// a wgpu adapter (CI: lavapipe, WGPU_BACKEND=vulkan).
+#[test]
+fn the_gpu_mode_renders_on_the_windows_own_device() {
+    let (mut h, rs, ctx) = studio_on_the_windows_device(small());
+    assert!(ctx.is_shared());
+    assert!(ctx.device == rs.device, "the window's device itself");
+    let info = rs.adapter.get_info();
+    let adapter = format!("{} ({})", info.name, info.backend);
+    assert_eq!(ctx.adapter_name(), adapter);
     h.state_mut().request_mode(ModeKind::Spmm, Device::Gpu);
     step_until(&mut h, "a frame of the GPU mode", |h| {
         h.state().frame().is_some_and(|f| f.device == Device::Gpu)
@@ -676,29 +693,12 @@ fn the_gpu_mode_renders_on_the_windows_own_device() {
 /// bulk). Needs a wgpu adapter (CI: lavapipe).
 #[test]
 fn a_gpu_frame_reaches_the_window_without_a_read_back() {
-    use crate::window_device;
-    let rs = egui_kittest::wgpu::create_render_state(
-        window_device::wgpu_configuration().wgpu_setup,
-        eframe::egui_wgpu::RendererOptions::PREDICTABLE,
-    );
-    let modes = window_device::modes_for(Some(&rs));
-    let ctx = modes.gpu().expect("the window's device is shared").clone();
     let settings = Settings {
         denoise: false,
         exposure: 0.5,
         ..small()
     };
-    let mut h = Harness::builder()
-        .with_size(egui::vec2(1280.0, 800.0))
-        .renderer(egui_kittest::wgpu::WgpuTestRenderer::from_render_state(
-            rs.clone(),
-        ))
-        .build_ui_state(
-            |ui, s: &mut Studio| s.show(ui),
-            Studio::with_maker(None, None, settings, Arc::new(modes))
-                .drawn_by(Some((rs.clone(), ctx.clone()))),
-        );
-    loaded(&mut h);
+    let (mut h, _, ctx) = studio_on_the_windows_device(settings);
     h.state_mut().request_mode(ModeKind::Spmm, Device::Gpu);
     step_until(&mut h, "a frame of the GPU mode", |h| {
         h.state()

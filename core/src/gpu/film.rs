@@ -268,7 +268,12 @@ impl DeviceFilm {
 
     /// Forgets every sample (a camera or geometry change); the dropped count stays.
     pub fn reset(&mut self) {
-        self.set_params(&[], true, &[]);
+        self.restart(true);
+    }
+
+    /// Runs the restart pass over every pixel (`all`) or the flagged ones.
+    fn restart(&mut self, all: bool) {
+        self.set_params(&[], all, &[]);
         let mut enc = kernel::encoder(&self.ctx);
         self.kernels
             .restart
@@ -312,13 +317,7 @@ impl DeviceFilm {
             self.ctx
                 .queue
                 .write_buffer(&self.flags, 0, bytemuck::cast_slice(&flags));
-            self.set_params(&[], false, &[]);
-            let mut enc = kernel::encoder(&self.ctx);
-            self.kernels
-                .restart
-                .record(&mut enc, &self.binds.restart, self.pixels());
-            self.ctx.queue.submit([enc.finish()]);
-            self.min_samples = 0;
+            self.restart(false);
         }
         Ok(pixels)
     }

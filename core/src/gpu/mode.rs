@@ -897,10 +897,10 @@ impl RenderMode for GpuSpmmMode {
 
 impl GpuSpmmMode {
     fn apply_edit(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
-        if let SceneEdit::Resize { width, height } = edit {
-            if let Some(p) = device_size_problem(&self.ctx, width, height, self.film.layers()) {
-                return Err(EditError::Size(p));
-            }
+        if let SceneEdit::Resize { width, height } = edit
+            && let Some(p) = device_size_problem(&self.ctx, width, height, self.film.layers())
+        {
+            return Err(EditError::Size(p));
         }
         let env_words = match &edit {
             SceneEdit::Environment(e) => {

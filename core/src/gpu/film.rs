@@ -324,15 +324,19 @@ impl DeviceFilm {
 
     /// A new image size: every sample is forgotten, the dropped count kept.
     pub fn resize(&mut self, width: u32, height: u32) {
-        let dropped = self.dropped;
-        *self = Self::new(&self.ctx, width, height, self.layers);
-        self.dropped = dropped;
-        // The new stats buffer starts at zero: keep the count the old one held.
-        self.ctx.queue.write_buffer(
-            &self.stats,
-            0,
-            bytemuck::bytes_of(&(dropped.min(u64::from(u32::MAX)) as u32)),
-        );
+        // The kernels, the parameters and the counts stay; the per-pixel buffers go.
+        let pixels = u64::from(width) * u64::from(height);
+        let layers = self.layers as u64;
+        let ctx = &self.ctx;
+        self.frame = kernel::zeroed(ctx, "frame", pixels * layers * 12);
+        self.aux = kernel::zeroed(ctx, "aux", pixels * AUX_WORDS as u64 * 4);
+        self.sums = kernel::zeroed(ctx, "film sums", pixels * layers * SUM_BYTES);
+        self.marks = kernel::zeroed(ctx, "film marks", pixels * MARK_WORDS * 4);
+        self.flags = kernel::zeroed(ctx, "film flags", pixels * 4);
+        self.image = kernel::zeroed(ctx, "film image", pixels * 16);
+        (self.width, self.height) = (width, height);
+        self.rebind();
+        self.reset();
     }
 
     /// The image of the film now, each layer weighted by `weights`, resolved on the
@@ -371,11 +375,15 @@ impl DeviceFilm {
         }
         self.ctx.queue.submit([enc.finish()]);
         self.sums = sums;
-        self.frame = kernel::zeroed(
-            &self.ctx,
-            "frame",
-            u64::from(self.pixels()) * layers as u64 * 12,
-        );
+        // The integrator's bindings hold the one-sample buffer: a new one only when
+        // its size changes, which the mode sees in the layer count and rebinds.
+        if layers != self.layers {
+            self.frame = kernel::zeroed(
+                &self.ctx,
+                "frame",
+                u64::from(self.pixels()) * layers as u64 * 12,
+            );
+        }
         self.layers = layers;
         self.rebind();
     }

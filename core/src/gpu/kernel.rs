@@ -202,16 +202,27 @@ impl ReadBack {
                 }
             });
         }
-        ctx.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| ctx.lost(format!("waiting for the device: {e}")))?;
-        if let Some(e) = ctx.failure() {
-            return Err(e);
-        }
-        let mapped = mapped
-            .lock()
-            .map_err(|_| ctx.lost("a read-back callback panicked"))?
-            .clone();
+        // A poll returns once the device's work is done, but the map callbacks run on
+        // whichever thread polls: when another thread shares the device (the studio's
+        // window and render thread, parallel tests), ours may still be running there
+        // when our poll returns. So poll until every callback has reported.
+        let started = std::time::Instant::now();
+        let mapped = loop {
+            ctx.device
+                .poll(wgpu::PollType::wait_indefinitely())
+                .map_err(|e| ctx.lost(format!("waiting for the device: {e}")))?;
+            if let Some(e) = ctx.failure() {
+                return Err(e);
+            }
+            let m = mapped
+                .lock()
+                .map_err(|_| ctx.lost("a read-back callback panicked"))?
+                .clone();
+            if m.iter().all(Option::is_some) || started.elapsed() > MAP_TIMEOUT {
+                break m;
+            }
+            std::thread::sleep(std::time::Duration::from_micros(100));
+        };
         let mut out = Vec::with_capacity(self.staging.len());
         for ((s, _), m) in self.staging.into_iter().zip(mapped) {
             match m {
@@ -230,6 +241,10 @@ impl ReadBack {
         Ok(out)
     }
 }
+
+/// How long a read-back waits for its map callbacks after the device is idle before
+/// it calls the device failed.
+const MAP_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(30);
 
 /// Submits `encoder` and reads back `buffers` (sizes in bytes).
 pub(super) fn submit_and_read(

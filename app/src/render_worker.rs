@@ -358,8 +358,9 @@ fn edited_frame_of(
     guides: &mut Option<Option<Guides>>,
 ) -> Frame {
     let samples = m.progress().min_samples;
+    // Only a full filter can be stopped; were it `None`, the estimate shows as it is.
     let (estimate, shown) = estimate_and_shown(m, samples, (denoise, guides), Filter::Halved)
-        .expect("a halved filter is never stopped");
+        .unwrap_or_else(|| (Estimate::Host(Arc::new(m.image())), None));
     frame_with(m, Default::default(), version, estimate, shown)
 }
 

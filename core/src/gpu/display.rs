@@ -45,14 +45,6 @@ impl DeviceImage {
         }
     }
 
-    pub fn width(&self) -> u32 {
-        self.width
-    }
-
-    pub fn height(&self) -> u32 {
-        self.height
-    }
-
     /// The image on the host: read back the first time it is asked for.
     pub fn read(&self) -> Result<Arc<Image>, GpuError> {
         self.host

@@ -101,6 +101,21 @@ pub(super) fn largest_buffer(width: u32, height: u32, layers: usize) -> u64 {
     u64::from(width) * u64::from(height) * layers as u64 * SUM_BYTES
 }
 
+/// A film's per-pixel buffers at `width` x `height` with `layers` layers: one sample's
+/// layers and aux words, the sums, the marks, the restart flags, the resolved image.
+fn pixel_buffers(ctx: &GpuContext, width: u32, height: u32, layers: usize) -> [wgpu::Buffer; 6] {
+    let pixels = u64::from(width) * u64::from(height);
+    let layers = layers as u64;
+    [
+        kernel::zeroed(ctx, "frame", pixels * layers * 12),
+        kernel::zeroed(ctx, "aux", pixels * AUX_WORDS as u64 * 4),
+        kernel::zeroed(ctx, "film sums", pixels * layers * SUM_BYTES),
+        kernel::zeroed(ctx, "film marks", pixels * MARK_WORDS * 4),
+        kernel::zeroed(ctx, "film flags", pixels * 4),
+        kernel::zeroed(ctx, "film image", pixels * 16),
+    ]
+}
+
 impl DeviceFilm {
     pub fn new(ctx: &GpuContext, width: u32, height: u32, layers: usize) -> Self {
         let source = shaders::module(&[shaders::FILM]);
@@ -111,19 +126,13 @@ impl DeviceFilm {
             min_samples: kernel("min_samples"),
             resolve: kernel("resolve"),
         };
-        let pixels = u64::from(width) * u64::from(height);
         let params = kernel::uniform(
             ctx,
             "film params",
             bytemuck::bytes_of(&FilmParams::zeroed()),
         );
-        let frame = kernel::zeroed(ctx, "frame", pixels * layers as u64 * 12);
-        let aux = kernel::zeroed(ctx, "aux", pixels * AUX_WORDS as u64 * 4);
-        let sums = kernel::zeroed(ctx, "film sums", pixels * layers as u64 * SUM_BYTES);
-        let marks = kernel::zeroed(ctx, "film marks", pixels * MARK_WORDS * 4);
         let stats = kernel::zeroed(ctx, "film stats", 8);
-        let flags = kernel::zeroed(ctx, "film flags", pixels * 4);
-        let image = kernel::zeroed(ctx, "film image", pixels * 16);
+        let [frame, aux, sums, marks, flags, image] = pixel_buffers(ctx, width, height, layers);
         let binds = Self::bind(
             ctx,
             &kernels,
@@ -325,15 +334,9 @@ impl DeviceFilm {
     /// A new image size: every sample is forgotten, the dropped count kept.
     pub fn resize(&mut self, width: u32, height: u32) {
         // The kernels, the parameters and the counts stay; the per-pixel buffers go.
-        let pixels = u64::from(width) * u64::from(height);
-        let layers = self.layers as u64;
-        let ctx = &self.ctx;
-        self.frame = kernel::zeroed(ctx, "frame", pixels * layers * 12);
-        self.aux = kernel::zeroed(ctx, "aux", pixels * AUX_WORDS as u64 * 4);
-        self.sums = kernel::zeroed(ctx, "film sums", pixels * layers * SUM_BYTES);
-        self.marks = kernel::zeroed(ctx, "film marks", pixels * MARK_WORDS * 4);
-        self.flags = kernel::zeroed(ctx, "film flags", pixels * 4);
-        self.image = kernel::zeroed(ctx, "film image", pixels * 16);
+        [
+            self.frame, self.aux, self.sums, self.marks, self.flags, self.image,
+        ] = pixel_buffers(&self.ctx, width, height, self.layers);
         (self.width, self.height) = (width, height);
         self.rebind();
         self.reset();

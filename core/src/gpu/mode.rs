@@ -568,6 +568,8 @@ impl GpuSpmmMode {
         let mut enc = kernel::encoder(ctx);
         enc.clear_buffer(&self.res.counters, 0, None);
         ctx.queue.submit([enc.finish()]);
+        // The film's parameters (the active layers) are the same for every sample.
+        self.film.set_params(&active, false, &[]);
         for i in 0..u64::from(count) {
             // Written before the submission that reads them (the queue keeps order).
             ctx.queue.write_buffer(
@@ -575,7 +577,6 @@ impl GpuSpmmMode {
                 0,
                 bytemuck::bytes_of(&self.params(first + i)),
             );
-            self.film.set_params(&active, false, &[]);
             let mut enc = kernel::encoder(ctx);
             self.kernel.record(&mut enc, &self.res.bind, w * h);
             self.film.record_accumulate(&mut enc);

@@ -1664,6 +1664,25 @@ fn bench_rays_reports_both_kinds_on_the_spec_rays() {
         &["--size"],
     );
     assert_bad_input(&meso(&["bench", "rays", "/no/such.obj"], ""), &["such.obj"]);
+    // --embree: a library that cannot be loaded, or one that is not Embree, is named.
+    assert_bad_input(
+        &meso(
+            &[
+                "bench",
+                "rays",
+                mesh,
+                "--embree",
+                "/no/such/libembree4.so.4",
+            ],
+            "",
+        ),
+        &["/no/such/libembree4.so.4"],
+    );
+    #[cfg(target_os = "linux")]
+    assert_bad_input(
+        &meso(&["bench", "rays", mesh, "--embree", "libm.so.6"], ""),
+        &["libm.so.6", "not an Embree library", "rtcNewDevice"],
+    );
 }
 
 /// A regression manifest in `dir` over the repository's default scene: its own

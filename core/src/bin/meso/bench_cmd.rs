@@ -7,9 +7,10 @@
 //! uniform over the hemisphere of the face normal, offset by 1e-4 r. Rays are made
 //! before timing; each kind is traced three times and the fastest run is reported.
 //! `--baseline` also traces with obvhs's own traversal, alternating with the tracer's
-//! so both see the same machine load; `--save-rays DIR` writes the triangles, the rays
-//! and the tracer's hit distances as raw little-endian f32 for other tracers
-//! (tools/embree_bench reads them).
+//! so both see the same machine load; `--embree LIB` does the same with Embree 4 loaded
+//! from LIB (`embree.rs`), so the ratio to Embree comes from one process; `--save-rays
+//! DIR` writes the triangles, the rays and the tracer's hit distances as raw
+//! little-endian f32 for other tracers.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -25,6 +26,7 @@ use meso_core::scene::{Camera, TriangleMesh};
 use rayon::prelude::*;
 use serde_json::json;
 
+use crate::embree::Embree;
 use crate::failure::CliError;
 
 #[derive(Subcommand, Debug)]
@@ -56,6 +58,10 @@ pub struct RaysArgs {
     /// direction: 6 floats per ray) and *_t.f32 (hit distance, inf on a miss) to DIR.
     #[arg(long, value_name = "DIR")]
     save_rays: Option<PathBuf>,
+    /// Also trace with Embree 4 (`rtcIntersect1`, one ray at a time, on the same
+    /// threads), loaded from this shared library (e.g. libembree4.so.4), alternating.
+    #[arg(long, value_name = "LIB")]
+    embree: Option<PathBuf>,
 }
 
 pub fn run(command: BenchCommand) -> Result<(), CliError> {
@@ -116,27 +122,53 @@ fn incoherent_rays(mesh: &TriangleMesh, diagonal: f64, count: usize) -> Rays {
 }
 
 /// Which traversal a run times.
-#[derive(Clone, Copy, PartialEq)]
-enum Tracer {
+#[derive(Clone, Copy)]
+enum Tracer<'a> {
     /// The tracer's own (what rendering uses).
     Cpu,
     /// obvhs's CWBVH traversal (`--baseline`).
     Obvhs,
+    /// Embree 4 (`--embree`) on the rays in f32, as it takes them.
+    Embree(&'a Embree, &'a [([f32; 3], [f32; 3])]),
+}
+
+/// The tracer first, then obvhs's traversal and Embree where asked (Embree's rays in
+/// f32), in the order `trace` alternates them.
+fn tracers<'a>(
+    baseline: bool,
+    embree: Option<&'a Embree>,
+    embree_rays: Option<&'a [([f32; 3], [f32; 3])]>,
+) -> Vec<Tracer<'a>> {
+    let mut t = vec![Tracer::Cpu];
+    if baseline {
+        t.push(Tracer::Obvhs);
+    }
+    if let (Some(e), Some(rays)) = (embree, embree_rays) {
+        t.push(Tracer::Embree(e, rays));
+    }
+    t
 }
 
 /// Traces every ray once; returns (seconds, rays that hit).
 fn trace_once(bvh: &SceneBvh, rays: &Rays, tracer: Tracer) -> (f64, usize) {
     let start = Instant::now();
-    let hits = rays
-        .par_iter()
-        .filter(|(o, d)| {
-            match tracer {
-                Tracer::Cpu => bvh.closest_hit(*o, *d, 0.0, f64::INFINITY),
-                Tracer::Obvhs => bvh.closest_hit_reference(*o, *d, 0.0, f64::INFINITY),
-            }
-            .is_some()
-        })
-        .count();
+    let hits = match tracer {
+        Tracer::Cpu => rays
+            .par_iter()
+            .filter(|(o, d)| bvh.closest_hit(*o, *d, 0.0, f64::INFINITY).is_some())
+            .count(),
+        Tracer::Obvhs => rays
+            .par_iter()
+            .filter(|(o, d)| {
+                bvh.closest_hit_reference(*o, *d, 0.0, f64::INFINITY)
+                    .is_some()
+            })
+            .count(),
+        Tracer::Embree(embree, rays) => rays
+            .par_iter()
+            .filter(|(o, d)| embree.closest(*o, *d).is_some())
+            .count(),
+    };
     (start.elapsed().as_secs_f64(), hits)
 }
 
@@ -155,6 +187,30 @@ fn trace(bvh: &SceneBvh, rays: &Rays, tracers: &[Tracer]) -> Vec<(f64, usize)> {
         .collect()
 }
 
+fn f32s(v: DVec3) -> [f32; 3] {
+    [v.x as f32, v.y as f32, v.z as f32]
+}
+
+/// The fraction of rays on which Embree and the tracer agree: both miss, or both hit
+/// within 1e-4 of the tracer's distance (Embree's triangle test is not
+/// Moller-Trumbore, so rays through a silhouette or an edge may differ).
+fn agreement(bvh: &SceneBvh, embree: &Embree, rays: &Rays) -> f64 {
+    let agree = rays
+        .par_iter()
+        .filter(|(o, d)| {
+            let ours = bvh
+                .closest_hit(*o, *d, 0.0, f64::INFINITY)
+                .map(|h| h.t as f32);
+            match (ours, embree.closest(f32s(*o), f32s(*d))) {
+                (None, None) => true,
+                (Some(a), Some(b)) => (a - b).abs() <= 1e-4 * a,
+                _ => false,
+            }
+        })
+        .count();
+    agree as f64 / rays.len() as f64
+}
+
 /// `--save-rays`: the BVH's triangles, both kinds of rays and the tracer's hit
 /// distances, as raw little-endian f32.
 fn save_rays(
@@ -169,7 +225,6 @@ fn save_rays(
         meso_core::atomic::write_bytes_atomic(&dir.join(name), &bytes)
             .map_err(|e| CliError::failure(anyhow!(e)))
     };
-    let f32s = |v: DVec3| [v.x as f32, v.y as f32, v.z as f32];
     write(
         "triangles.f32",
         bvh.primitives()
@@ -249,15 +304,34 @@ fn rays(args: &RaysArgs) -> Result<(), CliError> {
             [("coherent", &coherent), ("incoherent", &incoherent)],
         )?;
     }
-    let tracers: &[Tracer] = if args.baseline {
-        &[Tracer::Cpu, Tracer::Obvhs]
-    } else {
-        &[Tracer::Cpu]
+    let embree = match &args.embree {
+        Some(path) => {
+            let triangles: Vec<[[f32; 3]; 3]> = bvh
+                .primitives()
+                .map(|(t, _)| [t.v0, t.v1, t.v2].map(|v| v.to_array()))
+                .collect();
+            Some(Embree::load(path, &triangles).map_err(CliError::bad_input)?)
+        }
+        None => None,
     };
+    let as_f32 = |rays: &Rays| -> Vec<([f32; 3], [f32; 3])> {
+        rays.iter().map(|(o, d)| (f32s(*o), f32s(*d))).collect()
+    };
+    let embree_rays = embree
+        .as_ref()
+        .map(|_| (as_f32(&coherent), as_f32(&incoherent)));
     let (coherent_runs, incoherent_runs) = pool.install(|| {
+        let (c, i) = embree_rays
+            .as_ref()
+            .map(|(c, i)| (c.as_slice(), i.as_slice()))
+            .unzip();
         (
-            trace(&bvh, &coherent, tracers),
-            trace(&bvh, &incoherent, tracers),
+            trace(&bvh, &coherent, &tracers(args.baseline, embree.as_ref(), c)),
+            trace(
+                &bvh,
+                &incoherent,
+                &tracers(args.baseline, embree.as_ref(), i),
+            ),
         )
     });
     let ((coherent_mrays, coherent_hits), (incoherent_mrays, incoherent_hits)) =
@@ -265,8 +339,19 @@ fn rays(args: &RaysArgs) -> Result<(), CliError> {
     let baseline = args
         .baseline
         .then(|| (coherent_runs[1], incoherent_runs[1]));
+    // Embree's runs, and on how many rays its hits agree with the tracer's.
+    let embree_runs = embree.as_ref().map(|e| {
+        let last = coherent_runs.len() - 1;
+        pool.install(|| {
+            (
+                (coherent_runs[last], agreement(&bvh, e, &coherent)),
+                (incoherent_runs[last], agreement(&bvh, e, &incoherent)),
+            )
+        })
+    });
     let build_ms = bvh.build_time().as_secs_f64() * 1e3;
     let threads = pool.current_num_threads();
+    let fraction = |hits: usize| hits as f64 / n as f64;
     if args.json {
         let mut report = json!({
             "mesh": args.mesh.display().to_string(),
@@ -277,30 +362,54 @@ fn rays(args: &RaysArgs) -> Result<(), CliError> {
             "build_ms": build_ms,
             "coherent_mrays": coherent_mrays,
             "incoherent_mrays": incoherent_mrays,
-            "coherent_hit_fraction": coherent_hits as f64 / n as f64,
-            "incoherent_hit_fraction": incoherent_hits as f64 / n as f64,
+            "coherent_hit_fraction": fraction(coherent_hits),
+            "incoherent_hit_fraction": fraction(incoherent_hits),
         });
         if let Some(((c, c_hits), (i, i_hits))) = baseline {
             report["baseline_coherent_mrays"] = json!(c);
             report["baseline_incoherent_mrays"] = json!(i);
-            report["baseline_coherent_hit_fraction"] = json!(c_hits as f64 / n as f64);
-            report["baseline_incoherent_hit_fraction"] = json!(i_hits as f64 / n as f64);
+            report["baseline_coherent_hit_fraction"] = json!(fraction(c_hits));
+            report["baseline_incoherent_hit_fraction"] = json!(fraction(i_hits));
+        }
+        if let (Some(e), Some(((c, c_agree), (i, i_agree)))) = (&embree, embree_runs) {
+            report["embree_version"] = json!(e.version);
+            report["embree_build_ms"] = json!(e.build_ms);
+            for (kind, (mrays, hits), agree, ours) in [
+                ("coherent", c, c_agree, coherent_mrays),
+                ("incoherent", i, i_agree, incoherent_mrays),
+            ] {
+                report[format!("embree_{kind}_mrays")] = json!(mrays);
+                report[format!("embree_{kind}_hit_fraction")] = json!(fraction(hits));
+                report[format!("embree_{kind}_agreement")] = json!(agree);
+                report[format!("{kind}_over_embree")] = json!(ours / mrays);
+            }
         }
         return crate::print_json(&report);
     }
     println!(
         "{}: {triangles} triangles, BVH built in {build_ms:.1} ms; {n} rays per kind on {threads} threads: coherent {coherent_mrays:.2} Mrays/s ({:.0}% hit), incoherent {incoherent_mrays:.2} Mrays/s ({:.0}% hit)",
         args.mesh.display(),
-        100.0 * coherent_hits as f64 / n as f64,
-        100.0 * incoherent_hits as f64 / n as f64,
+        100.0 * fraction(coherent_hits),
+        100.0 * fraction(incoherent_hits),
     );
     if let Some(((c, c_hits), (i, i_hits))) = baseline {
         println!(
             "baseline (obvhs traversal): coherent {c:.2} Mrays/s ({:.0}% hit), incoherent {i:.2} Mrays/s ({:.0}% hit); speed-up {:.2}x coherent, {:.2}x incoherent",
-            100.0 * c_hits as f64 / n as f64,
-            100.0 * i_hits as f64 / n as f64,
+            100.0 * fraction(c_hits),
+            100.0 * fraction(i_hits),
             coherent_mrays / c,
             incoherent_mrays / i,
+        );
+    }
+    if let (Some(e), Some((((c, _), c_agree), ((i, _), i_agree)))) = (&embree, embree_runs) {
+        println!(
+            "Embree {} (built in {:.1} ms): coherent {c:.2} Mrays/s, incoherent {i:.2} Mrays/s; the tracer / Embree: {:.2}x coherent, {:.2}x incoherent; hits agree on {:.4}% and {:.4}% of the rays",
+            e.version,
+            e.build_ms,
+            coherent_mrays / c,
+            incoherent_mrays / i,
+            100.0 * c_agree,
+            100.0 * i_agree,
         );
     }
     Ok(())

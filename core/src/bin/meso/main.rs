@@ -8,6 +8,7 @@ mod bench_stroke;
 mod brdf_cmd;
 mod btf_cmd;
 mod compare_cmd;
+mod embree;
 mod failure;
 mod fit_cmd;
 mod merl_cmd;

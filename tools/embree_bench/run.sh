@@ -1,20 +1,17 @@
 #!/usr/bin/env bash
-# Embree 4 on the rays of `meso bench rays`: builds embree_bench against the Embree
-# library of PyPI's `embreex` wheel (installed into a throwaway virtual environment),
-# writes the rays with `meso bench rays --save-rays`, and times Embree on them.
-# usage: tools/embree_bench/run.sh MESO_BINARY MESH.obj [THREADS] [low|medium|high]
+# Embree 4 beside the tracer on the rays of `meso bench rays`: installs PyPI's `embreex`
+# wheel (Embree 4.4.0 with its TBB) in a virtual environment and runs
+# `meso bench rays MESH --embree LIB`, which loads that library and times both in one
+# process, alternating (README.md).
+# usage: tools/embree_bench/run.sh MESO_BINARY MESH.obj [THREADS] [meso bench rays options...]
 set -euo pipefail
-meso=$1 mesh=$2 threads=${3:-1} quality=${4:-medium}
-here=$(cd "$(dirname "$0")" && pwd)
+meso=$1 mesh=$2 threads=${3:-1}
+shift $(($# < 3 ? $# : 3))
 work=${EMBREE_BENCH_DIR:-/tmp/meso_embree_bench}
 mkdir -p "$work"
 if [ ! -d "$work/venv" ]; then
   python3 -m venv "$work/venv"
   "$work/venv/bin/pip" install -q 'embreex==4.4.0.post1'
 fi
-libs=$(echo "$work"/venv/lib/python3*/site-packages/embreex.libs)
-lib=$(ls "$libs"/libembree4*.so*)
-cc -O2 -o "$work/embree_bench" "$here/embree_bench.c" "$lib" -Wl,-rpath,"$libs" -lm -lpthread
-rays="$work/rays_$(basename "$mesh" .obj)"
-"$meso" bench rays "$mesh" --threads "$threads" --save-rays "$rays"
-"$work/embree_bench" "$rays" "$threads" "$quality"
+lib=$(ls "$work"/venv/lib/python3*/site-packages/embreex.libs/libembree4*.so* | head -n 1)
+"$meso" bench rays "$mesh" --threads "$threads" --embree "$lib" "$@"

@@ -340,20 +340,28 @@ impl WideBvh {
         #[cfg(target_arch = "x86_64")]
         {
             use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-            let (start, bytes) = if child & LEAF != 0 {
+            // SAFETY (all prefetches): a prefetch never faults and changes nothing but
+            // the caches, whatever the address.
+            if child & LEAF != 0 {
+                // At most 3 x 36 bytes, so at most three lines: those of the first,
+                // the middle and the last byte.
                 let (start, count) = leaf_range(child);
-                let t = self.triangles[start..].as_ptr().cast::<i8>();
-                (t, count * size_of::<LeafTriangle>())
+                let first = self.triangles[start..].as_ptr().cast::<i8>();
+                let bytes = count * size_of::<LeafTriangle>();
+                unsafe {
+                    _mm_prefetch::<_MM_HINT_T0>(first);
+                    _mm_prefetch::<_MM_HINT_T0>(first.wrapping_add(bytes / 2));
+                    _mm_prefetch::<_MM_HINT_T0>(first.wrapping_add(bytes - 1));
+                }
             } else {
+                // A node is four whole lines (`Node` is 64-byte aligned).
                 let n = std::ptr::from_ref(&self.nodes[child as usize]).cast::<i8>();
-                (n, size_of::<Node>())
-            };
-            // Every cache line the data touches, from the one its first byte is in.
-            let misalign = start as usize % 64;
-            let line = start.wrapping_sub(misalign);
-            for offset in (0..bytes + misalign).step_by(64) {
-                // SAFETY: a prefetch never faults and changes nothing but the caches.
-                unsafe { _mm_prefetch::<_MM_HINT_T0>(line.wrapping_add(offset)) };
+                unsafe {
+                    _mm_prefetch::<_MM_HINT_T0>(n);
+                    _mm_prefetch::<_MM_HINT_T0>(n.wrapping_add(64));
+                    _mm_prefetch::<_MM_HINT_T0>(n.wrapping_add(128));
+                    _mm_prefetch::<_MM_HINT_T0>(n.wrapping_add(192));
+                }
             }
         }
         #[cfg(not(target_arch = "x86_64"))]

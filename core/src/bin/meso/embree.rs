@@ -93,7 +93,6 @@ pub struct Embree {
 // threads at once; nothing else is called after `load` until `drop`, which takes
 // `&mut self`.
 unsafe impl Sync for Embree {}
-unsafe impl Send for Embree {}
 
 impl Embree {
     /// Loads the library at `path` and builds a scene of `triangles` (three f32

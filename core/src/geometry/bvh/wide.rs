@@ -1,10 +1,12 @@
 //! The CPU traversal of the scene's BVH. obvhs's compressed wide BVH (CWBVH) is laid
 //! out for GPUs: 8-bit child boxes relative to a per-node grid, decoded for every
-//! ray, and one scalar intersection callback per primitive through an index table.
-//! Here the same tree (same nodes, same leaves of up to 3 triangles) is unpacked once
-//! into 8-wide nodes whose children's exact f32 boxes lie in structure-of-arrays
+//! ray, leaves of at most 3 triangles, and one scalar intersection callback per
+//! primitive through an index table. Here obvhs's binary BVH (the one the CWBVH is
+//! made from) is collapsed into 8-wide nodes by the same cost-optimal programme with
+//! this traversal's costs and leaves of up to `MAX_LEAF` triangles, which halves the
+//! nodes (docs/performance.md); the children's f32 boxes lie in structure-of-arrays
 //! order, so one AVX2 instruction tests a slab of all 8 children, and the leaves'
-//! triangles are copied in leaf order with their edges and normal precomputed.
+//! triangles are copied in leaf order with their edges precomputed.
 //! Traversal is ordered (nearest child first, farther ones stacked with their entry
 //! distance and skipped once a closer hit is known); occlusion stops at the first hit.
 //!
@@ -15,13 +17,20 @@
 
 use std::mem::MaybeUninit;
 
-use obvhs::cwbvh::CwBvh;
+use obvhs::bvh2::Bvh2;
 use obvhs::triangle::Triangle;
 
+/// Most triangles in one leaf (a leaf's count has 4 bits). Leaves larger than the
+/// CWBVH's 3 halve the node count; measured against Embree (docs/performance.md).
+const MAX_LEAF: usize = 8;
+/// A triangle test's cost relative to a node test in the collapse's cost model
+/// (obvhs's CWBVH conversion uses 0.3 for a GPU); chosen by measuring 0.07-0.3.
+const TRIANGLE_COST: f32 = 0.15;
+
 /// A child reference: a node index, or (`LEAF` set) a leaf's first triangle slot in
-/// the low 29 bits and its triangle count (1 to 3) in bits 29-30.
+/// the low 27 bits and its triangle count (1 to 15) in bits 27-30.
 const LEAF: u32 = 1 << 31;
-const LEAF_START_BITS: u32 = 29;
+const LEAF_START_BITS: u32 = 27;
 const LEAF_START_MASK: u32 = (1 << LEAF_START_BITS) - 1;
 /// An unused child slot: its box is empty, so it is never entered.
 const EMPTY: u32 = u32::MAX;
@@ -44,11 +53,10 @@ struct Node {
     child: [u32; 8],
 }
 
-// The traversal's prefetch asks for a node's four lines and for three bytes of a leaf:
-// both hold only while a node is 256 bytes and a leaf (at most 3 triangles) spans at
-// most three lines, which any 129 bytes or fewer do.
+// The traversal's prefetch asks for a node's four lines and for a leaf's lines up to
+// 320 bytes: both hold only while a node is 256 bytes and a leaf at most 320.
 const _: () = assert!(size_of::<Node>() == 256);
-const _: () = assert!(3 * size_of::<LeafTriangle>() <= 129);
+const _: () = assert!(MAX_LEAF * size_of::<LeafTriangle>() <= 320);
 
 /// A triangle as the intersection test reads it: obvhs's v0, e1 = v0 - v1 and
 /// e2 = v2 - v0, computed once instead of per ray. Its normal e1 x e2 is not stored:
@@ -134,125 +142,169 @@ struct Entry {
     tnear: f32,
 }
 
-/// Per axis the exact box of some triangles: (lo, hi).
-type Box3 = ([f32; 3], [f32; 3]);
-
-const EMPTY_BOX: Box3 = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-
-fn union(a: Box3, b: Box3) -> Box3 {
-    (
-        std::array::from_fn(|i| a.0[i].min(b.0[i])),
-        std::array::from_fn(|i| a.1[i].max(b.1[i])),
-    )
-}
-
-fn triangle_box(t: &Triangle) -> Box3 {
-    let p = [t.v0, t.v1, t.v2].map(|v| v.to_array());
-    (
-        std::array::from_fn(|i| p[0][i].min(p[1][i]).min(p[2][i])),
-        std::array::from_fn(|i| p[0][i].max(p[1][i]).max(p[2][i])),
-    )
-}
-
 impl WideBvh {
-    /// Unpacks `cw`, whose primitive indices point into `triangles` and `owners`
-    /// (each triangle's mesh and index within it).
-    pub(super) fn new(cw: &CwBvh, triangles: &[Triangle], owners: &[(u32, u32)]) -> Self {
-        let slots = cw.primitive_indices.len();
+    /// Collapses obvhs's binary BVH `b` (one triangle a leaf, indices into
+    /// `triangles` and `owners`) into 8-wide nodes by the cost-optimal programme of
+    /// Ylitie et al. 2017 (as obvhs's CWBVH conversion, with this traversal's costs):
+    /// a node costs its half area, a leaf its half area x triangles x `TRIANGLE_COST`,
+    /// and a leaf holds up to `MAX_LEAF` triangles. Per binary node and slot budget i
+    /// (1 to 8) the programme keeps the cheapest of: one leaf, one wide node whose
+    /// children are the binary children spread over 8 slots, or the binary children
+    /// spread over i slots; the wide tree is read back from those decisions.
+    pub(super) fn new(b: &Bvh2, triangles: &[Triangle], owners: &[(u32, u32)]) -> Self {
+        #[derive(Clone, Copy)]
+        enum Kind {
+            Leaf,
+            Internal(u8, u8),
+            Split(u8, u8),
+        }
+        let n = b.nodes.len();
         assert!(
-            slots < LEAF_START_MASK as usize && cw.nodes.len() < LEAF as usize,
-            "{slots} triangles: more than the wide BVH addresses"
+            triangles.len() < LEAF_START_MASK as usize && n < LEAF as usize,
+            "{} triangles: more than the wide BVH addresses",
+            triangles.len()
         );
-        let leaf_triangles = cw
-            .primitive_indices
-            .iter()
-            .map(|&i| {
-                let t = &triangles[i as usize];
-                LeafTriangle {
-                    v0: t.v0.to_array(),
-                    e1: (t.v0 - t.v1).to_array(),
-                    e2: (t.v2 - t.v0).to_array(),
-                }
-            })
-            .collect();
-        // Child references per node, and the nodes in pre-order with their depth.
-        let children: Vec<[u32; 8]> = cw
-            .nodes
-            .iter()
-            .map(|n| {
-                std::array::from_fn(|slot| {
-                    let meta = n.child_meta[slot];
-                    if meta == 0 {
-                        EMPTY
-                    } else if n.imask & (1 << slot) != 0 {
-                        // Internal children are stored in slot order from child_base_idx.
-                        n.child_base_idx + (n.imask & ((1u8 << slot) - 1)).count_ones()
-                    } else {
-                        // Low 5 bits: offset from primitive_base_idx; high 3: unary count.
-                        let count = (meta >> 5).count_ones();
-                        let start = n.primitive_base_idx + u32::from(meta & 0b1_1111);
-                        LEAF | (count << LEAF_START_BITS) | start
-                    }
-                })
-            })
-            .collect();
-        let mut order = Vec::with_capacity(cw.nodes.len());
-        let mut depth = 0;
-        if !cw.nodes.is_empty() {
-            let mut pending = vec![(0u32, 1usize)];
-            while let Some((i, d)) = pending.pop() {
-                order.push(i);
-                depth = depth.max(d);
-                for &c in &children[i as usize] {
-                    if c & LEAF == 0 {
-                        pending.push((c, d + 1));
-                    }
-                }
-            }
-        }
-        // Exact boxes bottom-up: in reverse pre-order every child comes before its parent.
-        let mut boxes = vec![EMPTY_BOX; cw.nodes.len()];
-        let mut nodes = vec![
-            Node {
-                planes: [[0.0; 8]; 6],
-                child: [EMPTY; 8],
-            };
-            cw.nodes.len()
-        ];
-        for &i in order.iter().rev() {
-            let i = i as usize;
-            let mut node_box = EMPTY_BOX;
-            for (slot, &c) in children[i].iter().enumerate() {
-                let b = if c == EMPTY {
-                    EMPTY_BOX
-                } else if c & LEAF != 0 {
-                    let (start, count) = leaf_range(c);
-                    (start..start + count)
-                        .map(|s| triangle_box(&triangles[cw.primitive_indices[s] as usize]))
-                        .fold(EMPTY_BOX, union)
-                } else {
-                    boxes[c as usize]
-                };
-                for axis in 0..3 {
-                    nodes[i].planes[2 * axis][slot] = b.0[axis];
-                    nodes[i].planes[2 * axis + 1][slot] = b.1[axis];
-                }
-                node_box = union(node_box, b);
-            }
-            nodes[i].child = children[i];
-            boxes[i] = node_box;
-        }
-        Self {
-            nodes,
-            triangles: leaf_triangles,
-            owners: cw
-                .primitive_indices
-                .iter()
-                .map(|&i| owners[i as usize])
-                .collect(),
-            stack_need: 7 * depth + 1,
+        let kids = |i: usize| {
+            let f = b.nodes[i].first_index as usize;
+            [f, f + 1]
+        };
+        let mut out = Self {
+            nodes: Vec::new(),
+            triangles: Vec::new(),
+            owners: Vec::new(),
+            stack_need: 1,
             kernel: Kernel::detect(),
+        };
+        if n == 0 {
+            return out;
         }
+        let mut order = Vec::with_capacity(n);
+        let mut pending = vec![0usize];
+        while let Some(i) = pending.pop() {
+            order.push(i);
+            if !b.nodes[i].is_leaf() {
+                pending.extend(kids(i));
+            }
+        }
+        let mut count = vec![0usize; n];
+        let mut cost = vec![[0f32; 8]; n];
+        let mut kind = vec![[Kind::Leaf; 8]; n];
+        for &x in order.iter().rev() {
+            let area = b.nodes[x].aabb().half_area();
+            if b.nodes[x].is_leaf() {
+                count[x] = b.nodes[x].prim_count as usize;
+                cost[x] = [area * count[x] as f32 * TRIANGLE_COST; 8];
+                continue;
+            }
+            let [l, r] = kids(x);
+            count[x] = count[l] + count[r];
+            let leaf = if count[x] <= MAX_LEAF {
+                area * count[x] as f32 * TRIANGLE_COST
+            } else {
+                f32::INFINITY
+            };
+            let (mut best, mut split) = (f32::INFINITY, (0u8, 0u8));
+            for k in 0..7 {
+                let c = cost[l][k] + cost[r][6 - k];
+                if c < best {
+                    best = c;
+                    split = (k as u8, (6 - k) as u8);
+                }
+            }
+            let internal = area + best;
+            (cost[x][0], kind[x][0]) = if leaf <= internal {
+                (leaf, Kind::Leaf)
+            } else {
+                (internal, Kind::Internal(split.0, split.1))
+            };
+            for i in 1..8 {
+                (cost[x][i], kind[x][i]) = (cost[x][i - 1], kind[x][i - 1]);
+                for k in 0..i {
+                    let c = cost[l][k] + cost[r][i - 1 - k];
+                    if c < cost[x][i] {
+                        cost[x][i] = c;
+                        kind[x][i] = Kind::Split(k as u8, (i - 1 - k) as u8);
+                    }
+                }
+            }
+        }
+        // The wide children that binary node x makes when spread over at most i + 1
+        // slots: (binary node, whether it is one leaf).
+        fn gather(
+            x: usize,
+            i: usize,
+            kind: &[[Kind; 8]],
+            kids: &dyn Fn(usize) -> [usize; 2],
+            out: &mut Vec<(usize, bool)>,
+        ) {
+            match kind[x][i] {
+                Kind::Leaf => out.push((x, true)),
+                Kind::Internal(..) => out.push((x, false)),
+                Kind::Split(a, c) => {
+                    let [l, r] = kids(x);
+                    gather(l, a as usize, kind, kids, out);
+                    gather(r, c as usize, kind, kids, out);
+                }
+            }
+        }
+        out.nodes.push(node_empty());
+        let mut todo = vec![(0usize, 0usize, 1usize)];
+        let mut depth = 1;
+        while let Some((x, slot, d)) = todo.pop() {
+            depth = depth.max(d);
+            let mut open = Vec::with_capacity(8);
+            match kind[x][0] {
+                Kind::Internal(a, c) => {
+                    let [l, r] = kids(x);
+                    gather(l, a as usize, &kind, &kids, &mut open);
+                    gather(r, c as usize, &kind, &kids, &mut open);
+                }
+                _ => open.push((x, true)),
+            }
+            let mut node = node_empty();
+            for (lane, &(c, is_leaf)) in open.iter().enumerate() {
+                let bb = b.nodes[c].aabb();
+                for axis in 0..3 {
+                    node.planes[2 * axis][lane] = bb.min[axis];
+                    node.planes[2 * axis + 1][lane] = bb.max[axis];
+                }
+                if is_leaf {
+                    let start = out.triangles.len();
+                    let mut pending = vec![c];
+                    while let Some(y) = pending.pop() {
+                        if b.nodes[y].is_leaf() {
+                            let f = b.nodes[y].first_index as usize;
+                            for p in f..f + b.nodes[y].prim_count as usize {
+                                let t = &triangles[b.primitive_indices[p] as usize];
+                                out.triangles.push(LeafTriangle {
+                                    v0: t.v0.to_array(),
+                                    e1: (t.v0 - t.v1).to_array(),
+                                    e2: (t.v2 - t.v0).to_array(),
+                                });
+                                out.owners.push(owners[b.primitive_indices[p] as usize]);
+                            }
+                        } else {
+                            let [l, r] = kids(y);
+                            pending.push(r);
+                            pending.push(l);
+                        }
+                    }
+                    let cnt = out.triangles.len() - start;
+                    // Binary leaves hold one triangle (PLOC without collapsing), so a
+                    // leaf's count is the programme's, at most MAX_LEAF.
+                    assert!(cnt <= MAX_LEAF, "a leaf of {cnt} triangles");
+                    node.child[lane] = LEAF | ((cnt as u32) << LEAF_START_BITS) | start as u32;
+                } else {
+                    let w = out.nodes.len();
+                    out.nodes.push(node_empty());
+                    node.child[lane] = w as u32;
+                    todo.push((c, w, d + 1));
+                }
+            }
+            out.nodes[slot] = node;
+        }
+        out.stack_need = 7 * depth + 1;
+        out
     }
 
     /// The (mesh, triangle within the mesh) of primitive slot `slot`.
@@ -349,14 +401,21 @@ impl WideBvh {
             // SAFETY (all prefetches): a prefetch never faults and changes nothing but
             // the caches, whatever the address.
             if child & LEAF != 0 {
-                // At most 3 x 36 bytes, so at most three lines: those of the first,
-                // the middle and the last byte.
+                // At most 8 x 36 bytes: the lines of the first byte, of every 64th
+                // after it within the leaf, and of the last.
                 let (start, count) = leaf_range(child);
                 let first = self.triangles[start..].as_ptr().cast::<i8>();
                 let bytes = count * size_of::<LeafTriangle>();
                 unsafe {
                     _mm_prefetch::<_MM_HINT_T0>(first);
-                    _mm_prefetch::<_MM_HINT_T0>(first.wrapping_add(bytes / 2));
+                    _mm_prefetch::<_MM_HINT_T0>(first.wrapping_add(64));
+                    if bytes > 128 {
+                        _mm_prefetch::<_MM_HINT_T0>(first.wrapping_add(128));
+                        _mm_prefetch::<_MM_HINT_T0>(first.wrapping_add(192));
+                    }
+                    if bytes > 256 {
+                        _mm_prefetch::<_MM_HINT_T0>(first.wrapping_add(256));
+                    }
                     _mm_prefetch::<_MM_HINT_T0>(first.wrapping_add(bytes - 1));
                 }
             } else {
@@ -467,6 +526,19 @@ impl WideBvh {
                 }
             }
         }
+    }
+}
+
+/// A node with no children: every slot empty, its box inverted so no ray enters it.
+fn node_empty() -> Node {
+    let mut planes = [[0.0; 8]; 6];
+    for axis in 0..3 {
+        planes[2 * axis] = [f32::INFINITY; 8];
+        planes[2 * axis + 1] = [f32::NEG_INFINITY; 8];
+    }
+    Node {
+        planes,
+        child: [EMPTY; 8],
     }
 }
 

@@ -179,11 +179,11 @@ impl WideBvh {
             return out;
         }
         let mut order = Vec::with_capacity(n);
-        let mut pending = vec![0usize];
-        while let Some(i) = pending.pop() {
+        let mut stack = vec![0usize];
+        while let Some(i) = stack.pop() {
             order.push(i);
             if !b.nodes[i].is_leaf() {
-                pending.extend(kids(i));
+                stack.extend(kids(i));
             }
         }
         let mut count = vec![0usize; n];
@@ -250,9 +250,12 @@ impl WideBvh {
         out.nodes.push(node_empty());
         let mut todo = vec![(0usize, 0usize, 1usize)];
         let mut depth = 1;
+        // Reused for every node and leaf: a refit runs this whole construction again.
+        let mut open = Vec::with_capacity(8);
+        let mut pending = Vec::new();
         while let Some((x, slot, d)) = todo.pop() {
             depth = depth.max(d);
-            let mut open = Vec::with_capacity(8);
+            open.clear();
             match kind[x][0] {
                 Kind::Internal(a, c) => {
                     let [l, r] = kids(x);
@@ -270,7 +273,8 @@ impl WideBvh {
                 }
                 if is_leaf {
                     let start = out.triangles.len();
-                    let mut pending = vec![c];
+                    pending.clear();
+                    pending.push(c);
                     while let Some(y) = pending.pop() {
                         if b.nodes[y].is_leaf() {
                             let f = b.nodes[y].first_index as usize;

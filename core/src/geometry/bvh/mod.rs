@@ -1,12 +1,15 @@
-//! Ray queries against a scene's triangles: a compressed wide BVH (CWBVH, Ylitie et
-//! al. 2017) built by obvhs on scene load, closest-hit and occlusion (any-hit) queries.
-//! Traversal runs in f32 on the same tree unpacked for the CPU (`wide.rs`: SIMD
-//! box tests, ordered traversal; obvhs's own traversal is kept as the reference it is
-//! tested and benchmarked against); a hit's barycentrics are the hit test's own (f32),
-//! which shading combines with the mesh's f64 vertices. Degenerate (zero-area) triangles are left out of the BVH. Moved
-//! geometry with the same triangles is refitted (the binary BVH's boxes updated
-//! bottom-up, then re-compressed) instead of rebuilt; docs/performance.md has both costs.
+//! Ray queries against a scene's triangles: closest-hit and occlusion (any-hit)
+//! queries. obvhs builds a binary BVH on scene load (PLOC, one triangle a leaf); the
+//! CPU traverses it collapsed into 8-wide nodes (`wide.rs`: SIMD box tests, ordered
+//! traversal, in f32); a hit's barycentrics are the hit test's own (f32), which shading
+//! combines with the mesh's f64 vertices. obvhs's compressed wide BVH (CWBVH, Ylitie
+//! et al. 2017) is made from the same binary tree on first use: the GPU traverses it,
+//! and obvhs's own traversal of it is the reference the CPU one is tested and
+//! benchmarked against. Degenerate (zero-area) triangles are left out. Moved geometry
+//! with the same triangles is refitted (every box updated bottom-up, the trees keep
+//! their shape) instead of rebuilt; docs/performance.md has both costs.
 
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use glam::{DVec3, Vec3A};
@@ -24,7 +27,7 @@ use crate::scene::TriangleMesh;
 mod wide;
 
 pub use wide::Kernel;
-use wide::{Query, WideBvh};
+use wide::{Found, Query, WideBvh};
 
 /// The closest intersection of a ray.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -38,10 +41,12 @@ pub struct Hit {
 }
 
 pub struct SceneBvh {
-    bvh: CwBvh,
-    /// `bvh` unpacked for CPU traversal; rebuilt whenever `bvh` changes.
+    /// obvhs's compressed wide BVH of `bvh2`, made on first use: only the GPU
+    /// traversal and the reference queries read it, so CPU renders never pay for it.
+    bvh: OnceLock<CwBvh>,
+    /// The tree the CPU traverses, collapsed from `bvh2` and refitted in place.
     wide: WideBvh,
-    /// The binary BVH the wide one was made from, kept for refitting.
+    /// The binary BVH both wide trees are made from, refitted with them.
     bvh2: Bvh2,
     triangles: Vec<Triangle>,
     /// (mesh, triangle within the mesh) of each BVH primitive.
@@ -81,10 +86,9 @@ impl SceneBvh {
             PARAMS.search_depth_threshold,
         );
         ReinsertionOptimizer::default().run(&mut bvh2, PARAMS.reinsertion_batch_ratio, None);
-        let bvh = compress(&bvh2);
         let wide = WideBvh::new(&bvh2, &triangles, &refs);
         Self {
-            bvh,
+            bvh: OnceLock::new(),
             wide,
             bvh2,
             triangles,
@@ -110,8 +114,8 @@ impl SceneBvh {
             self.bvh2.nodes[node].set_aabb(tri.aabb());
         }
         self.bvh2.refit_all();
-        self.bvh = compress(&self.bvh2);
-        self.wide = WideBvh::new(&self.bvh2, &triangles, &self.refs);
+        self.bvh = OnceLock::new();
+        self.wide.refit(&triangles);
         self.triangles = triangles;
         self.degenerate = degenerate;
         self.build_time = start.elapsed();
@@ -119,10 +123,10 @@ impl SceneBvh {
         true
     }
 
-    /// Distance to BVH primitive `id` along `r` (infinity on a miss).
-    #[inline]
-    fn intersect(&self, r: &BvhRay, id: usize) -> f32 {
-        self.triangles[self.bvh.primitive_indices[id] as usize].intersect(r)
+    /// obvhs's compressed wide BVH, compressed now if this is its first use since the
+    /// last build or refit.
+    fn cwbvh(&self) -> &CwBvh {
+        self.bvh.get_or_init(|| compress(&self.bvh2))
     }
 
     /// Wall time of the last build or refit.
@@ -137,13 +141,13 @@ impl SceneBvh {
 
     /// The wide BVH's nodes, as obvhs lays them out (80-byte `Pod` records).
     pub fn nodes(&self) -> &[obvhs::cwbvh::node::CwBvhNode] {
-        &self.bvh.nodes
+        &self.cwbvh().nodes
     }
 
     /// Per BVH primitive (leaf slot), the f32 triangle it tests and the scene's
     /// (mesh, triangle within the mesh): what a device traversal reads, in leaf order.
     pub fn primitives(&self) -> impl ExactSizeIterator<Item = (&Triangle, (u32, u32))> + '_ {
-        self.bvh.primitive_indices.iter().map(|&i| {
+        self.cwbvh().primitive_indices.iter().map(|&i| {
             let i = i as usize;
             (&self.triangles[i], self.refs[i])
         })
@@ -156,9 +160,7 @@ impl SceneBvh {
 
     /// The closest hit with `t` in [tmin, tmax].
     pub fn closest_hit(&self, origin: DVec3, dir: DVec3, tmin: f64, tmax: f64) -> Option<Hit> {
-        let q = query(origin, dir, tmin, tmax);
-        let (slot, t) = self.wide.closest(&q)?;
-        Some(self.hit(&q, slot, t))
+        Some(self.hit(self.wide.closest(&query(origin, dir, tmin, tmax))?))
     }
 
     /// `closest_hit` with a chosen node test (`Kernel::Avx2` only where the CPU has it:
@@ -175,8 +177,7 @@ impl SceneBvh {
             assert_eq!(Kernel::detect(), Kernel::Avx2, "this CPU has no AVX2");
         }
         let q = query(origin, dir, tmin, tmax);
-        let (slot, t) = self.wide.closest_with(kernel, &q)?;
-        Some(self.hit(&q, slot, t))
+        Some(self.hit(self.wide.closest_with(kernel, &q)?))
     }
 
     /// The closest hit by obvhs's own CWBVH traversal: the reference the CPU traversal
@@ -193,26 +194,39 @@ impl SceneBvh {
         }
         let ray = BvhRay::new(v3a(origin), v3a(dir), tmin as f32, tmax as f32);
         let mut hit = RayHit::none();
-        let found = self
-            .bvh
-            .ray_traverse(ray, &mut hit, |r, id| self.intersect(r, id));
-        found.then(|| self.hit(&query(origin, dir, tmin, tmax), hit.primitive_id, hit.t))
+        let bvh = self.cwbvh();
+        let source = |slot: u32| bvh.primitive_indices[slot as usize] as usize;
+        let found = bvh.ray_traverse(ray, &mut hit, |r, slot| {
+            self.triangles[source(slot as u32)].intersect(r)
+        });
+        found.then(|| {
+            // The CWBVH's slots are its own (not the CPU tree's): map through its table.
+            let i = source(hit.primitive_id);
+            let (b1, b2) = wide::barycentrics(&self.triangles[i], &query(origin, dir, tmin, tmax));
+            let (m, tri) = self.refs[i];
+            Hit {
+                t: hit.t as f64,
+                mesh: m as usize,
+                triangle: tri as usize,
+                b1: b1 as f64,
+                b2: b2 as f64,
+            }
+        })
     }
 
-    /// The hit record of BVH primitive slot `slot` at distance `t` along `q`'s ray.
-    fn hit(&self, q: &Query, slot: u32, t: f32) -> Hit {
-        let (m, tri) = self.wide.owner(slot);
+    /// The hit record of what the CPU traversal found.
+    fn hit(&self, found: Found) -> Hit {
+        let (m, tri) = self.wide.owner(found.slot);
         // The hit test's f32 barycentrics (inside the triangle: the test refuses any
         // negative weight). Shading combines the f64 vertices with them, so the point
         // stays on the triangle's plane; reading those vertices here instead cost a
         // cache miss per incoherent ray (docs/performance.md).
-        let (b1, b2) = self.wide.barycentrics(slot, q);
         Hit {
-            t: t as f64,
+            t: found.t as f64,
             mesh: m as usize,
             triangle: tri as usize,
-            b1: b1 as f64,
-            b2: b2 as f64,
+            b1: found.u as f64,
+            b2: found.v as f64,
         }
     }
 
@@ -243,9 +257,10 @@ impl SceneBvh {
             return false;
         }
         let ray = BvhRay::new(v3a(origin), v3a(dir), tmin as f32, tmax as f32);
-        !self
-            .bvh
-            .ray_traverse_miss(ray, |r, id| self.intersect(r, id))
+        let bvh = self.cwbvh();
+        !bvh.ray_traverse_miss(ray, |r, slot| {
+            self.triangles[bvh.primitive_indices[slot] as usize].intersect(r)
+        })
     }
 }
 
@@ -547,6 +562,13 @@ mod tests {
                 .0;
             tri.intersect(&BvhRay::new(v3a(o), v3a(d), 0.0, tmax as f32))
         };
+        if let Some(r) = reference {
+            assert_eq!(
+                obvhs_distance(&r).to_bits(),
+                (r.t as f32).to_bits(),
+                "{r:?}"
+            );
+        }
         let mut near_extra = false;
         for kernel in kernels {
             let hit = bvh.closest_hit_with(kernel, o, d, 0.0, tmax);

@@ -56,7 +56,7 @@ struct Node {
 // The traversal's prefetch asks for a node's four lines and for a leaf's lines up to
 // 320 bytes: both hold only while a node is 256 bytes and a leaf at most 320.
 const _: () = assert!(size_of::<Node>() == 256);
-const _: () = assert!(MAX_LEAF * size_of::<LeafTriangle>() <= 320);
+const _: () = assert!(MAX_LEAF * LEAF_ROWS * size_of::<f32>() <= 320);
 
 /// A triangle as the intersection test reads it: obvhs's v0, e1 = v0 - v1 and
 /// e2 = v2 - v0, computed once instead of per ray. Its normal e1 x e2 is not stored:
@@ -66,6 +66,22 @@ struct LeafTriangle {
     v0: [f32; 3],
     e1: [f32; 3],
     e2: [f32; 3],
+}
+
+/// Floats per triangle in a leaf: v0, e1, e2 (x, y, z each).
+const LEAF_ROWS: usize = 9;
+/// Floats after the last leaf: an 8-lane load of a leaf's last row reads up to 7
+/// floats past it.
+const LEAF_PAD: usize = 7;
+
+/// What a closest-hit traversal found: the primitive slot, the distance and the hit
+/// test's barycentric weights of vertices 1 and 2.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Found {
+    pub slot: u32,
+    pub t: f32,
+    pub u: f32,
+    pub v: f32,
 }
 
 /// A ray as the traversal reads it.
@@ -126,11 +142,17 @@ impl Kernel {
 
 pub(super) struct WideBvh {
     nodes: Vec<Node>,
-    /// The leaves' triangles, indexed by obvhs's primitive slot.
-    triangles: Vec<LeafTriangle>,
+    /// The leaves' triangles: a leaf of `count` triangles from slot `start` is the
+    /// floats from `LEAF_ROWS * start`, in structure-of-arrays order (`LEAF_ROWS`
+    /// rows of `count`: v0 x, y, z, e1 x, y, z, e2 x, y, z), so one 8-lane load reads
+    /// a row of the whole leaf. `LEAF_PAD` floats follow the last leaf.
+    leaves: Vec<f32>,
     /// Per slot, the scene's (mesh, triangle within the mesh): one lookup per hit
     /// instead of two.
     owners: Vec<(u32, u32)>,
+    /// Per slot, the index of its triangle in the list the tree was built from: what
+    /// a refit reads the moved triangles by.
+    sources: Vec<u32>,
     /// Stack entries a traversal can need: 7 per level of the tree, plus one.
     stack_need: usize,
     kernel: Kernel,
@@ -170,8 +192,9 @@ impl WideBvh {
         };
         let mut out = Self {
             nodes: Vec::new(),
-            triangles: Vec::new(),
+            leaves: Vec::new(),
             owners: Vec::new(),
+            sources: Vec::new(),
             stack_need: 1,
             kernel: Kernel::detect(),
         };
@@ -272,20 +295,16 @@ impl WideBvh {
                     node.planes[2 * axis + 1][lane] = bb.max[axis];
                 }
                 if is_leaf {
-                    let start = out.triangles.len();
+                    let start = out.sources.len();
                     pending.clear();
                     pending.push(c);
                     while let Some(y) = pending.pop() {
                         if b.nodes[y].is_leaf() {
                             let f = b.nodes[y].first_index as usize;
                             for p in f..f + b.nodes[y].prim_count as usize {
-                                let t = &triangles[b.primitive_indices[p] as usize];
-                                out.triangles.push(LeafTriangle {
-                                    v0: t.v0.to_array(),
-                                    e1: (t.v0 - t.v1).to_array(),
-                                    e2: (t.v2 - t.v0).to_array(),
-                                });
-                                out.owners.push(owners[b.primitive_indices[p] as usize]);
+                                let source = b.primitive_indices[p];
+                                out.owners.push(owners[source as usize]);
+                                out.sources.push(source);
                             }
                         } else {
                             let [l, r] = kids(y);
@@ -293,10 +312,12 @@ impl WideBvh {
                             pending.push(l);
                         }
                     }
-                    let cnt = out.triangles.len() - start;
+                    let cnt = out.sources.len() - start;
                     // Binary leaves hold one triangle (PLOC without collapsing), so a
                     // leaf's count is the programme's, at most MAX_LEAF.
                     assert!(cnt <= MAX_LEAF, "a leaf of {cnt} triangles");
+                    out.leaves.resize(LEAF_ROWS * out.sources.len(), 0.0);
+                    write_leaf(&mut out.leaves, start, &out.sources[start..], triangles);
                     node.child[lane] = LEAF | ((cnt as u32) << LEAF_START_BITS) | start as u32;
                 } else {
                     let w = out.nodes.len();
@@ -307,8 +328,52 @@ impl WideBvh {
             }
             out.nodes[slot] = node;
         }
+        out.leaves.resize(out.leaves.len() + LEAF_PAD, 0.0);
         out.stack_need = 7 * depth + 1;
         out
+    }
+
+    /// Follows triangles that moved: `triangles` is the list the tree was built from,
+    /// same length and order, with new vertices. The tree keeps its shape; every box
+    /// becomes the exact bound of what it holds again, bottom-up (a node's children
+    /// come after it in `nodes`). Linear in the tree's size, without the programme.
+    pub(super) fn refit(&mut self, triangles: &[Triangle]) {
+        for n in (0..self.nodes.len()).rev() {
+            for lane in 0..8 {
+                let child = self.nodes[n].child[lane];
+                if child == EMPTY {
+                    continue;
+                }
+                let mut lo = [f32::INFINITY; 3];
+                let mut hi = [f32::NEG_INFINITY; 3];
+                if child & LEAF != 0 {
+                    let (start, count) = leaf_range(child);
+                    let sources = &self.sources[start..start + count];
+                    write_leaf(&mut self.leaves, start, sources, triangles);
+                    for &source in sources {
+                        let t = &triangles[source as usize];
+                        for v in [t.v0, t.v1, t.v2] {
+                            for axis in 0..3 {
+                                lo[axis] = lo[axis].min(v[axis]);
+                                hi[axis] = hi[axis].max(v[axis]);
+                            }
+                        }
+                    }
+                } else {
+                    // Empty lanes hold an empty box, which leaves the union as it is.
+                    let planes = &self.nodes[child as usize].planes;
+                    for axis in 0..3 {
+                        lo[axis] = planes[2 * axis].iter().fold(lo[axis], |a, &b| a.min(b));
+                        hi[axis] = planes[2 * axis + 1].iter().fold(hi[axis], |a, &b| a.max(b));
+                    }
+                }
+                let planes = &mut self.nodes[n].planes;
+                for axis in 0..3 {
+                    planes[2 * axis][lane] = lo[axis];
+                    planes[2 * axis + 1][lane] = hi[axis];
+                }
+            }
+        }
     }
 
     /// The (mesh, triangle within the mesh) of primitive slot `slot`.
@@ -317,18 +382,9 @@ impl WideBvh {
         self.owners[slot as usize]
     }
 
-    /// The barycentric weights of vertices 1 and 2 of slot `slot`'s triangle where
-    /// the query's ray meets its plane: the hit test's own u and v, from the leaf the
-    /// traversal has just read (the mesh's vertices, elsewhere in memory, stay unread).
-    #[inline]
-    pub(super) fn barycentrics(&self, slot: u32, q: &Query) -> (f32, f32) {
-        let (u, v, ..) = solve(&self.triangles[slot as usize], q);
-        (u, v)
-    }
-
     /// The closest hit within the query's (tmin, tmax): (primitive slot, distance).
     #[inline]
-    pub(super) fn closest(&self, q: &Query) -> Option<(u32, f32)> {
+    pub(super) fn closest(&self, q: &Query) -> Option<Found> {
         self.closest_with(self.kernel, q)
     }
 
@@ -338,7 +394,7 @@ impl WideBvh {
         self.occluded_with(self.kernel, q)
     }
 
-    pub(super) fn closest_with(&self, kernel: Kernel, q: &Query) -> Option<(u32, f32)> {
+    pub(super) fn closest_with(&self, kernel: Kernel, q: &Query) -> Option<Found> {
         if self.nodes.is_empty() {
             return None;
         }
@@ -366,21 +422,13 @@ impl WideBvh {
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn closest_avx2(
-        &self,
-        q: &Query,
-        stack: &mut [MaybeUninit<Entry>],
-    ) -> Option<(u32, f32)> {
+    unsafe fn closest_avx2(&self, q: &Query, stack: &mut [MaybeUninit<Entry>]) -> Option<Found> {
         self.traverse::<true, false>(q, stack)
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn occluded_avx2(
-        &self,
-        q: &Query,
-        stack: &mut [MaybeUninit<Entry>],
-    ) -> Option<(u32, f32)> {
+    unsafe fn occluded_avx2(&self, q: &Query, stack: &mut [MaybeUninit<Entry>]) -> Option<Found> {
         self.traverse::<true, true>(q, stack)
     }
 
@@ -408,8 +456,8 @@ impl WideBvh {
                 // At most 8 x 36 bytes: the lines of the first byte, of every 64th
                 // after it within the leaf, and of the last.
                 let (start, count) = leaf_range(child);
-                let first = self.triangles[start..].as_ptr().cast::<i8>();
-                let bytes = count * size_of::<LeafTriangle>();
+                let first = self.leaves[LEAF_ROWS * start..].as_ptr().cast::<i8>();
+                let bytes = count * LEAF_ROWS * size_of::<f32>();
                 unsafe {
                     _mm_prefetch::<_MM_HINT_T0>(first);
                     _mm_prefetch::<_MM_HINT_T0>(first.wrapping_add(64));
@@ -445,8 +493,8 @@ impl WideBvh {
         &self,
         q: &Query,
         stack: &mut [MaybeUninit<Entry>],
-    ) -> Option<(u32, f32)> {
-        let mut best: Option<(u32, f32)> = None;
+    ) -> Option<Found> {
+        let mut best: Option<Found> = None;
         let mut tmax = q.tmax;
         let mut len = 0;
         let mut current = 0u32;
@@ -505,14 +553,54 @@ impl WideBvh {
                 }
             } else {
                 let (start, count) = leaf_range(current);
-                for slot in start..start + count {
-                    let t = intersect(&self.triangles[slot], q, tmax);
-                    if t < tmax {
-                        best = Some((slot as u32, t));
-                        if ANY {
-                            return best;
+                let rows = &self.leaves[LEAF_ROWS * start..];
+                if AVX2 {
+                    #[cfg(target_arch = "x86_64")]
+                    // SAFETY: AVX2 is only set by the AVX2-enabled entry points; the
+                    // leaf's rows and `LEAF_PAD` after the last leaf cover every load.
+                    unsafe {
+                        let (mask, t, u, v) = leaf_hits_avx2(rows.as_ptr(), count, q, tmax);
+                        if mask != 0 {
+                            // The nearest (for occlusion, the first that hits); the
+                            // first of equals, as the scalar loop.
+                            let mut m = if ANY {
+                                mask & mask.wrapping_neg()
+                            } else {
+                                mask
+                            };
+                            while m != 0 {
+                                let i = m.trailing_zeros() as usize;
+                                m &= m - 1;
+                                if t[i] < tmax {
+                                    tmax = t[i];
+                                    best = Some(Found {
+                                        slot: (start + i) as u32,
+                                        t: t[i],
+                                        u: u[i],
+                                        v: v[i],
+                                    });
+                                }
+                            }
+                            if ANY {
+                                return best;
+                            }
                         }
-                        tmax = t;
+                    }
+                } else {
+                    for lane in 0..count {
+                        let (t, u, v) = intersect(&leaf_lane(rows, count, lane), q, tmax);
+                        if t < tmax {
+                            best = Some(Found {
+                                slot: (start + lane) as u32,
+                                t,
+                                u,
+                                v,
+                            });
+                            if ANY {
+                                return best;
+                            }
+                            tmax = t;
+                        }
                     }
                 }
             }
@@ -543,6 +631,44 @@ fn node_empty() -> Node {
     Node {
         planes,
         child: [EMPTY; 8],
+    }
+}
+
+/// The barycentric weights of `t`'s vertices 1 and 2 where the query's ray meets its
+/// plane, by the traversal's own arithmetic.
+pub(super) fn barycentrics(t: &Triangle, q: &Query) -> (f32, f32) {
+    let (u, v, ..) = solve(&leaf_triangle(t), q);
+    (u, v)
+}
+
+/// Writes the triangles `sources` of `triangles` as the leaf from slot `start`.
+fn write_leaf(leaves: &mut [f32], start: usize, sources: &[u32], triangles: &[Triangle]) {
+    let count = sources.len();
+    let leaf = &mut leaves[LEAF_ROWS * start..LEAF_ROWS * (start + count)];
+    for (lane, &source) in sources.iter().enumerate() {
+        let t = leaf_triangle(&triangles[source as usize]);
+        for (row, value) in t.v0.into_iter().chain(t.e1).chain(t.e2).enumerate() {
+            leaf[row * count + lane] = value;
+        }
+    }
+}
+
+/// Triangle `lane` of the leaf of `count` triangles whose rows start `rows`.
+#[inline(always)]
+fn leaf_lane(rows: &[f32], count: usize, lane: usize) -> LeafTriangle {
+    let at = |row: usize| rows[row * count + lane];
+    LeafTriangle {
+        v0: [at(0), at(1), at(2)],
+        e1: [at(3), at(4), at(5)],
+        e2: [at(6), at(7), at(8)],
+    }
+}
+
+fn leaf_triangle(t: &Triangle) -> LeafTriangle {
+    LeafTriangle {
+        v0: t.v0.to_array(),
+        e1: (t.v0 - t.v1).to_array(),
+        e2: (t.v2 - t.v0).to_array(),
     }
 }
 
@@ -584,10 +710,10 @@ fn solve(tri: &LeafTriangle, q: &Query) -> (f32, f32, f32, [f32; 3], [f32; 3]) {
     (u, v, inv_det, n, c)
 }
 
-/// obvhs's `Triangle::intersect` on precomputed edges: the distance, or infinity when
-/// the ray misses or the distance is outside [tmin, tmax].
+/// obvhs's `Triangle::intersect` on precomputed edges: the distance (infinity when
+/// the ray misses or the distance is outside [tmin, tmax]) and the weights u, v.
 #[inline(always)]
-fn intersect(tri: &LeafTriangle, q: &Query, tmax: f32) -> f32 {
+fn intersect(tri: &LeafTriangle, q: &Query, tmax: f32) -> (f32, f32, f32) {
     let (u, v, inv_det, n, c) = solve(tri, q);
     let w = 1.0 - u - v;
     // A negative barycentric (including -0.0) misses, as in obvhs.
@@ -595,10 +721,69 @@ fn intersect(tri: &LeafTriangle, q: &Query, tmax: f32) -> f32 {
     if inv_det != 0.0 && signs & 0x8000_0000 == 0 {
         let t = dot(n, c) * inv_det;
         if t >= q.tmin && t <= tmax {
-            return t;
+            return (t, u, v);
         }
     }
-    f32::INFINITY
+    (f32::INFINITY, u, v)
+}
+
+/// `intersect` on every triangle of a leaf at once, operation for operation in the
+/// same order (so every lane's distance is the scalar test's, bit for bit): the lanes
+/// that hit within [tmin, tmax) as a bit mask (below `count`), and per lane the
+/// distance and u, v. `rows` is the leaf's first float; each row is read with one
+/// unaligned 8-lane load, lanes at and past `count` reading whatever follows.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn leaf_hits_avx2(
+    rows: *const f32,
+    count: usize,
+    q: &Query,
+    tmax: f32,
+) -> (u32, [f32; 8], [f32; 8], [f32; 8]) {
+    use std::arch::x86_64::*;
+    // SAFETY: the caller guarantees AVX2 and that 8 floats from every row start are
+    // readable (the leaf's rows, then the next leaf's or the padding).
+    unsafe {
+        let row = |r: usize| _mm256_loadu_ps(rows.add(r * count));
+        let (mul, sub, add) = (_mm256_mul_ps, _mm256_sub_ps, _mm256_add_ps);
+        let (e1x, e1y, e1z) = (row(3), row(4), row(5));
+        let (e2x, e2y, e2z) = (row(6), row(7), row(8));
+        let nx = sub(mul(e1y, e2z), mul(e1z, e2y));
+        let ny = sub(mul(e1z, e2x), mul(e1x, e2z));
+        let nz = sub(mul(e1x, e2y), mul(e1y, e2x));
+        let cx = sub(row(0), _mm256_set1_ps(q.o[0]));
+        let cy = sub(row(1), _mm256_set1_ps(q.o[1]));
+        let cz = sub(row(2), _mm256_set1_ps(q.o[2]));
+        let [dx, dy, dz] = q.d.map(|x| _mm256_set1_ps(x));
+        let rx = sub(mul(dy, cz), mul(dz, cy));
+        let ry = sub(mul(dz, cx), mul(dx, cz));
+        let rz = sub(mul(dx, cy), mul(dy, cx));
+        let dot3 = |ax, ay, az, bx, by, bz| add(add(mul(ax, bx), mul(ay, by)), mul(az, bz));
+        let one = _mm256_set1_ps(1.0);
+        let inv_det = _mm256_div_ps(one, dot3(nx, ny, nz, dx, dy, dz));
+        let u = mul(dot3(rx, ry, rz, e2x, e2y, e2z), inv_det);
+        let v = mul(dot3(rx, ry, rz, e1x, e1y, e1z), inv_det);
+        let w = sub(sub(one, u), v);
+        let t = mul(dot3(nx, ny, nz, cx, cy, cz), inv_det);
+        // Sign bits of u, v, w (a negative one, -0.0 included, misses); inv_det != 0
+        // (true for NaN, as the scalar `!=`); tmin <= t < tmax.
+        let negative = _mm256_movemask_ps(_mm256_or_ps(_mm256_or_ps(u, v), w)) as u32;
+        let nonzero = _mm256_cmp_ps::<_CMP_NEQ_UQ>(inv_det, _mm256_setzero_ps());
+        let within = _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_GE_OQ>(t, _mm256_set1_ps(q.tmin)),
+            _mm256_cmp_ps::<_CMP_LT_OQ>(t, _mm256_set1_ps(tmax)),
+        );
+        let mask = _mm256_movemask_ps(_mm256_and_ps(nonzero, within)) as u32
+            & !negative
+            & ((1u32 << count) - 1);
+        let (mut ts, mut us, mut vs) = ([0f32; 8], [0f32; 8], [0f32; 8]);
+        if mask != 0 {
+            _mm256_storeu_ps(ts.as_mut_ptr(), t);
+            _mm256_storeu_ps(us.as_mut_ptr(), u);
+            _mm256_storeu_ps(vs.as_mut_ptr(), v);
+        }
+        (mask, ts, us, vs)
+    }
 }
 
 /// Which of the node's children the ray enters within [tmin, tmax] (bit per child),

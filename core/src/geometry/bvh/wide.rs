@@ -24,8 +24,10 @@ use obvhs::triangle::Triangle;
 /// CWBVH's 3 halve the node count; measured against Embree (docs/performance.md).
 const MAX_LEAF: usize = 8;
 /// A triangle test's cost relative to a node test in the collapse's cost model
-/// (obvhs's CWBVH conversion uses 0.3 for a GPU); chosen by measuring 0.07-0.3.
-const TRIANGLE_COST: f32 = 0.15;
+/// (obvhs's CWBVH conversion uses 0.3 for a GPU). A leaf's triangles are tested 8 at
+/// a time, so a triangle costs little; chosen by measuring 0.05-0.15
+/// (docs/performance.md).
+const TRIANGLE_COST: f32 = 0.07;
 
 /// A child reference: a node index, or (`LEAF` set) a leaf's first triangle slot in
 /// the low 27 bits and its triangle count (1 to 15) in bits 27-30.

@@ -363,6 +363,7 @@ impl WideBvh {
                     }
                 } else {
                     // Empty lanes hold an empty box, which leaves the union as it is.
+                    debug_assert!(child as usize > n, "a child laid out before its node");
                     let planes = &self.nodes[child as usize].planes;
                     for axis in 0..3 {
                         lo[axis] = planes[2 * axis].iter().fold(lo[axis], |a, &b| a.min(b));
@@ -843,5 +844,66 @@ unsafe fn node_hits_avx2(node: &Node, q: &Query, tmax: f32, tnear: &mut [f32; 8]
         let far = _mm256_mul_ps(far, _mm256_set1_ps(ROBUST_FAR));
         _mm256_storeu_ps(tnear.as_mut_ptr(), near);
         _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(near, far)) as u32
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::DVec3;
+
+    use super::super::SceneBvh;
+
+    /// A refit to moved vertices and back gives the tree built for the original
+    /// vertices bit for bit: every box is rebuilt from what it holds (none left stale
+    /// or only grown) and every leaf's rows are rewritten.
+    #[test]
+    fn a_refit_there_and_back_restores_every_box_and_leaf() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../tests/scenes/meshes/bunny_lowres.obj");
+        let identity = crate::scene::mesh::Placement {
+            scale: 1.0,
+            rotation: glam::DMat3::IDENTITY,
+            translate: DVec3::ZERO,
+        };
+        let mut meshes = vec![crate::scene::mesh::load_obj(&path, &identity, 0).expect("bunny")];
+        let original = meshes[0].positions.clone();
+        let mut bvh = SceneBvh::build(&meshes);
+        let planes = |bvh: &SceneBvh| -> Vec<[[u32; 8]; 6]> {
+            let bits = |row: &[f32; 8]| row.map(f32::to_bits);
+            bvh.wide
+                .nodes
+                .iter()
+                .map(|n| n.planes.each_ref().map(bits))
+                .collect()
+        };
+        let leaves =
+            |bvh: &SceneBvh| -> Vec<u32> { bvh.wide.leaves.iter().map(|x| x.to_bits()).collect() };
+        let (built_planes, built_leaves) = (planes(&bvh), leaves(&bvh));
+        for p in &mut meshes[0].positions {
+            *p = DVec3::new(p.x + 0.3 * p.y, 0.7 * p.y + 0.5, p.z - 0.2);
+        }
+        assert!(bvh.update(&meshes), "same triangles refit");
+        let moved = planes(&bvh);
+        let changed = moved
+            .iter()
+            .zip(&built_planes)
+            .filter(|(a, b)| a != b)
+            .count();
+        assert_eq!(
+            changed,
+            moved.len(),
+            "every node's boxes move with the vertices"
+        );
+        assert_ne!(leaves(&bvh), built_leaves);
+        meshes[0].positions = original;
+        assert!(bvh.update(&meshes));
+        assert!(
+            planes(&bvh) == built_planes,
+            "boxes differ after the round trip"
+        );
+        assert!(
+            leaves(&bvh) == built_leaves,
+            "leaves differ after the round trip"
+        );
     }
 }

@@ -557,6 +557,8 @@ impl WideBvh {
             } else {
                 let (start, count) = leaf_range(current);
                 let rows = &self.leaves[LEAF_ROWS * start..];
+                // What the 8-lane loads of the last row read (`LEAF_PAD`).
+                debug_assert!(rows.len() >= (LEAF_ROWS - 1) * count + 8);
                 if AVX2 {
                     #[cfg(target_arch = "x86_64")]
                     // SAFETY: AVX2 is only set by the AVX2-enabled entry points; the

@@ -139,7 +139,8 @@ impl SceneBvh {
         self.refitted
     }
 
-    /// The wide BVH's nodes, as obvhs lays them out (80-byte `Pod` records).
+    /// obvhs's CWBVH nodes (80-byte `Pod` records), what a device traversal reads; the
+    /// first call after a build or refit makes the CWBVH.
     pub fn nodes(&self) -> &[obvhs::cwbvh::node::CwBvhNode] {
         &self.cwbvh().nodes
     }

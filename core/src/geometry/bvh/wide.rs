@@ -5,15 +5,18 @@
 //! made from) is collapsed into 8-wide nodes by the same cost-optimal programme with
 //! this traversal's costs and leaves of up to `MAX_LEAF` triangles, which halves the
 //! nodes (docs/performance.md); the children's f32 boxes lie in structure-of-arrays
-//! order, so one AVX2 instruction tests a slab of all 8 children, and the leaves'
-//! triangles are copied in leaf order with their edges precomputed.
-//! Traversal is ordered (nearest child first, farther ones stacked with their entry
-//! distance and skipped once a closer hit is known); occlusion stops at the first hit.
+//! order, so one AVX2 instruction tests a slab of all 8 children, and each leaf's
+//! triangles (edges precomputed) lie in structure-of-arrays order too, so one AVX2
+//! instruction per term tests the whole leaf. A refit keeps the tree's shape and
+//! recomputes its boxes. Traversal is ordered (nearest child first, farther ones
+//! stacked with their entry distance and skipped once a closer hit is known);
+//! occlusion stops at the first hit.
 //!
-//! The triangle test performs obvhs's Moller-Trumbore arithmetic operation for
-//! operation (same operands, same order, no fused multiply-add), so a hit's distance is
-//! bit for bit the one obvhs finds, and the box test is conservative (Ize 2013: far
-//! distances widened by 1 + 2 gamma_3), so no triangle obvhs would hit is culled.
+//! The triangle test, scalar or 8-wide, performs obvhs's Moller-Trumbore arithmetic
+//! operation for operation (same operands, same order, no fused multiply-add), so a
+//! hit's distance is bit for bit the one obvhs finds, and the box test is conservative
+//! (Ize 2013: far distances widened by 1 + 2 gamma_3), so no triangle obvhs would hit
+//! is culled.
 
 use std::mem::MaybeUninit;
 

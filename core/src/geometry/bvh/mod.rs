@@ -518,14 +518,7 @@ mod tests {
 
     #[test]
     fn closest_hits_on_the_bunny_match_brute_force_before_and_after_a_refit() {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../tests/scenes/meshes/bunny_lowres.obj");
-        let identity = crate::scene::mesh::Placement {
-            scale: 1.0,
-            rotation: glam::DMat3::IDENTITY,
-            translate: DVec3::ZERO,
-        };
-        let mut meshes = vec![crate::scene::mesh::load_obj(&path, &identity, 0).expect("bunny")];
+        let mut meshes = load_test_mesh("bunny_lowres.obj");
         let mut bvh = SceneBvh::build(&meshes);
         let (rays, hits) = check_against_brute_force(&meshes, &bvh, 1);
         assert!(hits > rays / 2, "{hits} of {rays} rays hit");
@@ -651,7 +644,8 @@ mod tests {
         assert!(near_extra < rays / 1000 + 1, "{near_extra}");
     }
 
-    fn load_test_mesh(name: &str) -> Vec<TriangleMesh> {
+    /// A mesh of tests/scenes/meshes as its file has it.
+    pub(super) fn load_test_mesh(name: &str) -> Vec<TriangleMesh> {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../tests/scenes/meshes")
             .join(name);

@@ -857,20 +857,14 @@ mod tests {
     use glam::DVec3;
 
     use super::super::SceneBvh;
+    use super::super::tests::load_test_mesh;
 
     /// A refit to moved vertices and back gives the tree built for the original
     /// vertices bit for bit: every box is rebuilt from what it holds (none left stale
     /// or only grown) and every leaf's rows are rewritten.
     #[test]
     fn a_refit_there_and_back_restores_every_box_and_leaf() {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../tests/scenes/meshes/bunny_lowres.obj");
-        let identity = crate::scene::mesh::Placement {
-            scale: 1.0,
-            rotation: glam::DMat3::IDENTITY,
-            translate: DVec3::ZERO,
-        };
-        let mut meshes = vec![crate::scene::mesh::load_obj(&path, &identity, 0).expect("bunny")];
+        let mut meshes = load_test_mesh("bunny_lowres.obj");
         let original = meshes[0].positions.clone();
         let mut bvh = SceneBvh::build(&meshes);
         let planes = |bvh: &SceneBvh| -> Vec<[[u32; 8]; 6]> {

@@ -203,32 +203,14 @@ impl SceneBvh {
         found.then(|| {
             // The CWBVH's slots are its own (not the CPU tree's): map through its table.
             let i = source(hit.primitive_id);
-            let (b1, b2) = wide::barycentrics(&self.triangles[i], &query(origin, dir, tmin, tmax));
-            let (m, tri) = self.refs[i];
-            Hit {
-                t: hit.t as f64,
-                mesh: m as usize,
-                triangle: tri as usize,
-                b1: b1 as f64,
-                b2: b2 as f64,
-            }
+            let (u, v) = wide::barycentrics(&self.triangles[i], &query(origin, dir, tmin, tmax));
+            hit_record(self.refs[i], hit.t, u, v)
         })
     }
 
     /// The hit record of what the CPU traversal found.
     fn hit(&self, found: Found) -> Hit {
-        let (m, tri) = self.wide.owner(found.slot);
-        // The hit test's f32 barycentrics (inside the triangle: the test refuses any
-        // negative weight). Shading combines the f64 vertices with them, so the point
-        // stays on the triangle's plane; reading those vertices here instead cost a
-        // cache miss per incoherent ray (docs/performance.md).
-        Hit {
-            t: found.t as f64,
-            mesh: m as usize,
-            triangle: tri as usize,
-            b1: found.u as f64,
-            b2: found.v as f64,
-        }
+        hit_record(self.wide.owner(found.slot), found.t, found.u, found.v)
     }
 
     /// True if anything blocks the segment from `origin` along `dir` within [tmin, tmax].
@@ -262,6 +244,21 @@ impl SceneBvh {
         !bvh.ray_traverse_miss(ray, |r, slot| {
             self.triangles[bvh.primitive_indices[slot] as usize].intersect(r)
         })
+    }
+}
+
+/// A hit on triangle `tri` of mesh `m` at distance `t` with the hit test's f32
+/// barycentrics `u`, `v` of vertices 1 and 2 (inside the triangle: the test refuses any
+/// negative weight). Shading combines the f64 vertices with them, so the point stays on
+/// the triangle's plane; reading those vertices here instead cost a cache miss per
+/// incoherent ray (docs/performance.md).
+fn hit_record((m, tri): (u32, u32), t: f32, u: f32, v: f32) -> Hit {
+    Hit {
+        t: t as f64,
+        mesh: m as usize,
+        triangle: tri as usize,
+        b1: u as f64,
+        b2: v as f64,
     }
 }
 

@@ -20,6 +20,8 @@
 
 use std::mem::MaybeUninit;
 
+use glam::Vec3A;
+use obvhs::aabb::Aabb;
 use obvhs::bvh2::Bvh2;
 use obvhs::triangle::Triangle;
 
@@ -294,11 +296,7 @@ impl WideBvh {
             }
             let mut node = node_empty();
             for (lane, &(c, is_leaf)) in open.iter().enumerate() {
-                let bb = b.nodes[c].aabb();
-                for axis in 0..3 {
-                    node.planes[2 * axis][lane] = bb.min[axis];
-                    node.planes[2 * axis + 1][lane] = bb.max[axis];
-                }
+                set_lane_box(&mut node, lane, b.nodes[c].aabb());
                 if is_leaf {
                     let start = out.sources.len();
                     pending.clear();
@@ -349,35 +347,20 @@ impl WideBvh {
                 if child == EMPTY {
                     continue;
                 }
-                let mut lo = [f32::INFINITY; 3];
-                let mut hi = [f32::NEG_INFINITY; 3];
-                if child & LEAF != 0 {
+                let bb = if child & LEAF != 0 {
                     let (start, count) = leaf_range(child);
                     let sources = &self.sources[start..start + count];
                     write_leaf(&mut self.leaves, start, sources, triangles);
-                    for &source in sources {
-                        let t = &triangles[source as usize];
-                        for v in [t.v0, t.v1, t.v2] {
-                            for axis in 0..3 {
-                                lo[axis] = lo[axis].min(v[axis]);
-                                hi[axis] = hi[axis].max(v[axis]);
-                            }
-                        }
-                    }
+                    sources.iter().fold(Aabb::empty(), |bb, &source| {
+                        bb.union(&triangles[source as usize].aabb())
+                    })
                 } else {
                     // Empty lanes hold an empty box, which leaves the union as it is.
                     debug_assert!(child as usize > n, "a child laid out before its node");
-                    let planes = &self.nodes[child as usize].planes;
-                    for axis in 0..3 {
-                        lo[axis] = planes[2 * axis].iter().fold(lo[axis], |a, &b| a.min(b));
-                        hi[axis] = planes[2 * axis + 1].iter().fold(hi[axis], |a, &b| a.max(b));
-                    }
-                }
-                let planes = &mut self.nodes[n].planes;
-                for axis in 0..3 {
-                    planes[2 * axis][lane] = lo[axis];
-                    planes[2 * axis + 1][lane] = hi[axis];
-                }
+                    let node = &self.nodes[child as usize];
+                    (0..8).fold(Aabb::empty(), |bb, l| bb.union(&lane_box(node, l)))
+                };
+                set_lane_box(&mut self.nodes[n], lane, &bb);
             }
         }
     }
@@ -677,6 +660,19 @@ fn leaf_triangle(t: &Triangle) -> LeafTriangle {
         v0: t.v0.to_array(),
         e1: (t.v0 - t.v1).to_array(),
         e2: (t.v2 - t.v0).to_array(),
+    }
+}
+
+/// Child `lane`'s box.
+fn lane_box(node: &Node, lane: usize) -> Aabb {
+    let side = |row: usize| Vec3A::from_array([0, 2, 4].map(|axis| node.planes[axis + row][lane]));
+    Aabb::new(side(0), side(1))
+}
+
+fn set_lane_box(node: &mut Node, lane: usize, bb: &Aabb) {
+    for axis in 0..3 {
+        node.planes[2 * axis][lane] = bb.min[axis];
+        node.planes[2 * axis + 1][lane] = bb.max[axis];
     }
 }
 

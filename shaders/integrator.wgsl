@@ -26,7 +26,9 @@ struct Params {
     materials: u32,
     // 1: more lights than the exact path's 16, chosen stochastically (lights.wgsl).
     stochastic: u32,
-    pad1: u32,
+    // Points per area light per shading point (`[render] light_samples`, 1..=64);
+    // above 16 lights, that many chosen lights.
+    light_samples: u32,
     cam_origin: vec4<f32>,
     // w: half the image plane's width at distance 1.
     cam_forward: vec4<f32>,

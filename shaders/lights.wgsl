@@ -1,8 +1,9 @@
 // Light sampling of the spmm mode (Silva & Santos 2013 eq. 4-7), as
 // core/src/trace/lights.rs does it: up to 16 lights, each point light one shadow ray
-// and each area light one shadow ray to a point drawn uniformly on it (A L_e f cos_i
-// cos_l / r^2, one-sided), at MERL surfaces combined by MIS with a material sample
-// towards it; above 16, one light per shading point kept from CANDIDATES drawn from the
+// and each area light `light_samples` shadow rays to points drawn uniformly on it (A
+// L_e f cos_i cos_l / r^2 each, one-sided, weighted by its share), at MERL surfaces
+// each combined by MIS with a material sample towards it; above 16, `light_samples`
+// lights per shading point, each kept from CANDIDATES drawn from the
 // CPU's alias table by resampled importance sampling (core/src/trace/light_selection.rs).
 // One ambient-occlusion ray limited to the ambient radius. Each light adds to the film
 // layer the CPU's `Layers::light_targets` gives it, times its factor (one, or its
@@ -86,55 +87,79 @@ fn sample_lights(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f3
     // Area lights meet a material sample by MIS at MERL surfaces, whose measured lobes
     // can be far narrower than a light (`SpmmMode::area_light_mis`).
     let mis = material_kind(s.material) == MATERIAL_MERL;
+    let n = clamp(params.light_samples, 1u, 64u);
+    let share = throughput / f32(n);
     for (var k = 0u; k < count; k++) {
-        let u = rand2(rng);
         let at = params.light_table + k * LIGHT_WORDS;
-        let kind = data[at];
-        if mis && kind != LIGHT_POINT {
-            sample_area_light_by_material(k, s, wo, lift, throughput, pixel, rng);
-        }
-        var q = light_vec(at + 1u);
-        var falloff = 0.0;
-        var to = q - s.p;
-        if kind == LIGHT_POINT {
-            let d2 = dot(to, to);
-            falloff = 1.0 / d2;
-        } else {
-            let edge_u = light_vec(at + 4u);
-            let edge_v = light_vec(at + 7u);
-            q = q + edge_u * u.x + edge_v * u.y;
-            to = q - s.p;
-            let d2 = dot(to, to);
-            let c = cross(edge_u, edge_v);
-            let area = length(c);
-            let cos_l = -dot(to / sqrt(d2), c / area);
-            if cos_l <= 0.0 {
-                continue;
-            }
-            falloff = cos_l * area / d2;
-        }
-        let wi = normalize(to);
-        let cos_i = dot(wi, s.n);
-        if !(cos_i > 0.0) {
+        if data[at] == LIGHT_POINT {
+            // One exact sample.
+            sample_light_point(at, rand2(rng), false, s, wo, lift, throughput, pixel);
             continue;
         }
-        counts.shadow += 1u;
-        if !occluded(lift, wi, length(q - lift) * (1.0 - 1e-6)) {
-            var weight = 1.0;
-            if mis && kind != LIGHT_POINT {
-                weight = power_heuristic(1.0 / falloff, material_pdf(s, wi, wo));
+        for (var r = 0u; r < n; r++) {
+            let u = rand2(rng);
+            if mis {
+                sample_area_light_by_material(k, s, wo, lift, share, pixel, rng);
             }
-            add_light(pixel, at, throughput * response(s, wi, wo) * (falloff * weight));
+            sample_light_point(at, u, mis, s, wo, lift, share, pixel);
         }
     }
 }
 
-// `sample_chosen_lights`: CANDIDATES lights drawn from the alias table by power (a
+// One shadow ray to the light whose record is at `at`: its position, or the point `u`
+// on its area (`SpmmMode::sample_light_point`).
+fn sample_light_point(at: u32, u: vec2<f32>, mis: bool, s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f32>, pixel: u32) {
+    let kind = data[at];
+    var q = light_vec(at + 1u);
+    var falloff = 0.0;
+    var to = q - s.p;
+    if kind == LIGHT_POINT {
+        let d2 = dot(to, to);
+        falloff = 1.0 / d2;
+    } else {
+        let edge_u = light_vec(at + 4u);
+        let edge_v = light_vec(at + 7u);
+        q = q + edge_u * u.x + edge_v * u.y;
+        to = q - s.p;
+        let d2 = dot(to, to);
+        let c = cross(edge_u, edge_v);
+        let area = length(c);
+        let cos_l = -dot(to / sqrt(d2), c / area);
+        if cos_l <= 0.0 {
+            return;
+        }
+        falloff = cos_l * area / d2;
+    }
+    let wi = normalize(to);
+    let cos_i = dot(wi, s.n);
+    if !(cos_i > 0.0) {
+        return;
+    }
+    counts.shadow += 1u;
+    if !occluded(lift, wi, length(q - lift) * (1.0 - 1e-6)) {
+        var weight = 1.0;
+        if mis {
+            weight = power_heuristic(1.0 / falloff, material_pdf(s, wi, wo));
+        }
+        add_light(pixel, at, throughput * response(s, wi, wo) * (falloff * weight));
+    }
+}
+
+// `sample_chosen_lights`: per selection, CANDIDATES lights drawn from the alias table by power (a
 // point on an area light with each), one kept in proportion to its unshadowed
 // `emission x falloff` (weighted reservoir: the CPU's choice in distribution), one
 // shadow ray to it, weighted `total / (CANDIDATES x target)`. Zero below the surface
 // and behind a one-sided area light, where the contribution is zero too.
 fn sample_chosen_lights(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f32>, pixel: u32, rng: ptr<function, Rng>) {
+    // `light_samples` selections, each weighted by its share.
+    let selections = clamp(params.light_samples, 1u, 64u);
+    let share = throughput / f32(selections);
+    for (var i = 0u; i < selections; i++) {
+        sample_chosen_light(s, wo, lift, share, pixel, rng);
+    }
+}
+
+fn sample_chosen_light(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f32>, pixel: u32, rng: ptr<function, Rng>) {
     let n = params.lights;
     if n == 0u {
         return;

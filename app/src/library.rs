@@ -241,6 +241,7 @@ pub fn thumbnail_scene(material: Material) -> Scene {
             mode: ModeKind::Spmm,
             device: Device::Cpu,
             sampler: Sampler::Sobol,
+            light_samples: 1,
         },
         camera: Camera {
             position: DVec3::new(0.0, 0.9, 3.3),

@@ -53,6 +53,7 @@ pub(crate) fn merl_test_scene() -> Scene {
             // compared with at equal samples draws the same kind (Sobol would lower its
             // noise at equal spp, a different comparison).
             sampler: crate::rng::Sampler::Independent,
+            light_samples: 1,
         },
         camera: Camera {
             position: DVec3::new(0.0, 1.0, 2.2),

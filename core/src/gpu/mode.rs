@@ -98,7 +98,8 @@ struct Params {
     materials: u32,
     /// 1: lights chosen stochastically (more than `MANY_LIGHTS`, as the CPU).
     stochastic: u32,
-    pad: u32,
+    /// Points per area light per shading point (`[render] light_samples`).
+    light_samples: u32,
     cam_origin: [f32; 4],
     cam_forward: [f32; 4],
     cam_right: [f32; 4],
@@ -550,7 +551,7 @@ impl GpuSpmmMode {
                 .map_or(-1.0, |a| a.radius.min(3.0e38) as f32),
             materials: self.scene.materials.len() as u32,
             stochastic: u32::from(LightSampling::Auto.stochastic(self.scene.lights.len())),
-            pad: 0,
+            light_samples: self.scene.render.light_samples,
             cam_origin: v4(cam.position, 0.0),
             cam_forward: v4(forward, half_w),
             cam_right: v4(right, half_h),

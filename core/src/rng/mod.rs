@@ -150,6 +150,21 @@ impl SampleStream {
         u
     }
 
+    /// One 2-D step drawn `n` times in a sample (several points on one light per
+    /// frame): draw `r` of the set is Sobol point `n x index + r` of the step's pair,
+    /// so the sub-samples of all frames together are one stratified sequence, not `n`
+    /// sequences scrambled apart; independent: pair `r` of the step's own numbers.
+    /// Draw 0 of a set of one is `next_2d`'s. Advances the stream by one pair.
+    #[inline]
+    pub fn next_2d_set(&mut self, n: u32) -> PairSet {
+        let set = PairSet {
+            stream: *self,
+            n: n.max(1),
+        };
+        self.next_dim += 2;
+        set
+    }
+
     /// Two consecutive dimensions, for 2-D warps; one Sobol pair.
     #[inline]
     pub fn next_2d(&mut self) -> glam::DVec2 {
@@ -160,6 +175,48 @@ impl SampleStream {
                 glam::DVec2::new(x, y)
             }
             None => glam::DVec2::new(self.next(), self.next()),
+        }
+    }
+}
+
+/// The `n` draws of one 2-D step (`SampleStream::next_2d_set`).
+#[derive(Clone, Copy, Debug)]
+pub struct PairSet {
+    /// The stream positioned at the step's pair.
+    stream: SampleStream,
+    n: u32,
+}
+
+impl PairSet {
+    /// How many draws the set has.
+    pub fn count(&self) -> u32 {
+        self.n
+    }
+
+    /// Draw `r` (below `count`).
+    #[inline]
+    pub fn get(&self, r: u32) -> glam::DVec2 {
+        debug_assert!(r < self.n);
+        let s = &self.stream;
+        let dim = s.next_dim;
+        match s.sobol {
+            Some((index, scramble)) => {
+                let [x, y] = SampleStream::sobol_at(
+                    (index.wrapping_mul(self.n).wrapping_add(r), scramble),
+                    dim,
+                );
+                glam::DVec2::new(x, y)
+            }
+            None => {
+                // Draw 0 is `at(dim), at(dim + 1)`; the others mix their number in.
+                let salt = u64::from(r).wrapping_mul(0xd1b5_4a32_d192_ed03);
+                let one = |d: u64| {
+                    unit_f64(mix64(
+                        s.key_hash ^ mix64(d.wrapping_add(0x632b_e59b_d9b4_e019)) ^ salt,
+                    ))
+                };
+                glam::DVec2::new(one(dim), one(dim + 1))
+            }
         }
     }
 }
@@ -225,5 +282,58 @@ mod tests {
         let mut i = SampleStream::for_sample(Sampler::Independent, 3, 1, 77);
         let mut j = SampleStream::new(&[3, 1, 77]);
         assert_eq!(i.next_2d(), j.next_2d());
+    }
+
+    #[test]
+    fn a_set_of_one_is_the_plain_pair_and_any_set_takes_one_step() {
+        for sampler in Sampler::ALL {
+            let mut plain = SampleStream::for_sample(sampler, 5, 9, 321);
+            let mut set = plain;
+            plain.next();
+            set.next();
+            assert_eq!(set.next_2d_set(1).get(0), plain.next_2d(), "{sampler:?}");
+            // The next step is the same dimension whatever the set's size.
+            let mut wide = SampleStream::for_sample(sampler, 5, 9, 321);
+            wide.next();
+            let draws = wide.next_2d_set(4);
+            assert_eq!(draws.count(), 4);
+            assert_eq!(wide.next_2d(), set.next_2d(), "{sampler:?}");
+            // Its draws differ from each other.
+            for r in 1..4 {
+                assert_ne!(draws.get(r), draws.get(r - 1), "{sampler:?} draw {r}");
+            }
+        }
+    }
+
+    /// Sets of `n` over the frames 0 .. 2^m / n: the Sobol draws of one pixel and step
+    /// are one (0, m, 2)-net, every elementary interval of area 2^-m holding exactly
+    /// one point (what keeps the sub-samples stratified against each other).
+    #[test]
+    fn sobol_sets_over_frames_are_one_net() {
+        for n in [2u32, 4] {
+            for m in 2..=8u32 {
+                let frames = (1u32 << m) / n;
+                if frames == 0 {
+                    continue;
+                }
+                let pts: Vec<glam::DVec2> = (0..frames)
+                    .flat_map(|f| {
+                        let mut s = SampleStream::for_sample(Sampler::Sobol, 11, u64::from(f), 4242);
+                        s.next_2d();
+                        let set = s.next_2d_set(n);
+                        (0..n).map(move |r| set.get(r))
+                    })
+                    .collect();
+                for a in 0..=m {
+                    let (cx, cy) = (1u32 << a, 1u32 << (m - a));
+                    let mut hits = vec![0u32; 1 << m];
+                    for p in &pts {
+                        let (ix, iy) = ((p.x * f64::from(cx)) as u32, (p.y * f64::from(cy)) as u32);
+                        hits[(iy * cx + ix) as usize] += 1;
+                    }
+                    assert!(hits.iter().all(|&h| h == 1), "n {n}, m {m}, a {a}");
+                }
+            }
+        }
     }
 }

@@ -45,6 +45,8 @@ pub struct RenderFile {
     pub mode: Option<Spanned<String>>,
     pub device: Option<Spanned<String>>,
     pub sampler: Option<Spanned<String>>,
+    #[serde(default = "default_light_samples")]
+    pub light_samples: Spanned<u32>,
 }
 
 fn default_size() -> Spanned<u32> {
@@ -52,6 +54,9 @@ fn default_size() -> Spanned<u32> {
 }
 fn default_frames() -> Spanned<u32> {
     Spanned::new(0..0, 64)
+}
+fn default_light_samples() -> Spanned<u32> {
+    Spanned::new(0..0, 1)
 }
 fn default_depth() -> Spanned<u32> {
     Spanned::new(0..0, 4)
@@ -68,6 +73,7 @@ impl Default for RenderFile {
             mode: None,
             device: None,
             sampler: None,
+            light_samples: default_light_samples(),
         }
     }
 }

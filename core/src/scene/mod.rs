@@ -43,7 +43,14 @@ pub struct RenderSettings {
     pub device: Device,
     /// How samples draw their numbers (`[render] sampler`, default Sobol).
     pub sampler: Sampler,
+    /// Points drawn on each area light per frame and shading point in the spmm mode
+    /// (`[render] light_samples`, 1..=`MAX_LIGHT_SAMPLES`, default 1), each weighted
+    /// by its share; above `MANY_LIGHTS` lights, that many times the chosen lights.
+    pub light_samples: u32,
 }
+
+/// The most light samples per frame a scene may ask for.
+pub const MAX_LIGHT_SAMPLES: u32 = 64;
 
 /// The scene's extent: every coordinate the tracer receives (placed vertices, quad
 /// corners, lights, the camera) lies within +-1e7 m. The tracer stores triangles in
@@ -529,6 +536,16 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
             "must be at most 64",
         );
     }
+    if !(1..=MAX_LIGHT_SAMPLES).contains(r.light_samples.get_ref()) {
+        return ctx.err(
+            &r.light_samples.span(),
+            "render.light_samples",
+            format!(
+                "{}: must be within 1..={MAX_LIGHT_SAMPLES}",
+                r.light_samples.get_ref()
+            ),
+        );
+    }
     let mode = match &r.mode {
         None => ModeKind::default(),
         Some(m) => ModeKind::from_name(m.get_ref()).map_or_else(
@@ -577,6 +594,7 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
         mode,
         device,
         sampler,
+        light_samples: *r.light_samples.get_ref(),
     };
 
     let c = &f.camera;

@@ -24,6 +24,7 @@ pub(crate) fn edit_test_scene() -> Scene {
             mode: crate::scene::ModeKind::Spmm,
             device: crate::scene::Device::Cpu,
             sampler: crate::rng::Sampler::Sobol,
+            light_samples: 1,
         },
         camera: Camera {
             position: DVec3::new(0.0, 1.2, 2.0),
@@ -114,6 +115,7 @@ pub(crate) fn floor_scene(material: Material, wall: bool) -> Scene {
             mode: crate::scene::ModeKind::Spmm,
             device: crate::scene::Device::Cpu,
             sampler: crate::rng::Sampler::Sobol,
+            light_samples: 1,
         },
         camera: Camera {
             position: look + DVec3::new(0.0, 1.0, 0.0),

@@ -135,6 +135,7 @@ fn the_spec_example_loads_with_its_values() {
             mode: crate::scene::ModeKind::Spmm,
             device: crate::scene::Device::Cpu,
             sampler: crate::rng::Sampler::Sobol,
+            light_samples: 1,
         }
     );
     assert_eq!(s.camera.fov_y_deg, 35.0);

@@ -88,6 +88,7 @@ fn no_nan_and_no_panic_on_hard_geometry() {
             mode: crate::scene::ModeKind::Spmm,
             device: crate::scene::Device::Cpu,
             sampler: crate::rng::Sampler::Sobol,
+            light_samples: 1,
         },
         camera: Camera {
             position: DVec3::new(0.0, 0.5, 2.0),

@@ -57,64 +57,90 @@ impl SpmmMode {
             self.sample_chosen_lights(selection, s, wo, lift, throughput, path);
             return;
         }
+        let n = self.scene.render.light_samples;
         for (k, light) in self.scene.lights.iter().enumerate() {
-            // Both kinds draw two numbers, so the dimension layout does not depend on
-            // which kinds the scene has.
-            let u = path.rng.next_2d();
+            // Both kinds draw the same numbers, so the dimension layout does not depend
+            // on which kinds the scene has.
+            let points = path.rng.next_2d_set(n);
             // Light samples of an area light meet a material sample by MIS where the
             // material's lobe can be narrower than the light (`area_light_mis`).
             let mis = matches!(light, Light::Area { .. }) && self.area_light_mis(s);
-            if mis {
-                self.sample_area_light_by_material(k, s, wo, lift, throughput, path);
-            }
-            let (q, geometry) = match *light {
-                Light::Point { position, .. } => (position, None),
-                Light::Area {
-                    corner,
-                    edge_u,
-                    edge_v,
-                    ..
-                } => (
-                    corner + edge_u * u.x + edge_v * u.y,
-                    Some(edge_u.cross(edge_v)),
-                ),
+            let directions = mis.then(|| path.rng.next_2d_set(n));
+            // A point light is one exact sample; an area light's `n` share its weight
+            // (times one for one sample, which keeps that image's bits).
+            let (count, share) = match light {
+                Light::Point { .. } => (1, throughput),
+                Light::Area { .. } => (n, throughput * (1.0 / f64::from(n))),
             };
-            let to = q - s.p;
-            let d2 = to.length_squared();
-            let wi = to / d2.sqrt();
-            let falloff = match geometry {
-                None => 1.0 / d2,
-                Some(cross) => {
-                    // One-sided: the light emits towards edge_u x edge_v.
-                    let area = cross.length();
-                    let cos_l = -wi.dot(cross / area);
-                    if cos_l <= 0.0 {
-                        continue;
-                    }
-                    cos_l * area / d2
+            for r in 0..count {
+                if let Some(directions) = &directions {
+                    self.sample_area_light_by_material(k, s, wo, lift, share, directions.get(r), path);
                 }
+                self.sample_light_point(k, points.get(r), mis, s, wo, lift, share, path);
+            }
+        }
+    }
+
+    /// One shadow ray to light `k`: its position, or the point `u` on its area.
+    #[allow(clippy::too_many_arguments)]
+    fn sample_light_point(
+        &self,
+        k: usize,
+        u: glam::DVec2,
+        mis: bool,
+        s: &Shading,
+        wo: DVec3,
+        lift: DVec3,
+        throughput: DVec3,
+        path: &mut Path,
+    ) {
+        let (q, geometry) = match self.scene.lights[k] {
+            Light::Point { position, .. } => (position, None),
+            Light::Area {
+                corner,
+                edge_u,
+                edge_v,
+                ..
+            } => (
+                corner + edge_u * u.x + edge_v * u.y,
+                Some(edge_u.cross(edge_v)),
+            ),
+        };
+        let to = q - s.p;
+        let d2 = to.length_squared();
+        let wi = to / d2.sqrt();
+        let falloff = match geometry {
+            None => 1.0 / d2,
+            Some(cross) => {
+                // One-sided: the light emits towards edge_u x edge_v.
+                let area = cross.length();
+                let cos_l = -wi.dot(cross / area);
+                if cos_l <= 0.0 {
+                    return;
+                }
+                cos_l * area / d2
+            }
+        };
+        let cos_i = wi.dot(s.n);
+        if cos_i.is_nan() || cos_i <= 0.0 {
+            return;
+        }
+        path.counts.shadow += 1;
+        if !self
+            .bvh
+            .occluded(lift, wi, 0.0, (q - lift).length() * (1.0 - 1e-6))
+        {
+            let target = self.light_targets[k];
+            // Solid-angle pdf of this point: 1 / falloff.
+            let weight = if mis {
+                power_heuristic(1.0 / falloff, self.material_pdf(s, wi, wo))
+            } else {
+                1.0
             };
-            let cos_i = wi.dot(s.n);
-            if cos_i.is_nan() || cos_i <= 0.0 {
-                continue;
-            }
-            path.counts.shadow += 1;
-            if !self
-                .bvh
-                .occluded(lift, wi, 0.0, (q - lift).length() * (1.0 - 1e-6))
-            {
-                let target = self.light_targets[k];
-                // Solid-angle pdf of this point: 1 / falloff.
-                let weight = if mis {
-                    power_heuristic(1.0 / falloff, self.material_pdf(s, wi, wo))
-                } else {
-                    1.0
-                };
-                // The factor is exactly one outside a bounded film's shared layer, so
-                // the per-light path keeps its bits.
-                path.out[target.layer] +=
-                    throughput * self.response(s, wi, wo) * (falloff * weight) * target.factor;
-            }
+            // The factor is exactly one outside a bounded film's shared layer, so
+            // the per-light path keeps its bits.
+            path.out[target.layer] +=
+                throughput * self.response(s, wi, wo) * (falloff * weight) * target.factor;
         }
     }
 
@@ -127,8 +153,9 @@ impl SpmmMode {
 
     /// The material's strategy for area light `k`: a direction drawn from the BRDF,
     /// kept if it meets the light's front face unshadowed, weighted by the power
-    /// heuristic against the light's solid-angle pdf (Veach 1997, ch. 9). Always draws
-    /// two numbers.
+    /// heuristic against the light's solid-angle pdf (Veach 1997, ch. 9), from the
+    /// pair `u`.
+    #[allow(clippy::too_many_arguments)]
     fn sample_area_light_by_material(
         &self,
         k: usize,
@@ -136,9 +163,9 @@ impl SpmmMode {
         wo: DVec3,
         lift: DVec3,
         throughput: DVec3,
+        u: glam::DVec2,
         path: &mut Path,
     ) {
-        let u = path.rng.next_2d();
         let Light::Area {
             corner,
             edge_u,
@@ -183,7 +210,9 @@ impl SpmmMode {
         throughput: DVec3,
         path: &mut Path,
     ) {
-        for _ in 0..LIGHT_SAMPLES {
+        // `light_samples` times the selections, each weighted by its share.
+        let selections = LIGHT_SAMPLES * self.scene.render.light_samples as usize;
+        for _ in 0..selections {
             // Per candidate: light, point, to, r^2, falloff, pmf, weight target / p_src.
             let mut candidates = [Candidate::default(); CANDIDATES];
             let mut total = 0.0;
@@ -256,7 +285,7 @@ impl SpmmMode {
                 continue;
             }
             let t = self.light_targets[lp.light];
-            let weight = total / (CANDIDATES as f64 * target * LIGHT_SAMPLES as f64);
+            let weight = total / (CANDIDATES as f64 * target * selections as f64);
             path.out[t.layer] +=
                 throughput * self.response(s, lp.wi, wo) * (lp.falloff * weight) * t.factor;
         }

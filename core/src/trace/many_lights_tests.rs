@@ -45,39 +45,48 @@ fn stochastic_selection_of_a_thousand_lights_converges_to_tracing_every_light() 
     const SIZE: u32 = 10;
     const N: u64 = 64;
     let scene = many_lights_scene(1000);
-    let stochastic = SpmmMode::new(scene.clone(), SIZE, SIZE).expect("size");
-    let mut exact = SpmmMode::new(scene, SIZE, SIZE).expect("size");
+    let mut exact = SpmmMode::new(scene.clone(), SIZE, SIZE).expect("size");
     exact.set_light_sampling(LightSampling::Exact);
-    assert_eq!(stochastic.layer_weights(), exact.layer_weights());
-    let s = samples(&stochastic, SIZE, 0..N);
     let e = samples(&exact, SIZE, 0..N);
-    // Both draw the same jittered pixel positions (the first two dimensions), so the
-    // difference carries only the light sampling's noise.
-    let image_diff = (0..N as usize)
-        .map(|i| (s[i].iter().sum::<f64>() - e[i].iter().sum::<f64>()) / (SIZE * SIZE) as f64);
-    let (d, sd) = mean_sd(image_diff);
-    let (level, _) = mean_sd((0..N as usize).map(|i| e[i].iter().sum::<f64>()));
-    let level = level / (SIZE * SIZE) as f64;
-    // Monte Carlo tolerance: 4 standard errors of the mean difference.
-    let tolerance = 4.0 * sd / (N as f64).sqrt();
-    eprintln!("image mean: difference {d:.3e}, 4 sigma {tolerance:.3e}, level {level:.4}");
-    assert!(
-        d.abs() < tolerance,
-        "image mean off by {d} (level {level}, 4 sigma {tolerance})"
-    );
-    assert!(
-        tolerance < 0.05 * level,
-        "the test is sharp: {tolerance} vs {level}"
-    );
-    // Per pixel: at most 2 of 100 beyond 4.5 standard errors (t with 63 dof: expect
-    // about 0.003 beyond 4.5 per pixel if unbiased).
-    let outliers = (0..(SIZE * SIZE) as usize)
-        .filter(|&p| {
-            let (d, sd) = mean_sd((0..N as usize).map(|i| s[i][p] - e[i][p]));
-            sd > 0.0 && d.abs() > 4.5 * sd / (N as f64).sqrt()
-        })
-        .count();
-    assert!(outliers <= 2, "{outliers} pixels off");
+    // One selection per shading point, and three (each weighted a third) against the
+    // same exact reference of one point per light.
+    for light_samples in [1, 3] {
+        let mut scene = scene.clone();
+        scene.render.light_samples = light_samples;
+        let stochastic = SpmmMode::new(scene, SIZE, SIZE).expect("size");
+        assert_eq!(stochastic.layer_weights(), exact.layer_weights());
+        let s = samples(&stochastic, SIZE, 0..N);
+        // Both draw the same jittered pixel positions (the first two dimensions), so
+        // the difference carries only the light sampling's noise.
+        let image_diff = (0..N as usize).map(|i| {
+            (s[i].iter().sum::<f64>() - e[i].iter().sum::<f64>()) / (SIZE * SIZE) as f64
+        });
+        let (d, sd) = mean_sd(image_diff);
+        let (level, _) = mean_sd((0..N as usize).map(|i| e[i].iter().sum::<f64>()));
+        let level = level / (SIZE * SIZE) as f64;
+        // Monte Carlo tolerance: 4 standard errors of the mean difference.
+        let tolerance = 4.0 * sd / (N as f64).sqrt();
+        eprintln!(
+            "{light_samples} selections: image mean difference {d:.3e}, 4 sigma {tolerance:.3e}, level {level:.4}"
+        );
+        assert!(
+            d.abs() < tolerance,
+            "{light_samples} selections: image mean off by {d} (level {level}, 4 sigma {tolerance})"
+        );
+        assert!(
+            tolerance < 0.05 * level,
+            "the test is sharp: {tolerance} vs {level}"
+        );
+        // Per pixel: at most 2 of 100 beyond 4.5 standard errors (t with 63 dof:
+        // expect about 0.003 beyond 4.5 per pixel if unbiased).
+        let outliers = (0..(SIZE * SIZE) as usize)
+            .filter(|&p| {
+                let (d, sd) = mean_sd((0..N as usize).map(|i| s[i][p] - e[i][p]));
+                sd > 0.0 && d.abs() > 4.5 * sd / (N as f64).sqrt()
+            })
+            .count();
+        assert!(outliers <= 2, "{light_samples} selections: {outliers} pixels off");
+    }
 }
 
 #[test]

@@ -1,5 +1,5 @@
 //! The spmm mode against closed forms: point and area lights, a light covering the
-//! hemisphere, ambient light on a tilted-basis SPMM plane, a plane seen in a mirror, AO
+//! hemisphere (with one and several light samples per frame), ambient light on a tilted-basis SPMM plane, a plane seen in a mirror, AO
 //! of an open plane and a corner, replay of single pixels and independence of the thread count.
 
 use glam::DVec3;
@@ -117,11 +117,11 @@ fn corner_form_factor(a: f64, b: f64, h: f64) -> f64 {
     ((x / sx) * (y / sx).atan() + (y / sy) * (x / sy).atan()) / std::f64::consts::TAU
 }
 
-#[test]
-fn a_light_covering_the_hemisphere_matches_the_closed_form() {
-    // A 2s x 2s light at height h = s / 5 centred above the origin, off-centre by
-    // (dx, dz) so all four corner rectangles differ: its cosine-weighted fraction
-    // is the sum of the four corner form factors (0.97 of the hemisphere).
+/// A 2s x 2s light at height h = s / 5 centred above the origin, off-centre by (dx,
+/// dz) so all four corner rectangles differ, on the 64 x 64 floor; and the pixel value
+/// it gives in closed form, the sum of the four corner form factors (0.97 of the
+/// hemisphere).
+fn hemisphere_light_scene(light_samples: u32) -> (Scene, f64) {
     let (s, h, dx, dz) = (1.0, 0.2, 0.1, -0.15);
     let light = Light::Area {
         corner: DVec3::new(dx - s, h, dz - s),
@@ -136,21 +136,84 @@ fn a_light_covering_the_hemisphere_matches_the_closed_form() {
     assert!(fraction > 0.95 && fraction < 1.0, "{fraction}");
     let mut scene = floor_scene(vec![light], None, false);
     (scene.render.width, scene.render.height) = (64, 64);
-    let mut r = mode(&scene);
-    let frames = 400;
-    for _ in 0..frames {
-        r.render_frame();
-    }
+    scene.render.light_samples = light_samples;
+    (scene, ALBEDO * 2.0 * fraction)
+}
+
+fn image_mean(r: &SpmmMode) -> f64 {
     let img = r.image();
-    let mean = img.pixels().iter().map(|p| p[0] as f64).sum::<f64>() / (64.0 * 64.0);
-    let expected = ALBEDO * 2.0 * fraction;
-    // Area sampling of this light has a relative standard deviation per sample of
-    // about sqrt(4 s^2 / (3 pi h^2)) = 3.3; over 64^2 x 400 samples the mean's is
-    // 0.26%: 1.2% is 4.5 standard errors.
-    assert!(
-        (mean - expected).abs() < 0.012 * expected,
-        "{mean} vs {expected}"
-    );
+    img.pixels().iter().map(|p| p[0] as f64).sum::<f64>() / img.pixels().len() as f64
+}
+
+#[test]
+fn a_light_covering_the_hemisphere_matches_the_closed_form() {
+    // One light sample per frame, and three (each weighted a third) over a third of
+    // the frames: the same number of samples.
+    for (light_samples, frames) in [(1, 400), (3, 134)] {
+        let (scene, expected) = hemisphere_light_scene(light_samples);
+        let mut r = mode(&scene);
+        for _ in 0..frames {
+            r.render_frame();
+        }
+        let mean = image_mean(&r);
+        // Area sampling of this light has a relative standard deviation per sample of
+        // about sqrt(4 s^2 / (3 pi h^2)) = 3.3; over 64^2 x 400 samples the mean's is
+        // 0.26%: 1.2% is 4.5 standard errors.
+        assert!(
+            (mean - expected).abs() < 0.012 * expected,
+            "{light_samples} light samples: {mean} vs {expected}"
+        );
+    }
+}
+
+#[test]
+fn more_light_samples_per_frame_cut_the_error_of_a_frame() {
+    // One frame of the hemisphere light: the per-pixel squared error against the
+    // closed form falls with the number of points (1/4 for independent points; the
+    // sets are stratified, so less). Equal points, or a wrong share, would not.
+    let mse = |light_samples| {
+        let (scene, expected) = hemisphere_light_scene(light_samples);
+        let mut r = mode(&scene);
+        r.render_frame();
+        let img = r.image();
+        img.pixels()
+            .iter()
+            .map(|p| (p[0] as f64 - expected).powi(2))
+            .sum::<f64>()
+            / img.pixels().len() as f64
+    };
+    let (one, four) = (mse(1), mse(4));
+    assert!(four < 0.4 * one, "MSE {four} with four points, {one} with one");
+}
+
+#[test]
+fn a_point_light_is_one_exact_sample_whatever_the_light_samples() {
+    // The layout draws one step per light either way, so the image keeps its bits.
+    let scene = |light_samples| {
+        let mut s = floor_scene(
+            vec![Light::Point {
+                position: DVec3::new(0.3, 1.5, -0.2),
+                intensity: DVec3::splat(3.0),
+            }],
+            Some(Ambient {
+                radiance: DVec3::splat(0.2),
+                radius: 0.5,
+            }),
+            true,
+        );
+        (s.render.width, s.render.height) = (16, 16);
+        s.render.light_samples = light_samples;
+        s
+    };
+    let render = |s: &Scene| {
+        let mut r = mode(s);
+        let stats = (0..3).map(|_| r.render_frame().counters.rays.shadow).sum::<u64>();
+        (r.image(), stats)
+    };
+    let (one, rays_one) = render(&scene(1));
+    let (five, rays_five) = render(&scene(5));
+    assert_eq!(one.pixels(), five.pixels());
+    assert_eq!(rays_one, rays_five);
 }
 
 #[test]

@@ -1224,6 +1224,19 @@ fn forty_lights_on_the_gpu_agree_with_the_cpu() {
     image_of_scene_agrees_with_the_cpu("40 lights", scene, 24, 16);
 }
 
+/// Several light samples per frame on the GPU's two light paths: three per area light
+/// at MERL surfaces (each with its MIS material sample) and two selections among 40
+/// lights; the image rule above against the CPU with the same setting.
+#[test]
+fn light_samples_on_the_gpu_agree_with_the_cpu() {
+    let mut merl = test_scene("merl_bunny.toml");
+    merl.render.light_samples = 3;
+    image_of_scene_agrees_with_the_cpu("merl_bunny.toml, 3 light samples", merl, 32, 16);
+    let mut many = crate::scene::test_scenes::many_lights_scene(40);
+    many.render.light_samples = 2;
+    image_of_scene_agrees_with_the_cpu("40 lights, 2 light samples", many, 24, 16);
+}
+
 /// Light edits among 40 lights invalidate on the GPU exactly as on the CPU (a shared
 /// light's colour promotes it to an own layer, a colour edit of an own light keeps
 /// everything, a move restarts its layer, added and removed lights, back to 16 lights

@@ -2,10 +2,10 @@
 //! reports its speed against its error"): a converged reference, then the error of the
 //! progressive image after 1, 2, 4, ... frames with the render time spent, for the
 //! scene as written and for its variants (independent random numbers instead of the
-//! scene's Sobol points; AO off; environment light without MIS; the
+//! scene's Sobol points; one light sample per frame where the scene asks for more; AO off; environment light without MIS; the
 //! SPMM residual skipped as while the camera moves; N_PCA limited). A variant that changes what is computed
 //! (AO off) is measured against its own reference; other estimators of the same image
-//! (independent numbers, no MIS) and approximations of it (residual off, fewer PCA
+//! (independent numbers, one light sample, no MIS) and approximations of it (residual off, fewer PCA
 //! terms) against the full one, so their noise or bias shows. The viewport denoiser's
 //! rows (`full_denoised`, up to 16 frames) show what it does to the first frames'
 //! error. Any mode can be reported; its reference is the spmm mode's.
@@ -144,6 +144,13 @@ fn variants(scene: &Scene, notes: &mut Vec<String>) -> Vec<(Variant, Scene)> {
         let mut s = scene.clone();
         s.render.sampler = Sampler::Independent;
         out.push((v("independent", "full"), s));
+    }
+    if scene.render.light_samples > 1 && !scene.lights.is_empty() {
+        // The same image from one light sample per frame: what the extra samples gain
+        // per frame, and what they cost per second.
+        let mut s = scene.clone();
+        s.render.light_samples = 1;
+        out.push((v("one_light_sample", "full"), s));
     }
     if scene.ambient.is_some() {
         let mut s = scene.clone();
@@ -469,6 +476,23 @@ pub fn convergence_report(
 mod tests {
     use super::*;
     use crate::scene::test_scenes::edit_test_scene;
+
+    #[test]
+    fn a_scene_with_several_light_samples_is_also_measured_with_one() {
+        let mut scene = edit_test_scene();
+        scene.render.light_samples = 2;
+        let names = |scene: &Scene| -> Vec<(String, u32)> {
+            variants(scene, &mut Vec::new())
+                .into_iter()
+                .map(|(v, s)| (v.name, s.render.light_samples))
+                .collect()
+        };
+        let two = names(&scene);
+        assert_eq!(two[0], ("full".into(), 2));
+        assert!(two.contains(&("one_light_sample".into(), 1)), "{two:?}");
+        scene.render.light_samples = 1;
+        assert!(!names(&scene).iter().any(|(n, _)| n == "one_light_sample"));
+    }
 
     #[test]
     fn error_falls_with_frames_and_the_residual_variants_show_their_bias() {

@@ -11,7 +11,8 @@ use glam::DVec3;
 use crate::render::layers::{MANY_LIGHTS, light_power};
 use crate::scene::Light;
 
-/// Light samples (shadow rays) per shading point on the stochastic path.
+/// Light selections (shadow rays) per shading point on the stochastic path, times the
+/// scene's `light_samples`.
 pub const LIGHT_SAMPLES: usize = 1;
 /// Candidates drawn from the alias table for each light sample.
 pub const CANDIDATES: usize = 8;

@@ -1,7 +1,8 @@
 //! Light sampling in the spmm mode (Silva & Santos 2013, eq. 4-7): up to `MANY_LIGHTS`
 //! lights, each point light with one shadow ray and each area light with one shadow ray
-//! to a point drawn uniformly on its area (in the area measure: A L_e f cos_i cos_l /
-//! r^2); above, `LIGHT_SAMPLES` lights per shading point chosen by resampling
+//! to each of `light_samples` points drawn uniformly on its area (in the area measure:
+//! A L_e f cos_i cos_l / r^2, each weighted 1 / light_samples); above, `LIGHT_SAMPLES x
+//! light_samples` lights per shading point chosen by resampling
 //! (`light_selection.rs`). Ambient occlusion: one ray limited to the ambient radius
 //! (pi L_a V f per cosine-distributed sample). Each adds to its light's film layer.
 //! On MERL materials each area light also gets a material sample, and the two are
@@ -43,8 +44,9 @@ struct Candidate {
 }
 
 impl SpmmMode {
-    /// One shadow ray to each light, or `LIGHT_SAMPLES` chosen ones above
-    /// `MANY_LIGHTS`; `lift` is the ray origin just off the surface.
+    /// One shadow ray to each point light and `light_samples` to each area light, or
+    /// `LIGHT_SAMPLES x light_samples` chosen lights above `MANY_LIGHTS`; `lift` is
+    /// the ray origin just off the surface.
     pub(super) fn sample_lights(
         &self,
         s: &Shading,

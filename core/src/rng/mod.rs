@@ -318,7 +318,8 @@ mod tests {
                 }
                 let pts: Vec<glam::DVec2> = (0..frames)
                     .flat_map(|f| {
-                        let mut s = SampleStream::for_sample(Sampler::Sobol, 11, u64::from(f), 4242);
+                        let mut s =
+                            SampleStream::for_sample(Sampler::Sobol, 11, u64::from(f), 4242);
                         s.next_2d();
                         let set = s.next_2d_set(n);
                         (0..n).map(move |r| set.get(r))

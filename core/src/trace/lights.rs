@@ -76,7 +76,15 @@ impl SpmmMode {
             };
             for r in 0..count {
                 if let Some(directions) = &directions {
-                    self.sample_area_light_by_material(k, s, wo, lift, share, directions.get(r), path);
+                    self.sample_area_light_by_material(
+                        k,
+                        s,
+                        wo,
+                        lift,
+                        share,
+                        directions.get(r),
+                        path,
+                    );
                 }
                 self.sample_light_point(k, points.get(r), mis, s, wo, lift, share, path);
             }

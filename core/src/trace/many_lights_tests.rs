@@ -58,9 +58,8 @@ fn stochastic_selection_of_a_thousand_lights_converges_to_tracing_every_light() 
         let s = samples(&stochastic, SIZE, 0..N);
         // Both draw the same jittered pixel positions (the first two dimensions), so
         // the difference carries only the light sampling's noise.
-        let image_diff = (0..N as usize).map(|i| {
-            (s[i].iter().sum::<f64>() - e[i].iter().sum::<f64>()) / (SIZE * SIZE) as f64
-        });
+        let image_diff = (0..N as usize)
+            .map(|i| (s[i].iter().sum::<f64>() - e[i].iter().sum::<f64>()) / (SIZE * SIZE) as f64);
         let (d, sd) = mean_sd(image_diff);
         let (level, _) = mean_sd((0..N as usize).map(|i| e[i].iter().sum::<f64>()));
         let level = level / (SIZE * SIZE) as f64;
@@ -85,7 +84,10 @@ fn stochastic_selection_of_a_thousand_lights_converges_to_tracing_every_light() 
                 sd > 0.0 && d.abs() > 4.5 * sd / (N as f64).sqrt()
             })
             .count();
-        assert!(outliers <= 2, "{light_samples} selections: {outliers} pixels off");
+        assert!(
+            outliers <= 2,
+            "{light_samples} selections: {outliers} pixels off"
+        );
     }
 }
 

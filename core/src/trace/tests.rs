@@ -183,7 +183,10 @@ fn more_light_samples_per_frame_cut_the_error_of_a_frame() {
             / img.pixels().len() as f64
     };
     let (one, four) = (mse(1), mse(4));
-    assert!(four < 0.4 * one, "MSE {four} with four points, {one} with one");
+    assert!(
+        four < 0.4 * one,
+        "MSE {four} with four points, {one} with one"
+    );
 }
 
 #[test]
@@ -207,7 +210,9 @@ fn a_point_light_is_one_exact_sample_whatever_the_light_samples() {
     };
     let render = |s: &Scene| {
         let mut r = mode(s);
-        let stats = (0..3).map(|_| r.render_frame().counters.rays.shadow).sum::<u64>();
+        let stats = (0..3)
+            .map(|_| r.render_frame().counters.rays.shadow)
+            .sum::<u64>();
         (r.image(), stats)
     };
     let (one, rays_one) = render(&scene(1));

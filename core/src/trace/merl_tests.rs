@@ -38,6 +38,15 @@ fn relative_rmse(a: &Image, reference: &Image) -> f64 {
     m.rmse / mean
 }
 
+/// The image's mean colour.
+fn mean(img: &Image) -> DVec3 {
+    img.pixels()
+        .iter()
+        .map(|p| DVec3::new(p[0].into(), p[1].into(), p[2].into()))
+        .sum::<DVec3>()
+        / img.pixels().len() as f64
+}
+
 /// A bluish sky brighter towards the zenith with a warm band near the horizon.
 fn sky() -> Arc<Image> {
     let (w, h) = (32, 16);
@@ -126,13 +135,6 @@ fn a_tabulated_cook_torrance_converges_to_the_analytic_brdf_within_its_tabulatio
     eprintln!("relative RMSE tabulated vs analytic at {frames} frames: {e}");
     assert!(e < 0.045, "relative RMSE {e}");
     // Means agree more closely (0.14% at 256 frames): noise averages out.
-    let mean = |img: &Image| -> DVec3 {
-        img.pixels()
-            .iter()
-            .map(|p| DVec3::new(p[0].into(), p[1].into(), p[2].into()))
-            .sum::<DVec3>()
-            / img.pixels().len() as f64
-    };
     let (a, t) = (mean(&analytic), mean(&table));
     eprintln!("means {t} vs {a}");
     assert!(
@@ -153,13 +155,6 @@ fn light_samples_at_a_merl_surface_keep_the_mis_estimate_unbiased() {
     let e = relative_rmse(&table, &analytic);
     eprintln!("relative RMSE tabulated (4 light samples) vs analytic: {e}");
     assert!(e < 0.045, "relative RMSE {e}");
-    let mean = |img: &Image| -> DVec3 {
-        img.pixels()
-            .iter()
-            .map(|p| DVec3::new(p[0].into(), p[1].into(), p[2].into()))
-            .sum::<DVec3>()
-            / img.pixels().len() as f64
-    };
     let (a, t) = (mean(&analytic), mean(&table));
     assert!(
         ((t - a) / a).abs().max_element() < 0.005,

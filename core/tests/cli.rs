@@ -899,8 +899,14 @@ fn report_convergence_writes_csv_json_charts_and_the_reference() {
         .collect();
     assert_eq!(
         variants,
-        ["full", "full_denoised", "independent", "no_ao"],
-        "the default scene has AO and no residual; the denoiser's and the independent sampler's rows come with every scene"
+        [
+            "full",
+            "full_denoised",
+            "independent",
+            "one_light_sample",
+            "no_ao"
+        ],
+        "the default scene has AO, two light samples and no residual; the denoiser's and the independent sampler's rows come with every scene"
     );
     let csv = std::fs::read_to_string(out.join("convergence.csv")).expect("csv");
     let rows: Vec<&str> = csv.lines().collect();
@@ -910,8 +916,8 @@ fn report_convergence_writes_csv_json_charts_and_the_reference() {
     );
     assert_eq!(
         rows.len(),
-        1 + 4 * 8,
-        "frames 1 to 8 for the four variants (the denoiser's rows too)"
+        1 + 5 * 8,
+        "frames 1 to 8 for the five variants (the denoiser's rows too)"
     );
     for name in [
         "convergence_rmse.svg",

@@ -1225,11 +1225,13 @@ fn forty_lights_on_the_gpu_agree_with_the_cpu() {
 }
 
 /// Several light samples per frame on the GPU's two light paths: three per area light
-/// at MERL surfaces (each with its MIS material sample) and two selections among 40
-/// lights; the image rule above against the CPU with the same setting.
+/// at MERL surfaces (each with its MIS material sample; the environment off, so the
+/// area light is the image) and two selections among 40 lights; the image rule above
+/// against the CPU with the same setting.
 #[test]
 fn light_samples_on_the_gpu_agree_with_the_cpu() {
     let mut merl = test_scene("merl_bunny.toml");
+    merl.environment = None;
     merl.render.light_samples = 3;
     image_of_scene_agrees_with_the_cpu("merl_bunny.toml, 3 light samples", merl, 32, 16);
     let mut many = crate::scene::test_scenes::many_lights_scene(40);

@@ -827,6 +827,22 @@ fn render_writes_an_image_and_reports_json() {
     assert_eq!((img.width(), img.height()), (24, 16));
     assert!(img.pixels().iter().any(|p| p[0] > 0.0), "something is lit");
 
+    // The default scene draws two points on its area light per frame; `--light-samples`
+    // overrides it: four trace about twice the shadow rays of two from the same
+    // shading points (a point below a surface's horizon traces none, so not exactly);
+    // out of range is an error naming the flag.
+    assert_eq!(v["light_samples"], 2);
+    let four = render(&["--width", "24", "--height", "16", "--light-samples", "4"]);
+    assert_eq!(four["light_samples"], 4);
+    assert_eq!(four["shading_points"], v["shading_points"]);
+    let shadow = |v: &serde_json::Value| v["rays"]["shadow"].as_u64().expect("count") as f64;
+    let ratio = shadow(&four) / shadow(&v);
+    assert!((1.9..2.1).contains(&ratio), "shadow rays x{ratio}");
+    let mut bad = vec!["render", scene, "-o", out_arg, "--light-samples", "65"];
+    assert_bad_input(&meso(&bad, ""), &["--light-samples", "65", "1..=64"]);
+    bad[5] = "0";
+    assert_bad_input(&meso(&bad, ""), &["--light-samples", "0"]);
+
     // Three samples per pixel per frame: three times the primary rays.
     let v = render(&["--width", "8", "--height", "8", "--spp-per-frame", "3"]);
     assert_eq!(v["rays"]["primary"], 2 * 3 * 64);

@@ -1,5 +1,6 @@
 //! `meso render SCENE -o OUT.exr|OUT.png`: a progressive render of a scene file through
-//! a render mode (spec/cli.md: `--mode`, `--device`); `--json` reports time, frames,
+//! a render mode (spec/cli.md: `--mode`, `--device`; `--light-samples` overrides the
+//! scene's); `--json` reports time, frames,
 //! the mode and device, its counters (samples, shading points, rays by kind), rays
 //! per second, the preparation's stages, the film's bytes and dropped non-finite
 //! samples.
@@ -12,7 +13,7 @@ use anyhow::anyhow;
 use clap::Args;
 use meso_core::modes;
 use meso_core::render::{Denoiser, Prepare, run_frames};
-use meso_core::scene::{RenderSettings, load_scene};
+use meso_core::scene::{MAX_LIGHT_SAMPLES, RenderSettings, load_scene};
 use serde_json::json;
 
 use crate::failure::{CliError, ResultExt};
@@ -35,6 +36,10 @@ pub struct RenderArgs {
     /// Samples per pixel in each frame.
     #[arg(long, default_value_t = 1)]
     spp_per_frame: u32,
+    /// Points on each area light per frame in the spmm mode (1..=64); default: the
+    /// scene's `[render] light_samples`.
+    #[arg(long)]
+    light_samples: Option<u32>,
     /// Exposure in stops for PNG output.
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     exposure: f64,
@@ -49,7 +54,16 @@ pub struct RenderArgs {
 }
 
 pub fn run(args: &RenderArgs) -> Result<(), CliError> {
-    let scene = load_scene(&args.scene).map_err(CliError::bad_input)?;
+    let mut scene = load_scene(&args.scene).map_err(CliError::bad_input)?;
+    if let Some(n) = args.light_samples {
+        if !(1..=MAX_LIGHT_SAMPLES).contains(&n) {
+            return Err(CliError::bad_input(anyhow!(
+                "--light-samples {n} is outside 1..={MAX_LIGHT_SAMPLES}"
+            )));
+        }
+        scene.render.light_samples = n;
+    }
+    let light_samples = scene.render.light_samples;
     let frames = args.frames.unwrap_or(scene.render.frames);
     let width = args.width.unwrap_or(scene.render.width);
     let height = args.height.unwrap_or(scene.render.height);
@@ -138,6 +152,7 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
             "mode": mode.kind().name(),
             "device": mode.device().name(),
             "spp_per_frame": args.spp_per_frame,
+            "light_samples": light_samples,
             "samples_per_pixel": mode.progress().min_samples,
             "seconds": total_s,
             "trace_seconds": trace_s,

@@ -25,6 +25,7 @@ pub struct Snapshot {
     ambient: Option<Ambient>,
     environment: Option<Environment>,
     background: Background,
+    light_samples: u32,
 }
 
 /// The same lighting: the same map object, strength, rotation and sampling.
@@ -87,6 +88,7 @@ impl Snapshot {
             ambient: scene.ambient,
             environment: scene.environment.clone(),
             background: scene.background.clone(),
+            light_samples: scene.render.light_samples,
         }
     }
 
@@ -120,6 +122,9 @@ impl Snapshot {
         }
         if !same_background(&self.background, &target.background) {
             edits.push(SceneEdit::Background(target.background.clone()));
+        }
+        if self.light_samples != target.light_samples {
+            edits.push(SceneEdit::LightSamples(target.light_samples));
         }
         edits
     }

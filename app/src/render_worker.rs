@@ -298,6 +298,7 @@ fn changes_guides(command: &Command) -> bool {
                 | SceneEdit::Ambient(_)
                 | SceneEdit::Environment(_)
                 | SceneEdit::Background(_)
+                | SceneEdit::LightSamples(_)
         ),
         Command::Load { .. } | Command::Install { .. } => true,
     }

@@ -381,6 +381,18 @@ pub fn show(ui: &mut Ui, doc: &Document, state: &PanelState<'_>) -> Vec<Request>
         }
     });
 
+    // Points on each area light per frame (`[render] light_samples`): soft shadows
+    // clean up in fewer frames; every sample restarts with a new count.
+    let mut n = scene.render.light_samples;
+    let drag = egui::DragValue::new(&mut n).range(1..=meso_core::scene::MAX_LIGHT_SAMPLES);
+    let row = ui.horizontal(|ui| labelled_drag(ui, "light samples per frame", drag));
+    row.response.on_hover_text(
+        "points drawn on each area light per frame: soft shadows clean up in fewer frames",
+    );
+    if row.inner && n != scene.render.light_samples {
+        out.push(Request::Edit(SceneEdit::LightSamples(n)));
+    }
+
     ui.separator();
     ui.heading("Ambient occlusion");
     if state.disabled.ambient {

@@ -468,6 +468,33 @@ fn lights_can_be_added() {
     wait_for_current_frame(&mut h);
 }
 
+/// The scene panel's light samples reach the scene and the renderer (a restart: the
+/// frame after it has the new count's samples only), and undo gives the old count back.
+#[test]
+fn light_samples_are_set_in_the_scene_panel_and_undone() {
+    let mut h = harness();
+    wait_for_current_frame(&mut h);
+    let count = |h: &Harness<'_, Studio>| {
+        h.state()
+            .doc
+            .as_ref()
+            .expect("doc")
+            .scene
+            .render
+            .light_samples
+    };
+    assert_eq!(count(&h), 2, "the default scene's");
+    h.get_by_role_and_label(Role::SpinButton, "light samples per frame")
+        .set_value_accesskit(5.0);
+    h.run_steps(2);
+    assert_eq!(count(&h), 5);
+    wait_for_current_frame(&mut h);
+    h.state_mut().undo();
+    h.run_steps(2);
+    assert_eq!(count(&h), 2);
+    wait_for_current_frame(&mut h);
+}
+
 /// The main window at 1280x800 after 8 samples per pixel (deterministic: replayable
 /// sampling, any thread count), rendered by wgpu (lavapipe in CI) and compared with
 /// app/tests/snapshots/studio_main.png. Regenerate knowingly with UPDATE_SNAPSHOTS=1

@@ -1412,7 +1412,8 @@ impl RenderMode for AdaptiveMode {
                 self.materials[index] = material_bandwidth(&self.scene.materials[index]);
                 self.restart_all()
             }
-            SceneEdit::Moving(_) => Invalidation::Nothing,
+            // The mode picks its own light samples per pixel.
+            SceneEdit::Moving(_) | SceneEdit::LightSamples(_) => Invalidation::Nothing,
             SceneEdit::Light { .. }
             | SceneEdit::AddLight(_)
             | SceneEdit::RemoveLight(_)

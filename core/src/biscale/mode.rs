@@ -559,6 +559,7 @@ impl RenderMode for BiscaleMode {
                 self.moving = moving;
                 self.restart_all()
             }
+            // No area lights here: light samples change nothing.
             _ => Invalidation::Nothing,
         })
     }

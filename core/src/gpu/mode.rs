@@ -959,7 +959,7 @@ impl GpuSpmmMode {
             return Ok(invalidation);
         }
         Ok(match edit {
-            SceneEdit::Camera(_) => self.restart_all(),
+            SceneEdit::Camera(_) | SceneEdit::LightSamples(_) => self.restart_all(),
             SceneEdit::Resize { width, height } => {
                 self.film.resize(width, height);
                 self.rebind();

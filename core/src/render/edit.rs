@@ -39,6 +39,8 @@ pub enum SceneEdit {
     /// The camera is being dragged: the SPMM residual is skipped (the seed's trick)
     /// until `Moving(false)`, which restarts the pixels that skipped it.
     Moving(bool),
+    /// Points on each area light per frame (`[render] light_samples`, 1..=64).
+    LightSamples(u32),
 }
 
 /// What an edit cost the accumulated image.
@@ -77,6 +79,8 @@ pub enum EditError {
     },
     #[error("uv_scale {0} must be positive and finite")]
     UvScale(String),
+    #[error("light samples {0} is outside 1..={max}", max = crate::scene::MAX_LIGHT_SAMPLES)]
+    LightSamples(u32),
     /// The mode cannot render what the edit brings (e.g. a material it cannot shade).
     #[error(transparent)]
     Unsupported(#[from] super::Unsupported),
@@ -178,6 +182,12 @@ impl SceneEdit {
                 scene.background = background.clone();
             }
             SceneEdit::Moving(_) => {}
+            SceneEdit::LightSamples(n) => {
+                if !(1..=crate::scene::MAX_LIGHT_SAMPLES).contains(n) {
+                    return Err(EditError::LightSamples(*n));
+                }
+                scene.render.light_samples = *n;
+            }
         }
         Ok(())
     }

@@ -274,6 +274,31 @@ fn moving_skips_the_residual_and_stopping_restores_it() {
 }
 
 #[test]
+fn a_light_samples_edit_restarts_everything_and_equals_a_fresh_render() {
+    let mut m = rendered(scene(), 2);
+    assert_eq!(m.apply(SceneEdit::LightSamples(3)), Ok(Invalidation::All));
+    assert_eq!(m.progress().min_samples, 0);
+    m.render_frame();
+    m.render_frame();
+    let mut three = scene();
+    three.render.light_samples = 3;
+    assert_eq!(m.image(), rendered(three, 2).image());
+    // The scene's area light makes the count matter.
+    assert_ne!(m.image(), rendered(scene(), 2).image());
+    for bad in [0, crate::scene::MAX_LIGHT_SAMPLES + 1] {
+        assert_eq!(
+            m.apply(SceneEdit::LightSamples(bad)),
+            Err(crate::render::EditError::LightSamples(bad))
+        );
+    }
+    assert_eq!(
+        m.scene().render.light_samples,
+        3,
+        "a refused edit changes nothing"
+    );
+}
+
+#[test]
 fn camera_size_and_geometry_edits_restart_everything_and_refit() {
     let mut m = rendered(scene(), 2);
     let mut cam = scene().camera;

@@ -684,6 +684,8 @@ impl RenderMode for SpmmMode {
                 // Samples taken with and without the residual must not mix.
                 Invalidation::Pixels(self.film.reset_touching(self.residual_mask()))
             }
+            // Another estimator of the light: its sequence starts again with it.
+            SceneEdit::LightSamples(_) => self.restart_all(),
             SceneEdit::Light { .. }
             | SceneEdit::AddLight(_)
             | SceneEdit::RemoveLight(_)

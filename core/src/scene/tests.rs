@@ -548,6 +548,31 @@ fn the_sampler_is_read_and_a_wrong_one_is_named() {
 }
 
 #[test]
+fn light_samples_are_read_and_a_count_out_of_range_is_named() {
+    let dir = setup();
+    let scene =
+        |n: &str| EXAMPLE.replacen("[render]\n", &format!("[render]\nlight_samples = {n}\n"), 1);
+    assert_eq!(
+        load_scene(&write(dir.path(), EXAMPLE))
+            .expect("valid")
+            .render
+            .light_samples,
+        1
+    );
+    let s = load_scene(&write(dir.path(), &scene("3"))).expect("valid scene");
+    assert_eq!(s.render.light_samples, 3);
+    for bad in ["0", "65"] {
+        let e = load_scene(&write(dir.path(), &scene(bad)))
+            .expect_err("out of range")
+            .to_string();
+        assert!(
+            e.contains("render.light_samples") && e.contains(bad) && e.contains("1..=64"),
+            "{e}"
+        );
+    }
+}
+
+#[test]
 fn btf_materials_load_tiled_and_bad_ones_name_the_material() {
     let dir = setup();
     let dirs = crate::btf::directions::bonn81();

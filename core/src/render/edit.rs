@@ -183,7 +183,7 @@ impl SceneEdit {
             }
             SceneEdit::Moving(_) => {}
             SceneEdit::LightSamples(n) => {
-                if !(1..=crate::scene::MAX_LIGHT_SAMPLES).contains(n) {
+                if RenderSettings::light_samples_problem(*n).is_some() {
                     return Err(EditError::LightSamples(*n));
                 }
                 scene.render.light_samples = *n;

@@ -117,8 +117,14 @@ impl SampleStream {
     /// independent of the stream position.
     #[inline]
     pub fn at(&self, dim: u64) -> f64 {
+        self.at_salted(dim, 0)
+    }
+
+    /// `at(dim)` with `salt` mixed in (zero: `at` itself); a set's further draws.
+    #[inline]
+    fn at_salted(&self, dim: u64, salt: u64) -> f64 {
         unit_f64(mix64(
-            self.key_hash ^ mix64(dim.wrapping_add(0x632b_e59b_d9b4_e019)),
+            self.key_hash ^ mix64(dim.wrapping_add(0x632b_e59b_d9b4_e019)) ^ salt,
         ))
     }
 
@@ -210,12 +216,7 @@ impl PairSet {
             None => {
                 // Draw 0 is `at(dim), at(dim + 1)`; the others mix their number in.
                 let salt = u64::from(r).wrapping_mul(0xd1b5_4a32_d192_ed03);
-                let one = |d: u64| {
-                    unit_f64(mix64(
-                        s.key_hash ^ mix64(d.wrapping_add(0x632b_e59b_d9b4_e019)) ^ salt,
-                    ))
-                };
-                glam::DVec2::new(one(dim), one(dim + 1))
+                glam::DVec2::new(s.at_salted(dim, salt), s.at_salted(dim + 1, salt))
             }
         }
     }

@@ -97,6 +97,13 @@ impl RenderSettings {
         (!(ok(width) && ok(height)))
             .then(|| format!("image size {width}x{height} is outside 1..={MAX_IMAGE_SIDE}"))
     }
+
+    /// Why `n` light samples per frame cannot be used (the one rule for the scene
+    /// file, `--light-samples` and edits).
+    pub fn light_samples_problem(n: u32) -> Option<String> {
+        (!(1..=MAX_LIGHT_SAMPLES).contains(&n))
+            .then(|| format!("{n} light samples is outside 1..={MAX_LIGHT_SAMPLES}"))
+    }
 }
 
 /// The render modes (DESIGN.md, "The three render modes").
@@ -536,15 +543,8 @@ fn build(ctx: &Ctx, f: file::SceneFile, folder: &Path) -> Result<Scene, SceneErr
             "must be at most 64",
         );
     }
-    if !(1..=MAX_LIGHT_SAMPLES).contains(r.light_samples.get_ref()) {
-        return ctx.err(
-            &r.light_samples.span(),
-            "render.light_samples",
-            format!(
-                "{}: must be within 1..={MAX_LIGHT_SAMPLES}",
-                r.light_samples.get_ref()
-            ),
-        );
+    if let Some(p) = RenderSettings::light_samples_problem(*r.light_samples.get_ref()) {
+        return ctx.err(&r.light_samples.span(), "render.light_samples", p);
     }
     let mode = match &r.mode {
         None => ModeKind::default(),

@@ -13,7 +13,7 @@ use anyhow::anyhow;
 use clap::Args;
 use meso_core::modes;
 use meso_core::render::{Denoiser, Prepare, run_frames};
-use meso_core::scene::{MAX_LIGHT_SAMPLES, RenderSettings, load_scene};
+use meso_core::scene::{RenderSettings, load_scene};
 use serde_json::json;
 
 use crate::failure::{CliError, ResultExt};
@@ -56,10 +56,8 @@ pub struct RenderArgs {
 pub fn run(args: &RenderArgs) -> Result<(), CliError> {
     let mut scene = load_scene(&args.scene).map_err(CliError::bad_input)?;
     if let Some(n) = args.light_samples {
-        if !(1..=MAX_LIGHT_SAMPLES).contains(&n) {
-            return Err(CliError::bad_input(anyhow!(
-                "--light-samples {n} is outside 1..={MAX_LIGHT_SAMPLES}"
-            )));
+        if let Some(p) = RenderSettings::light_samples_problem(n) {
+            return Err(CliError::bad_input(anyhow!("--light-samples: {p}")));
         }
         scene.render.light_samples = n;
     }

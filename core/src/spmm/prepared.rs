@@ -225,40 +225,67 @@ impl TableValue for u16 {
 #[target_feature(enable = "avx")]
 fn add_cells_avx(rgb: DVec3, table: &[f32], cells: &[(usize, f64); 9], coef: &[f32]) -> DVec3 {
     use std::arch::x86_64::{_mm_maskload_ps, _mm_setr_epi32, _mm256_cvtps_pd};
-    // The first three floats of `from`: the fourth lane is masked out, never read.
-    sum_cells_avx(rgb, table, cells, coef, |from: &[f32]| {
-        assert!(from.len() >= 3);
-        // SAFETY: three floats are in bounds (asserted); the masked lane is not read.
-        _mm256_cvtps_pd(unsafe { _mm_maskload_ps(from.as_ptr(), _mm_setr_epi32(-1, -1, -1, 0)) })
-    })
+    // SAFETY: the load reads the first three floats at `from` (the fourth lane is masked
+    // out, never read), so it reads no value past the triple.
+    unsafe {
+        sum_cells_avx(rgb, table, cells, coef, 0, |from: *const f32| {
+            _mm256_cvtps_pd(_mm_maskload_ps(from, _mm_setr_epi32(-1, -1, -1, 0)))
+        })
+    }
 }
 
+/// Coefficients broadcast to 4-wide registers once per texel, before the cell loop (a
+/// texel's nine cells use the same ones); components past this many are broadcast
+/// where they are used.
+#[cfg(target_arch = "x86_64")]
+const HOISTED_COEFFICIENTS: usize = 16;
+
 /// The 4-wide cell sum of both table kinds, given how to read a value triple into the
-/// first three lanes (the fourth zero).
+/// first three lanes (the fourth zero). The bounds are checked once per cell, for all
+/// of its reads, and the reads are plain loads: with a check per read the loop's
+/// instructions kept fewer cells' cache misses in flight at once.
+///
+/// # Safety
+/// `load3(p)` may read at most `3 + over_read` values from `p` (which is then in bounds).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx")]
 #[inline]
-fn sum_cells_avx<T>(
+unsafe fn sum_cells_avx<T>(
     rgb: DVec3,
     table: &[T],
     cells: &[(usize, f64); 9],
     coef: &[f32],
-    load3: impl Fn(&[T]) -> std::arch::x86_64::__m256d,
+    over_read: usize,
+    load3: impl Fn(*const T) -> std::arch::x86_64::__m256d,
 ) -> DVec3 {
     use std::arch::x86_64::{
-        _mm256_add_pd, _mm256_mul_pd, _mm256_set1_pd, _mm256_setr_pd, _mm256_storeu_pd,
+        _mm256_add_pd, _mm256_mul_pd, _mm256_set1_pd, _mm256_setr_pd, _mm256_setzero_pd,
+        _mm256_storeu_pd,
     };
     let values = (1 + coef.len()) * 3;
+    let mut hoisted = [_mm256_setzero_pd(); HOISTED_COEFFICIENTS];
+    for (slot, &a) in hoisted.iter_mut().zip(coef) {
+        *slot = _mm256_set1_pd(f64::from(a));
+    }
     let mut acc = _mm256_setr_pd(rgb.x, rgb.y, rgb.z, 0.0);
     for &(start, w) in cells {
         if w == 0.0 {
             continue;
         }
-        let cell = &table[start..][..values];
+        // Every read of this cell lies in `table`: the last triple starts at
+        // `start + values - 3` and `load3` reads at most `3 + over_read` from there.
+        assert!(start + values + over_read <= table.len());
+        let cell = table[start..].as_ptr();
+        // SAFETY: in bounds (asserted above), per `load3`'s contract.
         let mut e = load3(cell);
         for (k, &a) in coef.iter().enumerate() {
-            let b = load3(&cell[3 + 3 * k..]);
-            e = _mm256_add_pd(e, _mm256_mul_pd(_mm256_set1_pd(a as f64), b));
+            let a = match hoisted.get(k) {
+                Some(&a) => a,
+                None => _mm256_set1_pd(f64::from(a)),
+            };
+            // SAFETY: as above: the triple at `3 + 3k` ends inside the cell.
+            let b = load3(unsafe { cell.add(3 + 3 * k) });
+            e = _mm256_add_pd(e, _mm256_mul_pd(a, b));
         }
         acc = _mm256_add_pd(acc, _mm256_mul_pd(_mm256_set1_pd(w), e));
     }
@@ -290,16 +317,14 @@ fn add_half_cells_avx(rgb: DVec3, table: &[u16], cells: &[(usize, f64); 9], coef
         __m128i, _mm_and_si128, _mm_cvtph_ps, _mm_loadl_epi64, _mm_set_epi64x, _mm256_cvtps_pd,
     };
     let low_three = _mm_set_epi64x(0, 0x0000_ffff_ffff_ffff);
-    // `sum_cells_avx` hands over slices that end with the cell; the fourth half is read
-    // from the whole table past it.
-    let end = table.as_ptr_range().end;
-    sum_cells_avx(rgb, table, cells, coef, |from: &[u16]| {
-        assert!(from.len() >= 3 && from.as_ptr().wrapping_add(4) <= end);
-        // SAFETY: four halves (eight bytes) lie inside `table` (asserted); no alignment
-        // is needed.
-        let four = unsafe { _mm_loadl_epi64(from.as_ptr().cast::<__m128i>()) };
-        _mm256_cvtps_pd(_mm_cvtph_ps(_mm_and_si128(four, low_three)))
-    })
+    // SAFETY: the load reads four halves (eight bytes, no alignment needed) at `from`:
+    // one value past the triple.
+    unsafe {
+        sum_cells_avx(rgb, table, cells, coef, 1, |from: *const u16| {
+            let four = _mm_loadl_epi64(from.cast::<__m128i>());
+            _mm256_cvtps_pd(_mm_cvtph_ps(_mm_and_si128(four, low_three)))
+        })
+    }
 }
 
 const LINE_BYTES: usize = 64;
@@ -783,10 +808,11 @@ mod tests {
 
     /// The half-float cell sums give the bits of `add_cells_portable` on the same
     /// values held as f32, portable and (where the CPU has AVX and F16C) 4-wide, with
-    /// the last cell of a table that ends with its spare line.
+    /// the last cell of a table that ends with its spare line, and more components than
+    /// the 4-wide sum broadcasts ahead (20).
     #[test]
     fn the_half_cell_sums_equal_the_f32_one_bit_for_bit() {
-        for k in [0usize, 1, 5, 8] {
+        for k in [0usize, 1, 5, 8, 16, 20] {
             let values = (1 + k) * 3;
             let mut s = SampleStream::new(&[6, k as u64]);
             let mut wild = || {
@@ -827,12 +853,13 @@ mod tests {
 
     /// The 4-wide cell sum gives the portable sum's bits: the same products and sums
     /// per channel in the same order, with skipped zero weights, values of mixed
-    /// signs and magnitudes, and the last cell of the table (no float after it).
+    /// signs and magnitudes, the last cell of the table (no float after it), and more
+    /// components than it broadcasts ahead (20).
     #[test]
     fn the_avx_cell_sum_equals_the_portable_one_bit_for_bit() {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx") {
-            for k in [0usize, 1, 5, 8] {
+            for k in [0usize, 1, 5, 8, 16, 20] {
                 let values = (1 + k) * 3;
                 let mut s = SampleStream::new(&[5, k as u64]);
                 let mut wild = || {

@@ -249,6 +249,9 @@ pub struct AdaptiveMode {
     frames: u32,
     /// Samples each pixel took itself since the last restart.
     own: Vec<u32>,
+    /// Pixels that became sites after the first frame since the last restart (a
+    /// refinement added them): their own means stand once mature (`upsample::trusted`).
+    added: Vec<bool>,
     buffers: Option<Buffers>,
     plan: Option<Plan>,
     /// Work a yielding call left for the next call (`render_frame_yielding`).
@@ -404,6 +407,7 @@ impl AdaptiveMode {
             samples_per_frame: 1,
             frames: 0,
             own: vec![0; (width * height) as usize],
+            added: vec![false; (width * height) as usize],
             buffers: None,
             plan: None,
             unfinished: None,
@@ -1207,10 +1211,12 @@ impl AdaptiveMode {
             self.film = film;
             self.own = own;
             let pixels = (rows.start * width) as usize..(rows.end * width) as usize;
-            for (o, n) in self.own[pixels.clone()]
+            for ((o, a), n) in self.own[pixels.clone()]
                 .iter_mut()
+                .zip(&mut self.added[pixels.clone()])
                 .zip(&plan.samples[pixels])
             {
+                *a |= *o == 0 && *n > 0 && self.frames > 0;
                 *o += n;
             }
             totals = tile.into_iter().fold(totals, |a, c| a + c);
@@ -1234,6 +1240,7 @@ impl AdaptiveMode {
     fn restart_all(&mut self) -> Invalidation {
         self.film.reset();
         self.own.iter_mut().for_each(|c| *c = 0);
+        self.added.iter_mut().for_each(|a| *a = false);
         self.frames = 0;
         self.buffers = None;
         self.plan = None;
@@ -1346,7 +1353,7 @@ impl RenderMode for AdaptiveMode {
         let (w, h) = (self.width(), self.height());
         let mut values = self.own_means();
         if let Some(b) = &self.buffers {
-            let has: Vec<bool> = self.own.iter().map(|&n| n > 0).collect();
+            let has = upsample::trusted(&b.guide, &self.own, &self.added, self.top_level());
             upsample::upsample(&b.guide, &has, &mut values, self.top_level());
         }
         let mut img = Image::new(w, h);
@@ -1402,6 +1409,7 @@ impl RenderMode for AdaptiveMode {
                 self.camera = PinholeCamera::new(&self.scene.camera, width, height);
                 self.film.resize(width, height);
                 self.own = vec![0; (width * height) as usize];
+                self.added = vec![false; (width * height) as usize];
                 self.restart_all()
             }
             SceneEdit::Meshes(_) => {

@@ -89,6 +89,39 @@ pub fn has_parents(guide: &Guide, x: u32, y: u32, k: u32) -> bool {
     p[..n].iter().map(|q| q.1).sum::<f64>() >= MIN_WEIGHT
 }
 
+/// A site that a refinement added after the first frame holds a sample or two, while
+/// the up-sampled value it replaces averages parents of many: its own mean is shown,
+/// and read by the finer levels, once it holds this many samples. Without the mark the
+/// new sites' noise, spread by the up-sampling, made frames worse than the ones before
+/// them (docs/reports/adaptive/README.md, "Sites added by a refinement").
+pub const MATURE_SAMPLES: u32 = 32;
+
+/// Per pixel, whether its own mean (of `own[i]` samples) stands: a site of the first
+/// frame as soon as it has a sample (it is a site because up-sampling cannot stand for
+/// it), a site added later (`added`) once mature, or at once where no parent lies at
+/// its depth or its ray left the scene (the map's value carries no shading noise).
+/// The others take up-sampled values (`upsample`); every count passes the maturity
+/// mark, so the image still converges to the own means.
+pub fn trusted(guide: &Guide, own: &[u32], added: &[bool], top: u32) -> Vec<bool> {
+    let w = guide.width;
+    own.iter()
+        .zip(added)
+        .enumerate()
+        .map(|(i, (&n, &added))| {
+            if n == 0 || !added || n >= MATURE_SAMPLES || guide.depth[i].is_infinite() {
+                return n > 0;
+            }
+            let (x, y) = (i as u32 % w, i as u32 / w);
+            let k = level_of_pixel(x, y, top);
+            if k >= top {
+                return true;
+            }
+            let (p, m) = parents(guide, x, y, k);
+            p[..m].iter().map(|q| q.1).sum::<f64>() < MIN_WEIGHT
+        })
+        .collect()
+}
+
 /// Fills every pixel without a value (`has_value` false) from the pyramid, coarse to
 /// fine. Every pixel of the top level must have a value; a pixel whose parents all
 /// lie at other depths takes the parent nearest in depth (the caller shades such
@@ -206,6 +239,45 @@ mod tests {
         // And pixel (7, y) has no parent at its depth on its right: its level-0
         // parents (6, y) and (8, y) differ, yet (6, y) is kept alone.
         assert!(has_parents(&guide, 7, 0, 0));
+    }
+
+    #[test]
+    fn a_site_added_later_stands_only_once_mature() {
+        // An 8 x 8 plane with its level-1 grid shaded from the first frame (64 samples
+        // each, value 1) and pixel (1, 1) added by a refinement with an outlier.
+        let (w, h, top) = (8, 8, 1);
+        let guide = flat_guide(w, h, |_, _| 1.0);
+        let first = top_only(w, h, top);
+        let at = (w + 1) as usize;
+        let own_with = |n: u32| -> Vec<u32> {
+            (0..(w * h) as usize)
+                .map(|i| if first[i] { 64 } else if i == at { n } else { 0 })
+                .collect()
+        };
+        let mut added = vec![false; (w * h) as usize];
+        added[at] = true;
+        let shown = |n: u32, added: &[bool], guide: &Guide| {
+            let has = trusted(guide, &own_with(n), added, top);
+            let mut v: Vec<DVec3> = (0..(w * h) as usize)
+                .map(|i| DVec3::splat(if i == at { 9.0 } else { 1.0 }))
+                .collect();
+            upsample(guide, &has, &mut v, top);
+            (has[at], v[at].x, v[at + 1].x)
+        };
+        // Immature: the parents' value is shown, and its child (2, 1) reads 1 too.
+        let (has, own, child) = shown(MATURE_SAMPLES - 1, &added, &guide);
+        assert!(!has);
+        assert!((own - 1.0).abs() < 1e-12 && (child - 1.0).abs() < 1e-12);
+        // Mature, or a site since the first frame: its own mean stands.
+        assert_eq!(shown(MATURE_SAMPLES, &added, &guide).1, 9.0);
+        assert_eq!(shown(1, &vec![false; added.len()], &guide).1, 9.0);
+        // A miss, or a pixel with no parent at its depth, stands at once.
+        let lone = flat_guide(w, h, |x, y| if (x, y) == (1, 1) { 5.0 } else { 1.0 });
+        assert_eq!(shown(1, &added, &lone).1, 9.0);
+        let sky = flat_guide(w, h, |_, _| f64::INFINITY);
+        assert_eq!(shown(1, &added, &sky).1, 9.0);
+        // No sample: nothing of its own to show.
+        assert!(!trusted(&guide, &own_with(0), &added, top)[at]);
     }
 
     #[test]

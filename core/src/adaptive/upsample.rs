@@ -251,7 +251,15 @@ mod tests {
         let at = (w + 1) as usize;
         let own_with = |n: u32| -> Vec<u32> {
             (0..(w * h) as usize)
-                .map(|i| if first[i] { 64 } else if i == at { n } else { 0 })
+                .map(|i| {
+                    if first[i] {
+                        64
+                    } else if i == at {
+                        n
+                    } else {
+                        0
+                    }
+                })
                 .collect()
         };
         let mut added = vec![false; (w * h) as usize];

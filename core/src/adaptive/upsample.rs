@@ -116,8 +116,7 @@ pub fn trusted(guide: &Guide, own: &[u32], added: &[bool], top: u32) -> Vec<bool
             if k >= top {
                 return true;
             }
-            let (p, m) = parents(guide, x, y, k);
-            p[..m].iter().map(|q| q.1).sum::<f64>() < MIN_WEIGHT
+            !has_parents(guide, x, y, k)
         })
         .collect()
 }
@@ -243,12 +242,14 @@ mod tests {
 
     #[test]
     fn a_site_added_later_stands_only_once_mature() {
-        // An 8 x 8 plane with its level-1 grid shaded from the first frame (64 samples
-        // each, value 1) and pixel (1, 1) added by a refinement with an outlier.
-        let (w, h, top) = (8, 8, 1);
+        // An 8 x 8 plane whose level-2 grid was shaded from the first frame (64 samples
+        // each, value 1), and the level-1 pixel (2, 2) added by a refinement with an
+        // outlier; (3, 2) below it on level 0 reads (2, 2) and (4, 2), which has no
+        // value of its own.
+        let (w, h, top) = (8, 8, 2);
         let guide = flat_guide(w, h, |_, _| 1.0);
         let first = top_only(w, h, top);
-        let at = (w + 1) as usize;
+        let (at, child) = ((2 * w + 2) as usize, (2 * w + 3) as usize);
         let own_with = |n: u32| -> Vec<u32> {
             (0..(w * h) as usize)
                 .map(|i| {
@@ -270,17 +271,18 @@ mod tests {
                 .map(|i| DVec3::splat(if i == at { 9.0 } else { 1.0 }))
                 .collect();
             upsample(guide, &has, &mut v, top);
-            (has[at], v[at].x, v[at + 1].x)
+            (has[at], v[at].x, v[child].x)
         };
-        // Immature: the parents' value is shown, and its child (2, 1) reads 1 too.
-        let (has, own, child) = shown(MATURE_SAMPLES - 1, &added, &guide);
+        // Immature: the parents' value is shown and passed on.
+        let (has, own, below) = shown(MATURE_SAMPLES - 1, &added, &guide);
         assert!(!has);
-        assert!((own - 1.0).abs() < 1e-12 && (child - 1.0).abs() < 1e-12);
-        // Mature, or a site since the first frame: its own mean stands.
-        assert_eq!(shown(MATURE_SAMPLES, &added, &guide).1, 9.0);
+        assert!((own - 1.0).abs() < 1e-12 && (below - 1.0).abs() < 1e-12);
+        // Mature, or a site since the first frame: its own mean stands and is read.
+        let (has, own, below) = shown(MATURE_SAMPLES, &added, &guide);
+        assert!(has && own == 9.0 && below > 4.0, "{own} {below}");
         assert_eq!(shown(1, &vec![false; added.len()], &guide).1, 9.0);
         // A miss, or a pixel with no parent at its depth, stands at once.
-        let lone = flat_guide(w, h, |x, y| if (x, y) == (1, 1) { 5.0 } else { 1.0 });
+        let lone = flat_guide(w, h, |x, y| if (x, y) == (2, 2) { 5.0 } else { 1.0 });
         assert_eq!(shown(1, &added, &lone).1, 9.0);
         let sky = flat_guide(w, h, |_, _| f64::INFINITY);
         assert_eq!(shown(1, &added, &sky).1, 9.0);

@@ -42,6 +42,17 @@ impl Moments {
         }
     }
 
+    pub fn count(&self) -> u32 {
+        self.n
+    }
+
+    /// Adds another set of draws' sums (a frame's, to a pixel's).
+    pub fn merge(&mut self, other: &Moments) {
+        self.sum += other.sum;
+        self.sum2 += other.sum2;
+        self.n += other.n;
+    }
+
     /// The unbiased sample variance (0 below two draws).
     pub fn variance(&self) -> f64 {
         if self.n < 2 {
@@ -50,6 +61,24 @@ impl Moments {
         let n = f64::from(self.n);
         ((self.sum2 - self.sum * self.sum / n) / (n - 1.0)).max(0.0)
     }
+}
+
+/// How many of a pixel's own samples the bandwidth pass's prediction counts as: its
+/// n_b = 16 strata.
+pub const PREDICTION_WEIGHT: f64 = 16.0;
+
+/// A pixel's standard deviation per sample from the pass's prediction and the variance
+/// its own samples show, pooled with the prediction counted as `PREDICTION_WEIGHT`
+/// samples: the prediction leads while a pixel has few samples, its measurement once
+/// it has many (the prediction misses what the pass does not model, e.g. shadows, and
+/// a lobe that 16 directions barely sample).
+pub fn corrected_sigma(predicted: f64, own: &Moments) -> f64 {
+    if own.n < 2 {
+        return predicted;
+    }
+    let dof = f64::from(own.n - 1);
+    ((PREDICTION_WEIGHT * predicted * predicted + dof * own.variance()) / (PREDICTION_WEIGHT + dof))
+        .sqrt()
 }
 
 /// The variance a pixel's footprint adds (the camera ray's jitter over a pixel whose
@@ -133,6 +162,49 @@ mod tests {
         // Five values 1, 2, 3, 6, 0: mean 2.4, squared deviations 1.96 + 0.16 + 0.36
         // + 12.96 + 5.76 = 21.2, over 4.
         assert!((m.variance() - 5.3).abs() < 1e-12, "{}", m.variance());
+    }
+
+    #[test]
+    fn merged_moments_equal_the_moments_of_all_draws() {
+        let (mut a, mut b, mut all) = (Moments::default(), Moments::default(), Moments::default());
+        for (i, v) in [0.5, 4.0, 1.5, 2.0, 9.0].into_iter().enumerate() {
+            if i < 2 {
+                a.add(v)
+            } else {
+                b.add(v)
+            }
+            all.add(v);
+        }
+        a.merge(&b);
+        assert!((a.mean() - all.mean()).abs() < 1e-12);
+        assert!((a.variance() - all.variance()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_corrected_deviation_pools_the_prediction_with_the_measured_variance() {
+        let predicted = 0.5;
+        // Fewer than two samples measure no variance: the prediction alone.
+        let mut m = Moments::default();
+        assert_eq!(corrected_sigma(predicted, &m), predicted);
+        m.add(3.0);
+        assert_eq!(corrected_sigma(predicted, &m), predicted);
+        // Draws 3, 1, 5, 7: variance 20 / 3 on 3 degrees of freedom, pooled with the
+        // prediction's 0.25 on 16: (16 * 0.25 + 3 * 20 / 3) / 19 = 24 / 19.
+        for v in [1.0, 5.0, 7.0] {
+            m.add(v);
+        }
+        let s = corrected_sigma(predicted, &m);
+        assert!((s * s - 24.0 / 19.0).abs() < 1e-12, "{s}");
+        // Many draws: the measurement leads. 4000 alternating 0 and 2 have variance
+        // about 1; the pooled deviation is within 0.2% of 1.
+        let mut many = Moments::default();
+        for k in 0..4000 {
+            many.add(if k % 2 == 0 { 0.0 } else { 2.0 });
+        }
+        let s = corrected_sigma(predicted, &many);
+        assert!((s - 1.0).abs() < 2e-3, "{s}");
+        // A predicted zero does not keep a pixel whose draws vary at zero.
+        assert!(corrected_sigma(0.0, &many) > 0.99);
     }
 
     #[test]

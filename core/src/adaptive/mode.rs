@@ -13,7 +13,7 @@ use std::time::Instant;
 
 use glam::{DVec2, DVec3};
 
-use super::allocation;
+use super::allocation::{self, Moments};
 use super::bandwidth::{EnvironmentBandwidth, LightBandwidth, LobeIndex, MaterialBandwidth};
 use super::gbuffer::GBuffer;
 use super::operators::{self, Bandwidth, Bounce};
@@ -252,6 +252,9 @@ pub struct AdaptiveMode {
     /// Pixels that became sites after the first frame since the last restart (a
     /// refinement added them): their own means stand once mature (`upsample::trusted`).
     added: Vec<bool>,
+    /// Each pixel's own samples' luminance moments since the last restart or emission
+    /// edit: their variance corrects the pass's prediction (`plan_frame`).
+    moments: Vec<Moments>,
     buffers: Option<Buffers>,
     plan: Option<Plan>,
     /// Work a yielding call left for the next call (`render_frame_yielding`).
@@ -408,6 +411,7 @@ impl AdaptiveMode {
             frames: 0,
             own: vec![0; (width * height) as usize],
             added: vec![false; (width * height) as usize],
+            moments: vec![Moments::default(); (width * height) as usize],
             buffers: None,
             plan: None,
             unfinished: None,
@@ -897,7 +901,8 @@ impl AdaptiveMode {
         let block_sigma = |i: usize, k: u32| {
             let (x, y) = (i as u32 % w, i as u32 / w);
             let bw = w.div_ceil(1 << k);
-            b.sigma_mip[k as usize][((y >> k) * bw + (x >> k)) as usize]
+            let predicted = b.sigma_mip[k as usize][((y >> k) * bw + (x >> k)) as usize];
+            allocation::corrected_sigma(predicted, &self.moments[i])
         };
         let (mut sum, mut count) = (0.0, 0usize);
         for (i, s) in site_level.iter().enumerate() {
@@ -1169,6 +1174,7 @@ impl AdaptiveMode {
         };
         let layers = self.film.layers();
         let active = self.layers.active(&self.scene);
+        let weights = self.layers.weights(&self.scene);
         let dropped_before = self.film.dropped();
         let mut totals = Counters::default();
         while y < height {
@@ -1185,6 +1191,7 @@ impl AdaptiveMode {
                 let mut samples = 0u64;
                 let mut shading_points = 0u64;
                 let mut out = vec![DVec3::ZERO; layers];
+                let mut moments = vec![Moments::default(); width as usize];
                 for x in 0..width {
                     let i = (row.y * width + x) as usize;
                     let n = plan.samples[i];
@@ -1195,18 +1202,25 @@ impl AdaptiveMode {
                         if mask != 0 {
                             shading_points += 1;
                         }
+                        let mut value = DVec3::ZERO;
                         for &l in &active {
                             row.add(x, l, out[l]);
+                            value += out[l] * weights[l];
                         }
                         row.touch(x, mask);
+                        let luminance = value.dot(LUMINANCE);
+                        if luminance.is_finite() {
+                            moments[x as usize].add(luminance);
+                        }
                     }
                     samples += u64::from(n);
                 }
-                Counters {
+                let counters = Counters {
                     samples,
                     shading_points,
                     rays: counts,
-                }
+                };
+                (counters, moments)
             });
             self.film = film;
             self.own = own;
@@ -1219,7 +1233,13 @@ impl AdaptiveMode {
                 *a |= *o == 0 && *n > 0 && self.frames > 0;
                 *o += n;
             }
-            totals = tile.into_iter().fold(totals, |a, c| a + c);
+            for ((counters, moments), r) in tile.into_iter().zip(rows) {
+                totals = totals + counters;
+                let row = (r * width) as usize..((r + 1) * width) as usize;
+                for (m, add) in self.moments[row].iter_mut().zip(moments) {
+                    m.merge(&add);
+                }
+            }
         }
         if y < height {
             self.unfinished = Some(Unfinished::Shading { plan, rows_done: y });
@@ -1241,6 +1261,9 @@ impl AdaptiveMode {
         self.film.reset();
         self.own.iter_mut().for_each(|c| *c = 0);
         self.added.iter_mut().for_each(|a| *a = false);
+        self.moments
+            .iter_mut()
+            .for_each(|m| *m = Moments::default());
         self.frames = 0;
         self.buffers = None;
         self.plan = None;
@@ -1393,7 +1416,11 @@ impl RenderMode for AdaptiveMode {
             self.light_targets = self.layers.light_targets(&self.scene);
             if invalidation == Invalidation::Nothing {
                 // Emission edits re-weight the layers; the buffer's N_p keeps the old
-                // emissions' proportions until the next restart.
+                // emissions' proportions until the next restart, and the measured
+                // variances, of the old weights, start again.
+                self.moments
+                    .iter_mut()
+                    .for_each(|m| *m = Moments::default());
                 return Ok(Invalidation::Nothing);
             }
             // Up-sampled pixels mix every layer: anything else restarts all.
@@ -1410,6 +1437,7 @@ impl RenderMode for AdaptiveMode {
                 self.film.resize(width, height);
                 self.own = vec![0; (width * height) as usize];
                 self.added = vec![false; (width * height) as usize];
+                self.moments = vec![Moments::default(); (width * height) as usize];
                 self.restart_all()
             }
             SceneEdit::Meshes(_) => {
@@ -1469,6 +1497,45 @@ mod tests {
         // Steps of 1e-4 between near-black pixels stay below a floor of 1e-3.
         let dark = [0.0, 1e-4, 0.0];
         assert!((0..3).all(|x| !radiance_edge(&dark, 3, 1, x, 0, 1e-3)));
+    }
+
+    #[test]
+    fn a_pixel_whose_samples_vary_more_than_predicted_takes_more_samples() {
+        let scene = super::super::tests::merl_test_scene();
+        let mut mode = AdaptiveMode::prepare(scene, 32, 32, Prepare::quietly()).expect("adaptive");
+        // Past the last refinement every pixel is a site of level 0.
+        for _ in 0..2 * (mode.top_level() + 1) {
+            mode.render_frame();
+        }
+        assert!(mode.moments.iter().all(|m| m.count() > 0));
+        let frames = mode.frames..mode.frames + 16;
+        let taken = |mode: &AdaptiveMode, i: usize| -> u32 {
+            let b = mode.buffers.as_ref().expect("pass done");
+            frames
+                .clone()
+                .map(|f| mode.plan_frame(b, f).samples[i])
+                .sum()
+        };
+        // The pixel predicted quietest among those the mode gives more than the floor.
+        let b = mode.buffers.as_ref().expect("pass done");
+        let i = (0..b.sigma.len())
+            .filter(|&i| b.sigma[i] > 0.0)
+            .min_by(|&a, &c| b.sigma[a].total_cmp(&b.sigma[c]))
+            .expect("a lit pixel");
+        let predicted = b.sigma[i];
+        let before = taken(&mode, i);
+        // Its samples turn out to vary with ten times the predicted deviation.
+        let mut noisy = Moments::default();
+        for k in 0..64 {
+            noisy.add(if k % 2 == 0 { 0.0 } else { 20.0 * predicted });
+        }
+        mode.moments[i] = noisy;
+        let after = taken(&mode, i);
+        assert!(after > 3 * before.max(1), "{before} -> {after} samples");
+        // A restart forgets what the samples measured, as it forgets the samples.
+        let camera = mode.scene().camera.clone();
+        mode.apply(SceneEdit::Camera(camera)).expect("camera edit");
+        assert!(mode.moments.iter().all(|m| m.count() == 0));
     }
 
     #[test]

@@ -2,9 +2,9 @@
 //! bandwidth pass (G-buffer, eq. 3-6 and 9 per pixel over n_b light directions, eq. 11
 //! levels, min/max mip-maps) decides where to shade and how many samples to take; each
 //! frame shades the pixels the bandwidth buffer assigns to it (a quadtree of blocks
-//! whose min level reaches the block's level) with N_p samples (eq. 9 made
-//! proportional to the variance bound, so the bound is equal everywhere), and the image
-//! is up-sampled from them coarse to fine (`upsample.rs`). Progressive: every
+//! whose min level reaches the block's level) with N_p samples (in proportion to the
+//! predicted standard deviation, corrected by what the pixel's own samples show:
+//! `allocation.rs`), and the image is up-sampled from them coarse to fine (`upsample.rs`). Progressive: every
 //! `refine_frames` frames each level drops by one, so every pixel is eventually shaded
 //! and the image converges to the per-pixel integral the spmm mode computes.
 

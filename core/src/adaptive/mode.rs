@@ -1533,7 +1533,7 @@ mod tests {
         let after = taken(&mode, i);
         assert!(after > 3 * before.max(1), "{before} -> {after} samples");
         // A restart forgets what the samples measured, as it forgets the samples.
-        let camera = mode.scene().camera.clone();
+        let camera = mode.scene().camera;
         mode.apply(SceneEdit::Camera(camera)).expect("camera edit");
         assert!(mode.moments.iter().all(|m| m.count() == 0));
     }

@@ -4,9 +4,10 @@
 //! frame shades the pixels the bandwidth buffer assigns to it (a quadtree of blocks
 //! whose min level reaches the block's level) with N_p samples (in proportion to the
 //! predicted standard deviation, corrected by what the pixel's own samples show:
-//! `allocation.rs`), and the image is up-sampled from them coarse to fine (`upsample.rs`). Progressive: every
-//! `refine_frames` frames each level drops by one, so every pixel is eventually shaded
-//! and the image converges to the per-pixel integral the spmm mode computes.
+//! `allocation.rs`), and the image is up-sampled from them coarse to fine
+//! (`upsample.rs`). Progressive: every `refine_frames` frames each level drops by one,
+//! so every pixel is eventually shaded and the image converges to the per-pixel
+//! integral the spmm mode computes.
 
 use std::sync::Arc;
 use std::time::Instant;

@@ -3,7 +3,10 @@
 //! on and off, on one thread and on all threads. The residual's values are half floats,
 //! as a pack file stores them by default; the prepared evaluation also runs on the same
 //! material with values that are not (a pack stored with `--f32`), whose tables stay
-//! f32: the side-by-side figure of the half-float tables.
+//! f32: the side-by-side figure of the half-float tables. Issue 16's goal 6 (the
+//! residual-on evaluation 2x faster than when the issue was filed) is measured here in
+//! one process: `issue_time` keeps that evaluation as it was (397002e^), run beside
+//! today's on the same points after checking that both give the same bits.
 
 use std::hint::black_box;
 
@@ -195,5 +198,326 @@ fn bench_eval(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_eval);
+/// Goal 6's ratio: the residual-on evaluation the issue was filed against beside
+/// today's (half-float tables, a pack file's default), on 1 and all threads. Criterion
+/// times each for itself; then `ALTERNATIONS` rounds run the two in turn, one pass
+/// over the points each, and print the quartiles of the per-round speed-ups: on a
+/// host whose speed drifts by tens of percent within seconds, only ratios of runs
+/// milliseconds apart are steady.
+fn bench_against_issue_time(c: &mut Criterion) {
+    const GROUP: &str = "residual_against_issue_time";
+    let m = realistic_material(true);
+    let points = shading_points();
+    let before = issue_time::Prepared::new(&m);
+    let today = m.prepare(&PrepareRequest {
+        used_clusters: None,
+        residual: true,
+        max_npca: NPCA,
+    });
+    // "At identical results": every point's value, bit for bit.
+    for (i, &(t, wi, wo)) in points.iter().enumerate() {
+        let (a, b) = (before.eval_texel(t, wi, wo), today.eval_texel(t, wi, wo));
+        assert!(
+            a.to_array().map(f64::to_bits) == b.to_array().map(f64::to_bits),
+            "point {i}: issue-time {a} against today {b}"
+        );
+    }
+    type Eval<'a> = &'a (dyn Fn(usize, DVec3, DVec3) -> DVec3 + Sync);
+    let sum = |eval: Eval| {
+        points
+            .par_iter()
+            .map(|&(t, wi, wo)| eval(t, black_box(wi), black_box(wo)))
+            .reduce(|| DVec3::ZERO, |a, b| a + b)
+    };
+    let before_eval = |t, wi, wo| before.eval_texel(t, wi, wo);
+    let today_eval = |t, wi, wo| today.eval_texel(t, wi, wo);
+    let evals: [(&str, Eval); 2] = [("issue time", &before_eval), ("today", &today_eval)];
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool");
+    let all = rayon::ThreadPoolBuilder::new().build().expect("pool");
+    let pools = [("1 thread", &one), ("all threads", &all)];
+    let mut group = c.benchmark_group(GROUP);
+    group.throughput(Throughput::Elements(POINTS as u64));
+    group.sample_size(10);
+    for (threads, pool) in pools {
+        for (label, eval) in evals {
+            group.bench_function(format!("{label}, {threads}"), |b| {
+                b.iter(|| pool.install(|| sum(eval)))
+            });
+        }
+    }
+    group.finish();
+
+    const ALTERNATIONS: usize = 40;
+    let name = format!("{GROUP}/alternated");
+    if !selected(&name) {
+        return;
+    }
+    for (threads, pool) in pools {
+        let seconds = |eval: Eval| {
+            let start = std::time::Instant::now();
+            black_box(pool.install(|| sum(eval)));
+            start.elapsed().as_secs_f64()
+        };
+        seconds(evals[0].1);
+        seconds(evals[1].1);
+        let mut ratios: Vec<f64> = (0..ALTERNATIONS)
+            .map(|_| seconds(evals[0].1) / seconds(evals[1].1))
+            .collect();
+        ratios.sort_by(f64::total_cmp);
+        let q = |f: f64| ratios[((ratios.len() - 1) as f64 * f).round() as usize];
+        println!(
+            "{name}, {threads}: today {:.2}x the issue's speed (median of {ALTERNATIONS}; \
+             quartiles {:.2}x-{:.2}x)",
+            q(0.5),
+            q(0.25),
+            q(0.75)
+        );
+    }
+}
+
+/// Whether criterion's command line selects the benchmark `name` to be measured: a
+/// `cargo bench` run (not `--test`, `--list` or `--profile-time`) with no filter, or
+/// with a filter it contains (criterion's own substring rule).
+fn selected(name: &str) -> bool {
+    // Criterion's options that take a value: that value is not a filter.
+    const WITH_VALUE: [&str; 17] = [
+        "-s",
+        "--save-baseline",
+        "-b",
+        "--baseline",
+        "--baseline-lenient",
+        "--load-baseline",
+        "--sample-size",
+        "--warm-up-time",
+        "--measurement-time",
+        "--nresamples",
+        "--noise-threshold",
+        "--confidence-level",
+        "--significance-level",
+        "--plotting-backend",
+        "--output-format",
+        "-c",
+        "--color",
+    ];
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    if !args.iter().any(|a| a == "--bench")
+        || args
+            .iter()
+            .any(|a| ["--test", "--list", "--profile-time"].contains(&a.as_str()))
+    {
+        return false;
+    }
+    let filters: Vec<&String> = args
+        .iter()
+        .enumerate()
+        .filter(|&(i, a)| {
+            !a.starts_with('-') && (i == 0 || !WITH_VALUE.contains(&args[i - 1].as_str()))
+        })
+        .map(|(_, a)| a)
+        .collect();
+    filters.is_empty() || filters.iter().any(|f| name.contains(f.as_str()))
+}
+
+/// The prepared residual-on evaluation as it stood when issue 16 was filed (397002e^):
+/// f32 cells laid out [cluster][light][view][mean, b_1..b_K] x RGB, no prefetch, the
+/// direction look-up on a 16 x 16 grid listing every triangle whose bounding box meets
+/// a cell, the cells summed in f64 one after the other. Kept as the bench's baseline
+/// only; the library's evaluation is `PreparedSpmm`.
+mod issue_time {
+    use glam::{DVec2, DVec3};
+    use meso_core::brdf::BasisFunction;
+    use meso_core::spmm::SpmmMaterial;
+
+    const GRID: usize = 16;
+    const EPS: f64 = -1e-12;
+
+    fn cell_of(p: DVec2) -> (usize, usize) {
+        let f = |v: f64| {
+            (((v + 1.0) * 0.5 * GRID as f64) as isize).clamp(0, GRID as isize - 1) as usize
+        };
+        (f(p.x), f(p.y))
+    }
+
+    fn cross(a: DVec2, b: DVec2) -> f64 {
+        a.x * b.y - a.y * b.x
+    }
+
+    /// The direction table's query of the time (same triangulation and hull).
+    struct Directions {
+        points: Vec<DVec2>,
+        triangles: Vec<[u32; 3]>,
+        hull: Vec<u32>,
+        cells: Vec<Vec<u32>>,
+    }
+
+    impl Directions {
+        fn new(dirs: &[DVec3]) -> Self {
+            let points: Vec<DVec2> = dirs.iter().map(|d| DVec2::new(d.x, d.y)).collect();
+            let input: Vec<delaunator::Point> = points
+                .iter()
+                .map(|p| delaunator::Point { x: p.x, y: p.y })
+                .collect();
+            let tri = delaunator::triangulate(&input);
+            let triangles: Vec<[u32; 3]> = tri
+                .triangles
+                .chunks_exact(3)
+                .map(|t| [t[0] as u32, t[1] as u32, t[2] as u32])
+                .filter(|t| {
+                    let [a, b, c] = t.map(|i| points[i as usize]);
+                    cross(b - a, c - a).abs() > 1e-12
+                })
+                .collect();
+            let mut hull: Vec<u32> = tri.hull.iter().map(|&i| i as u32).collect();
+            let signed_area: f64 = (0..hull.len())
+                .map(|i| {
+                    cross(
+                        points[hull[i] as usize],
+                        points[hull[(i + 1) % hull.len()] as usize],
+                    )
+                })
+                .sum();
+            if signed_area < 0.0 {
+                hull.reverse();
+            }
+            let mut cells = vec![Vec::new(); GRID * GRID];
+            for (ti, t) in triangles.iter().enumerate() {
+                let ps = t.map(|i| points[i as usize]);
+                let (x0, y0) = cell_of(ps[0].min(ps[1]).min(ps[2]));
+                let (x1, y1) = cell_of(ps[0].max(ps[1]).max(ps[2]));
+                for y in y0..=y1 {
+                    for x in x0..=x1 {
+                        cells[y * GRID + x].push(ti as u32);
+                    }
+                }
+            }
+            Self {
+                points,
+                triangles,
+                hull,
+                cells,
+            }
+        }
+
+        fn weights(&self, d: DVec3) -> [(u32, f64); 3] {
+            let p = DVec2::new(d.x, d.y);
+            let (cx, cy) = cell_of(p);
+            for &ti in &self.cells[cy * GRID + cx] {
+                let [a, b, c] = self.triangles[ti as usize];
+                let (pa, pb, pc) = (
+                    self.points[a as usize],
+                    self.points[b as usize],
+                    self.points[c as usize],
+                );
+                let area = cross(pb - pa, pc - pa);
+                let wa = cross(pb - p, pc - p) / area;
+                let wb = cross(pc - p, pa - p) / area;
+                let wc = 1.0 - wa - wb;
+                if wa >= EPS && wb >= EPS && wc >= EPS {
+                    let (wa, wb, wc) = (wa.max(0.0), wb.max(0.0), wc.max(0.0));
+                    let s = wa + wb + wc;
+                    return [(a, wa / s), (b, wb / s), (c, wc / s)];
+                }
+            }
+            let mut best = (f64::INFINITY, [(0u32, 1.0), (0u32, 0.0), (0u32, 0.0)]);
+            for i in 0..self.hull.len() {
+                let (a, b) = (self.hull[i], self.hull[(i + 1) % self.hull.len()]);
+                let (pa, pb) = (self.points[a as usize], self.points[b as usize]);
+                let ab = pb - pa;
+                let s = ((p - pa).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
+                let dist = p.distance_squared(pa + ab * s);
+                if dist < best.0 {
+                    best = (dist, [(a, 1.0 - s), (b, s), (b, 0.0)]);
+                }
+            }
+            best.1
+        }
+    }
+
+    pub struct Prepared {
+        bases: Vec<Vec<BasisFunction>>,
+        texel_cluster: Vec<u32>,
+        offsets: Vec<u32>,
+        basis: Vec<u16>,
+        rgb: Vec<[f32; 3]>,
+        lights: Directions,
+        views: Directions,
+        k: usize,
+        /// [cluster][light][view][1 + k][3], mean first.
+        cells: Vec<f32>,
+        coefficients: Vec<f32>,
+    }
+
+    impl Prepared {
+        /// Every cluster, every component, no basis hidden (the bench's material).
+        pub fn new(m: &SpmmMaterial) -> Self {
+            let r = m.residual().expect("the bench's material has a residual");
+            let (nl, nv, k) = (r.light_dirs.len(), r.view_dirs.len(), r.npca);
+            let mut cells = Vec::new();
+            for c in 0..m.clusters().len() {
+                for l in 0..nl {
+                    for v in 0..nv {
+                        let at = ((c * nl + l) * nv + v) * 3;
+                        cells.extend_from_slice(&r.mean[at..at + 3]);
+                        for kk in 0..k {
+                            let b = (((c * k + kk) * nl + l) * nv + v) * 3;
+                            cells.extend_from_slice(&r.components[b..b + 3]);
+                        }
+                    }
+                }
+            }
+            Self {
+                bases: m.clusters().iter().map(|c| c.bases.clone()).collect(),
+                texel_cluster: m.texel_cluster().to_vec(),
+                offsets: m.weights().offsets.clone(),
+                basis: m.weights().basis.clone(),
+                rgb: m.weights().rgb.clone(),
+                lights: Directions::new(&r.light_dirs),
+                views: Directions::new(&r.view_dirs),
+                k,
+                cells,
+                coefficients: r.coefficients.clone(),
+            }
+        }
+
+        pub fn eval_texel(&self, t: usize, wi: DVec3, wo: DVec3) -> DVec3 {
+            if wi.z <= 0.0 || wo.z <= 0.0 {
+                return DVec3::ZERO;
+            }
+            let c = self.texel_cluster[t] as usize;
+            let bases = &self.bases[c];
+            let mut rgb = DVec3::ZERO;
+            for i in self.offsets[t] as usize..self.offsets[t + 1] as usize {
+                let w = self.rgb[i];
+                rgb += DVec3::new(w[0] as f64, w[1] as f64, w[2] as f64)
+                    * bases[usize::from(self.basis[i])].eval(wi, wo);
+            }
+            let stride = (1 + self.k) * 3;
+            let nv = self.views.points.len();
+            let base = c * self.lights.points.len() * nv * stride;
+            let coef = &self.coefficients[t * self.k..(t + 1) * self.k];
+            for (l, wl) in self.lights.weights(wi) {
+                for (v, wv) in self.views.weights(wo) {
+                    let w = wl * wv;
+                    if w == 0.0 {
+                        continue;
+                    }
+                    let cell =
+                        &self.cells[base + (l as usize * nv + v as usize) * stride..][..stride];
+                    let mut e = DVec3::new(cell[0] as f64, cell[1] as f64, cell[2] as f64);
+                    for (k, &a) in coef.iter().enumerate() {
+                        let b = &cell[3 + 3 * k..6 + 3 * k];
+                        e += a as f64 * DVec3::new(b[0] as f64, b[1] as f64, b[2] as f64);
+                    }
+                    rgb += w * e;
+                }
+            }
+            rgb
+        }
+    }
+}
+
+criterion_group!(benches, bench_eval, bench_against_issue_time);
 criterion_main!(benches);

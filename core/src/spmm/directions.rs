@@ -6,7 +6,9 @@
 //! the horizon) the query is moved to the nearest point of the hull boundary, which
 //! keeps the weights continuous across it. A query tests the triangles listed for its
 //! cell of a grid over the disk in index order and takes the first that holds it: the
-//! lowest-numbered such triangle, whatever the grid.
+//! lowest-numbered such triangle, whatever the grid. A query outside the hull tests
+//! only the hull edges its cell lists as possibly nearest, in index order: the same
+//! edge as a test of all of them.
 
 use glam::{DVec2, DVec3};
 
@@ -28,6 +30,12 @@ pub struct DirectionTable {
     /// Per triangle, what `weights` tests: its corners and doubled signed area, one
     /// cache line, so a query reads one line per triangle instead of three points.
     corners: Vec<Corners>,
+    /// Per grid cell, the start of its hull edges in `cell_hull_edges`; one more entry
+    /// than cells.
+    cell_hull_starts: Vec<u32>,
+    /// The hull edges (edge `i` runs from `hull[i]` to the next) that could be the
+    /// nearest to some point of each cell, in index order per cell.
+    cell_hull_edges: Vec<u32>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -40,6 +48,10 @@ struct Corners {
 
 /// Barycentric weights down to this count as inside (shared edges, rounding).
 const EPS: f64 = -1e-12;
+
+/// How far a grid cell is widened when listing what may hold its points: far above
+/// the rounding of a query, far below a cell's side.
+const CELL_MARGIN: f64 = 1e-9;
 
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
 pub enum DirectionTableError {
@@ -73,22 +85,73 @@ fn cross(a: DVec2, b: DVec2) -> f64 {
     a.x * b.y - a.y * b.x
 }
 
+/// Corners of grid cell (x, y), the lowest first.
+fn cell_box(x: usize, y: usize) -> (DVec2, DVec2) {
+    let side = 2.0 / GRID as f64;
+    let lo = DVec2::new(-1.0 + side * x as f64, -1.0 + side * y as f64);
+    (lo, lo + side)
+}
+
+/// Distance from `p` to the segment from `a` to `b`.
+fn segment_distance(p: DVec2, a: DVec2, b: DVec2) -> f64 {
+    let ab = b - a;
+    let s = ((p - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
+    p.distance(a + ab * s)
+}
+
+/// Per grid cell, the hull edges that can be nearest to a point of it: those whose
+/// distance from the cell's centre, less the cell's half diagonal (a lower bound over
+/// the cell, distance being 1-Lipschitz), is within a margin of the smallest largest
+/// distance of any edge (distance to a segment is convex, so its largest over the
+/// cell is at a corner). The margin keeps every edge that the query's own arithmetic
+/// could find nearest.
+fn hull_edges_per_cell(points: &[DVec2], hull: &[u32]) -> (Vec<u32>, Vec<u32>) {
+    let edge = |i: usize| {
+        (
+            points[hull[i] as usize],
+            points[hull[(i + 1) % hull.len()] as usize],
+        )
+    };
+    let (mut starts, mut edges) = (Vec::with_capacity(GRID * GRID + 1), Vec::new());
+    for y in 0..GRID {
+        for x in 0..GRID {
+            starts.push(edges.len() as u32);
+            let (lo, hi) = cell_box(x, y);
+            let (centre, half_diagonal) = ((lo + hi) * 0.5, (hi - lo).length() * 0.5);
+            let corners = [lo, DVec2::new(hi.x, lo.y), hi, DVec2::new(lo.x, hi.y)];
+            let farthest = (0..hull.len())
+                .map(|i| {
+                    let (a, b) = edge(i);
+                    corners
+                        .iter()
+                        .map(|&q| segment_distance(q, a, b))
+                        .fold(0.0, f64::max)
+                })
+                .fold(f64::INFINITY, f64::min);
+            edges.extend((0..hull.len() as u32).filter(|&i| {
+                let (a, b) = edge(i as usize);
+                segment_distance(centre, a, b) - half_diagonal <= farthest + CELL_MARGIN
+            }));
+        }
+    }
+    starts.push(edges.len() as u32);
+    (starts, edges)
+}
+
 /// Whether triangle `t` meets grid cell (x, y), closed and widened by a margin far
 /// above the query's tolerance: a triangle that could hold a point of the cell is
 /// never left out. Separating axes: the cell's sides (the caller's bounding-box
 /// range) and the triangle's edges.
 fn triangle_meets_cell(t: [DVec2; 3], x: usize, y: usize) -> bool {
-    const MARGIN: f64 = 1e-9;
-    let side = 2.0 / GRID as f64;
-    let lo = DVec2::new(-1.0 + side * x as f64, -1.0 + side * y as f64) - MARGIN;
-    let hi = lo + side + 2.0 * MARGIN;
+    let (lo, hi) = cell_box(x, y);
+    let (lo, hi) = (lo - CELL_MARGIN, hi + CELL_MARGIN);
     let corners = [lo, DVec2::new(hi.x, lo.y), hi, DVec2::new(lo.x, hi.y)];
     let orient = cross(t[1] - t[0], t[2] - t[0]).signum();
     (0..3).all(|e| {
         let (a, b) = (t[e], t[(e + 1) % 3]);
         corners
             .iter()
-            .any(|&q| orient * cross(b - a, q - a) >= -MARGIN * (b - a).length())
+            .any(|&q| orient * cross(b - a, q - a) >= -CELL_MARGIN * (b - a).length())
     })
 }
 
@@ -141,8 +204,10 @@ impl DirectionTable {
         let mut cells = vec![Vec::new(); GRID * GRID];
         for (ti, t) in triangles.iter().enumerate() {
             let ps = t.map(|i| points[i as usize]);
-            let lo = ps[0].min(ps[1]).min(ps[2]);
-            let hi = ps[0].max(ps[1]).max(ps[2]);
+            // Widened like the cells' test: a triangle whose side lies on a grid line
+            // (to rounding) also belongs to the cell beyond it.
+            let lo = ps[0].min(ps[1]).min(ps[2]) - CELL_MARGIN;
+            let hi = ps[0].max(ps[1]).max(ps[2]) + CELL_MARGIN;
             let (x0, y0) = cell_of(lo);
             let (x1, y1) = cell_of(hi);
             for y in y0..=y1 {
@@ -168,6 +233,7 @@ impl DirectionTable {
                 Corners { at, area }
             })
             .collect();
+        let (cell_hull_starts, cell_hull_edges) = hull_edges_per_cell(&points, &hull);
         Ok(Self {
             points,
             triangles,
@@ -175,6 +241,8 @@ impl DirectionTable {
             cell_starts,
             cell_triangles,
             corners,
+            cell_hull_starts,
+            cell_hull_edges,
         })
     }
 
@@ -233,13 +301,23 @@ impl DirectionTable {
                 return [(a, wa / s), (b, wb / s), (c, wc / s)];
             }
         }
-        self.nearest_on_hull(p)
+        // The cell's edge list holds for points inside the cell's square, which every
+        // unit direction's projection is; anything else tests every edge.
+        let (lo, hi) = cell_box(cx, cy);
+        if p.cmpge(lo).all() && p.cmple(hi).all() {
+            let listed =
+                self.cell_hull_starts[cell] as usize..self.cell_hull_starts[cell + 1] as usize;
+            self.nearest_on_hull(p, self.cell_hull_edges[listed].iter().map(|&i| i as usize))
+        } else {
+            self.nearest_on_hull(p, 0..self.hull.len())
+        }
     }
 
-    /// Linear weights at the point of the hull boundary nearest to `p`.
-    fn nearest_on_hull(&self, p: DVec2) -> [(u32, f64); 3] {
+    /// Linear weights at the point of the hull boundary nearest to `p`, among the
+    /// hull `edges` (in index order; the first of equally near edges wins).
+    fn nearest_on_hull(&self, p: DVec2, edges: impl Iterator<Item = usize>) -> [(u32, f64); 3] {
         let mut best = (f64::INFINITY, [(0u32, 1.0), (0u32, 0.0), (0u32, 0.0)]);
-        for i in 0..self.hull.len() {
+        for i in edges {
             let (a, b) = (self.hull[i], self.hull[(i + 1) % self.hull.len()]);
             let (pa, pb) = (self.points[a as usize], self.points[b as usize]);
             let ab = pb - pa;
@@ -343,7 +421,7 @@ mod tests {
                     return [(a, wa / s), (b, wb / s), (c, wc / s)];
                 }
             }
-            t.nearest_on_hull(p)
+            t.nearest_on_hull(p, 0..t.hull.len())
         };
         let bits = |w: [(u32, f64); 3]| w.map(|(i, w)| (i, w.to_bits()));
         let lift = |p: DVec2| DVec3::new(p.x, p.y, (1.0 - p.length_squared()).max(0.0).sqrt());
@@ -360,6 +438,38 @@ mod tests {
         for k in 0..20_000u64 {
             let mut s = SampleStream::new(&[23, k]);
             queries.push(spherical(s.next(), 2.0 * std::f64::consts::PI * s.next()));
+        }
+        // Outside the hull, where a cell's edge list replaces the test of every edge:
+        // the horizon all round, the hull's corners and edge midpoints pushed outwards
+        // (the places where the nearest edge changes), and the grid's lines there.
+        for k in 0..20_000 {
+            let phi = 2.0 * std::f64::consts::PI * k as f64 / 20_000.0;
+            queries.push(DVec3::new(phi.cos(), phi.sin(), 0.0));
+        }
+        for i in 0..t.hull.len() {
+            let (a, b) = (
+                t.points[t.hull[i] as usize],
+                t.points[t.hull[(i + 1) % t.hull.len()] as usize],
+            );
+            for q in [a, (a + b) * 0.5] {
+                for push in [1e-12, 1e-6, 1e-3, 0.01, 0.02] {
+                    let out = q * (1.0 + push);
+                    if out.length() <= 1.0 {
+                        queries.push(lift(out));
+                    }
+                }
+            }
+        }
+        for line in 0..=GRID {
+            let at = -1.0 + 2.0 * line as f64 / GRID as f64;
+            for k in 0..=400 {
+                let along = -1.0 + 2.0 * k as f64 / 400.0;
+                for p in [DVec2::new(at, along), DVec2::new(along, at)] {
+                    if p.length() <= 1.0 {
+                        queries.push(lift(p));
+                    }
+                }
+            }
         }
         for d in queries {
             assert_eq!(bits(t.weights(d)), bits(plain(d)), "{d}");

@@ -330,6 +330,7 @@ mod issue_time {
     use glam::{DVec2, DVec3};
     use meso_core::brdf::BasisFunction;
     use meso_core::spmm::SpmmMaterial;
+    use meso_core::spmm::directions::DirectionTable;
 
     const GRID: usize = 16;
     const EPS: f64 = -1e-12;
@@ -345,7 +346,8 @@ mod issue_time {
         a.x * b.y - a.y * b.x
     }
 
-    /// The direction table's query of the time (same triangulation and hull).
+    /// The direction table's query of the time, on today's triangulation and hull
+    /// (`DirectionTable::parts`; they have not changed since).
     struct Directions {
         points: Vec<DVec2>,
         triangles: Vec<[u32; 3]>,
@@ -355,33 +357,9 @@ mod issue_time {
 
     impl Directions {
         fn new(dirs: &[DVec3]) -> Self {
-            let points: Vec<DVec2> = dirs.iter().map(|d| DVec2::new(d.x, d.y)).collect();
-            let input: Vec<delaunator::Point> = points
-                .iter()
-                .map(|p| delaunator::Point { x: p.x, y: p.y })
-                .collect();
-            let tri = delaunator::triangulate(&input);
-            let triangles: Vec<[u32; 3]> = tri
-                .triangles
-                .chunks_exact(3)
-                .map(|t| [t[0] as u32, t[1] as u32, t[2] as u32])
-                .filter(|t| {
-                    let [a, b, c] = t.map(|i| points[i as usize]);
-                    cross(b - a, c - a).abs() > 1e-12
-                })
-                .collect();
-            let mut hull: Vec<u32> = tri.hull.iter().map(|&i| i as u32).collect();
-            let signed_area: f64 = (0..hull.len())
-                .map(|i| {
-                    cross(
-                        points[hull[i] as usize],
-                        points[hull[(i + 1) % hull.len()] as usize],
-                    )
-                })
-                .sum();
-            if signed_area < 0.0 {
-                hull.reverse();
-            }
+            let table = DirectionTable::new(dirs).expect("the bench's directions are valid");
+            let parts = table.parts();
+            let (points, triangles) = (parts.points.to_vec(), parts.triangles.to_vec());
             let mut cells = vec![Vec::new(); GRID * GRID];
             for (ti, t) in triangles.iter().enumerate() {
                 let ps = t.map(|i| points[i as usize]);
@@ -396,7 +374,7 @@ mod issue_time {
             Self {
                 points,
                 triangles,
-                hull,
+                hull: parts.hull.to_vec(),
                 cells,
             }
         }

@@ -1,8 +1,9 @@
 // SPMM evaluation (Silva & Santos 2013 eq. 1-3) in f32, mirroring
 // core/src/spmm/prepared.rs: the sparse basis sum of a texel plus its cluster's PCA
 // residual, interpolated over the tabulated light and view directions
-// (core/src/spmm/directions.rs: a 16 x 16 grid of triangle lists over the projected
-// directions, barycentric weights, the nearest hull edge outside the hull).
+// (core/src/spmm/directions.rs: a DIRECTION_GRID x DIRECTION_GRID grid of triangle
+// lists over the projected directions, barycentric weights, the nearest hull edge
+// outside the hull; this shader tests every hull edge, the CPU only its cell's list).
 // Every loop is bounded by a count read from the data (llvmpipe ends loops silently).
 
 // Header of one prepared SPMM material in `data` (word offsets are absolute).

@@ -92,11 +92,16 @@ fn cell_box(x: usize, y: usize) -> (DVec2, DVec2) {
     (lo, lo + side)
 }
 
+/// Where the point of the segment from `a` to `b` nearest to `p` lies: 0 at `a`, 1 at
+/// `b`.
+fn nearest_on_segment(p: DVec2, a: DVec2, b: DVec2) -> f64 {
+    let ab = b - a;
+    ((p - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0)
+}
+
 /// Distance from `p` to the segment from `a` to `b`.
 fn segment_distance(p: DVec2, a: DVec2, b: DVec2) -> f64 {
-    let ab = b - a;
-    let s = ((p - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
-    p.distance(a + ab * s)
+    p.distance(a + (b - a) * nearest_on_segment(p, a, b))
 }
 
 /// Per grid cell, the hull edges that can be nearest to a point of it: those whose
@@ -320,9 +325,8 @@ impl DirectionTable {
         for i in edges {
             let (a, b) = (self.hull[i], self.hull[(i + 1) % self.hull.len()]);
             let (pa, pb) = (self.points[a as usize], self.points[b as usize]);
-            let ab = pb - pa;
-            let s = ((p - pa).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
-            let dist = p.distance_squared(pa + ab * s);
+            let s = nearest_on_segment(p, pa, pb);
+            let dist = p.distance_squared(pa + (pb - pa) * s);
             if dist < best.0 {
                 best = (dist, [(a, 1.0 - s), (b, s), (b, 0.0)]);
             }

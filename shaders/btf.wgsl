@@ -1,8 +1,10 @@
 // `btf` materials (core/src/btf/table.rs): the nearest texel's reflectance, tiled like
 // an SPMM pack, interpolated over the light and the view direction sets exactly as the
 // SPMM residual is (`direction_weights` in spmm.wgsl: barycentric weights in the
-// Delaunay triangle holding the projected direction, the nearest hull point outside),
-// so BTF(t, wi, wo) = sum_l sum_v w_l(wi) w_v(wo) table(t, l, v), at most 3 x 3 reads.
+// Delaunay triangle holding the projected direction, the nearest hull point outside;
+// on the light side the value over cos theta_l, times the query's cos theta:
+// `cosine_weights`), so BTF(t, wi, wo) = cos theta_i sum_l sum_v w_l(wi) w_v(wo)
+// table(t, l, v) / cos theta_l, at most 3 x 3 reads.
 // Values are f16 two to a word (low half first) when the CPU holds them as f16, else f32.
 
 // Header of one BTF in `data` (core/src/gpu/data.rs, `push_btf`).
@@ -33,7 +35,7 @@ fn btf_eval_texel(m: u32, t: u32, wi: vec3<f32>, wo: vec3<f32>) -> vec3<f32> {
     }
     let nl = data[m + BTF_LIGHTS];
     let nv = data[m + BTF_VIEWS];
-    let lw = direction_weights(data[m + BTF_LIGHT_TABLE], wi);
+    let lw = cosine_weights(data[m + BTF_LIGHT_TABLE], wi);
     let vw = direction_weights(data[m + BTF_VIEW_TABLE], wo);
     var rgb = vec3<f32>(0.0);
     for (var a = 0u; a < 3u; a++) {

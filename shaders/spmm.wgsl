@@ -1,6 +1,7 @@
 // SPMM evaluation (Silva & Santos 2013 eq. 1-3) in f32, mirroring
 // core/src/spmm/prepared.rs: the sparse basis sum of a texel plus its cluster's PCA
-// residual, interpolated over the tabulated light and view directions
+// residual, interpolated over the tabulated light and view directions (the light
+// side over value / cos theta_l, `cosine_weights`)
 // (core/src/spmm/directions.rs: a DIRECTION_GRID x DIRECTION_GRID grid of triangle
 // lists over the projected directions, barycentric weights, the nearest hull edge
 // outside the hull; this shader tests every hull edge, the CPU only its cell's list).
@@ -101,6 +102,26 @@ fn direction_weights(table: u32, d: vec3<f32>) -> DirectionWeights {
     return result;
 }
 
+// The least light cosine a tabulated value is divided by (`COSINE_FLOOR` in
+// core/src/spmm/directions.rs).
+const COSINE_FLOOR: f32 = 0.05;
+
+// Light-side weights of a tabulated quantity that includes the light's foreshortening
+// cosine, a BTF or a residual (`DirectionTable::cosine_weights`): the value over
+// cos theta_l is interpolated and the query's cos theta applied, so the cosine is
+// exact everywhere and the value fades to zero at the horizon beyond the outer ring.
+fn cosine_weights(table: u32, d: vec3<f32>) -> DirectionWeights {
+    var w = direction_weights(table, d);
+    let points = data[table + 1u];
+    for (var a = 0u; a < 3u; a++) {
+        let i = w.index[a];
+        let p = vec2<f32>(f32_at(points + 2u * i), f32_at(points + 2u * i + 1u));
+        let cos_l = max(sqrt(max(1.0 - dot(p, p), 0.0)), COSINE_FLOOR);
+        w.weight[a] *= max(d.z, 0.0) / cos_l;
+    }
+    return w;
+}
+
 // BTF(t, wi, wo), RGB, of texel `t` of the material whose header is at `m`;
 // `residual` false skips the residual (the moving camera).
 fn spmm_eval_texel(m: u32, t: u32, wi: vec3<f32>, wo: vec3<f32>, residual: bool) -> vec3<f32> {
@@ -130,7 +151,7 @@ fn spmm_eval_texel(m: u32, t: u32, wi: vec3<f32>, wo: vec3<f32>, residual: bool)
     let views = data[m + SPMM_VIEW_TABLE];
     let nv = data[views];
     let coef = data[m + SPMM_COEFFICIENTS] + t * k;
-    let lw = direction_weights(data[m + SPMM_LIGHT_TABLE], wi);
+    let lw = cosine_weights(data[m + SPMM_LIGHT_TABLE], wi);
     let vw = direction_weights(views, wo);
     for (var a = 0u; a < 3u; a++) {
         for (var b = 0u; b < 3u; b++) {

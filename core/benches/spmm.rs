@@ -347,12 +347,16 @@ mod issue_time {
     }
 
     /// The direction table's query of the time, on today's triangulation and hull
-    /// (`DirectionTable::parts`; they have not changed since).
+    /// (`DirectionTable::parts`; they have not changed since), plus the light side's
+    /// cosine scaling that came after (`DirectionTable::cosine_weights`, three
+    /// multiplications), so that both evaluations compute the same quantity.
     struct Directions {
         points: Vec<DVec2>,
         triangles: Vec<[u32; 3]>,
         hull: Vec<u32>,
         cells: Vec<Vec<u32>>,
+        /// 1 / max(cos theta, 0.05) per direction, as `cosine_weights` divides.
+        inverse_cosines: Vec<f64>,
     }
 
     impl Directions {
@@ -371,11 +375,16 @@ mod issue_time {
                     }
                 }
             }
+            let inverse_cosines = points
+                .iter()
+                .map(|p| 1.0 / (1.0 - p.length_squared()).max(0.0).sqrt().max(0.05))
+                .collect();
             Self {
                 points,
                 triangles,
                 hull: parts.hull.to_vec(),
                 cells,
+                inverse_cosines,
             }
         }
 
@@ -411,6 +420,12 @@ mod issue_time {
                 }
             }
             best.1
+        }
+
+        fn cosine_weights(&self, d: DVec3) -> [(u32, f64); 3] {
+            let cos = d.z.max(0.0);
+            self.weights(d)
+                .map(|(i, w)| (i, w * (cos * self.inverse_cosines[i as usize])))
         }
     }
 
@@ -476,7 +491,7 @@ mod issue_time {
             let nv = self.views.points.len();
             let base = c * self.lights.points.len() * nv * stride;
             let coef = &self.coefficients[t * self.k..(t + 1) * self.k];
-            for (l, wl) in self.lights.weights(wi) {
+            for (l, wl) in self.lights.cosine_weights(wi) {
                 for (v, wv) in self.views.weights(wo) {
                     let w = wl * wv;
                     if w == 0.0 {

@@ -159,7 +159,7 @@ impl Tabulation {
                     .map(|m| {
                         self.local
                             .strata(m, STRATA)
-                            .map(|d| lights.weights(d))
+                            .map(|d| lights.cosine_weights(d))
                             .collect()
                     })
                     .collect();

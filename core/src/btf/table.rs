@@ -140,7 +140,7 @@ impl BtfTable {
         let (nl, nv) = (self.lights.len(), self.views.len());
         let vw = self.views.weights(wo);
         let mut rgb = DVec3::ZERO;
-        for (l, wl) in self.lights.weights(wi) {
+        for (l, wl) in self.lights.cosine_weights(wi) {
             if wl == 0.0 {
                 continue;
             }
@@ -179,11 +179,6 @@ impl BtfTable {
         }
     }
 
-    /// The interpolation weights of a light direction (index into `light_dirs`,
-    /// weight): for error bounds and tests.
-    pub fn light_weights(&self, wi: DVec3) -> [(u32, f64); 3] {
-        self.lights.weights(wi)
-    }
 }
 
 #[cfg(test)]
@@ -239,59 +234,35 @@ mod tests {
         assert_eq!(table.eval_texel(0, DVec3::Z, below), DVec3::ZERO);
     }
 
-    /// The derived bound of linear interpolation: with barycentric weights lambda_i
-    /// of vertices p_i at p, e(p) = sum_i lambda_i (f(p_i) - f(p)); Taylor at p and
-    /// sum_i lambda_i (p_i - p) = 0 leave |e(p)| <= M/2 sum_i lambda_i |p_i - p|^2, M
-    /// the largest Hessian norm on the triangle. For f = sqrt(1 - x^2 - y^2) = cos_i
-    /// the Hessian is -(I/z + p p^T / z^3) with norm 1/z^3, largest at the vertex of
-    /// smallest z (the triangle is convex and z falls with |p|).
-    fn cosine_interpolation_bound(table: &BtfTable, wi: DVec3) -> f64 {
-        let p = DVec2::new(wi.x, wi.y);
-        let w = table.light_weights(wi);
-        let z_min = w
-            .iter()
-            .map(|&(i, _)| table.light_dirs()[i as usize].z)
-            .fold(f64::INFINITY, f64::min);
-        let spread: f64 = w
-            .iter()
-            .map(|&(i, l)| {
-                let q = table.light_dirs()[i as usize];
-                l * DVec2::new(q.x, q.y).distance_squared(p)
-            })
-            .sum();
-        0.5 * spread / z_min.powi(3)
-    }
-
+    /// Interpolating value / cos theta_l on the light side makes a Lambertian table
+    /// the Lambertian BRDF everywhere, up to its f32 storage: between the rings
+    /// (where interpolating the value itself is off by the cosine's curvature) and
+    /// beyond the Bonn set's last ring at 75 degrees, down to the horizon (where it
+    /// held the ring's value, up to 15 times too bright at 89 degrees).
     #[test]
-    fn a_lambertian_btf_is_the_lambertian_brdf_within_the_derived_interpolation_bound() {
+    fn a_lambertian_btf_is_the_lambertian_brdf_over_the_whole_hemisphere() {
         let albedo = 0.8;
         let btf = lambertian_btf(bonn81(), albedo);
         let table = BtfTable::new(&btf).expect("shadeable");
-        let mut worst = 0.0f64;
+        let mut beyond = 0;
         for k in 0..4000u64 {
             let mut s = SampleStream::new(&[41, k]);
-            // Inside the hull of the Bonn set (theta <= 75 degrees).
-            let theta_i = 74.9f64.to_radians() * s.next().sqrt();
-            let wi = crate::brdf::warp::spherical(theta_i.cos(), 2.0 * PI * s.next());
+            // Uniform in cos theta_i: a quarter of the lights lie beyond 75 degrees.
+            let wi = crate::brdf::warp::spherical(s.next().max(1e-6), 2.0 * PI * s.next());
             let wo = crate::brdf::warp::spherical(0.2 + 0.8 * s.next(), 2.0 * PI * s.next());
             let got = table.eval_texel(1, wi, wo);
             let want = 2.0 * albedo / PI * wi.z;
-            let bound = 2.0 * albedo / PI * cosine_interpolation_bound(&table, wi);
-            // f32 storage of the table adds at most 2^-24 relative.
-            let e = (got.x - want).abs();
+            // f32 storage of the table: 2^-24 relative, twice (value and division).
             assert!(
-                e <= bound + want * 1e-7 + 1e-12,
-                "wi {wi}: {} vs {want}, bound {bound}",
+                (got.x - want).abs() <= want * 2e-7,
+                "wi {wi}: {} vs {want}",
                 got.x
             );
-            assert!((got.y - 0.5 * got.x).abs() < 1e-6 && (got.z - 0.25 * got.x).abs() < 1e-6);
-            worst = worst.max(e / want);
-            // The view does not matter for a Lambertian table.
-            let other = table.eval_texel(1, wi, DVec3::Z);
-            assert!((other.x - got.x).abs() < 1e-6 * want.max(1e-3));
+            assert!((got.y - 0.5 * got.x).abs() <= 1e-7 * want);
+            assert!((got.z - 0.25 * got.x).abs() <= 1e-7 * want);
+            beyond += usize::from(wi.z < 75f64.to_radians().cos());
         }
-        // The bound is not vacuous: interpolation is visibly inexact between rings.
-        assert!(worst > 1e-4, "worst relative error {worst}");
+        assert!(beyond > 500, "{beyond} lights beyond the last ring");
     }
 
     #[test]

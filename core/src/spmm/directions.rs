@@ -36,6 +36,8 @@ pub struct DirectionTable {
     /// The hull edges (edge `i` runs from `hull[i]` to the next) that could be the
     /// nearest to some point of each cell, in index order per cell.
     cell_hull_edges: Vec<u32>,
+    /// Per direction, 1 / max(cos theta, COSINE_FLOOR) (`cosine_weights`).
+    inverse_cosines: Vec<f64>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -45,6 +47,12 @@ struct Corners {
     /// `cross(b - a, c - a)`, exactly as a query would compute it.
     area: f64,
 }
+
+/// The least cosine a tabulated light direction's value is divided by in
+/// `cosine_weights` (87.1 degrees from the normal): values of directions nearer the
+/// horizon, which measured data rarely holds and holds least reliably, are not
+/// magnified more than 20 times.
+const COSINE_FLOOR: f64 = 0.05;
 
 /// Barycentric weights down to this count as inside (shared edges, rounding).
 const EPS: f64 = -1e-12;
@@ -79,6 +87,11 @@ fn cell_of(p: DVec2) -> (usize, usize) {
     let f =
         |v: f64| (((v + 1.0) * 0.5 * GRID as f64) as isize).clamp(0, GRID as isize - 1) as usize;
     (f(p.x), f(p.y))
+}
+
+/// cos theta of the unit direction projected to `p`, at least `COSINE_FLOOR`.
+fn cosine_of(p: DVec2) -> f64 {
+    (1.0 - p.length_squared()).max(0.0).sqrt().max(COSINE_FLOOR)
 }
 
 fn cross(a: DVec2, b: DVec2) -> f64 {
@@ -239,6 +252,7 @@ impl DirectionTable {
             })
             .collect();
         let (cell_hull_starts, cell_hull_edges) = hull_edges_per_cell(&points, &hull);
+        let inverse_cosines = points.iter().map(|&p| 1.0 / cosine_of(p)).collect();
         Ok(Self {
             points,
             triangles,
@@ -248,6 +262,7 @@ impl DirectionTable {
             corners,
             cell_hull_starts,
             cell_hull_edges,
+            inverse_cosines,
         })
     }
 
@@ -316,6 +331,21 @@ impl DirectionTable {
         } else {
             self.nearest_on_hull(p, 0..self.hull.len())
         }
+    }
+
+    /// Weights of light direction `d` (unit, above the surface) for a tabulated
+    /// quantity that includes the light's foreshortening cosine, as a BTF and an SPMM
+    /// residual do: the quantity divided by cos theta_l is interpolated (`weights`)
+    /// and the query's own cos theta multiplies it back, so the cosine, which is
+    /// known, is exact everywhere: a Lambertian table is reproduced exactly between
+    /// and beyond its directions, and beyond the set's outermost ring the value fades
+    /// to zero at the horizon instead of holding the ring's. Exact at the tabulated
+    /// directions (down to `COSINE_FLOOR`); zero at and below the horizon. The
+    /// weights no longer sum to 1.
+    pub fn cosine_weights(&self, d: DVec3) -> [(u32, f64); 3] {
+        let cos = d.z.max(0.0);
+        self.weights(d)
+            .map(|(i, w)| (i, w * (cos * self.inverse_cosines[i as usize])))
     }
 
     /// Linear weights at the point of the hull boundary nearest to `p`, among the
@@ -395,6 +425,49 @@ mod tests {
                 "{d}: {got}"
             );
         }
+    }
+
+    /// A tabulated linear function of (x, y) times the light's cosine, what a BTF's
+    /// values are for a Lambertian or a slowly varying surface, is reproduced exactly
+    /// inside the hull by `cosine_weights` (plain weights would interpolate the
+    /// cosine linearly), and a pure cosine everywhere: beyond the outermost ring too,
+    /// falling to zero at the horizon where the plain weights hold the ring's value.
+    #[test]
+    fn cosine_weights_reproduce_the_cosine_everywhere_and_fade_at_the_horizon() {
+        let dirs = rings();
+        let t = DirectionTable::new(&dirs).expect("valid set");
+        let linear = |d: DVec3| 0.3 + 2.0 * d.x - 1.5 * d.y;
+        let tabulated: Vec<f64> = dirs.iter().map(|&d| linear(d) * d.z).collect();
+        let cosines: Vec<f64> = dirs.iter().map(|d| d.z).collect();
+        let with = |values: &[f64], d: DVec3| -> f64 {
+            t.cosine_weights(d)
+                .iter()
+                .map(|&(i, w)| w * values[i as usize])
+                .sum()
+        };
+        let (mut plain_worst, mut beyond) = (0.0f64, 0);
+        for k in 0..4000u64 {
+            let mut s = SampleStream::new(&[23, k]);
+            // Uniform in cos theta: a quarter of the queries lie beyond 75 degrees.
+            let d = spherical(s.next().max(1e-9), 2.0 * std::f64::consts::PI * s.next());
+            let got = with(&cosines, d);
+            assert!((got - d.z).abs() <= 1e-12, "{d}: {got}");
+            plain_worst = plain_worst.max((interpolate(&t, &cosines, d) - d.z).abs());
+            if d.z > 0.3 {
+                let got = with(&tabulated, d);
+                assert!((got - linear(d) * d.z).abs() < 1e-9, "{d}: {got}");
+            } else if d.z < 75f64.to_radians().cos() {
+                beyond += 1;
+            }
+        }
+        assert!(beyond > 500, "{beyond} queries beyond the outer ring");
+        // The plain weights are off by up to cos 75 degrees (0.26) at the horizon.
+        assert!(plain_worst > 0.2, "plain weights' worst error {plain_worst}");
+        for (i, d) in dirs.iter().enumerate() {
+            assert!((with(&tabulated, *d) - tabulated[i]).abs() < 1e-12, "direction {i}");
+        }
+        assert_eq!(with(&cosines, DVec3::X), 0.0);
+        assert_eq!(with(&cosines, DVec3::new(0.6, 0.0, -0.8)), 0.0);
     }
 
     /// The query (grid cell lists, per-triangle records, the early reject) gives the

@@ -85,7 +85,7 @@ impl SpmmMaterial {
             let (nl, nv, npca) = (r.light_dirs.len(), r.view_dirs.len(), r.npca);
             let k_used = npca.min(max_npca);
             let coef = &r.coefficients[t * npca..t * npca + k_used];
-            for (l, wl) in lights.weights(wi) {
+            for (l, wl) in lights.cosine_weights(wi) {
                 for (v, wv) in views.weights(wo) {
                     let w = wl * wv;
                     if w == 0.0 {

@@ -619,7 +619,7 @@ impl PreparedSpmm {
             (Some(r), true) => r.cluster_lines(c).map(|lines| {
                 let (values, stride) = ((1 + r.k) * 3, cell_stride(r.k, r.precision));
                 let nv = r.views.len();
-                let (lw, vw) = (r.lights.weights(wi), r.views.weights(wo));
+                let (lw, vw) = (r.lights.cosine_weights(wi), r.views.weights(wo));
                 let mut cells = [(0usize, 0.0f64); 9];
                 let bytes: &[u8] = bytemuck::cast_slice(lines);
                 let size = r.precision.bytes();

@@ -178,7 +178,6 @@ impl BtfTable {
             },
         }
     }
-
 }
 
 #[cfg(test)]

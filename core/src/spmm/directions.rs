@@ -8,7 +8,9 @@
 //! cell of a grid over the disk in index order and takes the first that holds it: the
 //! lowest-numbered such triangle, whatever the grid. A query outside the hull tests
 //! only the hull edges its cell lists as possibly nearest, in index order: the same
-//! edge as a test of all of them.
+//! edge as a test of all of them. Light directions of values that include the
+//! foreshortening cosine (a BTF's, a residual's) take `cosine_weights`: the value
+//! over cos theta_l is interpolated and the query's cos theta applied.
 
 use glam::{DVec2, DVec3};
 
@@ -462,9 +464,15 @@ mod tests {
         }
         assert!(beyond > 500, "{beyond} queries beyond the outer ring");
         // The plain weights are off by up to cos 75 degrees (0.26) at the horizon.
-        assert!(plain_worst > 0.2, "plain weights' worst error {plain_worst}");
+        assert!(
+            plain_worst > 0.2,
+            "plain weights' worst error {plain_worst}"
+        );
         for (i, d) in dirs.iter().enumerate() {
-            assert!((with(&tabulated, *d) - tabulated[i]).abs() < 1e-12, "direction {i}");
+            assert!(
+                (with(&tabulated, *d) - tabulated[i]).abs() < 1e-12,
+                "direction {i}"
+            );
         }
         assert_eq!(with(&cosines, DVec3::X), 0.0);
         assert_eq!(with(&cosines, DVec3::new(0.6, 0.0, -0.8)), 0.0);

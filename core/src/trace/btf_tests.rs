@@ -21,13 +21,13 @@ fn render(scene: &Scene, frames: u32) -> Image {
     m.image()
 }
 
-/// The Lambertian floor of the edit scene lit by one point light at height 3 above
-/// its centre (incidence at most 43.3 degrees on the 4 x 4 floor), no ambient.
-fn floor_scene(floor: Material) -> Scene {
+/// The Lambertian floor of the edit scene lit by one point light at `light`, no
+/// ambient.
+fn floor_scene(floor: Material, light: DVec3) -> Scene {
     let mut s = edit_test_scene();
     s.materials[0] = floor;
     s.lights = vec![Light::Point {
-        position: DVec3::new(0.0, 3.0, 0.0),
+        position: light,
         intensity: DVec3::splat(4.0),
     }];
     s.ambient = None;
@@ -42,14 +42,7 @@ fn a_btf_of_a_lambertian_renders_like_the_brdf_at_any_incidence() {
     // (incidence from 84 to 89 degrees, beyond the Bonn set's last ring at 75
     // degrees, where the table is extrapolated).
     for light in [DVec3::new(0.0, 3.0, 0.0), DVec3::new(-3.0, 0.1, 0.0)] {
-        let lit = |floor: Material| {
-            let mut s = floor_scene(floor);
-            s.lights = vec![Light::Point {
-                position: light,
-                intensity: DVec3::splat(4.0),
-            }];
-            s
-        };
+        let lit = |floor: Material| floor_scene(floor, light);
         let want = render(
             &lit(Material::Brdf {
                 brdf: lambertian,
@@ -73,6 +66,9 @@ fn a_btf_of_a_lambertian_renders_like_the_brdf_at_any_incidence() {
                 lit_pixels += usize::from(a > 1e-3);
             }
         }
-        assert!(lit_pixels > 1000, "light at {light}: {lit_pixels} lit pixel values");
+        assert!(
+            lit_pixels > 1000,
+            "light at {light}: {lit_pixels} lit pixel values"
+        );
     }
 }

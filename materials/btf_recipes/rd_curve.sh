@@ -4,13 +4,13 @@
 # (`meso pack trim --max-bytes`: per-cluster N_PCA, the components that remove the
 # most table error) and, for comparison at equal bytes, the even split
 # (`meso pack trim --npca K`, what `meso fit --npca K` keeps), each measured with
-# `meso report fit --json`. Fits take 5-15 minutes each on 2 loaded cores, reports
-# 1-5 minutes.
+# `meso report fit --json`. A 48-component fit took 1-6 minutes on 2 loaded cores
+# (2026-12-04), a report 25-65 s.
 #   MESO=target/release/meso sh materials/btf_recipes/rd_curve.sh [NAME...]
 # Environment: BTF_DIR (the synthesized BTFs, as rebuild.sh), OUT (results, default
 # rd), CLUSTERS (default 8), CAP (components per cluster fitted, default 48),
 # BUDGETS (bytes, default 1, 2, 4, 8 and 16 x 10^6), EVEN (the even splits'
-# N_PCA, default 5 10).
+# N_PCA, default 5 10; empty: none).
 set -eu
 MESO=${MESO:-meso}
 BTF_DIR=${BTF_DIR:-btf}
@@ -18,7 +18,7 @@ OUT=${OUT:-rd}
 CLUSTERS=${CLUSTERS:-8}
 CAP=${CAP:-48}
 BUDGETS=${BUDGETS:-1000000 2000000 4000000 8000000 16000000}
-EVEN=${EVEN:-5 10}
+EVEN=${EVEN-5 10}
 mkdir -p "$BTF_DIR" "$OUT"
 for name in ${*:-woven_cloth grain_leather knitted_wool corduroy}; do
     btf="$BTF_DIR/$name.btf"

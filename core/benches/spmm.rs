@@ -5,8 +5,10 @@
 //! material with values that are not (a pack stored with `--f32`), whose tables stay
 //! f32: the side-by-side figure of the half-float tables. Issue 16's goal 6 (the
 //! residual-on evaluation 2x faster than when the issue was filed) is measured here in
-//! one process: `issue_time` keeps that evaluation as it was (397002e^), run beside
-//! today's on the same points after checking that both give the same bits.
+//! one process: `issue_time` keeps that evaluation as it was (397002e^; with the light
+//! side's cosine scaling of 2026-12-04 applied alike, so both compute the same
+//! quantity), run beside today's on the same points after checking that both give
+//! the same bits.
 
 use std::hint::black_box;
 

@@ -102,9 +102,9 @@ fn direction_weights(table: u32, d: vec3<f32>) -> DirectionWeights {
     return result;
 }
 
-// The least light cosine a tabulated value is divided by (`COSINE_FLOOR` in
+// The largest factor cos theta_i / cos theta_l (`MAX_COSINE_RATIO` in
 // core/src/spmm/directions.rs).
-const COSINE_FLOOR: f32 = 0.05;
+const MAX_COSINE_RATIO: f32 = 20.0;
 
 // Light-side weights of a tabulated quantity that includes the light's foreshortening
 // cosine, a BTF or a residual (`DirectionTable::cosine_weights`): the value over
@@ -113,11 +113,13 @@ const COSINE_FLOOR: f32 = 0.05;
 fn cosine_weights(table: u32, d: vec3<f32>) -> DirectionWeights {
     var w = direction_weights(table, d);
     let points = data[table + 1u];
+    let c = max(d.z, 0.0);
     for (var a = 0u; a < 3u; a++) {
         let i = w.index[a];
         let p = vec2<f32>(f32_at(points + 2u * i), f32_at(points + 2u * i + 1u));
-        let cos_l = max(sqrt(max(1.0 - dot(p, p), 0.0)), COSINE_FLOOR);
-        w.weight[a] *= max(d.z, 0.0) / cos_l;
+        let cos_l = sqrt(max(1.0 - dot(p, p), 0.0));
+        // min(c / cos_l, MAX_COSINE_RATIO) without dividing by a zero cosine.
+        w.weight[a] *= min(c, MAX_COSINE_RATIO * cos_l) / max(cos_l, 1e-30);
     }
     return w;
 }

@@ -357,7 +357,7 @@ mod issue_time {
         triangles: Vec<[u32; 3]>,
         hull: Vec<u32>,
         cells: Vec<Vec<u32>>,
-        /// 1 / max(cos theta, 0.05) per direction, as `cosine_weights` divides.
+        /// 1 / cos theta per direction, as `cosine_weights` divides.
         inverse_cosines: Vec<f64>,
     }
 
@@ -379,7 +379,7 @@ mod issue_time {
             }
             let inverse_cosines = points
                 .iter()
-                .map(|p| 1.0 / (1.0 - p.length_squared()).max(0.0).sqrt().max(0.05))
+                .map(|p| 1.0 / (1.0 - p.length_squared()).max(0.0).sqrt())
                 .collect();
             Self {
                 points,
@@ -424,10 +424,10 @@ mod issue_time {
             best.1
         }
 
+        /// For a query above the surface, as the evaluation's callers ask.
         fn cosine_weights(&self, d: DVec3) -> [(u32, f64); 3] {
-            let cos = d.z.max(0.0);
             self.weights(d)
-                .map(|(i, w)| (i, w * (cos * self.inverse_cosines[i as usize])))
+                .map(|(i, w)| (i, w * (d.z * self.inverse_cosines[i as usize]).min(20.0)))
         }
     }
 

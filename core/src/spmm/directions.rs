@@ -38,7 +38,7 @@ pub struct DirectionTable {
     /// The hull edges (edge `i` runs from `hull[i]` to the next) that could be the
     /// nearest to some point of each cell, in index order per cell.
     cell_hull_edges: Vec<u32>,
-    /// Per direction, 1 / max(cos theta, COSINE_FLOOR) (`cosine_weights`).
+    /// Per direction, 1 / cos theta (`cosine_weights`; infinite on the horizon).
     inverse_cosines: Vec<f64>,
 }
 
@@ -50,11 +50,11 @@ struct Corners {
     area: f64,
 }
 
-/// The least cosine a tabulated light direction's value is divided by in
-/// `cosine_weights` (87.1 degrees from the normal): values of directions nearer the
-/// horizon, which measured data rarely holds and holds least reliably, are not
-/// magnified more than 20 times.
-const COSINE_FLOOR: f64 = 0.05;
+/// The largest factor cos theta_i / cos theta_l `cosine_weights` applies: a value
+/// tabulated near the horizon, which measured data rarely holds and holds least
+/// reliably, is not magnified more than this by a query far above it (within a
+/// triangle of the Bonn layout the factor stays below 4).
+const MAX_COSINE_RATIO: f64 = 20.0;
 
 /// Barycentric weights down to this count as inside (shared edges, rounding).
 const EPS: f64 = -1e-12;
@@ -91,9 +91,9 @@ fn cell_of(p: DVec2) -> (usize, usize) {
     (f(p.x), f(p.y))
 }
 
-/// cos theta of the unit direction projected to `p`, at least `COSINE_FLOOR`.
+/// cos theta of the unit direction projected to `p`.
 fn cosine_of(p: DVec2) -> f64 {
-    (1.0 - p.length_squared()).max(0.0).sqrt().max(COSINE_FLOOR)
+    (1.0 - p.length_squared()).max(0.0).sqrt()
 }
 
 fn cross(a: DVec2, b: DVec2) -> f64 {
@@ -342,12 +342,17 @@ impl DirectionTable {
     /// known, is exact everywhere: a Lambertian table is reproduced exactly between
     /// and beyond its directions, and beyond the set's outermost ring the value fades
     /// to zero at the horizon instead of holding the ring's. Exact at the tabulated
-    /// directions (down to `COSINE_FLOOR`); zero at and below the horizon. The
-    /// weights no longer sum to 1.
+    /// directions; zero at and below the horizon; the factor cos theta_i / cos theta_l
+    /// is at most `MAX_COSINE_RATIO`. The weights no longer sum to 1.
     pub fn cosine_weights(&self, d: DVec3) -> [(u32, f64); 3] {
-        let cos = d.z.max(0.0);
-        self.weights(d)
-            .map(|(i, w)| (i, w * (cos * self.inverse_cosines[i as usize])))
+        let cos = d.z;
+        if cos.is_nan() || cos <= 0.0 {
+            return self.weights(d).map(|(i, _)| (i, 0.0));
+        }
+        self.weights(d).map(|(i, w)| {
+            let ratio = (cos * self.inverse_cosines[i as usize]).min(MAX_COSINE_RATIO);
+            (i, w * ratio)
+        })
     }
 
     /// Linear weights at the point of the hull boundary nearest to `p`, among the
@@ -476,6 +481,54 @@ mod tests {
         }
         assert_eq!(with(&cosines, DVec3::X), 0.0);
         assert_eq!(with(&cosines, DVec3::new(0.6, 0.0, -0.8)), 0.0);
+    }
+
+    /// A sparse set reaching 89 degrees (cos 0.017; the normal, a ring at 60 degrees
+    /// and one at 89): exact at every tabulated direction, the horizon ones too; a
+    /// value there that does not fall with the cosine (as measurement noise would
+    /// not) is magnified at most `MAX_COSINE_RATIO` times by the queries far above it
+    /// in the triangles between the two rings; elsewhere a cosine is reproduced.
+    #[test]
+    fn cosine_weights_stay_exact_and_bounded_near_the_horizon() {
+        let tau = std::f64::consts::TAU;
+        let mut dirs = vec![DVec3::Z];
+        for (theta, count) in [(60f64, 6), (89.0, 8)] {
+            for k in 0..count {
+                let phi = tau * (k as f64 + 0.5 * (theta / 89.0).floor()) / count as f64;
+                dirs.push(spherical(theta.to_radians().cos(), phi));
+            }
+        }
+        let t = DirectionTable::new(&dirs).expect("valid set");
+        for (i, d) in dirs.iter().enumerate() {
+            let own: f64 = t
+                .cosine_weights(*d)
+                .iter()
+                .filter(|(j, _)| *j as usize == i)
+                .map(|(_, w)| w)
+                .sum();
+            assert!((own - 1.0).abs() < 1e-12, "direction {i}: {own}");
+        }
+        let (mut capped, mut reproduced) = (0, 0);
+        for k in 0..4000u64 {
+            let mut s = SampleStream::new(&[29, k]);
+            let d = spherical(s.next().max(1e-9), tau * s.next());
+            let (with, plain) = (t.cosine_weights(d), t.weights(d));
+            for (&(i, a), &(j, b)) in with.iter().zip(&plain) {
+                assert_eq!(i, j);
+                assert!(a <= MAX_COSINE_RATIO * b, "{d}: {a} against {b}");
+            }
+            if plain
+                .iter()
+                .any(|&(i, b)| b > 0.0 && d.z > MAX_COSINE_RATIO * dirs[i as usize].z)
+            {
+                capped += 1;
+            } else {
+                let got: f64 = with.iter().map(|&(i, w)| w * dirs[i as usize].z).sum();
+                assert!((got - d.z).abs() <= 1e-12, "{d}: {got}");
+                reproduced += 1;
+            }
+        }
+        assert!(capped > 100 && reproduced > 2500, "{capped} capped, {reproduced} not");
     }
 
     /// The query (grid cell lists, per-triangle records, the early reject) gives the

@@ -528,7 +528,10 @@ mod tests {
                 reproduced += 1;
             }
         }
-        assert!(capped > 100 && reproduced > 2500, "{capped} capped, {reproduced} not");
+        assert!(
+            capped > 100 && reproduced > 2500,
+            "{capped} capped, {reproduced} not"
+        );
     }
 
     /// The query (grid cell lists, per-triangle records, the early reject) gives the

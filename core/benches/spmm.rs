@@ -350,8 +350,8 @@ mod issue_time {
 
     /// The direction table's query of the time, on today's triangulation and hull
     /// (`DirectionTable::parts`; they have not changed since), plus the light side's
-    /// cosine scaling that came after (`DirectionTable::cosine_weights`, three
-    /// multiplications), so that both evaluations compute the same quantity.
+    /// cosine scaling that came after (`DirectionTable::cosine_weights`: a
+    /// multiplication and a minimum per light vertex), so that both evaluations compute the same quantity.
     struct Directions {
         points: Vec<DVec2>,
         triangles: Vec<[u32; 3]>,

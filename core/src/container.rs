@@ -49,6 +49,7 @@ pub(crate) fn python_json(python: &str, script: &str, path: &std::path::Path) ->
 }
 
 /// One tensor to write: little-endian data of `shape` elements of `dtype`.
+#[derive(Clone)]
 pub struct Tensor {
     pub dtype: Dtype,
     pub shape: Vec<usize>,
@@ -59,6 +60,7 @@ pub struct Tensor {
 pub fn dtype_name(d: Dtype) -> &'static str {
     match d {
         Dtype::U8 => "U8",
+        Dtype::I8 => "I8",
         Dtype::U16 => "U16",
         Dtype::U32 => "U32",
         Dtype::F16 => "F16",

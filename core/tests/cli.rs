@@ -1039,6 +1039,68 @@ fn btf_synth_info_fit_and_slice() {
         serde_json::from_slice(&std::fs::read(&report).expect("report written")).expect("JSON");
     assert_eq!(saved["overall"], v["overall"]);
     assert_eq!(meso(&["pack", "validate", p], "").status.code(), Some(0));
+    // The residual at 8 bits: by trimming to a precision, or fitted so directly.
+    let i8_pack = dir.path().join("weave_i8.spmm");
+    let q = i8_pack.to_str().expect("utf-8");
+    let o = meso(
+        &[
+            "pack",
+            "trim",
+            p,
+            "-o",
+            q,
+            "--npca",
+            "3",
+            "--precision",
+            "i8",
+            "--json",
+        ],
+        "",
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let trimmed: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    let bytes = std::fs::read(&i8_pack).expect("written");
+    assert_eq!(trimmed["pack_bytes"].as_u64(), Some(bytes.len() as u64));
+    let f16_len = std::fs::metadata(&pack).expect("pack").len();
+    assert!(
+        (bytes.len() as u64) < f16_len,
+        "{} >= {f16_len}",
+        bytes.len()
+    );
+    let header = |b: &[u8]| -> serde_json::Value {
+        let n = u64::from_le_bytes(b[..8].try_into().expect("8 bytes")) as usize;
+        serde_json::from_slice(&b[8..8 + n]).expect("JSON header")
+    };
+    let h = header(&bytes);
+    assert_eq!(h["residual_components"]["dtype"], "I8");
+    assert_eq!(h["residual_component_exponents"]["dtype"], "I8");
+    assert!(
+        h["__metadata__"]["provenance"]
+            .as_str()
+            .is_some_and(|s| s.ends_with("meso pack trim --npca 3 --precision i8")),
+        "{}",
+        h["__metadata__"]["provenance"]
+    );
+    assert_eq!(meso(&["pack", "validate", q], "").status.code(), Some(0));
+    let mut direct = args.to_vec();
+    direct[3] = q;
+    direct.extend(["--precision", "i8"]);
+    assert_eq!(meso(&direct, "").status.code(), Some(0));
+    assert_eq!(
+        header(&std::fs::read(&i8_pack).expect("written"))["residual_components"]["dtype"],
+        "I8"
+    );
+    direct.push("--f32");
+    assert_eq!(
+        meso(&direct, "").status.code(),
+        Some(2),
+        "--precision and --f32 conflict"
+    );
     // Same seed, same bytes.
     let first = std::fs::read(&pack).expect("pack");
     assert_eq!(meso(&args, "").status.code(), Some(0));

@@ -10,7 +10,9 @@
 # Environment: BTF_DIR (the synthesized BTFs, as rebuild.sh), OUT (results, default
 # rd), CLUSTERS (default 8), CAP (components per cluster fitted, default 48),
 # BUDGETS (bytes, default 1, 2, 4, 8 and 16 x 10^6), EVEN (the even splits'
-# N_PCA, default 5 10; empty: none).
+# N_PCA, default 5 10; empty: none), PRECISION (the trimmed packs' residual
+# precision, `meso pack trim --precision`: f16, f32 or i8; default the fit's f16;
+# when set, the points' names end in _f16, _f32 or _i8).
 set -eu
 MESO=${MESO:-meso}
 BTF_DIR=${BTF_DIR:-btf}
@@ -19,6 +21,9 @@ CLUSTERS=${CLUSTERS:-8}
 CAP=${CAP:-48}
 BUDGETS=${BUDGETS:-1000000 2000000 4000000 8000000 16000000}
 EVEN=${EVEN-5 10}
+PRECISION=${PRECISION:-}
+tag="" precision=""
+[ -z "$PRECISION" ] || { tag="_$PRECISION"; precision="--precision $PRECISION"; }
 mkdir -p "$BTF_DIR" "$OUT"
 for name in ${*:-woven_cloth grain_leather knitted_wool corduroy}; do
     btf="$BTF_DIR/$name.btf"
@@ -30,15 +35,17 @@ for name in ${*:-woven_cloth grain_leather knitted_wool corduroy}; do
     # A trim that would break the lobe bound (its residual no longer reaches the
     # BTF's brightest values, which the bound is relative to) is reported and skipped.
     for b in $BUDGETS; do
-        if "$MESO" pack trim "$big" -o "$OUT/${name}_c${CLUSTERS}_b$b.spmm" --max-bytes "$b"; then
-            points="$points c${CLUSTERS}_b$b"
+        # shellcheck disable=SC2086
+        if "$MESO" pack trim "$big" -o "$OUT/${name}_c${CLUSTERS}${tag}_b$b.spmm" --max-bytes "$b" $precision; then
+            points="$points c${CLUSTERS}${tag}_b$b"
         else
             echo "$name: no point at $b bytes" >&2
         fi
     done
     for k in $EVEN; do
-        if "$MESO" pack trim "$big" -o "$OUT/${name}_c${CLUSTERS}_k$k.spmm" --npca "$k"; then
-            points="$points c${CLUSTERS}_k$k"
+        # shellcheck disable=SC2086
+        if "$MESO" pack trim "$big" -o "$OUT/${name}_c${CLUSTERS}${tag}_k$k.spmm" --npca "$k" $precision; then
+            points="$points c${CLUSTERS}${tag}_k$k"
         else
             echo "$name: no even split at N_PCA $k" >&2
         fi

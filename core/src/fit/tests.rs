@@ -501,6 +501,17 @@ fn a_byte_budget_keeps_the_components_that_remove_most_error() {
     assert_eq!(crate::spmm::pack::cluster_component_counts(&back), counts);
     assert_eq!(encode_pack(&back, ResidualPrecision::F32), bytes);
     assert!((sse(&back) - got).abs() <= 1e-9 * got.max(1e-30));
+    // At 8 bits the same bytes hold more components, and the file as read back, its
+    // rounding included, leaves less error.
+    let i8 = budget::trim_to_bytes(&full.material, even_bytes, ResidualPrecision::I8)
+        .expect("within the budget");
+    let i8_bytes = encode_pack(&i8.material, ResidualPrecision::I8);
+    assert!(i8_bytes.len() as u64 <= even_bytes);
+    assert_eq!(i8.bytes, i8_bytes.len());
+    let i8_total: usize = i8.cluster_npca.iter().sum();
+    assert!(i8_total > total, "{:?} vs {counts:?}", i8.cluster_npca);
+    let i8_sse = sse(&decode_pack(&i8_bytes).expect("valid"));
+    assert!(i8_sse < got, "i8 {i8_sse} vs f32 {got}");
 }
 
 #[test]

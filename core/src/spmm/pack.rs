@@ -29,6 +29,91 @@ pub const MAX_FILE_BYTES: u64 = 1 << 31;
 pub enum ResidualPrecision {
     F16,
     F32,
+    /// Components as signed 8-bit integers, each run of `V x 3` values (one component,
+    /// one light direction) scaled by a power of two of its own; the mean as F16. Half
+    /// the bytes of F16 per component, so twice the components at equal bytes.
+    I8,
+}
+
+impl ResidualPrecision {
+    /// The command-line and documentation name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::F16 => "f16",
+            Self::F32 => "f32",
+            Self::I8 => "i8",
+        }
+    }
+}
+
+/// Exponent range of an I8 residual run: a run holds `q * 2^e` with `|q| <= 127`. The
+/// lowest step, 2^-24, is a half float's finest, so decoded values of runs under 1 in
+/// magnitude are half floats (a render keeps its tables as halves, `spmm::prepared`).
+pub const I8_EXPONENT_MIN: i32 = -24;
+/// The highest: runs up to 127 x 2^100 in magnitude.
+pub const I8_EXPONENT_MAX: i32 = 100;
+
+/// The exponent of an I8 run whose largest magnitude is `max_abs`: the smallest `e` in
+/// range with `max_abs <= 127 * 2^e`. A decoded run gets its own exponent back (its
+/// largest `|q|` is then 64..=127, or the exponent is a bound of the range), so
+/// encoding what was decoded gives the same bytes.
+fn i8_exponent(max_abs: f64) -> i32 {
+    let fits = |e: i32| max_abs <= 127.0 * 2f64.powi(e);
+    let mut e = if max_abs > 0.0 {
+        (max_abs.log2().ceil() as i32 - 7).clamp(I8_EXPONENT_MIN, I8_EXPONENT_MAX)
+    } else {
+        I8_EXPONENT_MIN
+    };
+    while e < I8_EXPONENT_MAX && !fits(e) {
+        e += 1;
+    }
+    while e > I8_EXPONENT_MIN && fits(e - 1) {
+        e -= 1;
+    }
+    e
+}
+
+/// `values` in runs of `run` values as I8 codes and one exponent per run (round to
+/// nearest; a run beyond 127 x 2^100 saturates, far outside any fitted residual).
+fn quantize_i8(values: &[f32], run: usize) -> (Vec<u8>, Vec<u8>) {
+    let mut codes = Vec::with_capacity(values.len());
+    let mut exponents = Vec::with_capacity(values.len() / run.max(1));
+    for chunk in values.chunks(run.max(1)) {
+        let max_abs = chunk.iter().fold(0.0f64, |m, &x| m.max(f64::from(x).abs()));
+        let e = i8_exponent(max_abs);
+        let scale = 2f64.powi(-e);
+        exponents.push(e as i8 as u8);
+        codes.extend(
+            chunk
+                .iter()
+                .map(|&x| (f64::from(x) * scale).round().clamp(-127.0, 127.0) as i8 as u8),
+        );
+    }
+    (codes, exponents)
+}
+
+/// Decodes I8 runs: `q * 2^e`, exact in f32 over the exponent range. `name` and the
+/// run index locate an exponent outside the range.
+fn dequantize_i8(codes: &[u8], exponents: &[u8], run: usize) -> Result<Vec<f32>, PackErrorKind> {
+    let mut out = Vec::with_capacity(codes.len());
+    for (i, (chunk, &e)) in codes.chunks(run.max(1)).zip(exponents).enumerate() {
+        let e = i32::from(e as i8);
+        if !(I8_EXPONENT_MIN..=I8_EXPONENT_MAX).contains(&e) {
+            return Err(PackErrorKind::Quantized(format!(
+                "tensor `residual_component_exponents`[{i}] = {e} is outside \
+                 {I8_EXPONENT_MIN}..={I8_EXPONENT_MAX}"
+            )));
+        }
+        if let Some(q) = chunk.iter().find(|&&q| q as i8 == i8::MIN) {
+            return Err(PackErrorKind::Quantized(format!(
+                "tensor `residual_components`: code {} in run {i} is outside -127..=127",
+                *q as i8
+            )));
+        }
+        let scale = 2f64.powi(e);
+        out.extend(chunk.iter().map(|&q| (f64::from(q as i8) * scale) as f32));
+    }
+    Ok(out)
 }
 
 /// A pack that cannot be read or written: the file and what is wrong with it.
@@ -83,6 +168,9 @@ pub enum PackErrorKind {
     },
     #[error("{0}")]
     Ragged(String),
+    /// An I8 residual table that cannot be decoded (docs/formats/spmm.md).
+    #[error("{0}")]
+    Quantized(String),
     #[error("tensor `cluster_basis_offsets`: {0}")]
     ClusterOffsets(String),
     #[error("{0}")]
@@ -224,19 +312,47 @@ pub fn encode_pack(m: &SpmmMaterial, precision: ResidualPrecision) -> Vec<u8> {
             r.view_dirs.len(),
             r.npca,
         );
-        let table = |values: &[f32]| match precision {
-            ResidualPrecision::F32 => (Dtype::F32, le_bytes(values, f32::to_le_bytes)),
-            ResidualPrecision::F16 => (
+        let half = |values: &[f32]| {
+            (
                 Dtype::F16,
                 le_bytes(values, |x| half::f16::from_f32(x).to_le_bytes()),
-            ),
+            )
         };
-        let (dt, data) = table(&r.mean);
+        let (dt, data) = match precision {
+            ResidualPrecision::F32 => (Dtype::F32, le_bytes(&r.mean, f32::to_le_bytes)),
+            ResidualPrecision::F16 | ResidualPrecision::I8 => half(&r.mean),
+        };
         put("residual_mean", dt, vec![c, l, v, 3], data);
+        // Components, shaped `[.., L, V, 3]` (`lead` leading dimensions); at I8 with
+        // their exponents, shaped `[.., L]`.
+        let mut put_components = |values: &[f32], lead: Vec<usize>| {
+            let shape = |tail: &[usize]| [lead.as_slice(), tail].concat();
+            match precision {
+                ResidualPrecision::F32 => put(
+                    "residual_components",
+                    Dtype::F32,
+                    shape(&[l, v, 3]),
+                    le_bytes(values, f32::to_le_bytes),
+                ),
+                ResidualPrecision::F16 => {
+                    let (dt, data) = half(values);
+                    put("residual_components", dt, shape(&[l, v, 3]), data);
+                }
+                ResidualPrecision::I8 => {
+                    let (codes, exponents) = quantize_i8(values, v * 3);
+                    put("residual_components", Dtype::I8, shape(&[l, v, 3]), codes);
+                    put(
+                        "residual_component_exponents",
+                        Dtype::I8,
+                        shape(&[l]),
+                        exponents,
+                    );
+                }
+            }
+        };
         let counts = cluster_component_counts(m);
         if counts.iter().all(|&n| n == k) {
-            let (dt, data) = table(&r.components);
-            put("residual_components", dt, vec![c, k, l, v, 3], data);
+            put_components(&r.components, vec![c, k]);
             put(
                 "residual_coefficients",
                 Dtype::F32,
@@ -260,8 +376,7 @@ pub fn encode_pack(m: &SpmmMaterial, precision: ResidualPrecision) -> Vec<u8> {
                 .collect();
             let total: usize = counts.iter().sum();
             let n_coef = coefficients.len();
-            let (dt, data) = table(&components);
-            put("residual_components", dt, vec![total, l, v, 3], data);
+            put_components(&components, vec![total]);
             put(
                 "residual_coefficients",
                 Dtype::F32,
@@ -330,7 +445,7 @@ pub fn cluster_component_counts(m: &SpmmMaterial) -> Vec<usize> {
         .collect()
 }
 
-const KNOWN_TENSORS: [&str; 14] = [
+const KNOWN_TENSORS: [&str; 15] = [
     "texel_cluster",
     "cluster_basis_offsets",
     "basis_model",
@@ -345,6 +460,7 @@ const KNOWN_TENSORS: [&str; 14] = [
     "residual_components",
     "residual_coefficients",
     "cluster_npca",
+    "residual_component_exponents",
 ];
 
 /// The validated contents of one tensor, typed.
@@ -364,10 +480,10 @@ impl<'a> Reader<'a> {
             .tensor(name)
             .map_err(|_| PackErrorKind::MissingTensor(name))?;
         if !dtypes.contains(&t.dtype()) {
-            let expected = if dtypes.len() == 1 {
-                dtype_name(dtypes[0])
-            } else {
-                "F16 or F32"
+            let expected = match dtypes {
+                [one] => dtype_name(*one),
+                [_, _] => "F16 or F32",
+                _ => "F16, F32 or I8",
             };
             return Err(PackErrorKind::Dtype {
                 name,
@@ -588,12 +704,7 @@ pub fn decode_pack(bytes: &[u8]) -> Result<SpmmMaterial, PackErrorKind> {
         let (components, coefficients) = if r.st.tensor("cluster_npca").is_ok() {
             read_ragged_residual(&r, n_clusters, npca, l, v, &texel_cluster)?
         } else {
-            let (dt, _, data) = r.view(
-                "residual_components",
-                &halves,
-                &[Some(n_clusters), Some(npca), Some(l), Some(v), Some(3)],
-            )?;
-            let components = table_f32(dt, data);
+            let components = read_components(&r, &[Some(n_clusters), Some(npca)], l, v)?;
             let (_, _, data) = r.view(
                 "residual_coefficients",
                 &[Dtype::F32],
@@ -672,12 +783,7 @@ fn read_ragged_residual(
         )));
     }
     let total: usize = counts.iter().map(|&n| n as usize).sum();
-    let (dt, _, data) = r.view(
-        "residual_components",
-        &[Dtype::F16, Dtype::F32],
-        &[Some(total), Some(l), Some(v), Some(3)],
-    )?;
-    let stored = table_f32(dt, data);
+    let stored = read_components(r, &[Some(total)], l, v)?;
     if let Some(i) = stored.iter().position(|x| !x.is_finite()) {
         return Err(PackErrorKind::Ragged(format!(
             "tensor `residual_components`[{i}] = {} is not finite",
@@ -711,6 +817,43 @@ fn read_ragged_residual(
     Ok((components, coefficients))
 }
 
+/// `residual_components`, shaped `lead` then `[L, V, 3]`, as f32: F16 and F32 as
+/// stored, I8 decoded with `residual_component_exponents` (shaped `lead` then `[L]`),
+/// which must be present exactly when the components are I8.
+fn read_components(
+    r: &Reader,
+    lead: &[Option<usize>],
+    l: usize,
+    v: usize,
+) -> Result<Vec<f32>, PackErrorKind> {
+    let shape = |tail: &[usize]| -> Vec<Option<usize>> {
+        lead.iter()
+            .copied()
+            .chain(tail.iter().map(|&n| Some(n)))
+            .collect()
+    };
+    let (dt, _, data) = r.view(
+        "residual_components",
+        &[Dtype::F16, Dtype::F32, Dtype::I8],
+        &shape(&[l, v, 3]),
+    )?;
+    let has_exponents = r.st.tensor("residual_component_exponents").is_ok();
+    match (dt, has_exponents) {
+        (Dtype::I8, true) => {
+            let (_, _, exponents) =
+                r.view("residual_component_exponents", &[Dtype::I8], &shape(&[l]))?;
+            dequantize_i8(data, exponents, v * 3)
+        }
+        (Dtype::I8, false) => Err(PackErrorKind::MissingTensor("residual_component_exponents")),
+        (_, true) => Err(PackErrorKind::Quantized(
+            "tensor `residual_component_exponents` is present but `residual_components` \
+             is not I8"
+                .into(),
+        )),
+        (dt, false) => Ok(table_f32(dt, data)),
+    }
+}
+
 /// The `edited_clusters` metadata: comma-separated cluster indices below `clusters`
 /// (empty: an edit that changed no cluster's mixture, such as a residual switched off).
 fn edited_cluster_list(list: &str, clusters: usize) -> Result<Vec<usize>, PackErrorKind> {
@@ -730,10 +873,14 @@ fn edited_cluster_list(list: &str, clusters: usize) -> Result<Vec<usize>, PackEr
 
 /// The precision a pack's residual tables were stored in (F32 when it has none).
 pub fn residual_precision(bytes: &[u8]) -> ResidualPrecision {
-    match SafeTensors::deserialize(bytes)
-        .ok()
-        .and_then(|st| st.tensor("residual_mean").ok().map(|t| t.dtype()))
-    {
+    let Ok(st) = SafeTensors::deserialize(bytes) else {
+        return ResidualPrecision::F32;
+    };
+    let dtype = |name| st.tensor(name).ok().map(|t| t.dtype());
+    match dtype("residual_mean") {
+        Some(Dtype::F16) if dtype("residual_components") == Some(Dtype::I8) => {
+            ResidualPrecision::I8
+        }
         Some(Dtype::F16) => ResidualPrecision::F16,
         _ => ResidualPrecision::F32,
     }

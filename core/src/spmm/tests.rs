@@ -1008,3 +1008,169 @@ fn per_cluster_npca_faults_are_named() {
         }
     }
 }
+
+/// `bytes` re-encoded with its tensors edited by `edit` (a file another writer
+/// could make; `with_tensor` keeps every tensor's size).
+fn reencoded(
+    bytes: &[u8],
+    edit: impl FnOnce(&mut std::collections::BTreeMap<String, crate::container::Tensor>),
+) -> Vec<u8> {
+    let st = safetensors::SafeTensors::deserialize(bytes).expect("a valid container");
+    let (_, meta) = safetensors::SafeTensors::read_metadata(bytes).expect("metadata");
+    let metadata: Vec<(&str, String)> = meta
+        .metadata()
+        .as_ref()
+        .map(|m| m.iter().map(|(k, v)| (k.as_str(), v.clone())).collect())
+        .unwrap_or_default();
+    let mut tensors: std::collections::BTreeMap<String, crate::container::Tensor> = st
+        .tensors()
+        .into_iter()
+        .map(|(n, v)| {
+            let t = crate::container::Tensor {
+                dtype: v.dtype(),
+                shape: v.shape().to_vec(),
+                data: v.data().to_vec(),
+            };
+            (n, t)
+        })
+        .collect();
+    edit(&mut tensors);
+    let named = tensors
+        .iter()
+        .map(|(n, t)| (n.as_str(), t.clone()))
+        .collect();
+    crate::container::encode(&metadata, &named)
+}
+
+/// `m` with its residual's component tables replaced by `edit` of them.
+fn with_components(m: &SpmmMaterial, edit: impl FnOnce(&mut Vec<f32>)) -> SpmmMaterial {
+    let mut r = m.residual().expect("residual").clone();
+    edit(&mut r.components);
+    SpmmMaterial::new(
+        m.name().into(),
+        m.provenance().into(),
+        m.width(),
+        m.height(),
+        m.clusters().to_vec(),
+        m.texel_cluster().to_vec(),
+        m.weights().clone(),
+        Some(r),
+    )
+    .expect("valid")
+}
+
+#[test]
+fn i8_components_load_within_half_a_step_and_save_back_byte_identical() {
+    let base = sample_material(5, 4, 3, Some(3));
+    let (v, d) = {
+        let r = base.residual().expect("residual");
+        (
+            r.view_dirs.len(),
+            r.light_dirs.len() * r.view_dirs.len() * 3,
+        )
+    };
+    let run = v * 3;
+    // Runs of every kind: zero, tiny (below the finest step), large, and the
+    // sample's noise (up to 0.05).
+    let m = with_components(&base, |c| {
+        c[..run].fill(0.0);
+        for (i, x) in c[run..2 * run].iter_mut().enumerate() {
+            *x = 1e-8 * i as f32;
+        }
+        for (i, x) in c[2 * run..3 * run].iter_mut().enumerate() {
+            *x = 700.0 - 37.0 * i as f32;
+        }
+    });
+    for m in [m, ragged_material()] {
+        let bytes = encode_pack(&m, ResidualPrecision::I8);
+        assert_eq!(pack::residual_precision(&bytes), ResidualPrecision::I8);
+        let back = decode_pack(&bytes).expect("a valid pack");
+        assert_eq!(encode_pack(&back, ResidualPrecision::I8), bytes);
+        // Decoded values are half floats, so a render keeps half-float tables.
+        assert!(back.residual_is_half());
+        let (a, b) = (
+            m.residual().expect("residual"),
+            back.residual().expect("residual"),
+        );
+        for (i, (x, y)) in a
+            .components
+            .chunks(run)
+            .zip(b.components.chunks(run))
+            .enumerate()
+        {
+            let max = x.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            // Half a step: under max / 127, or 2^-25 where the finest step binds.
+            let bound = (max / 127.0).max(2f32.powi(-25)) * 1.0001;
+            for (p, q) in x.iter().zip(y) {
+                assert!(
+                    (p - q).abs() <= bound,
+                    "run {i}: {p} read as {q} (bound {bound})"
+                );
+            }
+        }
+        // The mean is stored as at F16.
+        let half = decode_pack(&encode_pack(&m, ResidualPrecision::F16)).expect("valid");
+        assert_eq!(half.residual().expect("residual").mean, b.mean);
+        // Components take half the bytes of F16 plus one exponent per run.
+        let f16_len = encode_pack(&m, ResidualPrecision::F16).len();
+        let components = pack::cluster_component_counts(&m).iter().sum::<usize>() * d;
+        let saved = f16_len - bytes.len();
+        let expected = components - components / run;
+        assert!(
+            saved <= expected && saved + 200 >= expected,
+            "saved {saved}, expected about {expected}"
+        );
+    }
+}
+
+#[test]
+fn i8_faults_are_named() {
+    let good = encode_pack(&ragged_material(), ResidualPrecision::I8);
+    let cases: Vec<(Vec<u8>, &[&str])> = vec![
+        (
+            with_tensor(&good, "residual_component_exponents", |d| d[2] = 101),
+            &["residual_component_exponents`[2] = 101", "-24..=100"],
+        ),
+        (
+            with_tensor(&good, "residual_components", |d| d[5] = 0x80),
+            &["residual_components", "-128", "-127..=127"],
+        ),
+        (
+            reencoded(&good, |t| {
+                t.remove("residual_component_exponents");
+            }),
+            &["residual_component_exponents", "missing"],
+        ),
+        (
+            with_header(&good, |h| h["residual_components"]["dtype"] = "U8".into()),
+            &["residual_components", "U8", "F16, F32 or I8"],
+        ),
+    ];
+    for (bytes, needles) in cases {
+        let msg = rejection(&bytes);
+        for n in needles {
+            assert!(msg.contains(n), "`{msg}` lacks `{n}`");
+        }
+    }
+    // Exponents next to F16 components.
+    let exponents = reencoded(&good, |t| {
+        t.retain(|n, _| n == "residual_component_exponents");
+    });
+    let half = reencoded(
+        &encode_pack(&ragged_material(), ResidualPrecision::F16),
+        |t| {
+            let st = safetensors::SafeTensors::deserialize(&exponents).expect("valid");
+            let e = st.tensor("residual_component_exponents").expect("kept");
+            t.insert(
+                "residual_component_exponents".into(),
+                crate::container::Tensor {
+                    dtype: e.dtype(),
+                    shape: e.shape().to_vec(),
+                    data: e.data().to_vec(),
+                },
+            );
+        },
+    );
+    let msg = rejection(&half);
+    assert!(msg.contains("not I8"), "{msg}");
+}

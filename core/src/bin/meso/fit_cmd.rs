@@ -46,11 +46,44 @@ pub struct FitArgs {
     /// until the file reaches the budget (per-cluster N_PCA).
     #[arg(long)]
     max_bytes: Option<u64>,
-    /// Store the residual tables as f32 (default f16).
+    /// Precision of the residual tables in the file: f16, f32, or i8 (8-bit
+    /// components with a power-of-two scale per component and light direction; half
+    /// the bytes of f16 per component). A byte budget counts this precision.
+    #[arg(long, value_enum, default_value_t = PrecisionArg::F16, conflicts_with = "f32")]
+    precision: PrecisionArg,
+    /// The same as --precision f32.
     #[arg(long)]
     f32: bool,
     #[arg(long)]
     json: bool,
+}
+
+/// `--precision` of `meso fit` and `meso pack trim`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PrecisionArg {
+    F16,
+    F32,
+    I8,
+}
+
+impl From<PrecisionArg> for ResidualPrecision {
+    fn from(p: PrecisionArg) -> Self {
+        match p {
+            PrecisionArg::F16 => ResidualPrecision::F16,
+            PrecisionArg::F32 => ResidualPrecision::F32,
+            PrecisionArg::I8 => ResidualPrecision::I8,
+        }
+    }
+}
+
+impl FitArgs {
+    fn residual_precision(&self) -> ResidualPrecision {
+        if self.f32 {
+            ResidualPrecision::F32
+        } else {
+            self.precision.into()
+        }
+    }
 }
 
 pub fn run(args: &FitArgs) -> Result<(), CliError> {
@@ -63,17 +96,17 @@ pub fn run(args: &FitArgs) -> Result<(), CliError> {
         seed: args.seed,
         fit_pairs: args.fit_pairs,
         max_bytes: args.max_bytes,
-        precision: if args.f32 {
-            ResidualPrecision::F32
-        } else {
-            ResidualPrecision::F16
-        },
+        precision: args.residual_precision(),
         ..FitSettings::default()
     };
     let budget = args
         .max_bytes
         .map(|b| format!(" --max-bytes {b}"))
         .unwrap_or_default();
+    let budget = match args.residual_precision() {
+        ResidualPrecision::I8 => format!("{budget} --precision i8"),
+        _ => budget,
+    };
     let name = args.name.clone().unwrap_or_else(|| btf.name().to_string());
     let provenance = format!(
         "meso fit {} --clusters {} --subclusters {} --max-bases {} --npca {}{budget} --seed {}",
@@ -107,12 +140,7 @@ pub fn run(args: &FitArgs) -> Result<(), CliError> {
         }
         Err(e) => return Err(CliError::failure(e)),
     };
-    let precision = if args.f32 {
-        ResidualPrecision::F32
-    } else {
-        ResidualPrecision::F16
-    };
-    let bytes = pack::encode_pack(&out.material, precision);
+    let bytes = pack::encode_pack(&out.material, args.residual_precision());
     out.report.set_pack_bytes(bytes.len() as u64);
     meso_core::atomic::write_bytes_atomic(&args.output, &bytes)
         .failure_ctx(|| format!("writing `{}`", args.output.display()))?;

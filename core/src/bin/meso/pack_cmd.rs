@@ -71,6 +71,10 @@ pub enum PackCommand {
         /// `meso fit --npca N` gives), to compare with a budget at equal bytes.
         #[arg(long)]
         npca: Option<usize>,
+        /// Precision of the output's residual tables (default: the input's); a budget
+        /// counts this precision.
+        #[arg(long, value_enum)]
+        precision: Option<crate::fit_cmd::PrecisionArg>,
         #[arg(long)]
         json: bool,
     },
@@ -122,8 +126,16 @@ pub fn run(command: PackCommand) -> Result<(), CliError> {
             output,
             max_bytes,
             npca,
+            precision,
             json,
-        } => trim(&file, &output, max_bytes, npca, json),
+        } => trim(
+            &file,
+            &output,
+            max_bytes,
+            npca,
+            precision.map(Into::into),
+            json,
+        ),
         PackCommand::Edit(args) => {
             crate::pack_edit_cmd::run(&args, &std::env::args().collect::<Vec<_>>())
         }
@@ -171,6 +183,7 @@ fn trim(
     output: &Path,
     max_bytes: Option<u64>,
     npca: Option<usize>,
+    precision: Option<pack::ResidualPrecision>,
     json: bool,
 ) -> Result<(), CliError> {
     use meso_core::fit::budget;
@@ -181,7 +194,8 @@ fn trim(
             kind,
         })
     })?;
-    let precision = pack::residual_precision(&bytes);
+    let input_precision = pack::residual_precision(&bytes);
+    let precision = precision.unwrap_or(input_precision);
     let before: f64 = budget::component_energies(&m).iter().flatten().sum();
     let (mut t, how) = match (max_bytes, npca) {
         (Some(b), _) => (
@@ -211,6 +225,11 @@ fn trim(
     let (clamped, lowered) = budget::clamp_to_lobe_bound(&t.material)
         .map_err(|e| CliError::failure(anyhow!("`{}` ({how}): {e}", file.display())))?;
     t.material = clamped;
+    let how = if precision == input_precision {
+        how
+    } else {
+        format!("{how} --precision {}", precision.name())
+    };
     t.material
         .set_provenance(format!("{}; meso pack trim {how}", m.provenance()));
     let encoded = pack::encode_pack(&t.material, precision);

@@ -456,6 +456,31 @@ print(json.dumps({"meta": meta, "tensors": {k: [str(v.dtype), list(v.shape)] for
     );
     let sum: f64 = m.weights().rgb.iter().flatten().map(|&x| x as f64).sum();
     assert!((v["weight_rgb_sum"].as_f64().expect("sum") - sum).abs() < 1e-9 * sum.max(1.0));
+
+    // I8 components decode in Python with the documented formula to what Meso reads.
+    pack::write_pack(&path, &m, ResidualPrecision::I8).expect("write");
+    let script = r#"
+import sys, json
+import numpy as np
+from safetensors.numpy import load_file
+t = load_file(sys.argv[1])
+q, e = t["residual_components"], t["residual_component_exponents"]
+b = q.astype(np.float32) * np.exp2(e.astype(np.float32))[..., None, None]
+print(json.dumps({"dtypes": [str(q.dtype), str(e.dtype)], "shape": list(e.shape),
+                  "components": [float(x) for x in b.ravel()]}))
+"#;
+    let v = crate::container::python_json(&python, script, &path);
+    assert_eq!(v["dtypes"], serde_json::json!(["int8", "int8"]));
+    assert_eq!(v["shape"], serde_json::json!([3, 2, 5]));
+    let read = pack::read_pack(&path).expect("read");
+    let ours = &read.residual().expect("residual").components;
+    let theirs: Vec<f32> = v["components"]
+        .as_array()
+        .expect("values")
+        .iter()
+        .map(|x| x.as_f64().expect("number") as f32)
+        .collect();
+    assert_eq!(&theirs, ours);
 }
 
 mod evaluation {

@@ -178,6 +178,41 @@ fn save_then_reopen_is_byte_identical_and_a_failed_save_keeps_the_edits() {
     wait_for_current_frame(&mut h);
 }
 
+#[test]
+fn a_pack_with_8_bit_components_saves_back_at_8_bits_with_its_residual_unchanged() {
+    use meso_core::spmm::pack::{self, ResidualPrecision};
+    let dir = tempfile::tempdir().expect("temp dir");
+    let shipped = std::path::PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../materials/knitted_wool.spmm"
+    ));
+    let shipped_bytes = std::fs::read(&shipped).expect("shipped pack");
+    assert_eq!(
+        pack::residual_precision(&shipped_bytes),
+        ResidualPrecision::I8
+    );
+    let mut h = harness();
+    h.step();
+    h.state_mut().open_pack(&shipped);
+    loaded(&mut h);
+    h.get_by_role_and_label(Role::Slider, "normal θ (deg)")
+        .set_value_accesskit(33.0);
+    h.step();
+    let a = dir.path().join("a.spmm");
+    assert!(h.state_mut().save_pack_as(&a));
+    let bytes = std::fs::read(&a).expect("saved");
+    assert_eq!(pack::residual_precision(&bytes), ResidualPrecision::I8);
+    let saved = pack::decode_pack(&bytes).expect("valid");
+    let original = pack::decode_pack(&shipped_bytes).expect("valid");
+    assert_ne!(saved.clusters(), original.clusters(), "the edit is saved");
+    assert_eq!(
+        saved.residual(),
+        original.residual(),
+        "saving re-encodes the 8-bit tables to the same values"
+    );
+    wait_for_current_frame(&mut h);
+}
+
 /// A studio on `scene` (the default scene without one) that rests at `spp` samples.
 fn resting_studio(scene: Option<std::path::PathBuf>, spp: u32) -> Harness<'static, Studio> {
     let settings = Settings {

@@ -94,13 +94,27 @@ fn fitted_packs_validate_and_stay_small() {
                     "{name}: {provenance} vs {want}"
                 );
                 assert!(r.npca <= npca, "{name}");
-                let budget: u64 = trim
-                    .strip_prefix("--max-bytes ")
+                let words: Vec<&str> = trim.split_whitespace().collect();
+                let value = |option: &str| {
+                    words
+                        .windows(2)
+                        .find(|w| w[0] == option)
+                        .map(|w| w[1].to_string())
+                };
+                let budget: u64 = value("--max-bytes")
                     .and_then(|b| b.parse().ok())
-                    .expect("trim=\"--max-bytes N\"");
+                    .expect("trim=\"--max-bytes N ...\"");
                 assert!(
                     len <= budget,
                     "{name}: {len} bytes over its budget {budget}"
+                );
+                // The file is stored at the precision the script asks for.
+                let bytes = std::fs::read(&file).expect("the pack is shipped");
+                let precision = pack::residual_precision(&bytes).name();
+                assert_eq!(
+                    value("--precision").as_deref().unwrap_or("f16"),
+                    precision,
+                    "{name}"
                 );
             }
         }

@@ -38,6 +38,11 @@ impl ClusterResidual {
 
 /// Fits the residual of one cluster: `rows` holds, per member texel, its `d`
 /// residual values (BTF minus basis sum) row after row.
+///
+/// The Gram matrix, the components and the coefficients are each one blocked matrix
+/// product over the centred data and one transposed copy of it (a product per
+/// component, each through a fresh transposed copy, had cost most of the stage: up to
+/// 160 s of a fit).
 pub fn fit_cluster_residual(rows: &[f64], d: usize, npca: usize) -> ClusterResidual {
     let n = rows.len() / d;
     let mut mean = vec![0.0; d];
@@ -50,57 +55,66 @@ pub fn fit_cluster_residual(rows: &[f64], d: usize, npca: usize) -> ClusterResid
         *m /= n.max(1) as f64;
     }
     let sse_without: f64 = rows.iter().map(|x| x * x).sum();
-    let xc = DMatrix::from_fn(n, d, |t, j| rows[t * d + j] - mean[j]);
-    let row_sq: Vec<f64> = (0..n).map(|t| xc.row(t).norm_squared()).collect();
-    let total: f64 = row_sq.iter().sum();
+    // Column per texel (`d x n`), and its transpose.
+    let xc = DMatrix::from_fn(d, n, |j, t| rows[t * d + j] - mean[j]);
+    let xt = xc.transpose();
+    let total: f64 = xc.norm_squared();
     let mut components: Vec<Vec<f64>> = Vec::new();
-    let mut energy = Vec::new();
     if npca > 0 && n > 0 && total > 0.0 {
-        let gram = &xc * xc.transpose();
-        let eig = SymmetricEigen::new(gram);
+        let eig = SymmetricEigen::new(&xt * &xc);
         let mut order: Vec<usize> = (0..n).collect();
         order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
         let top = eig.eigenvalues[order[0]].max(0.0);
-        for &i in &order {
+        // The eigenpairs worth a component, largest first.
+        let usable: Vec<usize> = order
+            .into_iter()
+            .take_while(|&i| {
+                let lambda = eig.eigenvalues[i];
+                lambda > 1e-13 * top && lambda > 0.0
+            })
+            .collect();
+        // Candidates in batches of `npca` (a candidate left with no norm after
+        // re-orthonormalisation is skipped, and the next one takes its place).
+        for batch in usable.chunks(npca) {
             if components.len() >= npca {
                 break;
             }
-            let lambda = eig.eigenvalues[i];
-            if lambda <= 1e-13 * top || lambda <= 0.0 {
-                break;
-            }
-            let u = eig.eigenvectors.column(i);
-            let mut v: Vec<f64> = (xc.transpose() * u)
-                .iter()
-                .map(|x| x / lambda.sqrt())
-                .collect();
-            // Modified Gram-Schmidt against the kept components (twice, for round-off).
-            for _ in 0..2 {
-                for c in &components {
-                    let p: f64 = v.iter().zip(c).map(|(a, b)| a * b).sum();
-                    for (a, b) in v.iter_mut().zip(c) {
-                        *a -= p * b;
+            let u = DMatrix::from_fn(n, batch.len(), |t, c| {
+                eig.eigenvectors[(t, batch[c])] / eig.eigenvalues[batch[c]].sqrt()
+            });
+            let v_batch = &xc * &u;
+            for c in 0..batch.len() {
+                if components.len() >= npca {
+                    break;
+                }
+                let mut v: Vec<f64> = v_batch.column(c).iter().copied().collect();
+                // Modified Gram-Schmidt against the kept components (twice, for round-off).
+                for _ in 0..2 {
+                    for kept in &components {
+                        let p: f64 = v.iter().zip(kept).map(|(a, b)| a * b).sum();
+                        for (a, b) in v.iter_mut().zip(kept) {
+                            *a -= p * b;
+                        }
                     }
                 }
+                let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+                if norm < 1e-6 {
+                    continue;
+                }
+                for a in v.iter_mut() {
+                    *a /= norm;
+                }
+                components.push(v);
             }
-            let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
-            if norm < 1e-6 {
-                continue;
-            }
-            for a in v.iter_mut() {
-                *a /= norm;
-            }
-            components.push(v);
         }
     }
+    // coefficients (n x K) = xc^T [b_1 .. b_K], one product.
+    let basis = DMatrix::from_fn(d, components.len(), |j, k| components[k][j]);
+    let coef = &xt * &basis;
     let coefficients: Vec<Vec<f64>> = (0..n)
-        .map(|t| {
-            components
-                .iter()
-                .map(|c| xc.row(t).iter().zip(c).map(|(a, b)| a * b).sum())
-                .collect()
-        })
+        .map(|t| (0..components.len()).map(|k| coef[(t, k)]).collect())
         .collect();
+    let mut energy = Vec::new();
     let mut sse_with = vec![total];
     for k in 0..components.len() {
         let captured: f64 = coefficients.iter().map(|c| c[k] * c[k]).sum();

@@ -103,7 +103,14 @@ pub(crate) fn with_half_residual(m: &SpmmMaterial) -> SpmmMaterial {
     for x in r.mean.iter_mut().chain(r.components.iter_mut()) {
         *x = half::f16::from_f32(*x).to_f32();
     }
-    let h = SpmmMaterial::new(
+    let h = with_residual(m, r);
+    assert!(h.residual_is_half() && !m.residual_is_half());
+    h
+}
+
+/// `m` with its residual replaced by `r`.
+fn with_residual(m: &SpmmMaterial, r: Residual) -> SpmmMaterial {
+    SpmmMaterial::new(
         m.name().into(),
         m.provenance().into(),
         m.width(),
@@ -113,9 +120,7 @@ pub(crate) fn with_half_residual(m: &SpmmMaterial) -> SpmmMaterial {
         m.weights().clone(),
         Some(r),
     )
-    .expect("valid");
-    assert!(h.residual_is_half() && !m.residual_is_half());
-    h
+    .expect("valid")
 }
 
 #[test]
@@ -1071,17 +1076,7 @@ fn reencoded(
 fn with_components(m: &SpmmMaterial, edit: impl FnOnce(&mut Vec<f32>)) -> SpmmMaterial {
     let mut r = m.residual().expect("residual").clone();
     edit(&mut r.components);
-    SpmmMaterial::new(
-        m.name().into(),
-        m.provenance().into(),
-        m.width(),
-        m.height(),
-        m.clusters().to_vec(),
-        m.texel_cluster().to_vec(),
-        m.weights().clone(),
-        Some(r),
-    )
-    .expect("valid")
+    with_residual(m, r)
 }
 
 #[test]

@@ -1087,6 +1087,10 @@ fn btf_synth_info_fit_and_slice() {
         h["__metadata__"]["provenance"]
     );
     assert_eq!(meso(&["pack", "validate", q], "").status.code(), Some(0));
+    let o = meso(&["pack", "info", q, "--json"], "");
+    let info: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    assert_eq!(info["residual"]["precision"], "i8");
+    assert!(stdout(&meso(&["pack", "info", p], "")).contains("f16 tables"));
     let mut direct = args.to_vec();
     direct[3] = q;
     direct.extend(["--precision", "i8"]);

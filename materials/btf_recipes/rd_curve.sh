@@ -4,8 +4,8 @@
 # (`meso pack trim --max-bytes`: per-cluster N_PCA, the components that remove the
 # most table error) and, for comparison at equal bytes, the even split
 # (`meso pack trim --npca K`, what `meso fit --npca K` keeps), each measured with
-# `meso report fit --json`. A 48-component fit took 1-6 minutes on 2 loaded cores
-# (2026-12-04), a report 25-65 s.
+# `meso report fit --json`. A 48-component fit takes 26-106 s on 2 cores
+# (2026-12-04), a report 25-110 s.
 #   MESO=target/release/meso sh materials/btf_recipes/rd_curve.sh [NAME...]
 # Environment: BTF_DIR (the synthesized BTFs, as rebuild.sh), OUT (results, default
 # rd), CLUSTERS (default 8), CAP (components per cluster fitted, default 48),

@@ -306,7 +306,8 @@ fn info(file: &Path, as_json: bool) -> Result<(), CliError> {
         .bytes()
     };
     let (eval_on, eval_off) = (eval_bytes(true), eval_bytes(false));
-    let residual = m.residual().map(|r| json!({"light_dirs": r.light_dirs.len(), "view_dirs": r.view_dirs.len(), "npca": r.npca}));
+    let precision = pack::residual_precision(&bytes).name();
+    let residual = m.residual().map(|r| json!({"light_dirs": r.light_dirs.len(), "view_dirs": r.view_dirs.len(), "npca": r.npca, "precision": precision}));
     if as_json {
         return crate::print_json(&json!({
             "file": file.display().to_string(),
@@ -335,7 +336,7 @@ fn info(file: &Path, as_json: bool) -> Result<(), CliError> {
     println!("weights      {mean_weights:.2} per texel on average, at most {max_weights}");
     match m.residual() {
         Some(r) => println!(
-            "residual     N_PCA = {} on {} light x {} view directions",
+            "residual     N_PCA = {} on {} light x {} view directions, {precision} tables",
             r.npca,
             r.light_dirs.len(),
             r.view_dirs.len()

@@ -92,8 +92,8 @@ fn quantize_i8(values: &[f32], run: usize) -> (Vec<u8>, Vec<u8>) {
     (codes, exponents)
 }
 
-/// Decodes I8 runs: `q * 2^e`, exact in f32 over the exponent range. `name` and the
-/// run index locate an exponent outside the range.
+/// Decodes I8 runs: `q * 2^e`, exact in f32 over the exponent range. An exponent
+/// outside the range, or a code of -128, is refused naming the run.
 fn dequantize_i8(codes: &[u8], exponents: &[u8], run: usize) -> Result<Vec<f32>, PackErrorKind> {
     let mut out = Vec::with_capacity(codes.len());
     for (i, (chunk, &e)) in codes.chunks(run.max(1)).zip(exponents).enumerate() {

@@ -25,6 +25,9 @@ pub(super) fn context() -> &'static GpuContext {
 
 const CASE_WORDS: usize = 10;
 
+/// f32's unit roundoff, 2^-24: the relative error of one rounded operation.
+const UNIT_ROUNDOFF: f64 = 5.960_464_477_539_063e-8;
+
 /// One evaluation request of the test kernel.
 #[derive(Clone, Copy)]
 struct Case {
@@ -200,11 +203,18 @@ fn every_brdf_model_matches_the_f64_reference() {
         // f32 carries 6e-8 relative; 1e-4 leaves room for the transcendental functions
         // of WGSL (a few ulp). Lafortune's s^n is exp2(n log2 s): the rounding of
         // log2 s (|s| up to 1e3 x 3) is amplified by n up to 1e4, so its tolerance grows
-        // with n |log2 s|.
+        // with n |log2 s|. And s itself is a dot product whose terms can cancel (C_x,
+        // C_y and C_z of opposite signs): its f32 rounding, at most 4 unit roundoffs of
+        // the terms' absolute sum (two products and two sums a term), is amplified by
+        // that sum over |s| and by n. Mesa's lavapipe stayed within the first two
+        // terms; NVIDIA's compiler (fused multiply-adds) needed the third (H200).
         let rel = match brdf {
             AnalyticBrdf::Lafortune(b) => {
-                let s = wi.dot(DVec3::new(b.cx(), b.cy(), b.cz()) * *wo);
+                let terms = DVec3::new(b.cx(), b.cy(), b.cz()) * *wi * *wo;
+                let s = terms.element_sum();
+                let cancellation = terms.abs().element_sum() / s.abs();
                 1e-4 + 1e-6 * b.n() * s.abs().log2().abs().max(1.0)
+                    + b.n() * 4.0 * UNIT_ROUNDOFF * cancellation
             }
             _ => 1e-4,
         };
@@ -321,8 +331,14 @@ pub(super) fn test_scene(name: &str) -> crate::scene::Scene {
 
 /// Every pixel centre's primary ray on the device and on the CPU: the same hit or
 /// miss, the same distance, the same triangle (or one at the same distance: a tie),
-/// and no traversal past the stack or step bounds.
+/// and no traversal past the stack or step bounds. A hardware GPU does not round as
+/// the CPU does (its compiler fuses multiply-adds; Vulkan allows a division 2.5 ulp
+/// off), so a ray through a triangle's edge may fall on either side of it: a
+/// disagreement passes only where the nearer of the two hits is within `EDGE` of an
+/// edge of its triangle (barycentrics in f64), at most one ray in a thousand hits.
+/// Lavapipe rounds as the CPU does and has none; the H200 had one in the Cornell box.
 fn primary_hits_match(scene_file: &str, size: u32) {
+    const EDGE: f64 = 1e-5;
     let scene = test_scene(scene_file);
     let bvh = crate::geometry::SceneBvh::build(&scene.meshes);
     let camera = crate::geometry::PinholeCamera::new(&scene.camera, size, size);
@@ -367,45 +383,43 @@ fn primary_hits_match(scene_file: &str, size: u32) {
         &[0, 0],
         "{scene_file}: stack and step overflows"
     );
-    let prims: Vec<(u32, u32)> = bvh.primitives().map(|(_, r)| r).collect();
-    let (mut hits, mut ties) = (0, 0);
+    let prims: Vec<(&obvhs::triangle::Triangle, (u32, u32))> = bvh.primitives().collect();
+    let (mut hits, mut ties, mut edges) = (0, 0, 0);
     for (i, (r, g)) in rays.iter().zip(results).enumerate() {
         let cpu = bvh.closest_hit(r.origin, r.dir, 0.0, f64::INFINITY);
-        let prim = if g[1] < 0.0 { u32::MAX } else { g[1] as u32 };
-        match cpu {
-            None => assert_eq!(
-                prim,
-                u32::MAX,
-                "{scene_file} pixel {i}: the CPU misses, the GPU hits at {}",
-                g[0]
-            ),
-            Some(h) => {
-                assert_ne!(
-                    prim,
-                    u32::MAX,
-                    "{scene_file} pixel {i}: the GPU misses, the CPU hits {h:?}"
-                );
-                hits += 1;
-                let t = g[0] as f64;
-                assert!(
-                    (t - h.t).abs() <= 1e-6 * h.t,
-                    "{scene_file} pixel {i}: distance {t} on the GPU, {} on the CPU",
-                    h.t
-                );
-                let (m, tri) = prims[prim as usize];
-                if (m as usize, tri as usize) != (h.mesh, h.triangle) {
-                    // A tie: two triangles at the same distance (a shared edge).
-                    assert_eq!(
-                        t as f32, h.t as f32,
-                        "{scene_file} pixel {i}: another triangle, nearer"
-                    );
-                    ties += 1;
-                }
+        let gpu = (g[1] >= 0.0).then(|| (g[0] as f64, g[1] as usize));
+        hits += usize::from(cpu.is_some());
+        let agree = match (&cpu, gpu) {
+            (None, None) => true,
+            (Some(h), Some((t, prim))) => {
+                let (m, tri) = prims[prim].1;
+                let same = (m as usize, tri as usize) == (h.mesh, h.triangle);
+                // A tie: another triangle at the same distance (a shared edge).
+                ties += usize::from(!same && t as f32 == h.t as f32);
+                (t - h.t).abs() <= 1e-6 * h.t && (same || t as f32 == h.t as f32)
             }
+            _ => false,
+        };
+        if agree {
+            continue;
         }
+        let gpu_t = gpu.map_or(f64::INFINITY, |(t, _)| t);
+        let (edge_distance, nearer) = match &cpu {
+            Some(h) if h.t <= gpu_t => ((1.0 - h.b1 - h.b2).min(h.b1).min(h.b2), "CPU"),
+            _ => {
+                let (_, prim) = gpu.expect("the GPU hit is the nearer");
+                (barycentric_margin(prims[prim].0, r.origin, r.dir), "GPU")
+            }
+        };
+        assert!(
+            edge_distance <= EDGE,
+            "{scene_file} pixel {i}: the CPU finds {cpu:?}, the GPU {gpu:?}, and the {nearer}'s \
+             hit is {edge_distance:e} inside its triangle, not at an edge"
+        );
+        edges += 1;
     }
     eprintln!(
-        "{scene_file}: {hits} of {} rays hit, {ties} ties",
+        "{scene_file}: {hits} of {} rays hit, {ties} ties, {edges} on an edge disagree",
         rays.len()
     );
     assert!(
@@ -413,6 +427,23 @@ fn primary_hits_match(scene_file: &str, size: u32) {
         "{scene_file}: the camera sees the scene"
     );
     assert!(ties * 100 <= hits, "{scene_file}: {ties} ties of {hits}");
+    assert!(
+        edges * 1000 <= hits,
+        "{scene_file}: {edges} edge disagreements of {hits}"
+    );
+}
+
+/// The smallest barycentric weight of the ray's intersection with the triangle's
+/// plane, in f64: negative outside, near zero at an edge.
+fn barycentric_margin(tri: &obvhs::triangle::Triangle, o: DVec3, d: DVec3) -> f64 {
+    let [v0, v1, v2] = [tri.v0, tri.v1, tri.v2].map(|v| v.as_dvec3());
+    let (e1, e2) = (v1 - v0, v2 - v0);
+    let p = d.cross(e2);
+    let inv_det = 1.0 / e1.dot(p);
+    let s = o - v0;
+    let b1 = s.dot(p) * inv_det;
+    let b2 = d.dot(s.cross(e1)) * inv_det;
+    (1.0 - b1 - b2).min(b1).min(b2)
 }
 
 #[test]

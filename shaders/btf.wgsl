@@ -22,8 +22,7 @@ const BTF_UV_SCALE: u32 = 8u;
 fn btf_value(m: u32, i: u32) -> f32 {
     let at = data[m + BTF_VALUES];
     if data[m + BTF_HALF] != 0u {
-        let pair = unpack2x16float(data[at + i / 2u]);
-        return select(pair.x, pair.y, i % 2u == 1u);
+        return half_at(2u * at + i);
     }
     return f32_at(at + i);
 }

@@ -23,6 +23,9 @@ const SPMM_LIGHT_TABLE: u32 = 11u;
 const SPMM_VIEW_TABLE: u32 = 12u;
 const SPMM_UV_SCALE_X: u32 = 13u;
 const SPMM_UV_SCALE_Y: u32 = 14u;
+// 1: the residual's cells are half floats two to a word, and the cluster table holds
+// value indices (twice a word index); 0: f32 cells at word indices.
+const SPMM_RESIDUAL_HALF: u32 = 15u;
 const SPMM_HEADER_WORDS: u32 = 16u;
 
 const NO_CLUSTER: u32 = 0xffffffffu;
@@ -34,6 +37,24 @@ fn f32_at(i: u32) -> f32 {
 
 fn rgb_at(i: u32) -> vec3<f32> {
     return vec3<f32>(f32_at(i), f32_at(i + 1u), f32_at(i + 2u));
+}
+
+// The half float at value index `i` of the data (two to a word, the low half first).
+fn half_at(i: u32) -> f32 {
+    let pair = unpack2x16float(data[i / 2u]);
+    return select(pair.x, pair.y, i % 2u == 1u);
+}
+
+// Residual value `i`: f32 at word `i`, or the half float at value index `i`.
+fn residual_at(i: u32, halves: bool) -> f32 {
+    if halves {
+        return half_at(i);
+    }
+    return f32_at(i);
+}
+
+fn residual_rgb_at(i: u32, halves: bool) -> vec3<f32> {
+    return vec3<f32>(residual_at(i, halves), residual_at(i + 1u, halves), residual_at(i + 2u, halves));
 }
 
 struct DirectionWeights {
@@ -153,6 +174,7 @@ fn spmm_eval_texel(m: u32, t: u32, wi: vec3<f32>, wo: vec3<f32>, residual: bool)
     let views = data[m + SPMM_VIEW_TABLE];
     let nv = data[views];
     let coef = data[m + SPMM_COEFFICIENTS] + t * k;
+    let halves = data[m + SPMM_RESIDUAL_HALF] != 0u;
     let lw = cosine_weights(data[m + SPMM_LIGHT_TABLE], wi);
     let vw = direction_weights(views, wo);
     for (var a = 0u; a < 3u; a++) {
@@ -162,9 +184,9 @@ fn spmm_eval_texel(m: u32, t: u32, wi: vec3<f32>, wo: vec3<f32>, residual: bool)
                 continue;
             }
             let cell = base + (lw.index[a] * nv + vw.index[b]) * stride;
-            var e = rgb_at(cell);
+            var e = residual_rgb_at(cell, halves);
             for (var kk = 0u; kk < k; kk++) {
-                e += f32_at(coef + kk) * rgb_at(cell + 3u + 3u * kk);
+                e += f32_at(coef + kk) * residual_rgb_at(cell + 3u + 3u * kk, halves);
             }
             rgb += w * e;
         }

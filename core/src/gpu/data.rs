@@ -54,6 +54,18 @@ impl Words {
         at
     }
 
+    /// Half floats two to a word, the low half first (`unpack2x16float`), the last
+    /// word's high half zero when the count is odd.
+    fn push_halves(&mut self, values: impl IntoIterator<Item = half::f16>) -> u32 {
+        let at = self.at();
+        let mut values = values.into_iter();
+        while let Some(lo) = values.next() {
+            let hi = values.next().map_or(0, |h| u32::from(h.to_bits()));
+            self.words.push(u32::from(lo.to_bits()) | (hi << 16));
+        }
+        at
+    }
+
     fn push_u32s(&mut self, values: impl IntoIterator<Item = u32>) -> u32 {
         let at = self.at();
         self.words.extend(values);
@@ -151,15 +163,23 @@ impl Words {
         let rgb_at = self.push_f32s(p.rgb.iter().flatten().copied());
         let weights_end = self.words.len();
         let (mut has_residual, mut k, mut cluster_cells_at, mut coef_at) = (0, 0, 0, 0);
-        let (mut lights_at, mut views_at) = (0, 0);
+        let (mut lights_at, mut views_at, mut residual_half) = (0, 0, 0);
         if let Some(r) = &p.residual {
             has_residual = 1;
             k = r.k as u32;
-            let cells_at = self.push_f32s(r.cells.iter().copied());
+            // Half-float tables go up two values to a word (half the device bytes and
+            // the loads; the same values), so a cluster's cells start at a value index:
+            // twice the word index for halves.
+            let first_value = if r.half {
+                residual_half = 1;
+                2 * self.push_halves(r.cells.iter().map(|&x| half::f16::from_f32(x)))
+            } else {
+                self.push_f32s(r.cells.iter().copied())
+            };
             cluster_cells_at = self.push_u32s(
                 r.cluster_offset
                     .iter()
-                    .map(|o| o.map_or(NO_CLUSTER, |o| cells_at + o as u32)),
+                    .map(|o| o.map_or(NO_CLUSTER, |o| first_value + o as u32)),
             );
             coef_at = self.push_f32s(r.coefficients.iter().copied());
             lights_at = self.push_direction_table(r.lights);
@@ -167,7 +187,7 @@ impl Words {
         }
         let residual_end = self.words.len();
         let mut header = [0u32; SPMM_HEADER_WORDS];
-        header[..15].copy_from_slice(&[
+        header[..16].copy_from_slice(&[
             p.width,
             p.height,
             texel_cluster_at,
@@ -183,6 +203,7 @@ impl Words {
             views_at,
             f(uv_scale.x),
             f(uv_scale.y),
+            residual_half,
         ]);
         let at = self.push_u32s(header);
         self.bytes.spmm_bases += 4 * (bases_end - start) as u64;
@@ -200,14 +221,7 @@ impl Words {
         let p = table.parts();
         let start = self.words.len();
         let (values_at, half) = match p.values {
-            BtfValues::F16(v) => (
-                self.push_u32s(v.chunks(2).map(|pair| {
-                    let lo = u32::from(pair[0].to_bits());
-                    let hi = pair.get(1).map_or(0, |h| u32::from(h.to_bits()));
-                    lo | (hi << 16)
-                })),
-                1,
-            ),
+            BtfValues::F16(v) => (self.push_halves(v.iter().copied()), 1),
             BtfValues::F32(v) => (self.push_f32s(v.iter().copied()), 0),
         };
         let lights_at = self.push_direction_table(p.lights);

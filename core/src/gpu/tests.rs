@@ -271,15 +271,29 @@ fn basis_functions_and_spmm_texels_match_the_f64_reference() {
             }
         }
     }
-    // SPMM texels: the basis sum, with and without the interpolated residual.
+    // SPMM texels: the basis sum, with and without the interpolated residual, whose
+    // tables go up as f32 or, when every value is a half float (a pack read from an F16
+    // file), as halves two to a word.
     let material = crate::spmm::tests::sample_material(4, 3, 3, Some(3));
-    for residual in [false, true] {
+    let half_material = crate::spmm::pack::decode_pack(&crate::spmm::pack::encode_pack(
+        &material,
+        crate::spmm::pack::ResidualPrecision::F16,
+    ))
+    .expect("an F16 pack reads back");
+    for (material, residual, halves) in [
+        (&material, false, false),
+        (&material, true, false),
+        (&half_material, true, true),
+    ] {
         let prepared = material.prepare(&crate::spmm::PrepareRequest {
             used_clusters: None,
             residual,
             max_npca: usize::MAX,
         });
         assert_eq!(prepared.has_residual(), residual);
+        if let Some(r) = prepared.parts().residual {
+            assert_eq!(r.half, halves, "the tables' precision");
+        }
         let record = words.push_spmm(&prepared, glam::DVec2::ONE, None);
         for t in 0..12u32 {
             for &(wi, wo) in pairs.iter().step_by(4) {
@@ -292,7 +306,7 @@ fn basis_functions_and_spmm_texels_match_the_f64_reference() {
                     residual: true,
                 });
                 reference.push((
-                    format!("texel {t}, residual {residual}"),
+                    format!("texel {t}, residual {residual}, halves {halves}"),
                     prepared.eval_texel(t as usize, wi, wo),
                 ));
             }

@@ -418,6 +418,9 @@ pub struct PreparedResidualParts<'a> {
     /// Per cluster, the offset of its tables in `cells` (`None`: not prepared).
     pub cluster_offset: Vec<Option<usize>>,
     pub cells: Vec<f32>,
+    /// Every value of `cells` is a half float (the tables are held so): a device may
+    /// store them in 16 bits and read the same values.
+    pub half: bool,
     /// `[texel][k]`.
     pub coefficients: &'a [f32],
 }
@@ -714,6 +717,7 @@ impl PreparedSpmm {
                     k: r.k,
                     cluster_offset,
                     cells,
+                    half: r.precision == Precision::Half,
                     coefficients: &r.coefficients,
                 }
             }),

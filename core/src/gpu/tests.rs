@@ -207,7 +207,7 @@ fn every_brdf_model_matches_the_f64_reference() {
         // C_y and C_z of opposite signs): its f32 rounding, at most 4 unit roundoffs of
         // the terms' absolute sum (two products and two sums a term), is amplified by
         // that sum over |s| and by n. Mesa's lavapipe stayed within the first two
-        // terms; NVIDIA's compiler (fused multiply-adds) needed the third (H200).
+        // terms; the H200 did not (1.27 of them at a 220-fold cancellation).
         let rel = match brdf {
             AnalyticBrdf::Lafortune(b) => {
                 let terms = DVec3::new(b.cx(), b.cy(), b.cz()) * *wi * *wo;
@@ -345,8 +345,8 @@ pub(super) fn test_scene(name: &str) -> crate::scene::Scene {
 
 /// Every pixel centre's primary ray on the device and on the CPU: the same hit or
 /// miss, the same distance, the same triangle (or one at the same distance: a tie),
-/// and no traversal past the stack or step bounds. A hardware GPU does not round as
-/// the CPU does (its compiler fuses multiply-adds; Vulkan allows a division 2.5 ulp
+/// and no traversal past the stack or step bounds. A hardware GPU need not round as
+/// the CPU does (its compiler may fuse multiply-adds; Vulkan allows a division 2.5 ulp
 /// off), so a ray through a triangle's edge may fall on either side of it: a
 /// disagreement passes only where the nearer of the two hits is within `EDGE` of an
 /// edge of its triangle (barycentrics in f64), at most one ray in a thousand hits.

@@ -349,8 +349,11 @@ pub(super) fn test_scene(name: &str) -> crate::scene::Scene {
 /// the CPU does (its compiler may fuse multiply-adds; Vulkan allows a division 2.5 ulp
 /// off), so a ray through a triangle's edge may fall on either side of it: a
 /// disagreement passes only where the nearer of the two hits is within `EDGE` of an
-/// edge of its triangle (barycentrics in f64), at most one ray in a thousand hits.
-/// Lavapipe rounds as the CPU does and has none; the H200 had one in the Cornell box.
+/// edge of its triangle (barycentrics in f64), and on at most half of the rays whose
+/// hit on either device lies that near an edge (a device whose edge rule left a crack
+/// along every edge would disagree on nearly all of them). Lavapipe rounds as the CPU does and has none; the
+/// H200 had 12 in the Cornell box, whose camera on the symmetry plane sends 106 pixel
+/// centres exactly through the walls' diagonals.
 fn primary_hits_match(scene_file: &str, size: u32) {
     const EDGE: f64 = 1e-5;
     let scene = test_scene(scene_file);
@@ -398,11 +401,24 @@ fn primary_hits_match(scene_file: &str, size: u32) {
         "{scene_file}: stack and step overflows"
     );
     let prims: Vec<(&obvhs::triangle::Triangle, (u32, u32))> = bvh.primitives().collect();
-    let (mut hits, mut ties, mut edges) = (0, 0, 0);
+    let by_index: std::collections::HashMap<(usize, usize), &obvhs::triangle::Triangle> = prims
+        .iter()
+        .map(|&(t, (m, i))| ((m as usize, i as usize), t))
+        .collect();
+    let (mut hits, mut ties, mut edges, mut edge_rays) = (0, 0, 0, 0);
     for (i, (r, g)) in rays.iter().zip(results).enumerate() {
         let cpu = bvh.closest_hit(r.origin, r.dir, 0.0, f64::INFINITY);
         let gpu = (g[1] >= 0.0).then(|| (g[0] as f64, g[1] as usize));
         hits += usize::from(cpu.is_some());
+        // A ray through an edge: either device's hit lies at one.
+        let cpu_triangle = cpu.as_ref().map(|h| by_index[&(h.mesh, h.triangle)]);
+        let gpu_triangle = gpu.map(|(_, prim)| prims[prim].0);
+        edge_rays += usize::from(
+            [cpu_triangle, gpu_triangle]
+                .into_iter()
+                .flatten()
+                .any(|t| barycentric_margin(t, r.origin, r.dir) <= EDGE),
+        );
         let agree = match (&cpu, gpu) {
             (None, None) => true,
             (Some(h), Some((t, prim))) => {
@@ -433,7 +449,8 @@ fn primary_hits_match(scene_file: &str, size: u32) {
         edges += 1;
     }
     eprintln!(
-        "{scene_file}: {hits} of {} rays hit, {ties} ties, {edges} on an edge disagree",
+        "{scene_file}: {hits} of {} rays hit, {edge_rays} within {EDGE:e} of an edge, \
+         {ties} ties, {edges} on an edge disagree",
         rays.len()
     );
     assert!(
@@ -442,8 +459,8 @@ fn primary_hits_match(scene_file: &str, size: u32) {
     );
     assert!(ties * 100 <= hits, "{scene_file}: {ties} ties of {hits}");
     assert!(
-        edges * 1000 <= hits,
-        "{scene_file}: {edges} edge disagreements of {hits}"
+        edges <= edge_rays.div_ceil(2),
+        "{scene_file}: {edges} disagreements of {edge_rays} rays through an edge"
     );
 }
 

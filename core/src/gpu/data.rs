@@ -6,8 +6,8 @@
 use crate::brdf::{AnalyticBrdf, BasisFunction};
 use crate::btf::table::{BtfTable, BtfValues};
 use crate::merl::MerlBrdf;
-use crate::spmm::PreparedSpmm;
 use crate::spmm::directions::DirectionTable;
+use crate::spmm::{PreparedSpmm, ResidualCells};
 
 /// Words of one BRDF record (model + 7 parameters).
 pub(super) const BRDF_WORDS: usize = 8;
@@ -170,11 +170,12 @@ impl Words {
             // Half-float tables go up two values to a word (half the device bytes and
             // the loads; the same values), so a cluster's cells start at a value index:
             // twice the word index for halves.
-            let first_value = if r.half {
-                residual_half = 1;
-                2 * self.push_halves(r.cells.iter().map(|&x| half::f16::from_f32(x)))
-            } else {
-                self.push_f32s(r.cells.iter().copied())
+            let first_value = match &r.cells {
+                ResidualCells::F16(cells) => {
+                    residual_half = 1;
+                    2 * self.push_halves(cells.iter().copied())
+                }
+                ResidualCells::F32(cells) => self.push_f32s(cells.iter().copied()),
             };
             cluster_cells_at = self.push_u32s(
                 r.cluster_offset

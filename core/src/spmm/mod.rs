@@ -24,7 +24,7 @@ pub use eval::{EvalSettings, TexelFilter};
 pub use material::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial};
 pub use prepared::{
     DEFENSIVE_SHARE, PrepareRequest, PreparedBytes, PreparedParts, PreparedResidualParts,
-    PreparedSpmm, defensive_pdf, defensive_sample,
+    PreparedSpmm, ResidualCells, defensive_pdf, defensive_sample,
 };
 pub use texel_mask::{Falloff, TexelMask};
 pub use view::BasisView;

@@ -126,20 +126,40 @@ impl PreparedResidual {
         }
     }
 
-    /// Cluster `c`'s cells as f32, unpadded, appended to `out` (what a device uploads).
-    fn append_unpadded(&self, lines: &[CacheLine], out: &mut Vec<f32>) {
+    /// Every used cluster's cells, unpadded, in the tables' own precision (laid out
+    /// now where no evaluation reached them), and per cluster the offset of its cells:
+    /// what a device uploads.
+    fn unpadded_cells(&self) -> (ResidualCells, Vec<Option<usize>>) {
         match self.precision {
-            Precision::Single => self.append_cells::<f32>(bytemuck::cast_slice(lines), out),
-            Precision::Half => self.append_cells::<u16>(bytemuck::cast_slice(lines), out),
+            Precision::Single => {
+                let (cells, offsets) = self.unpadded::<f32>();
+                (ResidualCells::F32(cells), offsets)
+            }
+            Precision::Half => {
+                let (bits, offsets) = self.unpadded::<u16>();
+                let cells = bits.into_iter().map(half::f16::from_bits).collect();
+                (ResidualCells::F16(cells), offsets)
+            }
         }
     }
 
-    fn append_cells<T: TableValue>(&self, table: &[T], out: &mut Vec<f32>) {
+    fn unpadded<T: TableValue + bytemuck::Pod>(&self) -> (Vec<T>, Vec<Option<usize>>) {
         let (values, stride) = ((1 + self.k) * 3, cell_stride(self.k, self.precision));
         let count = self.lights.len() * self.views.len();
-        for cell in table.chunks(stride).take(count) {
-            out.extend(cell[..values].iter().map(|&x| x.to_f32()));
-        }
+        let mut cells = Vec::new();
+        let offsets = (0..self.clusters.len())
+            .map(|c| {
+                self.cluster_lines(c).map(|lines| {
+                    let offset = cells.len();
+                    let table: &[T] = bytemuck::cast_slice(lines);
+                    for cell in table.chunks(stride).take(count) {
+                        cells.extend_from_slice(&cell[..values]);
+                    }
+                    offset
+                })
+            })
+            .collect();
+        (cells, offsets)
     }
 
     /// Bytes held now: the laid-out clusters' tables and the coefficients.
@@ -417,12 +437,39 @@ pub struct PreparedResidualParts<'a> {
     pub k: usize,
     /// Per cluster, the offset of its tables in `cells` (`None`: not prepared).
     pub cluster_offset: Vec<Option<usize>>,
-    pub cells: Vec<f32>,
-    /// Every value of `cells` is a half float (the tables are held so): a device may
-    /// store them in 16 bits and read the same values.
-    pub half: bool,
+    pub cells: ResidualCells,
     /// `[texel][k]`.
     pub coefficients: &'a [f32],
+}
+
+/// Residual cells as the prepared tables hold them: half floats when every value of
+/// the pack's residual is one (a device may store them in 16 bits and read the same
+/// values), else f32.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ResidualCells {
+    F32(Vec<f32>),
+    F16(Vec<half::f16>),
+}
+
+impl ResidualCells {
+    pub fn len(&self) -> usize {
+        match self {
+            Self::F32(v) => v.len(),
+            Self::F16(v) => v.len(),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Value `i`, widened to f32 (exact).
+    pub fn value(&self, i: usize) -> f32 {
+        match self {
+            Self::F32(v) => v[i],
+            Self::F16(v) => v[i].to_f32(),
+        }
+    }
 }
 
 /// Evaluation data of one material for one render.
@@ -701,23 +748,13 @@ impl PreparedSpmm {
             basis: &self.basis,
             rgb: &self.rgb,
             residual: self.residual.as_ref().map(|r| {
-                let mut cells = Vec::new();
-                let cluster_offset = (0..r.clusters.len())
-                    .map(|c| {
-                        r.cluster_lines(c).map(|lines| {
-                            let offset = cells.len();
-                            r.append_unpadded(lines, &mut cells);
-                            offset
-                        })
-                    })
-                    .collect();
+                let (cells, cluster_offset) = r.unpadded_cells();
                 PreparedResidualParts {
                     lights: &r.lights,
                     views: &r.views,
                     k: r.k,
                     cluster_offset,
                     cells,
-                    half: r.precision == Precision::Half,
                     coefficients: &r.coefficients,
                 }
             }),

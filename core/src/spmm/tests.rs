@@ -865,7 +865,10 @@ mod prepared {
         for c in 0..4 {
             let base = pr.cluster_offset[c].expect("every cluster prepared");
             for (l, v) in [(0, 0), (nl - 1, nv - 1), (1, 2)] {
-                let cell = &pr.cells[base + (l * nv + v) * (1 + k) * 3..][..(1 + k) * 3];
+                let start = base + (l * nv + v) * (1 + k) * 3;
+                let cell: Vec<f32> = (start..start + (1 + k) * 3)
+                    .map(|i| pr.cells.value(i))
+                    .collect();
                 let m0 = ((c * nl + l) * nv + v) * 3;
                 assert_eq!(cell[..3], r.mean[m0..m0 + 3]);
                 for kk in 0..k {

@@ -204,8 +204,9 @@ fn response(s: Shading, wi: vec3<f32>, wo: vec3<f32>) -> vec3<f32> {
     }
     if kind == MATERIAL_SPMM {
         let m = data[at + 1u];
-        let residual = data[at + 2u] != 0u && params.moving == 0u;
-        return spmm_eval_texel(m, spmm_texel_at(m, s.uv), li, lo, residual);
+        // A moving camera keeps the residual's mean and first MOVING_NPCA components.
+        let components = select(ALL_COMPONENTS, MOVING_NPCA, params.moving != 0u);
+        return spmm_eval_texel(m, spmm_texel_at(m, s.uv), li, lo, data[at + 2u] != 0u, components);
     }
     if kind == MATERIAL_MERL {
         return rgb_at(at + 4u) * merl_eval(data[at + 1u], li, lo) * max(li.z, 0.0);

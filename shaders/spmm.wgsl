@@ -30,6 +30,9 @@ const SPMM_HEADER_WORDS: u32 = 16u;
 
 const NO_CLUSTER: u32 = 0xffffffffu;
 const DIRECTION_GRID: u32 = 32u;
+// Components a moving camera keeps (`spmm::MOVING_NPCA`); every prepared one otherwise.
+const MOVING_NPCA: u32 = 4u;
+const ALL_COMPONENTS: u32 = 0xffffffffu;
 
 fn f32_at(i: u32) -> f32 {
     return bitcast<f32>(data[i]);
@@ -146,8 +149,16 @@ fn cosine_weights(table: u32, d: vec3<f32>) -> DirectionWeights {
 }
 
 // BTF(t, wi, wo), RGB, of texel `t` of the material whose header is at `m`;
-// `residual` false skips the residual (the moving camera).
-fn spmm_eval_texel(m: u32, t: u32, wi: vec3<f32>, wo: vec3<f32>, residual: bool) -> vec3<f32> {
+// `residual` false skips the residual, else its mean and at most `components` of its
+// components are added (`MOVING_NPCA` while the camera moves, as on the CPU).
+fn spmm_eval_texel(
+    m: u32,
+    t: u32,
+    wi: vec3<f32>,
+    wo: vec3<f32>,
+    residual: bool,
+    components: u32,
+) -> vec3<f32> {
     if wi.z <= 0.0 || wo.z <= 0.0 {
         return vec3<f32>(0.0);
     }
@@ -171,6 +182,7 @@ fn spmm_eval_texel(m: u32, t: u32, wi: vec3<f32>, wo: vec3<f32>, residual: bool)
     }
     let k = min(data[m + SPMM_K], 256u);
     let stride = (1u + k) * 3u;
+    let summed = min(k, components);
     let views = data[m + SPMM_VIEW_TABLE];
     let nv = data[views];
     let coef = data[m + SPMM_COEFFICIENTS] + t * k;
@@ -185,7 +197,7 @@ fn spmm_eval_texel(m: u32, t: u32, wi: vec3<f32>, wo: vec3<f32>, residual: bool)
             }
             let cell = base + (lw.index[a] * nv + vw.index[b]) * stride;
             var e = residual_rgb_at(cell, halves);
-            for (var kk = 0u; kk < k; kk++) {
+            for (var kk = 0u; kk < summed; kk++) {
                 e += f32_at(coef + kk) * residual_rgb_at(cell + 3u + 3u * kk, halves);
             }
             rgb += w * e;

@@ -1328,16 +1328,16 @@ impl Studio {
                     ..
                 } = &doc.scene.materials[p.material]
             {
-                let parts = match (material.residual().is_some(), *residual, self.moving) {
-                    (false, _, _) => "bases only (no residual in the pack)".to_string(),
-                    (true, false, _) => "bases, residual off".into(),
-                    (true, true, true) => "bases, residual skipped while moving".into(),
-                    (true, true, false) => {
-                        format!(
-                            "bases + residual, N_PCA {}/{}",
-                            npca.min(&material.npca()),
-                            material.npca()
-                        )
+                let parts = match (material.residual().is_some(), *residual) {
+                    (false, _) => "bases only (no residual in the pack)".to_string(),
+                    (true, false) => "bases, residual off".into(),
+                    (true, true) => {
+                        let mut used = (*npca).min(material.npca());
+                        if self.moving {
+                            used = used.min(meso_core::spmm::MOVING_NPCA);
+                        }
+                        let moving = if self.moving { " while moving" } else { "" };
+                        format!("bases + residual, N_PCA {used}/{}{moving}", material.npca())
                     }
                 };
                 ui.label(format!("{} clusters · {parts}", material.clusters().len()));

@@ -17,7 +17,7 @@ use rayon::prelude::*;
 use super::hemisphere::HemisphereGrid;
 use crate::brdf::AnalyticBrdf;
 use crate::scene::Material;
-use crate::spmm::SpmmMaterial;
+use crate::spmm::{MOVING_NPCA, SpmmMaterial};
 
 /// Strata per side for the cell averages.
 const STRATA: u32 = 3;
@@ -300,13 +300,15 @@ impl BtfTable {
                         out[1] += w * a[1] * dot(row, lg);
                         out[2] += w * a[2] * dot(row, lb);
                     }
-                    if let Some(res) = t.residual.get(c).filter(|_| !moving) {
+                    if let Some(res) = t.residual.get(c) {
+                        // A moving camera keeps the mean and the first MOVING_NPCA terms.
+                        let terms = if moving { t.k.min(MOVING_NPCA) } else { t.k };
                         let npca = t.material.npca();
                         let coef = t
                             .material
                             .residual()
                             .map(|r| &r.coefficients[texel * npca..texel * npca + t.k]);
-                        for term in 0..=t.k {
+                        for term in 0..=terms {
                             let a = if term == 0 {
                                 1.0
                             } else {

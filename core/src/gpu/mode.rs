@@ -149,7 +149,8 @@ struct SceneData {
     /// The light table, last in `words`, with room for `light_capacity` lights.
     light_table: u32,
     light_capacity: usize,
-    /// Per material: its SPMM residual is in use (the moving flag changes it).
+    /// Per material: the moving flag changes it (an SPMM residual in use with more
+    /// components than a moving camera keeps, `MOVING_NPCA`).
     residual: Vec<bool>,
     /// Per SPMM material, the clusters uploaded (`reach::reachable_clusters`).
     reach: Reach,
@@ -243,7 +244,7 @@ impl SceneData {
         let mut merl: Vec<(*const crate::merl::MerlBrdf, u32)> = Vec::new();
         for (i, m) in scene.materials.iter().enumerate() {
             let mut rec = [0u32; MATERIAL_WORDS];
-            let mut uses_residual = false;
+            let mut changes_when_moving = false;
             match m {
                 Material::Brdf { brdf, albedo } => {
                     rec[0] = 0;
@@ -269,7 +270,9 @@ impl SceneData {
                         residual: *wanted,
                         max_npca: *npca,
                     });
-                    uses_residual = *wanted && prepared.has_residual();
+                    let uses_residual = *wanted && prepared.has_residual();
+                    changes_when_moving =
+                        uses_residual && prepared.prepared_npca() > crate::spmm::MOVING_NPCA;
                     rec[0] = 1;
                     rec[1] = words.push_spmm(&prepared, *uv_scale, Some(&used));
                     rec[2] = u32::from(uses_residual);
@@ -307,7 +310,7 @@ impl SceneData {
                 }
             }
             table.extend_from_slice(&rec);
-            residual.push(uses_residual);
+            residual.push(changes_when_moving);
         }
         let before = words.words.len();
         let material_table = words.at();
@@ -1009,9 +1012,14 @@ impl GpuSpmmMode {
             SceneEdit::Moving(moving) if moving == self.moving => Invalidation::Nothing,
             SceneEdit::Moving(moving) => {
                 self.moving = moving;
-                let residual = self.residual_mask();
-                let restarted = self.film.reset_where(|mask, _| mask & residual != 0);
-                self.restarted(restarted)
+                match self.residual_mask() {
+                    // No material shades differently while moving: every sample stands.
+                    0 => Invalidation::Nothing,
+                    residual => {
+                        let restarted = self.film.reset_where(|mask, _| mask & residual != 0);
+                        self.restarted(restarted)
+                    }
+                }
             }
             SceneEdit::Light { .. }
             | SceneEdit::AddLight(_)

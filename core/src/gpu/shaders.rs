@@ -72,4 +72,14 @@ mod tests {
             "shaders/spmm.wgsl lacks `{line}`"
         );
     }
+
+    /// A moving camera keeps as many residual components on the device as on the CPU.
+    #[test]
+    fn the_moving_components_match_the_cpus() {
+        let line = format!("const MOVING_NPCA: u32 = {}u;", crate::spmm::MOVING_NPCA);
+        assert!(
+            super::SPMM.contains(&line),
+            "shaders/spmm.wgsl lacks `{line}`"
+        );
+    }
 }

@@ -273,8 +273,9 @@ fn basis_functions_and_spmm_texels_match_the_f64_reference() {
     }
     // SPMM texels: the basis sum, with and without the interpolated residual, whose
     // tables go up as f32 or, when every value is a half float (a pack read from an F16
-    // file), as halves two to a word.
-    let material = crate::spmm::tests::sample_material(4, 3, 3, Some(3));
+    // file), as halves two to a word; and with the first `MOVING_NPCA` of its 6
+    // components (the moving camera: kind 11).
+    let material = crate::spmm::tests::sample_material(4, 3, 3, Some(6));
     let half_material = crate::spmm::pack::decode_pack(&crate::spmm::pack::encode_pack(
         &material,
         crate::spmm::pack::ResidualPrecision::F16,
@@ -310,6 +311,21 @@ fn basis_functions_and_spmm_texels_match_the_f64_reference() {
                     format!("texel {t}, residual {residual}, halves {halves}"),
                     prepared.eval_texel(t as usize, wi, wo),
                 ));
+                if residual {
+                    let moving = crate::spmm::MOVING_NPCA;
+                    cases.push(Case {
+                        kind: 11,
+                        record,
+                        wi,
+                        wo,
+                        texel: t,
+                        residual: true,
+                    });
+                    reference.push((
+                        format!("texel {t}, {moving} components, halves {halves}"),
+                        material.eval_texel(t as usize, wi, wo, true, moving),
+                    ));
+                }
             }
         }
     }

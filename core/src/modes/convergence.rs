@@ -3,7 +3,7 @@
 //! progressive image after 1, 2, 4, ... frames with the render time spent, for the
 //! scene as written and for its variants (independent random numbers instead of the
 //! scene's Sobol points; one light sample per frame where the scene asks for more; AO off; environment light without MIS; the
-//! SPMM residual skipped as while the camera moves; N_PCA limited). A variant that changes what is computed
+//! SPMM residual skipped; N_PCA limited, `npca_4` being the image while the camera moves). A variant that changes what is computed
 //! (AO off) is measured against its own reference; other estimators of the same image
 //! (independent numbers, one light sample, no MIS) and approximations of it (residual off, fewer PCA
 //! terms) against the full one, so their noise or bias shows. The viewport denoiser's
@@ -521,7 +521,8 @@ mod tests {
                 "residual_off",
                 "npca_0",
                 "npca_1",
-                "npca_2"
+                "npca_2",
+                "npca_4"
             ]
         );
         let full: Vec<&Checkpoint> = report

@@ -10,10 +10,11 @@ use crate::brdf::{AnalyticBrdf, BrdfModel};
 
 const SIZE: u32 = 24;
 
-/// A Lambertian floor (material 0) and an SPMM panel with a residual (material 1)
-/// under an area light and a point light, with AO.
+/// A Lambertian floor (material 0) and an SPMM panel with a residual of 6 components,
+/// more than a moving camera keeps (material 1), under an area light and a point
+/// light, with AO.
 pub(crate) fn edit_test_scene() -> Scene {
-    let panel = crate::spmm::tests::sample_material(4, 4, 2, Some(3));
+    let panel = crate::spmm::tests::sample_material(4, 4, 2, Some(6));
     Scene {
         render: RenderSettings {
             width: SIZE,
@@ -43,7 +44,7 @@ pub(crate) fn edit_test_scene() -> Scene {
                 material: Arc::new(panel),
                 uv_scale: DVec2::splat(2.0),
                 residual: true,
-                npca: 3,
+                npca: 6,
             },
         ],
         meshes: vec![

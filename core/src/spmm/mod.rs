@@ -20,7 +20,7 @@ pub(crate) mod tests;
 
 pub use edit::{Contributions, WeightTarget};
 pub(crate) use eval::TexelGrid;
-pub use eval::{EvalSettings, TexelFilter};
+pub use eval::{EvalSettings, MOVING_NPCA, TexelFilter};
 pub use material::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial};
 pub use prepared::{
     DEFENSIVE_SHARE, PrepareRequest, PreparedBytes, PreparedParts, PreparedResidualParts,

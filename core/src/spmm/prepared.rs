@@ -652,12 +652,14 @@ impl PreparedSpmm {
     /// BTF(t, wi, wo), RGB, as `SpmmMaterial::eval_texel` with the prepared settings.
     /// Texels of clusters not marked used get no residual.
     pub fn eval_texel(&self, t: usize, wi: DVec3, wo: DVec3) -> DVec3 {
-        self.eval_texel_parts(t, wi, wo, true)
+        self.eval_texel_parts(t, wi, wo, Some(usize::MAX))
     }
 
-    /// As `eval_texel`, with the residual skipped when `residual` is false (the
-    /// viewport's moving camera).
-    fn eval_texel_parts(&self, t: usize, wi: DVec3, wo: DVec3, residual: bool) -> DVec3 {
+    /// As `eval_texel`, with the residual's mean and at most `components` of its
+    /// prepared components (`None`: no residual). Fewer components read fewer lines of
+    /// a cell and sum the same terms in the same order, so the value is what tables
+    /// prepared with that many components give, bit for bit.
+    fn eval_texel_parts(&self, t: usize, wi: DVec3, wo: DVec3, components: Option<usize>) -> DVec3 {
         if wi.z <= 0.0 || wo.z <= 0.0 {
             return DVec3::ZERO;
         }
@@ -665,9 +667,10 @@ impl PreparedSpmm {
         // The residual's nine cells lie far apart in a table of megabytes: ask for all
         // of them first, so their cache misses overlap with each other and with the
         // basis sum instead of queueing after it (same arithmetic, same order).
-        let cells = match (&self.residual, residual) {
-            (Some(r), true) => r.cluster_lines(c).map(|lines| {
-                let (values, stride) = ((1 + r.k) * 3, cell_stride(r.k, r.precision));
+        let cells = match (&self.residual, components) {
+            (Some(r), Some(components)) => r.cluster_lines(c).map(|lines| {
+                let k = components.min(r.k);
+                let (values, stride) = ((1 + k) * 3, cell_stride(r.k, r.precision));
                 let nv = r.views.len();
                 let (lw, vw) = (r.lights.cosine_weights(wi), r.views.weights(wo));
                 let mut cells = [(0usize, 0.0f64); 9];
@@ -679,7 +682,7 @@ impl PreparedSpmm {
                     *cell = (start, l.1 * v.1);
                     prefetch(&bytes[start * size..(start + values) * size]);
                 }
-                (r, lines, cells)
+                (r, lines, cells, k)
             }),
             _ => None,
         };
@@ -691,19 +694,26 @@ impl PreparedSpmm {
                 * bases[usize::from(self.basis[i])].eval(wi, wo);
         }
         match cells {
-            Some((r, lines, cells)) => {
-                let coef = &r.coefficients[t * r.k..(t + 1) * r.k];
+            Some((r, lines, cells, k)) => {
+                let coef = &r.coefficients[t * r.k..t * r.k + k];
                 r.add(rgb, lines, &cells, coef)
             }
             None => rgb,
         }
     }
 
-    /// BTF at a surface UV position with the settings' filter and tiling. N_PCA was
-    /// fixed by `prepare`; `s.residual = false` skips a prepared residual.
+    /// BTF at a surface UV position with the settings' filter and tiling: the residual
+    /// with at most `s.max_npca` of the components `prepare` kept, or none when
+    /// `s.residual` is false.
     pub fn eval_uv(&self, uv: DVec2, wi: DVec3, wo: DVec3, s: &EvalSettings) -> DVec3 {
+        let components = s.residual.then_some(s.max_npca);
         self.grid
-            .filter(uv, s, |t| self.eval_texel_parts(t, wi, wo, s.residual))
+            .filter(uv, s, |t| self.eval_texel_parts(t, wi, wo, components))
+    }
+
+    /// Components the residual is prepared with (0 without a residual).
+    pub fn prepared_npca(&self) -> usize {
+        self.residual.as_ref().map_or(0, |r| r.k)
     }
 
     /// Lays out now the residual tables of the clusters whose texels an evaluation at

@@ -239,7 +239,7 @@ fn a_material_edit_restarts_only_the_pixels_that_shaded_it() {
 }
 
 #[test]
-fn moving_skips_the_residual_and_stopping_restores_it() {
+fn moving_keeps_the_first_components_and_stopping_restores_all() {
     let mut m = rendered(scene(), 1);
     let still = m.image();
     let Ok(Invalidation::Pixels(n)) = m.apply(SceneEdit::Moving(true)) else {
@@ -248,15 +248,24 @@ fn moving_skips_the_residual_and_stopping_restores_it() {
     assert!(n > 0);
     m.render_frame();
     let moving = m.image();
-    assert_ne!(still, moving, "the residual is skipped");
-    // Every sample equals a still render's of the material without its residual.
-    let mut no_residual = scene();
-    if let Material::Spmm { residual, .. } = &mut no_residual.materials[1] {
-        *residual = false;
-    }
-    let reference = SpmmMode::new(no_residual, SIZE, SIZE).expect("size");
+    assert_ne!(still, moving, "the later components are skipped");
+    // Every sample equals a still render's of the material with MOVING_NPCA components,
+    // and differs from one without its residual somewhere.
+    let with_npca = |npca: Option<usize>| {
+        let mut s = scene();
+        if let Material::Spmm {
+            residual, npca: n, ..
+        } = &mut s.materials[1]
+        {
+            *residual = npca.is_some();
+            *n = npca.unwrap_or(*n);
+        }
+        SpmmMode::new(s, SIZE, SIZE).expect("size")
+    };
+    let reference = with_npca(Some(crate::spmm::MOVING_NPCA));
+    let no_residual = with_npca(None);
     let with_residual = SpmmMode::new(scene(), SIZE, SIZE).expect("size");
-    let mut differ = 0;
+    let (mut differ, mut differ_from_none) = (0, 0);
     for (x, y) in (0..SIZE).flat_map(|y| (0..SIZE).map(move |x| (x, y))) {
         assert_eq!(
             m.sample(x, y, 5).0,
@@ -264,13 +273,28 @@ fn moving_skips_the_residual_and_stopping_restores_it() {
             "pixel {x},{y}"
         );
         differ += usize::from(m.sample(x, y, 5).0 != with_residual.sample(x, y, 5).0);
+        differ_from_none += usize::from(m.sample(x, y, 5).0 != no_residual.sample(x, y, 5).0);
     }
-    assert!(differ > 0, "the residual matters somewhere");
+    assert!(differ_from_none > 0, "the kept components shade");
+    assert!(differ > 0, "the later components matter somewhere");
     assert_eq!(m.apply(SceneEdit::Moving(true)), Ok(Invalidation::Nothing));
     assert!(matches!(m.apply(SceneEdit::Moving(false)), Ok(Invalidation::Pixels(k)) if k > 0));
     // Pixels that saw the panel restarted; the rest kept both frames.
     m.render_frame();
     assert_eq!(m.progress().min_samples, 1);
+}
+
+/// A residual of no more components than a moving camera keeps renders alike moving
+/// or still: the flag restarts nothing.
+#[test]
+fn moving_restarts_nothing_when_the_residual_is_kept_whole() {
+    let mut few = scene();
+    if let Material::Spmm { npca, .. } = &mut few.materials[1] {
+        *npca = crate::spmm::MOVING_NPCA;
+    }
+    let mut m = rendered(few, 1);
+    assert_eq!(m.apply(SceneEdit::Moving(true)), Ok(Invalidation::Nothing));
+    assert_eq!(m.apply(SceneEdit::Moving(false)), Ok(Invalidation::Nothing));
 }
 
 #[test]

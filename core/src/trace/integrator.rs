@@ -502,7 +502,7 @@ impl SpmmMode {
         self.shaders
             .iter()
             .enumerate()
-            .filter(|(_, s)| s.skips_residual_when_moving())
+            .filter(|(_, s)| s.changes_when_moving())
             .fold(0, |m, (i, _)| m | material_bit(i))
     }
 
@@ -680,9 +680,15 @@ impl RenderMode for SpmmMode {
             SceneEdit::Moving(moving) if moving == self.moving => Invalidation::Nothing,
             SceneEdit::Moving(moving) => {
                 self.moving = moving;
-                self.done_early.clear();
-                // Samples taken with and without the residual must not mix.
-                Invalidation::Pixels(self.film.reset_touching(self.residual_mask()))
+                match self.residual_mask() {
+                    // No material shades differently while moving: every sample stands.
+                    0 => Invalidation::Nothing,
+                    mask => {
+                        self.done_early.clear();
+                        // Samples with and without the later components must not mix.
+                        Invalidation::Pixels(self.film.reset_touching(mask))
+                    }
+                }
             }
             // Another estimator of the light: its sequence starts again with it.
             SceneEdit::LightSamples(_) => self.restart_all(),

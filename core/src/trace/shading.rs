@@ -1,8 +1,9 @@
 //! Shading in the spmm mode: the surface frame at a hit (interpolated normal, tangent
 //! along +u as the SPMM convention needs), each material's response to light (albedo
 //! f cos_i for analytic BRDFs, tint f cos_i for MERL tables (nearest cell, as the
-//! reference reader looks them up), the BTF for SPMM packs, with the residual skipped
-//! while the camera moves, and the interpolated table for `btf` materials), and the
+//! reference reader looks them up), the BTF for SPMM packs, with the residual cut to
+//! `MOVING_NPCA` components while the camera moves, and the interpolated table for
+//! `btf` materials), and the
 //! sampling that suits each material.
 
 use std::f64::consts::PI;
@@ -16,8 +17,8 @@ use crate::brdf::warp;
 use crate::geometry::Hit;
 use crate::scene::{Material, Scene};
 use crate::spmm::{
-    EvalSettings, PrepareRequest, PreparedSpmm, SpmmMaterial, TexelFilter, defensive_pdf,
-    defensive_sample,
+    EvalSettings, MOVING_NPCA, PrepareRequest, PreparedSpmm, SpmmMaterial, TexelFilter,
+    defensive_pdf, defensive_sample,
 };
 
 /// How the spmm mode draws directions over the hemisphere at SPMM packs (ambient
@@ -76,10 +77,7 @@ impl Shader {
                     },
                     prepared: OnceLock::new(),
                     still,
-                    moving: EvalSettings {
-                        residual: false,
-                        ..still
-                    },
+                    moving: moving_settings(still),
                 }
             }
             Material::Btf { .. } => Shader::Table,
@@ -126,18 +124,19 @@ impl Shader {
                 request,
                 prepared: OnceLock::from(data),
                 still,
-                moving: EvalSettings {
-                    residual: false,
-                    ..still
-                },
+                moving: moving_settings(still),
             };
         }
         Self::new(after)
     }
 
-    /// True if moving changes this material's evaluation (it has a residual in use).
-    pub(super) fn skips_residual_when_moving(&self) -> bool {
-        matches!(self, Shader::Spmm { material, request, still, .. } if still.residual && material.prepares_residual(request))
+    /// True if moving changes this material's evaluation: it has a residual in use
+    /// with more components than a moving camera keeps.
+    pub(super) fn changes_when_moving(&self) -> bool {
+        matches!(self, Shader::Spmm { material, request, still, .. }
+            if still.residual
+                && material.prepares_residual(request)
+                && request.max_npca.min(material.npca()) > MOVING_NPCA)
     }
 
     /// The pack's evaluation data, prepared now if no ray needed it before (one
@@ -325,6 +324,15 @@ impl SpmmMode {
             // `supports` refused every other material before the mode was made.
             _ => DVec3::ZERO,
         }
+    }
+}
+
+/// A pack's settings while the camera moves: the residual's mean and at most
+/// `MOVING_NPCA` components (docs/rendering.md, "The moving camera").
+fn moving_settings(still: EvalSettings) -> EvalSettings {
+    EvalSettings {
+        max_npca: still.max_npca.min(MOVING_NPCA),
+        ..still
     }
 }
 

@@ -1,7 +1,7 @@
 //! `meso bench frames SCENE [--size 512] [--frames 8] [--devices cpu,gpu] [--json]`:
 //! the spmm mode's frame time on each device side by side in one process, for the
-//! scene as it is, with ambient occlusion off, and with the SPMM residual off (where
-//! the scene has either). Per run: preparation seconds, milliseconds per frame (the
+//! scene as it is, with ambient occlusion off, with the SPMM residual off, and as the
+//! viewport renders it while the camera moves (where the scene has AO or a residual). Per run: preparation seconds, milliseconds per frame (the
 //! mean of `--frames` frames after one warm-up frame), rays per second, and the
 //! edit-to-frame time of a light-colour edit (apply + one frame + the resolved image,
 //! the viewport's path). A device without an adapter is reported, not fatal.
@@ -34,13 +34,17 @@ pub struct FramesArgs {
     json: bool,
 }
 
-/// The variants of the scene that are measured: as it is, AO off, residual off.
-fn variants(scene: &Scene) -> Vec<(&'static str, Scene)> {
-    let mut out = vec![("as_is", scene.clone())];
+/// A measured variant of the scene: its name, the scene, and whether the moving flag
+/// is on (the residual cut to `MOVING_NPCA` components, docs/rendering.md).
+type Variant = (&'static str, Scene, bool);
+
+/// The variants of the scene that are measured: as it is, AO off, residual off, moving.
+fn variants(scene: &Scene) -> Vec<Variant> {
+    let mut out = vec![("as_is", scene.clone(), false)];
     if scene.ambient.is_some() {
         let mut s = scene.clone();
         s.ambient = None;
-        out.push(("ao_off", s));
+        out.push(("ao_off", s, false));
     }
     let has_residual = scene.materials.iter().any(|m| {
         matches!(m, Material::Spmm { material, residual: true, .. } if material.residual().is_some())
@@ -52,7 +56,8 @@ fn variants(scene: &Scene) -> Vec<(&'static str, Scene)> {
                 *residual = false;
             }
         }
-        out.push(("residual_off", s));
+        out.push(("residual_off", s, false));
+        out.push(("moving", scene.clone(), true));
     }
     out
 }
@@ -60,6 +65,7 @@ fn variants(scene: &Scene) -> Vec<(&'static str, Scene)> {
 fn measure(
     device: Device,
     scene: Scene,
+    moving: bool,
     size: u32,
     frames: u32,
 ) -> Result<serde_json::Value, String> {
@@ -74,6 +80,10 @@ fn measure(
     )
     .map_err(|e| e.to_string())?;
     let prepare_s = start.elapsed().as_secs_f64();
+    if moving {
+        mode.apply(SceneEdit::Moving(true))
+            .map_err(|e| e.to_string())?;
+    }
     run_frames(mode.as_mut(), 1, |_, _| {});
     let run = run_frames(mode.as_mut(), frames, |_, _| {});
     let rays = run.counters.rays.total();
@@ -125,9 +135,9 @@ pub fn run(args: &FramesArgs) -> Result<(), CliError> {
         .collect::<Result<Vec<_>, _>>()?;
     let scene = load_scene(&args.scene).bad_input_ctx(|| format!("`{}`", args.scene.display()))?;
     let mut runs = Vec::new();
-    for (variant, s) in variants(&scene) {
+    for (variant, s, moving) in variants(&scene) {
         for &device in &devices {
-            let result = measure(device, s.clone(), args.size, args.frames);
+            let result = measure(device, s.clone(), moving, args.size, args.frames);
             if !args.json {
                 match &result {
                     Ok(v) => println!(

@@ -299,28 +299,22 @@ fn basis_functions_and_spmm_texels_match_the_f64_reference() {
         let record = words.push_spmm(&prepared, glam::DVec2::ONE, None);
         for t in 0..12u32 {
             for &(wi, wo) in pairs.iter().step_by(4) {
-                cases.push(Case {
-                    kind: 2,
+                let texel_case = |kind| Case {
+                    kind,
                     record,
                     wi,
                     wo,
                     texel: t,
                     residual: true,
-                });
+                };
+                cases.push(texel_case(2));
                 reference.push((
                     format!("texel {t}, residual {residual}, halves {halves}"),
                     prepared.eval_texel(t as usize, wi, wo),
                 ));
                 if residual {
                     let moving = crate::spmm::MOVING_NPCA;
-                    cases.push(Case {
-                        kind: 11,
-                        record,
-                        wi,
-                        wo,
-                        texel: t,
-                        residual: true,
-                    });
+                    cases.push(texel_case(11));
                     reference.push((
                         format!("texel {t}, {moving} components, halves {halves}"),
                         material.eval_texel(t as usize, wi, wo, true, moving),

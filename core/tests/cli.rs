@@ -2646,3 +2646,42 @@ fn bench_frames_measures_both_devices_side_by_side() {
         &["--devices", "tpu"],
     );
 }
+
+/// A scene with a residual is also measured with it off and as the viewport renders it
+/// while the camera moves.
+#[test]
+fn bench_frames_measures_the_residual_off_and_the_moving_camera() {
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/fitted.toml");
+    let o = meso(
+        &[
+            "bench",
+            "frames",
+            scene,
+            "--size",
+            "4",
+            "--frames",
+            "1",
+            "--devices",
+            "cpu",
+            "--json",
+        ],
+        "",
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    let runs = v["runs"].as_array().expect("runs");
+    let names: Vec<&str> = runs
+        .iter()
+        .map(|r| r["variant"].as_str().expect("variant"))
+        .collect();
+    assert_eq!(names, ["as_is", "ao_off", "residual_off", "moving"]);
+    assert!(
+        runs.iter().all(|r| r["ms_per_frame"].as_f64() > Some(0.0)),
+        "{v}"
+    );
+}

@@ -21,7 +21,7 @@ pub enum TexelFilter {
 /// and its first four. The seed skips the whole residual while moving; on a pack whose
 /// residual carries much of its look that makes the image jump when the camera stops
 /// (the shipped 3-cluster grain leather renders at MSSIM 0.933 without its residual
-/// against 0.994 with four components, for about 8% more CPU frame time:
+/// against 0.994 with four components, for about 9% more CPU frame time:
 /// docs/rendering.md, "The moving camera").
 pub const MOVING_NPCA: usize = 4;
 

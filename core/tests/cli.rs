@@ -2600,19 +2600,7 @@ fn render_on_the_gpu_reports_device_memory_and_no_adapter_is_exit_2() {
 #[test]
 fn bench_frames_measures_both_devices_side_by_side() {
     let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/cornell.toml");
-    let o = meso(
-        &[
-            "bench", "frames", scene, "--size", "8", "--frames", "1", "--json",
-        ],
-        "",
-    );
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    let v = bench_frames_json(scene, &["--size", "8"]);
     let runs = v["runs"].as_array().expect("runs");
     // As it is and with AO off (the brushed metal has no residual), on both devices.
     let names: Vec<(&str, &str)> = runs
@@ -2647,33 +2635,21 @@ fn bench_frames_measures_both_devices_side_by_side() {
     );
 }
 
+/// `meso bench frames SCENE --frames 1 --json` plus `args`, which must succeed.
+fn bench_frames_json(scene: &str, args: &[&str]) -> serde_json::Value {
+    let mut all = vec!["bench", "frames", scene, "--frames", "1", "--json"];
+    all.extend_from_slice(args);
+    let o = meso(&all, "");
+    assert_ok(&o);
+    serde_json::from_str(&stdout(&o)).expect("JSON")
+}
+
 /// A scene with a residual is also measured with it off and as the viewport renders it
 /// while the camera moves.
 #[test]
 fn bench_frames_measures_the_residual_off_and_the_moving_camera() {
     let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/scenes/fitted.toml");
-    let o = meso(
-        &[
-            "bench",
-            "frames",
-            scene,
-            "--size",
-            "4",
-            "--frames",
-            "1",
-            "--devices",
-            "cpu",
-            "--json",
-        ],
-        "",
-    );
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    let v = bench_frames_json(scene, &["--size", "4", "--devices", "cpu"]);
     let runs = v["runs"].as_array().expect("runs");
     let names: Vec<&str> = runs
         .iter()

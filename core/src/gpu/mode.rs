@@ -151,7 +151,7 @@ struct SceneData {
     light_capacity: usize,
     /// Per material: the moving flag changes it (an SPMM residual in use with more
     /// components than a moving camera keeps, `MOVING_NPCA`).
-    residual: Vec<bool>,
+    moving_changes: Vec<bool>,
     /// Per SPMM material, the clusters uploaded (`reach::reachable_clusters`).
     reach: Reach,
 }
@@ -240,7 +240,7 @@ impl SceneData {
         };
         let mut words = Words::default();
         let mut table = Vec::with_capacity(scene.materials.len() * MATERIAL_WORDS);
-        let mut residual = Vec::with_capacity(scene.materials.len());
+        let mut moving_changes = Vec::with_capacity(scene.materials.len());
         let mut merl: Vec<(*const crate::merl::MerlBrdf, u32)> = Vec::new();
         for (i, m) in scene.materials.iter().enumerate() {
             let mut rec = [0u32; MATERIAL_WORDS];
@@ -262,7 +262,7 @@ impl SceneData {
                         // No ray can shade it: nothing uploaded, a record of no kind.
                         rec[0] = u32::MAX;
                         table.extend_from_slice(&rec);
-                        residual.push(false);
+                        moving_changes.push(false);
                         continue;
                     }
                     let prepared = material.prepare(&PrepareRequest {
@@ -310,7 +310,7 @@ impl SceneData {
                 }
             }
             table.extend_from_slice(&rec);
-            residual.push(changes_when_moving);
+            moving_changes.push(changes_when_moving);
         }
         let before = words.words.len();
         let material_table = words.at();
@@ -329,7 +329,7 @@ impl SceneData {
             material_table,
             light_table,
             light_capacity,
-            residual,
+            moving_changes,
             reach,
         }
     }
@@ -614,9 +614,10 @@ impl GpuSpmmMode {
         })
     }
 
-    fn residual_mask(&self) -> u64 {
+    /// The materials whose evaluation changes with the moving flag.
+    fn moving_mask(&self) -> u64 {
         self.scene_data
-            .residual
+            .moving_changes
             .iter()
             .enumerate()
             .filter(|(_, r)| **r)
@@ -1012,7 +1013,7 @@ impl GpuSpmmMode {
             SceneEdit::Moving(moving) if moving == self.moving => Invalidation::Nothing,
             SceneEdit::Moving(moving) => {
                 self.moving = moving;
-                match self.residual_mask() {
+                match self.moving_mask() {
                     // No material shades differently while moving: every sample stands.
                     0 => Invalidation::Nothing,
                     residual => {

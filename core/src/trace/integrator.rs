@@ -498,7 +498,7 @@ impl SpmmMode {
     }
 
     /// The materials whose evaluation changes with the moving flag.
-    fn residual_mask(&self) -> u64 {
+    fn moving_mask(&self) -> u64 {
         self.shaders
             .iter()
             .enumerate()
@@ -680,7 +680,7 @@ impl RenderMode for SpmmMode {
             SceneEdit::Moving(moving) if moving == self.moving => Invalidation::Nothing,
             SceneEdit::Moving(moving) => {
                 self.moving = moving;
-                match self.residual_mask() {
+                match self.moving_mask() {
                     // No material shades differently while moving: every sample stands.
                     0 => Invalidation::Nothing,
                     mask => {

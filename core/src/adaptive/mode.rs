@@ -29,8 +29,8 @@ use crate::render::film::{material_bit, memory_limit_bytes};
 use crate::render::layers::{self, Before, ENVIRONMENT, Layers, LightTarget};
 use crate::render::{
     Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind,
-    PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit,
-    Unrenderable, Unsupported,
+    PreparationReport, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
+    Unsupported,
 };
 use crate::rng::SampleStream;
 use crate::scene::{Light, Material, RenderSettings, Scene};
@@ -369,16 +369,7 @@ impl AdaptiveMode {
             memory_limit_bytes(),
         )?;
         let mut report = PreparationReport::default();
-        let mut stage = |name: &str, start: Instant| {
-            report.stages.push(PreparationStage {
-                name: name.into(),
-                seconds: start.elapsed().as_secs_f64(),
-            })
-        };
-        prepare.report("bvh", 0.0)?;
-        let start = Instant::now();
-        let bvh = SceneBvh::build(&scene.meshes);
-        stage("bvh", start);
+        let bvh = prepare.bvh(&scene.meshes, &mut report)?;
         let start = Instant::now();
         let mut materials = Vec::with_capacity(scene.materials.len());
         for (i, m) in scene.materials.iter().enumerate() {
@@ -388,7 +379,7 @@ impl AdaptiveMode {
             )?;
             materials.push(material_bandwidth(m));
         }
-        stage("material bandwidth", start);
+        report.record_since("material bandwidth", start);
         prepare.report("environment", 0.0)?;
         let start = Instant::now();
         let mut mode = Self {
@@ -421,7 +412,7 @@ impl AdaptiveMode {
             scene,
         };
         mode.refresh_emitters();
-        stage("environment", start);
+        report.record_since("environment", start);
         prepare.report("environment", 1.0)?;
         mode.preparation = report;
         Ok(mode)

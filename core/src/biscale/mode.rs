@@ -22,8 +22,8 @@ use crate::render::film::{material_bit, memory_limit_bytes};
 use crate::render::layers::{self, Before, ENVIRONMENT, Layers};
 use crate::render::{
     Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind,
-    PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit,
-    Unrenderable, Unsupported,
+    PreparationReport, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
+    Unsupported,
 };
 use crate::rng::SampleStream;
 use crate::scene::{Environment, Light, Material, RenderSettings, Scene};
@@ -160,23 +160,14 @@ impl BiscaleMode {
             memory_limit_bytes(),
         )?;
         let mut report = PreparationReport::default();
-        let mut stage = |name: &str, seconds: f64| {
-            report.stages.push(PreparationStage {
-                name: name.into(),
-                seconds,
-            })
-        };
-        prepare.report("bvh", 0.0)?;
-        let start = Instant::now();
-        let bvh = SceneBvh::build(&scene.meshes);
-        stage("bvh", start.elapsed().as_secs_f64());
+        let bvh = prepare.bvh(&scene.meshes, &mut report)?;
         let pre = precompute(&scene.meshes, &bvh, &settings, &prepare)?;
         if pre.stats.from_cache {
-            stage("cache", pre.stats.cache_seconds);
+            report.record("cache", pre.stats.cache_seconds);
         } else {
-            stage("visibility", pre.stats.visibility_seconds);
-            stage("binning", pre.stats.binning_seconds);
-            stage("biclustering", pre.stats.biclustering_seconds);
+            report.record("visibility", pre.stats.visibility_seconds);
+            report.record("binning", pre.stats.binning_seconds);
+            report.record("biclustering", pre.stats.biclustering_seconds);
         }
         let tab = Tabulation {
             local: HemisphereGrid::new(settings.local_res),
@@ -189,7 +180,7 @@ impl BiscaleMode {
             prepare.report("tables", i as f32 / scene.materials.len().max(1) as f32)?;
             tables.push(tab.table(m));
         }
-        stage("tables", start.elapsed().as_secs_f64());
+        report.record_since("tables", start);
         let mut mode = Self {
             camera: PinholeCamera::new(&scene.camera, width, height),
             settings,
@@ -214,10 +205,7 @@ impl BiscaleMode {
         prepare.report("lighting", 0.0)?;
         let start = Instant::now();
         mode.relight();
-        report.stages.push(PreparationStage {
-            name: "lighting".into(),
-            seconds: start.elapsed().as_secs_f64(),
-        });
+        report.record_since("lighting", start);
         mode.preparation = report;
         Ok(mode)
     }
@@ -412,14 +400,8 @@ impl RenderMode for BiscaleMode {
     }
 
     fn progress(&self) -> Progress {
-        Progress {
-            frames: self.frames,
-            min_samples: self.film.min_samples(&self.layers.active(&self.scene)),
-            dropped: self.film.dropped(),
-            width: self.film.width(),
-            height: self.film.height(),
-            film_bytes: self.film.bytes(),
-        }
+        self.film
+            .progress(self.frames, &self.layers.active(&self.scene))
     }
 
     fn set_samples_per_frame(&mut self, samples: u32) {

@@ -27,8 +27,7 @@ use crate::render::layers::{Before, Layers, MANY_LIGHTS};
 use crate::render::reach::EditedTexels;
 use crate::render::{
     Counters, Device, EditError, FrameStats, ImageOnDevice, Invalidation, ModeError, ModeKind,
-    PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode, SceneEdit,
-    Unsupported,
+    PreparationReport, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unsupported,
 };
 use crate::scene::{Light, Material, RenderSettings, Scene};
 use crate::spmm::PrepareRequest;
@@ -430,16 +429,7 @@ impl GpuSpmmMode {
             return Err(ModeError::Size(p));
         }
         let mut report = PreparationReport::default();
-        let mut stage = |name: &str, start: Instant| {
-            report.stages.push(PreparationStage {
-                name: name.into(),
-                seconds: start.elapsed().as_secs_f64(),
-            })
-        };
-        prepare.report("bvh", 0.0)?;
-        let start = Instant::now();
-        let bvh = SceneBvh::build(&scene.meshes);
-        stage("bvh", start);
+        let bvh = prepare.bvh(&scene.meshes, &mut report)?;
         prepare.report("materials", 0.0)?;
         let start = Instant::now();
         let scene_data = SceneData::build(&scene, &layers, all_clusters);
@@ -447,7 +437,7 @@ impl GpuSpmmMode {
         {
             return Err(ModeError::Size(p));
         }
-        stage("materials", start);
+        report.record_since("materials", start);
         prepare.report("environment", 0.0)?;
         let start = Instant::now();
         let env_sampler = scene
@@ -458,7 +448,7 @@ impl GpuSpmmMode {
         if let Some(p) = words_size_problem(&ctx, ENVIRONMENT_WORDS, env_words.len()) {
             return Err(ModeError::Size(p));
         }
-        stage("environment", start);
+        report.record_since("environment", start);
         prepare.report("device", 0.0)?;
         let start = Instant::now();
         let kernel = Kernel::new(&ctx, &shaders::integrator(), "render", &SLOTS);
@@ -471,7 +461,7 @@ impl GpuSpmmMode {
             (&scene_data, &env_words),
             &film,
         );
-        stage("device", start);
+        report.record_since("device", start);
         if let Some(e) = ctx.failure() {
             return Err(ModeError::DeviceFailed(e.to_string()));
         }

@@ -325,6 +325,19 @@ impl Film {
             .unwrap_or(0)
     }
 
+    /// Where a mode with this film stands after `frames` frames, counting the samples
+    /// of the `active` layers (`min_samples`).
+    pub fn progress(&self, frames: u32, active: &[usize]) -> super::Progress {
+        super::Progress {
+            frames,
+            min_samples: self.min_samples(active),
+            dropped: self.dropped,
+            width: self.width,
+            height: self.height,
+            film_bytes: self.bytes(),
+        }
+    }
+
     /// A new image size; every sample is forgotten, the dropped count kept.
     pub fn resize(&mut self, width: u32, height: u32) {
         let dropped = self.dropped;

@@ -13,14 +13,16 @@ pub mod preview;
 pub mod reach;
 
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
 
 pub use denoise::{Denoiser, Guides};
 pub use edit::{EditError, Invalidation, SceneEdit};
 pub use film::{Film, FilmTooLarge};
 
+use crate::geometry::SceneBvh;
 use crate::image::Image;
-use crate::scene::Scene;
 pub use crate::scene::{Device, ModeKind};
+use crate::scene::{Scene, TriangleMesh};
 
 /// Rays traced, by kind (zero for modes that trace none of a kind).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
@@ -111,6 +113,19 @@ pub struct PreparationStage {
 }
 
 impl PreparationReport {
+    /// Records stage `name`, which took `seconds`.
+    pub fn record(&mut self, name: &str, seconds: f64) {
+        self.stages.push(PreparationStage {
+            name: name.into(),
+            seconds,
+        });
+    }
+
+    /// Records stage `name`, begun at `start` and ended now.
+    pub fn record_since(&mut self, name: &str, start: Instant) {
+        self.record(name, start.elapsed().as_secs_f64());
+    }
+
     pub fn seconds(&self, stage: &str) -> Option<f64> {
         self.stages
             .iter()
@@ -151,6 +166,19 @@ impl<'a> Prepare<'a> {
             on_progress: &|_, _| {},
             cancel: &NEVER_CANCELLED,
         }
+    }
+
+    /// The scene's BVH, built as the stage `bvh` of `report` (every mode's first).
+    pub fn bvh(
+        &self,
+        meshes: &[TriangleMesh],
+        report: &mut PreparationReport,
+    ) -> Result<SceneBvh, Cancelled> {
+        self.report("bvh", 0.0)?;
+        let start = Instant::now();
+        let bvh = SceneBvh::build(meshes);
+        report.record_since("bvh", start);
+        Ok(bvh)
     }
 
     /// Reports that `fraction` (0..=1) of `stage` is done; `Err` once cancelled.

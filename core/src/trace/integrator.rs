@@ -18,8 +18,8 @@ use crate::render::layers::{self, Before, Layers, LightTarget};
 use crate::render::reach::EditedTexels;
 use crate::render::{
     Counters, Device, EditError, Film, FrameStats, Invalidation, MaterialBytes, ModeError,
-    ModeKind, PreparationReport, PreparationStage, Prepare, Progress, RayCounts, RenderMode,
-    SceneEdit, Unrenderable, Unsupported,
+    ModeKind, PreparationReport, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
+    Unsupported,
 };
 use crate::rng::SampleStream;
 use crate::scene::{Material, RenderSettings, Scene};
@@ -142,16 +142,7 @@ impl SpmmMode {
             memory_limit_bytes(),
         )?;
         let mut report = PreparationReport::default();
-        let mut stage = |name: &str, start: Instant| {
-            report.stages.push(PreparationStage {
-                name: name.into(),
-                seconds: start.elapsed().as_secs_f64(),
-            })
-        };
-        prepare.report("bvh", 0.0)?;
-        let start = Instant::now();
-        let bvh = SceneBvh::build(&scene.meshes);
-        stage("bvh", start);
+        let bvh = prepare.bvh(&scene.meshes, &mut report)?;
         let start = Instant::now();
         let camera = PinholeCamera::new(&scene.camera, width, height);
         let shaders: Vec<Shader> = scene.materials.iter().map(Shader::new).collect();
@@ -167,14 +158,14 @@ impl SpmmMode {
             }
             shaders[*material].make_resident_at(&scene.materials[*material], *uv);
         }
-        stage("materials", start);
+        report.record_since("materials", start);
         prepare.report("environment", 0.0)?;
         let start = Instant::now();
         let env_sampler = scene
             .environment
             .as_ref()
             .and_then(|e| EnvironmentSampler::new(&e.map));
-        stage("environment", start);
+        report.record_since("environment", start);
         prepare.report("environment", 1.0)?;
         Ok(Self {
             bvh,
@@ -554,14 +545,8 @@ impl RenderMode for SpmmMode {
     }
 
     fn progress(&self) -> Progress {
-        Progress {
-            frames: self.frames,
-            min_samples: self.film.min_samples(&self.layers.active(&self.scene)),
-            dropped: self.film.dropped(),
-            width: self.film.width(),
-            height: self.film.height(),
-            film_bytes: self.film.bytes(),
-        }
+        self.film
+            .progress(self.frames, &self.layers.active(&self.scene))
     }
 
     fn set_samples_per_frame(&mut self, samples: u32) {

@@ -5,9 +5,10 @@
 
 use egui::{ColorImage, TextureHandle, TextureOptions, Ui};
 use glam::DVec3;
-use meso_core::brdf::{AnalyticBrdf, BrdfModel, LobePoint, ParamSpec, incidence_plane_lobe};
+use meso_core::brdf::{AnalyticBrdf, BrdfModel, LobePoint, incidence_plane_lobe};
 use meso_core::image::{Image, to_srgb8};
 
+use crate::brdf_editor::{slider_is_logarithmic, smallest_positive};
 use crate::lobe_plot::{self, Scale};
 use crate::sphere_preview::{PreviewWorker, Request};
 
@@ -45,23 +46,6 @@ impl Default for Settings {
             exposure_stops: -2.0,
             scale: Scale::Linear,
         }
-    }
-}
-
-/// Logarithmic where the spec says so, and also for ranges many times wider than the
-/// default's magnitude (Lafortune's cx, cy, cz in [-1000, 1000] around -1 or 1), so
-/// that the useful values are not crowded into a few pixels of the rail.
-pub(crate) fn slider_is_logarithmic(spec: &ParamSpec) -> bool {
-    spec.log_scale || (spec.default != 0.0 && spec.max - spec.min > 100.0 * spec.default.abs())
-}
-
-/// For a logarithmic slider whose range reaches zero: six decades below the largest
-/// magnitude (exponent n of Blinn-Phong: 0.1 .. 1e5).
-pub(crate) fn smallest_positive(spec: &ParamSpec) -> f64 {
-    if spec.min > 0.0 {
-        spec.min
-    } else {
-        spec.max.abs().max(spec.min.abs()) * 1e-6
     }
 }
 
@@ -579,16 +563,6 @@ mod tests {
             *harness.state().brdf(),
             AnalyticBrdf::with_defaults(BrdfModel::Ward)
         );
-    }
-
-    #[test]
-    fn wide_ranges_get_logarithmic_sliders() {
-        let lafortune = BrdfModel::Lafortune.param_specs();
-        assert!(lafortune.iter().all(slider_is_logarithmic));
-        let cook = BrdfModel::CookTorrance.param_specs();
-        assert!(slider_is_logarithmic(&cook[0]) && !slider_is_logarithmic(&cook[1]));
-        let n = &BrdfModel::BlinnPhong.param_specs()[0];
-        assert!((smallest_positive(n) - 0.1).abs() < 1e-12);
     }
 
     #[test]

@@ -2,9 +2,10 @@
 //! over the document (`document`), the render thread (`render_worker`) and the modes
 //! it runs (`mode_maker`, with the lights a mode renders without in `disabled`), the
 //! viewport and the compare view's reference (`reference`), the window's wgpu device
-//! that the GPU mode shares (`window_device`), the material and scene panels, background jobs (`jobs`), and the BRDF explorer. `main.rs` runs it in eframe;
+//! that the GPU mode shares (`window_device`), the material and scene panels (with the scene's other materials in `scene_materials` and the shared BRDF and colour editors in `brdf_editor`), background jobs (`jobs`), and the BRDF explorer. `main.rs` runs it in eframe;
 //! benchmarks and tests drive it headless.
 
+pub mod brdf_editor;
 pub mod disabled;
 pub mod document;
 pub mod explorer;
@@ -15,6 +16,7 @@ pub mod material_panel;
 pub mod mode_maker;
 pub mod reference;
 pub mod render_worker;
+pub mod scene_materials;
 pub mod scene_panel;
 pub mod sphere_preview;
 pub mod studio;

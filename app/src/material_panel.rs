@@ -19,8 +19,8 @@ use meso_core::render::SceneEdit;
 use meso_core::scene::Material;
 use meso_core::spmm::{Falloff, SpmmMaterial, TexelMask, WeightTarget};
 
+use crate::brdf_editor::brdf_editor;
 use crate::document::Document;
-use crate::explorer::{slider_is_logarithmic, smallest_positive};
 use crate::lobe_plot::{self, Extra, Scale};
 
 const LOBE_STEPS: usize = 181;
@@ -237,7 +237,7 @@ impl MaterialPanel {
     pub fn show(&mut self, ui: &mut Ui, doc: &Document) -> Vec<SceneEdit> {
         let mut edits = Vec::new();
         let (Some(pack), Some(m)) = (&doc.pack, doc.material()) else {
-            ui.label("The scene has no SPMM material to edit.");
+            ui.label("The scene has no SPMM material to edit (its other materials are in the scene panel).");
             return edits;
         };
         let index = pack.material;
@@ -849,37 +849,7 @@ fn basis_editor(
         .id_salt(("basis", cluster, j))
         .default_open(j == 0)
         .show(ui, |ui| {
-            let mut model = brdf.model();
-            ui.horizontal(|ui| {
-                let label = ui.label("model");
-                egui::ComboBox::from_id_salt(("model", cluster, j))
-                    .selected_text(model.name())
-                    .show_ui(ui, |ui| {
-                        for m in BrdfModel::ALL {
-                            ui.selectable_value(&mut model, m, m.name());
-                        }
-                    })
-                    .response
-                    .labelled_by(label.id);
-            });
-            if model != brdf.model() {
-                brdf = AnalyticBrdf::with_defaults(model);
-                changed = true;
-            }
-            for (spec, mut value) in brdf.model().param_specs().iter().zip(brdf.param_values()) {
-                let slider = egui::Slider::new(&mut value, spec.min..=spec.max)
-                    .clamping(egui::SliderClamping::Edits)
-                    .text(spec.name)
-                    .logarithmic(slider_is_logarithmic(spec))
-                    .smallest_positive(smallest_positive(spec))
-                    .max_decimals(6);
-                if ui.add(slider).on_hover_text(spec.doc).changed()
-                    && let Ok(b) = brdf.with_param(spec.name, value)
-                {
-                    brdf = b;
-                    changed = true;
-                }
-            }
+            changed |= brdf_editor(ui, (cluster, j), &mut brdf);
             ui.horizontal(|ui| {
                 normal_changed |= hemisphere(ui, &mut theta, &mut phi);
                 ui.vertical(|ui| {

@@ -15,6 +15,7 @@ use meso_core::scene::{Ambient, Background, Environment, Light, Material};
 
 use crate::disabled::Disabled;
 use crate::document::Document;
+use crate::scene_materials;
 
 /// Something the studio must do for the panel.
 pub enum Request {
@@ -451,5 +452,11 @@ pub fn show(ui: &mut Ui, doc: &Document, state: &PanelState<'_>) -> Vec<Request>
         }
         Background::FromEnvironment => {}
     }
+    ui.separator();
+    out.extend(
+        scene_materials::show(ui, doc)
+            .into_iter()
+            .map(Request::Edit),
+    );
     out
 }

@@ -1216,3 +1216,38 @@ fn the_residual_notice_shows_only_for_an_edited_cluster() {
         "cluster 1 was not edited"
     );
 }
+
+/// The scene panel's Materials section edits a material that is not the pack: the
+/// floor's albedo reaches the scene exactly as entered, a frame of that version
+/// follows, and the edit is one undo step that gives the old albedo back.
+#[test]
+fn the_floor_albedo_is_edited_in_the_scene_panel_and_undone() {
+    let mut h = harness();
+    wait_for_current_frame(&mut h);
+    let floor = |h: &Harness<'_, Studio>| {
+        let scene = &h.state().doc.as_ref().expect("doc").scene;
+        let i = scene
+            .material_names
+            .iter()
+            .position(|n| n == "floor")
+            .expect("the default scene has a floor");
+        match &scene.materials[i] {
+            Material::Brdf { albedo, .. } => *albedo,
+            other => panic!("the floor is a brdf material, not {}", other.kind_name()),
+        }
+    };
+    let before = floor(&h);
+    // Above 1, which the colour button alone could not give: entered, not clamped.
+    h.get_by_role_and_label(Role::SpinButton, "floor albedo G")
+        .set_value_accesskit(1.25);
+    h.run_steps(2);
+    let after = floor(&h);
+    assert_eq!(after, glam::DVec3::new(before.x, 1.25, before.z));
+    wait_for_current_frame(&mut h);
+    h.state_mut().undo();
+    h.run_steps(2);
+    assert_eq!(floor(&h), before);
+    // The edited pack is not listed: the material panel edits it.
+    assert!(h.query_by_label("leather · spmm").is_none());
+    wait_for_current_frame(&mut h);
+}

@@ -142,7 +142,7 @@ impl SceneEdit {
                         index: *index,
                         count,
                     })?;
-                if let Material::Spmm { uv_scale, .. } = material
+                if let Material::Spmm { uv_scale, .. } | Material::Btf { uv_scale, .. } = material
                     && !(uv_scale.is_finite() && uv_scale.min_element() > 0.0)
                 {
                     return Err(EditError::UvScale(uv_scale.to_string()));

@@ -610,6 +610,21 @@ fn btf_materials_load_tiled_and_bad_ones_name_the_material() {
         }
         other => panic!("velvet is a btf material, got {other:?}"),
     }
+    // An edit may not give the table a tiling a scene file refuses.
+    if let Material::Btf { table, .. } = &s.materials[velvet] {
+        let mut edited = s.clone();
+        let bad = crate::render::SceneEdit::Material {
+            index: velvet,
+            material: Material::Btf {
+                table: Arc::clone(table),
+                uv_scale: DVec2::new(0.0, 1.0),
+            },
+        };
+        assert!(matches!(
+            bad.apply_to(&mut edited),
+            Err(crate::render::EditError::UvScale(_))
+        ));
+    }
     std::fs::write(dir.path().join("junk.btf"), b"not a btf").expect("write junk");
     for (table, needles) in [
         ("", vec!["materials.velvet.path", "needs `path`"]),

@@ -1,0 +1,92 @@
+//! The scene panel's Materials section: every material of the scene except the edited
+//! pack (the material panel edits that one), with what its kind lets a designer
+//! change: an analytic BRDF's model, parameters and albedo, a MERL table's tint, a
+//! mirror's reflectance, a BTF's tiling. Each change is one `SceneEdit::Material`,
+//! so it is undone like any edit and restarts only the pixels that show it.
+
+use egui::Ui;
+use glam::DVec2;
+use meso_core::render::SceneEdit;
+use meso_core::scene::Material;
+
+use crate::brdf_editor::{brdf_editor, rgb_editor};
+use crate::document::Document;
+
+/// Shows the section; returns the edits asked for.
+pub fn show(ui: &mut Ui, doc: &Document) -> Vec<SceneEdit> {
+    let scene = &doc.scene;
+    let edited = doc.pack.as_ref().map(|p| p.material);
+    let mut out = Vec::new();
+    ui.heading("Materials");
+    for (index, material) in scene.materials.iter().enumerate() {
+        if Some(index) == edited {
+            continue;
+        }
+        let name = &scene.material_names[index];
+        let file = scene.material_files.get(index).and_then(|f| f.as_ref());
+        let file_name = file
+            .and_then(|f| f.file_name())
+            .map(|f| f.to_string_lossy().into_owned());
+        egui::CollapsingHeader::new(format!("{name} · {}", material.kind_name()))
+            .id_salt(("scene material", index))
+            .default_open(true)
+            .show(ui, |ui| {
+                if let Some(edit) = editor(ui, name, material, file_name.as_deref()) {
+                    out.push(SceneEdit::Material {
+                        index,
+                        material: edit,
+                    });
+                }
+            });
+    }
+    out
+}
+
+/// The editor of one material named `name` (read from `file`, if it was); the edited
+/// material when something changed.
+fn editor(ui: &mut Ui, name: &str, material: &Material, file: Option<&str>) -> Option<Material> {
+    if let Some(file) = file {
+        ui.label(format!("from {file}"));
+    }
+    let mut edited = material.clone();
+    let changed = match &mut edited {
+        Material::Brdf { brdf, albedo } => {
+            let model = brdf_editor(ui, ("scene material", name), brdf);
+            let colour = rgb_editor(ui, "albedo", &format!("{name} albedo"), albedo);
+            model || colour
+        }
+        Material::Merl { tint, .. } => rgb_editor(ui, "tint", &format!("{name} tint"), tint),
+        Material::Mirror { reflectance } => rgb_editor(
+            ui,
+            "reflectance",
+            &format!("{name} reflectance"),
+            reflectance,
+        ),
+        Material::Btf { uv_scale, .. } => tiling_editor(ui, uv_scale),
+        Material::Spmm { .. } => {
+            ui.label("an SPMM pack; the material panel edits one pack, not this one");
+            false
+        }
+    };
+    changed.then_some(edited)
+}
+
+/// A texture's tiling, u and v, each at least 0.01 as scene files require.
+fn tiling_editor(ui: &mut Ui, uv: &mut DVec2) -> bool {
+    ui.horizontal(|ui| {
+        ui.label("UV tiling");
+        let mut changed = false;
+        for value in [&mut uv.x, &mut uv.y] {
+            changed |= ui
+                .add(
+                    egui::DragValue::new(value)
+                        .range(0.01..=1000.0)
+                        .clamp_existing_to_range(false)
+                        .speed(0.05),
+                )
+                .changed();
+        }
+        changed
+    })
+    .inner
+}

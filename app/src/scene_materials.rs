@@ -12,8 +12,9 @@ use meso_core::scene::Material;
 use crate::brdf_editor::{brdf_editor, rgb_editor};
 use crate::document::Document;
 
-/// Shows the section; returns the edits asked for.
-pub fn show(ui: &mut Ui, doc: &Document) -> Vec<SceneEdit> {
+/// Shows the section, marking `target` (where the library puts a material: the
+/// object last clicked); returns the edits asked for.
+pub fn show(ui: &mut Ui, doc: &Document, target: Option<usize>) -> Vec<SceneEdit> {
     let scene = &doc.scene;
     let edited = doc.pack.as_ref().map(|p| p.material);
     let mut out = Vec::new();
@@ -27,7 +28,11 @@ pub fn show(ui: &mut Ui, doc: &Document) -> Vec<SceneEdit> {
         let file_name = file
             .and_then(|f| f.file_name())
             .map(|f| f.to_string_lossy().into_owned());
-        egui::CollapsingHeader::new(format!("{name} · {}", material.kind_name()))
+        let mut title = format!("{name} · {}", material.kind_name());
+        if target == Some(index) {
+            title += " (selected)";
+        }
+        egui::CollapsingHeader::new(title)
             .id_salt(("scene material", index))
             .default_open(true)
             .show(ui, |ui| {

@@ -54,6 +54,9 @@ pub struct PanelState<'a> {
     pub environments: &'a [(String, PathBuf)],
     /// The file name of the environment map in use, if the studio read it.
     pub environment_name: Option<String>,
+    /// The material slot the library and dropped materials go on (the object last
+    /// clicked, else the edited pack's).
+    pub target_material: Option<usize>,
 }
 
 /// The environment maps under `materials/env/` of the workspace (EXR), by name.
@@ -454,7 +457,7 @@ pub fn show(ui: &mut Ui, doc: &Document, state: &PanelState<'_>) -> Vec<Request>
     }
     ui.separator();
     out.extend(
-        scene_materials::show(ui, doc)
+        scene_materials::show(ui, doc, state.target_material)
             .into_iter()
             .map(Request::Edit),
     );

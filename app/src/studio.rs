@@ -1413,6 +1413,7 @@ impl Studio {
                         .and_then(|(p, _)| p.file_stem())
                         .map(|n| n.to_string_lossy().into_owned())
                 }),
+                target_material: self.target_material(),
             };
             egui::Panel::left("scene")
                 .resizable(true)

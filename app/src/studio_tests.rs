@@ -1219,7 +1219,8 @@ fn the_residual_notice_shows_only_for_an_edited_cluster() {
 
 /// The scene panel's Materials section edits a material that is not the pack: the
 /// floor's albedo reaches the scene exactly as entered, a frame of that version
-/// follows, and the edit is one undo step that gives the old albedo back.
+/// follows, and the edit is one undo step that gives the old albedo back; the floor
+/// is marked when it is the library's target.
 #[test]
 fn the_floor_albedo_is_edited_in_the_scene_panel_and_undone() {
     let mut h = harness();
@@ -1249,5 +1250,19 @@ fn the_floor_albedo_is_edited_in_the_scene_panel_and_undone() {
     assert_eq!(floor(&h), before);
     // The edited pack is not listed: the material panel edits it.
     assert!(h.query_by_label("leather · spmm").is_none());
+    // The floor is marked once it is where the library puts a material.
+    assert!(h.query_by_label("floor · brdf (selected)").is_none());
+    let floor_slot = h
+        .state()
+        .doc
+        .as_ref()
+        .expect("doc")
+        .scene
+        .material_names
+        .iter()
+        .position(|n| n == "floor");
+    h.state_mut().selected_material = floor_slot;
+    h.run_steps(2);
+    assert!(h.query_by_label("floor · brdf (selected)").is_some());
     wait_for_current_frame(&mut h);
 }

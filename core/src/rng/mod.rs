@@ -42,10 +42,30 @@ impl Sampler {
 
 /// SplitMix64 finaliser: a bijective 64-bit mix with full avalanche.
 #[inline]
-pub fn mix64(mut z: u64) -> u64 {
+pub const fn mix64(mut z: u64) -> u64 {
     z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
     z ^ (z >> 31)
+}
+
+/// What a dimension number adds to a stream's key: `mix64(dim + C)`, looked up for
+/// the dimensions a path uses (a table made at compile time), computed beyond them.
+#[inline]
+fn dimension_key(dim: u64) -> u64 {
+    const C: u64 = 0x632b_e59b_d9b4_e019;
+    const KEYS: [u64; 256] = {
+        let mut t = [0u64; 256];
+        let mut d = 0;
+        while d < 256 {
+            t[d] = mix64((d as u64).wrapping_add(C));
+            d += 1;
+        }
+        t
+    };
+    match KEYS.get(dim as usize) {
+        Some(&key) => key,
+        None => mix64(dim.wrapping_add(C)),
+    }
 }
 
 /// Hashes a key of any length into 64 well-mixed bits.
@@ -107,10 +127,7 @@ impl SampleStream {
     /// The Sobol point of the pair of dimensions starting at `dim`.
     #[inline]
     fn sobol_at((index, scramble): (u32, u64), dim: u64) -> [f64; 2] {
-        sobol::point_2d(
-            index,
-            mix64(scramble ^ mix64(dim.wrapping_add(0x632b_e59b_d9b4_e019))),
-        )
+        sobol::point_2d(index, mix64(scramble ^ dimension_key(dim)))
     }
 
     /// The independent uniform number of dimension `dim`, whatever the sampler,
@@ -123,9 +140,7 @@ impl SampleStream {
     /// `at(dim)` with `salt` mixed in (zero: `at` itself); a set's further draws.
     #[inline]
     fn at_salted(&self, dim: u64, salt: u64) -> f64 {
-        unit_f64(mix64(
-            self.key_hash ^ mix64(dim.wrapping_add(0x632b_e59b_d9b4_e019)) ^ salt,
-        ))
+        unit_f64(mix64(self.key_hash ^ dimension_key(dim) ^ salt))
     }
 
     /// Three uniform numbers in [0, 1) from one dimension: 32 bits, then 16 and 16,
@@ -134,7 +149,7 @@ impl SampleStream {
     /// independent numbers: a Sobol coordinate has 32 bits, not 64.
     #[inline]
     pub fn next_32_16_16(&mut self) -> [f64; 3] {
-        let bits = mix64(self.key_hash ^ mix64(self.next_dim.wrapping_add(0x632b_e59b_d9b4_e019)));
+        let bits = mix64(self.key_hash ^ dimension_key(self.next_dim));
         self.next_dim += 1;
         [
             (bits >> 32) as f64 * (1.0 / (1u64 << 32) as f64),
@@ -225,6 +240,17 @@ impl PairSet {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_dimension_keys_table_is_the_mix_it_stands_for() {
+        for dim in (0..300).chain([u64::MAX - 1, u64::MAX]) {
+            assert_eq!(
+                dimension_key(dim),
+                mix64(dim.wrapping_add(0x632b_e59b_d9b4_e019)),
+                "{dim}"
+            );
+        }
+    }
 
     #[test]
     fn replayable_and_order_independent() {

@@ -2,7 +2,8 @@
 //! pack (the material panel edits that one), with what its kind lets a designer
 //! change: an analytic BRDF's model, parameters and albedo, a MERL table's tint, a
 //! mirror's reflectance, a BTF's tiling. Each change is one `SceneEdit::Material`,
-//! so it is undone like any edit and restarts only the pixels that show it.
+//! so it is undone like any edit and the mode restarts what it invalidates (the spmm
+//! mode: only the pixels that show the material).
 
 use egui::Ui;
 use glam::DVec2;

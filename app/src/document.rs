@@ -333,6 +333,35 @@ impl Document {
 }
 
 impl Document {
+    /// Makes the SPMM pack on material slot `index` the edited pack (its file as the
+    /// scene named it). Refused while the edited pack has unsaved changes, which would
+    /// otherwise no longer be offered for saving. Changes no material, so it is not an
+    /// undo step.
+    pub fn edit_pack(&mut self, index: usize) -> Result<(), String> {
+        let Some(material) = self.scene.materials.get(index).and_then(spmm_of) else {
+            return Err(format!("material {index} is not an SPMM pack"));
+        };
+        if self.dirty() {
+            return Err(
+                "the edited pack has unsaved changes: save them (File, Save pack) \
+                        or undo them before editing another pack"
+                    .into(),
+            );
+        }
+        let path = self.scene.material_files.get(index).cloned().flatten();
+        let precision = path
+            .as_ref()
+            .and_then(|f| std::fs::read(f).ok())
+            .map_or(ResidualPrecision::F16, |b| pack::residual_precision(&b));
+        self.pack = Some(EditedPack {
+            material: index,
+            path,
+            precision,
+            saved: material,
+        });
+        Ok(())
+    }
+
     /// Puts `material` (read from `path`) on material slot `index`, as one undo step:
     /// an SPMM pack becomes the edited pack (its file `path`); another kind put on the
     /// edited pack's slot leaves no pack to edit. Returns the edit for the renderer.

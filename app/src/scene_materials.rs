@@ -1,7 +1,8 @@
 //! The scene panel's Materials section: every material of the scene except the edited
 //! pack (the material panel edits that one), with what its kind lets a designer
 //! change: an analytic BRDF's model, parameters and albedo, a MERL table's tint, a
-//! mirror's reflectance, a BTF's tiling. Each change is one `SceneEdit::Material`,
+//! mirror's reflectance, a BTF's tiling; another SPMM pack can be made the edited
+//! one. Each change is one `SceneEdit::Material`,
 //! so it is undone like any edit and the mode restarts what it invalidates (the spmm
 //! mode: only the pixels that show the material).
 
@@ -13,9 +14,16 @@ use meso_core::scene::Material;
 use crate::brdf_editor::{brdf_editor, rgb_editor};
 use crate::document::Document;
 
+/// What the section asks for.
+pub enum Action {
+    Edit(SceneEdit),
+    /// Make the SPMM pack on this material slot the edited pack.
+    EditPack(usize),
+}
+
 /// Shows the section, marking `target` (where the library puts a material: the
-/// object last clicked); returns the edits asked for.
-pub fn show(ui: &mut Ui, doc: &Document, target: Option<usize>) -> Vec<SceneEdit> {
+/// object last clicked); returns what was asked for.
+pub fn show(ui: &mut Ui, doc: &Document, target: Option<usize>) -> Vec<Action> {
     let scene = &doc.scene;
     let edited = doc.pack.as_ref().map(|p| p.material);
     let mut out = Vec::new();
@@ -37,11 +45,19 @@ pub fn show(ui: &mut Ui, doc: &Document, target: Option<usize>) -> Vec<SceneEdit
             .id_salt(("scene material", index))
             .default_open(true)
             .show(ui, |ui| {
-                if let Some(edit) = editor(ui, name, material, file_name.as_deref()) {
-                    out.push(SceneEdit::Material {
+                if let Material::Spmm { .. } = material {
+                    if let Some(file) = &file_name {
+                        ui.label(format!("from {file}"));
+                    }
+                    let button = ui.button(format!("Edit {name} in the material panel"));
+                    if button.clicked() {
+                        out.push(Action::EditPack(index));
+                    }
+                } else if let Some(edit) = editor(ui, name, material, file_name.as_deref()) {
+                    out.push(Action::Edit(SceneEdit::Material {
                         index,
                         material: edit,
-                    });
+                    }));
                 }
             });
     }
@@ -69,10 +85,8 @@ fn editor(ui: &mut Ui, name: &str, material: &Material, file: Option<&str>) -> O
             reflectance,
         ),
         Material::Btf { uv_scale, .. } => tiling_editor(ui, uv_scale),
-        Material::Spmm { .. } => {
-            ui.label("an SPMM pack; the material panel edits one pack, not this one");
-            false
-        }
+        // Packs are edited in the material panel (`Action::EditPack`).
+        Material::Spmm { .. } => false,
     };
     changed.then_some(edited)
 }

@@ -32,6 +32,8 @@ pub enum Request {
     /// Read this map (in the background) and light the scene with it.
     EnvironmentMap(PathBuf),
     EnvironmentFileDialog,
+    /// Edit the SPMM pack on this material slot in the material panel.
+    EditPack(usize),
 }
 
 /// A mode switch in progress, as the panel shows it.
@@ -459,7 +461,10 @@ pub fn show(ui: &mut Ui, doc: &Document, state: &PanelState<'_>) -> Vec<Request>
     out.extend(
         scene_materials::show(ui, doc, state.target_material)
             .into_iter()
-            .map(Request::Edit),
+            .map(|a| match a {
+                scene_materials::Action::Edit(e) => Request::Edit(e),
+                scene_materials::Action::EditPack(index) => Request::EditPack(index),
+            }),
     );
     out
 }

@@ -860,6 +860,20 @@ impl Studio {
         }
     }
 
+    /// Makes the pack on material slot `index` the one the material panel edits, or
+    /// says why not.
+    pub fn edit_pack(&mut self, index: usize) {
+        let Some(doc) = self.doc.as_mut() else {
+            return;
+        };
+        match doc.edit_pack(index) {
+            // As when a pack is put on an object: the panel's cluster, texel and mask
+            // belonged to the other pack.
+            Ok(()) => self.material_panel = MaterialPanel::default(),
+            Err(e) => self.error = Some(e),
+        }
+    }
+
     /// The material slot the library and dropped materials go on: the object last
     /// clicked, else the edited pack's, else the first.
     pub fn target_material(&self) -> Option<usize> {
@@ -1444,6 +1458,7 @@ impl Studio {
                 Request::EnvironmentOn => self.environment_on(),
                 Request::EnvironmentMap(p) => self.open_environment(&p),
                 Request::EnvironmentFileDialog => self.environment_dialog(),
+                Request::EditPack(index) => self.edit_pack(index),
             }
         }
         self.update_compare();

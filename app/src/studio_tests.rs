@@ -1266,3 +1266,80 @@ fn the_floor_albedo_is_edited_in_the_scene_panel_and_undone() {
     assert!(h.query_by_label("floor · brdf (selected)").is_some());
     wait_for_current_frame(&mut h);
 }
+
+/// A scene with two packs: the second is made the edited pack from the scene panel's
+/// Materials (the material panel then shows it and the first is listed instead), and
+/// while the edited pack has unsaved changes the switch is refused with the reason,
+/// the edited pack unchanged.
+#[test]
+fn another_pack_is_edited_from_the_materials_section_unless_edits_are_unsaved() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let default =
+        std::fs::read_to_string(root.join("tests/scenes/default.toml")).expect("the default scene");
+    let abs = |p: &str| root.join(p).display().to_string().replace('\\', "/");
+    let two_packs = default
+        .replace(
+            "../../materials/leather.spmm",
+            &abs("materials/leather.spmm"),
+        )
+        .replace("meshes/bunny_lowres.obj", &abs("tests/scenes/meshes/bunny_lowres.obj"))
+        .replace(
+            "[materials.floor]\nkind = \"brdf\"\nmodel = \"lambertian\"\nparams = {}\nalbedo = [0.6, 0.6, 0.6]",
+            &format!(
+                "[materials.floor]\nkind = \"spmm\"\npack = \"{}\"\nuv_scale = [2.0, 2.0]",
+                abs("materials/brushed_metal.spmm")
+            ),
+        );
+    let scene = dir.path().join("two_packs.toml");
+    std::fs::write(&scene, two_packs).expect("write the scene");
+    let mut h = resting_studio(Some(scene), 1);
+    let edited = |h: &Harness<'_, Studio>| {
+        h.state()
+            .doc
+            .as_ref()
+            .expect("doc")
+            .pack
+            .as_ref()
+            .map(|p| p.material)
+    };
+    let names = |h: &Harness<'_, Studio>| {
+        h.state()
+            .doc
+            .as_ref()
+            .expect("doc")
+            .scene
+            .material_names
+            .clone()
+    };
+    let n = names(&h);
+    // The first SPMM slot is edited at first (slots are in the scene's table order).
+    let first = edited(&h).expect("a pack is edited");
+    let other = ["leather", "floor"]
+        .iter()
+        .map(|name| n.iter().position(|m| m == name).expect(name))
+        .find(|&i| i != first)
+        .expect("two packs");
+    let button = |i: usize| format!("Edit {} in the material panel", n[i]);
+    assert!(
+        h.query_by_label(&button(first)).is_none(),
+        "the edited pack is not listed"
+    );
+    h.get_by_label(&button(other)).click();
+    h.run_steps(2);
+    assert_eq!(edited(&h), Some(other));
+    assert!(h.state().error.is_none());
+    assert!(h.query_by_label(&button(first)).is_some());
+    assert!(h.query_by_label(&button(other)).is_none());
+    // An unsaved edit of the newly edited pack: switching back is refused, with the
+    // reason.
+    h.get_by_role_and_label(Role::Slider, "normal θ (deg)")
+        .set_value_accesskit(20.0);
+    h.run_steps(2);
+    assert!(h.state().doc.as_ref().expect("doc").dirty());
+    h.get_by_label(&button(first)).click();
+    h.run_steps(2);
+    assert_eq!(edited(&h), Some(other), "refused: the edits are unsaved");
+    let error = h.state().error.clone().expect("the refusal is shown");
+    assert!(error.contains("unsaved"), "{error}");
+}

@@ -45,15 +45,15 @@ pub fn show(ui: &mut Ui, doc: &Document, target: Option<usize>) -> Vec<Action> {
             .id_salt(("scene material", index))
             .default_open(true)
             .show(ui, |ui| {
+                if let Some(file) = &file_name {
+                    ui.label(format!("from {file}"));
+                }
                 if let Material::Spmm { .. } = material {
-                    if let Some(file) = &file_name {
-                        ui.label(format!("from {file}"));
-                    }
                     let button = ui.button(format!("Edit {name} in the material panel"));
                     if button.clicked() {
                         out.push(Action::EditPack(index));
                     }
-                } else if let Some(edit) = editor(ui, name, material, file_name.as_deref()) {
+                } else if let Some(edit) = editor(ui, name, material) {
                     out.push(Action::Edit(SceneEdit::Material {
                         index,
                         material: edit,
@@ -64,12 +64,9 @@ pub fn show(ui: &mut Ui, doc: &Document, target: Option<usize>) -> Vec<Action> {
     out
 }
 
-/// The editor of one material named `name` (read from `file`, if it was); the edited
-/// material when something changed.
-fn editor(ui: &mut Ui, name: &str, material: &Material, file: Option<&str>) -> Option<Material> {
-    if let Some(file) = file {
-        ui.label(format!("from {file}"));
-    }
+/// The editor of one material named `name`; the edited material when something
+/// changed.
+fn editor(ui: &mut Ui, name: &str, material: &Material) -> Option<Material> {
     let mut edited = material.clone();
     let changed = match &mut edited {
         Material::Brdf { brdf, albedo } => {

@@ -31,11 +31,10 @@ fn sobol0(index: u32) -> u32 {
     index.reverse_bits()
 }
 
-/// Sobol dimension 1 by bytes of the index: entry [k][b] is the XOR of the direction
-/// numbers of the bits set in byte value `b` at byte `k`, so a point costs four
-/// lookups instead of a loop with a branch per bit (shuffled indices use all 32 bits).
-#[cfg(test)]
-const DIM1_BYTES: [[u32; 256]; 4] = {
+/// The XOR of `columns[8k + bit]` over the bits set in byte value `b` at byte `k`, as
+/// entry [k][b]: a linear map over GF(2) of a 32-bit value by four lookups instead of
+/// a loop with a branch per bit (shuffled indices use all 32 bits).
+const fn byte_tables(columns: [u32; 32]) -> [[u32; 256]; 4] {
     let mut t = [[0u32; 256]; 4];
     let mut k = 0;
     while k < 4 {
@@ -45,7 +44,7 @@ const DIM1_BYTES: [[u32; 256]; 4] = {
             let mut bit = 0;
             while bit < 8 {
                 if b & (1 << bit) != 0 {
-                    x ^= DIM1[8 * k + bit];
+                    x ^= columns[8 * k + bit];
                 }
                 bit += 1;
             }
@@ -55,52 +54,46 @@ const DIM1_BYTES: [[u32; 256]; 4] = {
         k += 1;
     }
     t
-};
+}
 
-/// `DIM1_BYTES` for an index given with its bits reversed, each entry reversed:
-/// entry [k][b] is the XOR of `reverse(DIM1[31 - (8k + bit)])` over the bits set in
-/// `b`. Bit reversal distributes over XOR, so `sobol1_reversed` needs no reversal.
-const DIM1_REVERSED_BYTES: [[u32; 256]; 4] = {
-    let mut t = [[0u32; 256]; 4];
-    let mut k = 0;
-    while k < 4 {
-        let mut b = 0;
-        while b < 256 {
-            let mut x = 0;
-            let mut bit = 0;
-            while bit < 8 {
-                if b & (1 << bit) != 0 {
-                    x ^= DIM1[31 - (8 * k + bit)].reverse_bits();
-                }
-                bit += 1;
-            }
-            t[k][b] = x;
-            b += 1;
-        }
-        k += 1;
+/// The linear map of `tables` (`byte_tables`) applied to `x`.
+#[inline]
+fn by_bytes(tables: &[[u32; 256]; 4], x: u32) -> u32 {
+    let [b0, b1, b2, b3] = x.to_le_bytes();
+    tables[0][b0 as usize]
+        ^ tables[1][b1 as usize]
+        ^ tables[2][b2 as usize]
+        ^ tables[3][b3 as usize]
+}
+
+/// Sobol dimension 1 by bytes of the index.
+#[cfg(test)]
+const DIM1_BYTES: [[u32; 256]; 4] = byte_tables(DIM1);
+
+/// `DIM1_BYTES` for an index given with its bits reversed, each entry reversed: the
+/// column of bit p is `reverse(DIM1[31 - p])`. Bit reversal distributes over XOR, so
+/// `sobol1_reversed` needs no reversal.
+const DIM1_REVERSED_BYTES: [[u32; 256]; 4] = byte_tables({
+    let mut v = [0u32; 32];
+    let mut p = 0;
+    while p < 32 {
+        v[p] = DIM1[31 - p].reverse_bits();
+        p += 1;
     }
-    t
-};
+    v
+});
 
 /// `sobol1(reversed.reverse_bits()).reverse_bits()`, by bytes of `reversed`.
 #[inline]
 fn sobol1_reversed(reversed: u32) -> u32 {
-    let [b0, b1, b2, b3] = reversed.to_le_bytes();
-    DIM1_REVERSED_BYTES[0][b0 as usize]
-        ^ DIM1_REVERSED_BYTES[1][b1 as usize]
-        ^ DIM1_REVERSED_BYTES[2][b2 as usize]
-        ^ DIM1_REVERSED_BYTES[3][b3 as usize]
+    by_bytes(&DIM1_REVERSED_BYTES, reversed)
 }
 
 /// Sobol dimension 1 of `index`, as 32 bits (the definition `point_2d` is tested
 /// against).
 #[cfg(test)]
 fn sobol1(index: u32) -> u32 {
-    let [b0, b1, b2, b3] = index.to_le_bytes();
-    DIM1_BYTES[0][b0 as usize]
-        ^ DIM1_BYTES[1][b1 as usize]
-        ^ DIM1_BYTES[2][b2 as usize]
-        ^ DIM1_BYTES[3][b3 as usize]
+    by_bytes(&DIM1_BYTES, index)
 }
 
 /// A hash that only lets each bit depend on the bits below it (Laine and Karras 2011,

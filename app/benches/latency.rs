@@ -16,10 +16,10 @@ use std::time::{Duration, Instant};
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use glam::DVec3;
-use meso_core::brdf::BasisFunction;
-use meso_core::render::denoise;
-use meso_core::render::{ModeKind, SceneEdit};
-use meso_core::scene::{Material, load_scene};
+use meso_materials::brdf::BasisFunction;
+use meso_render::denoise;
+use meso_render::{ModeKind, SceneEdit};
+use meso_render::scene::{Material, load_scene};
 use meso_studio::render_worker::{Command, Frame, RenderWorker};
 use meso_studio::studio::{Settings, Studio, default_scene_path};
 
@@ -80,7 +80,7 @@ fn timed<'a>(
 }
 
 /// A camera edit for an iteration number: `camera`, moved 5 cm sideways on odd ones.
-fn nudge(camera: meso_core::scene::Camera) -> impl Fn(u64) -> SceneEdit + Copy {
+fn nudge(camera: meso_render::scene::Camera) -> impl Fn(u64) -> SceneEdit + Copy {
     move |v: u64| {
         let mut moved = camera;
         moved.position.x += if v.is_multiple_of(2) { 0.0 } else { 0.05 };
@@ -88,13 +88,13 @@ fn nudge(camera: meso_core::scene::Camera) -> impl Fn(u64) -> SceneEdit + Copy {
     }
 }
 
-fn load(scene: &meso_core::scene::Scene, mode: ModeKind, size: u32) -> (RenderWorker, Frame) {
+fn load(scene: &meso_render::scene::Scene, mode: ModeKind, size: u32) -> (RenderWorker, Frame) {
     let worker = RenderWorker::spawn(None);
     worker.send(Command::Load {
         version: 1,
         scene: Box::new(scene.clone()),
         mode,
-        device: meso_core::render::Device::Cpu,
+        device: meso_render::Device::Cpu,
         width: size,
         height: size,
     });

@@ -6,7 +6,7 @@ use std::hash::Hash;
 
 use egui::Ui;
 use glam::DVec3;
-use meso_core::brdf::{AnalyticBrdf, BrdfModel, ParamSpec};
+use meso_materials::brdf::{AnalyticBrdf, BrdfModel, ParamSpec};
 
 /// Logarithmic where the spec says so, and also for ranges many times wider than the
 /// default's magnitude (Lafortune's cx, cy, cz in [-1000, 1000] around -1 or 1), so

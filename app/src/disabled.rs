@@ -5,8 +5,8 @@
 //! disabled light's edits stay in the document only). Per mode: switching builds a new
 //! set from that mode's `Unsupported` answer.
 
-use meso_core::render::{SceneEdit, Unrenderable, Unsupported};
-use meso_core::scene::Scene;
+use meso_render::{SceneEdit, Unrenderable, Unsupported};
+use meso_render::scene::Scene;
 
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Disabled {
@@ -102,8 +102,8 @@ impl Disabled {
 #[cfg(test)]
 mod tests {
     use glam::DVec3;
-    use meso_core::render::{Device, ModeKind};
-    use meso_core::scene::Light;
+    use meso_render::{Device, ModeKind};
+    use meso_render::scene::Light;
 
     use super::*;
 
@@ -115,7 +115,7 @@ mod tests {
     }
 
     fn scene() -> Scene {
-        meso_core::scene::load_scene(&crate::studio::default_scene_path()).expect("default scene")
+        meso_render::scene::load_scene(&crate::studio::default_scene_path()).expect("default scene")
     }
 
     /// Applies `edit` to the document and its translation to the mode's scene; the two

@@ -5,8 +5,8 @@
 
 use egui::{ColorImage, TextureHandle, TextureOptions, Ui};
 use glam::DVec3;
-use meso_core::brdf::{AnalyticBrdf, BrdfModel, LobePoint, incidence_plane_lobe};
-use meso_core::image::{Image, to_srgb8};
+use meso_materials::brdf::{AnalyticBrdf, BrdfModel, LobePoint, incidence_plane_lobe};
+use meso_materials::image::{Image, to_srgb8};
 
 use crate::brdf_editor::{slider_is_logarithmic, smallest_positive};
 use crate::lobe_plot::{self, Scale};

@@ -15,14 +15,13 @@ use std::thread::JoinHandle;
 
 use egui::{ColorImage, TextureHandle, TextureOptions, Ui};
 use glam::{DVec2, DVec3};
-use meso_core::image::{Image, to_srgb8};
-use meso_core::merl::MerlBrdf;
-use meso_core::modes;
-use meso_core::render::{Device, ModeKind, Prepare};
-use meso_core::rng::Sampler;
-use meso_core::scene::mesh::TriangleMesh;
-use meso_core::scene::{Ambient, Background, Camera, Light, Material, RenderSettings, Scene};
-use meso_core::spmm::pack;
+use meso_materials::image::{Image, to_srgb8};
+use meso_materials::merl::MerlBrdf;
+use meso_render::{Device, ModeKind, Prepare};
+use meso_materials::rng::Sampler;
+use meso_render::scene::mesh::TriangleMesh;
+use meso_render::scene::{Ambient, Background, Camera, Light, Material, RenderSettings, Scene};
+use meso_materials::spmm::pack;
 
 /// Thumbnail side in pixels and samples per pixel.
 pub const THUMB_SIZE: u32 = 96;
@@ -181,7 +180,7 @@ impl ThumbnailCache {
     /// Writes atomically (a reader never sees half a thumbnail).
     pub fn store(&self, key: u128, thumb: &Thumbnail) -> Result<(), String> {
         std::fs::create_dir_all(&self.dir).map_err(|e| format!("`{}`: {e}", self.dir.display()))?;
-        meso_core::atomic::write_bytes_atomic(&self.path_of(key), &thumb.encode())
+        meso_materials::atomic::write_bytes_atomic(&self.path_of(key), &thumb.encode())
             .map_err(|e| e.to_string())
     }
 }
@@ -328,7 +327,7 @@ pub fn btf_message(path: &Path) -> String {
 /// Renders the thumbnail of `material` with core's spmm mode.
 pub fn render_thumbnail(material: Material) -> Result<Image, String> {
     let scene = thumbnail_scene(material);
-    let mut mode = modes::create(
+    let mut mode = meso_modes::create(
         ModeKind::Spmm,
         Device::Cpu,
         scene,

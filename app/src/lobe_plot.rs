@@ -4,7 +4,7 @@
 //! a legend, and the value under the pointer. No axes library: it is one half-disk.
 
 use egui::{Align2, Color32, FontId, Pos2, Rect, Sense, Shape, Stroke, Ui, Vec2};
-use meso_core::brdf::LobePoint;
+use meso_materials::brdf::LobePoint;
 
 /// How the radius encodes the value.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]

@@ -13,11 +13,11 @@ use std::sync::Arc;
 
 use egui::{Color32, ColorImage, TextureHandle, TextureOptions, Ui};
 use glam::DVec3;
-use meso_core::brdf::{AnalyticBrdf, BasisFunction, BrdfModel, LobePoint};
-use meso_core::geometry::{Brush, BrushUnits};
-use meso_core::render::SceneEdit;
-use meso_core::scene::Material;
-use meso_core::spmm::{Falloff, SpmmMaterial, TexelMask, WeightTarget};
+use meso_materials::brdf::{AnalyticBrdf, BasisFunction, BrdfModel, LobePoint};
+use meso_render::geometry::{Brush, BrushUnits};
+use meso_render::SceneEdit;
+use meso_render::scene::Material;
+use meso_materials::spmm::{Falloff, SpmmMaterial, TexelMask, WeightTarget};
 
 use crate::brdf_editor::brdf_editor;
 use crate::document::Document;
@@ -980,7 +980,7 @@ mod tests {
 
     #[test]
     fn the_texel_lobe_is_the_sum_of_its_bases() {
-        let m = meso_core::spmm::pack::read_pack(std::path::Path::new(concat!(
+        let m = meso_materials::spmm::pack::read_pack(std::path::Path::new(concat!(
             env!("CARGO_MANIFEST_DIR"),
             "/../materials/leather.spmm"
         )))

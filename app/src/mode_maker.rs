@@ -1,16 +1,16 @@
 //! Where the studio gets its render modes: `supports` (can this mode render this
 //! scene, and if not, which parts stop it) and `create` (prepare the mode, with
 //! progress and cancel). The studio and its render thread ask a `ModeMaker`, never a
-//! mode's type; the default is core's registry (`meso_core::modes`), and tests inject
+//! mode's type; the default is core's registry (`meso_modes`), and tests inject
 //! slow or refusing makers to drive the mode switch through the real window. Given the
 //! window's wgpu device (`CoreModes::on_device`), the GPU mode renders on it.
 
 use std::sync::Arc;
 
-use meso_core::gpu::GpuContext;
-use meso_core::modes::{self, GpuDevice};
-use meso_core::render::{Device, ModeError, ModeKind, Prepare, RenderMode};
-use meso_core::scene::Scene;
+use meso_gpu::GpuContext;
+use meso_modes::GpuDevice;
+use meso_render::{Device, ModeError, ModeKind, Prepare, RenderMode};
+use meso_render::scene::Scene;
 
 /// Makes render modes by kind and device.
 pub trait ModeMaker: Send + Sync {
@@ -65,7 +65,7 @@ impl CoreModes {
 
 impl ModeMaker for CoreModes {
     fn supports(&self, kind: ModeKind, device: Device, scene: &Scene) -> Result<(), ModeError> {
-        modes::supports(kind, device, scene)
+        meso_modes::supports(kind, device, scene)
     }
 
     fn create(
@@ -82,7 +82,7 @@ impl ModeMaker for CoreModes {
             (None, Some(why)) => GpuDevice::OwnBecause(why),
             (None, None) => GpuDevice::Own,
         };
-        modes::create_on(gpu, kind, device, scene, width, height, prepare)
+        meso_modes::create_on(gpu, kind, device, scene, width, height, prepare)
     }
 }
 

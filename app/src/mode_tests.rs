@@ -13,12 +13,12 @@ use egui::accesskit::Role;
 use egui_kittest::Harness;
 use egui_kittest::kittest::{NodeT, Queryable};
 use glam::DVec3;
-use meso_core::image::Image;
-use meso_core::render::{
+use meso_materials::image::Image;
+use meso_render::{
     Device, EditError, FrameStats, Invalidation, ModeError, ModeKind, PreparationReport, Prepare,
     Progress, RenderMode, SceneEdit, Unrenderable, Unsupported,
 };
-use meso_core::scene::{Light, Scene};
+use meso_render::scene::{Light, Scene};
 
 use super::tests::{loaded, wait_for_current_frame};
 use super::*;
@@ -398,7 +398,7 @@ fn the_compare_view_shows_exactly_what_metrics_compare_says() {
         },
     );
     let m = h.state().measured().expect("measured").clone();
-    let again = meso_core::metrics::compare(&m.reference, &m.live, 0.0).expect("same size");
+    let again = meso_materials::metrics::compare(&m.reference, &m.live, 0.0).expect("same size");
     assert_eq!(again, m.comparison);
     assert!(
         m.comparison.rmse > 0.0 && m.comparison.mssim < 1.0,
@@ -628,7 +628,7 @@ fn studio_on_the_windows_device(
 ) -> (
     Harness<'static, Studio>,
     eframe::egui_wgpu::RenderState,
-    meso_core::gpu::GpuContext,
+    meso_gpu::GpuContext,
 ) {
     use crate::window_device;
     let rs = egui_kittest::wgpu::create_render_state(
@@ -757,7 +757,7 @@ fn a_gpu_frame_reaches_the_window_without_a_read_back() {
         .flat_map(|(x, y)| screen.get_pixel(x, y).0[..3].to_vec())
         .map(f64::from)
         .collect();
-    let want: Vec<f64> = meso_core::image::to_srgb8(&frame.image(), 0.5)
+    let want: Vec<f64> = meso_materials::image::to_srgb8(&frame.image(), 0.5)
         .into_iter()
         .flatten()
         .map(f64::from)
@@ -798,7 +798,7 @@ fn a_window_device_too_small_to_share_is_named_in_the_summary() {
     let modes = crate::window_device::modes_for(Some(&rs));
     assert!(modes.gpu().is_none());
     let scene = crate::studio::default_scene_path();
-    let scene = meso_core::scene::load_scene(&scene).expect("the default scene");
+    let scene = meso_render::scene::load_scene(&scene).expect("the default scene");
     let mode = modes
         .create(
             ModeKind::Spmm,

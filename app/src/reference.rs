@@ -9,10 +9,9 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use meso_core::image::Image;
-use meso_core::modes;
-use meso_core::render::{Device, ModeKind, Prepare, RenderMode};
-use meso_core::scene::Scene;
+use meso_materials::image::Image;
+use meso_render::{Device, ModeKind, Prepare, RenderMode};
+use meso_render::scene::Scene;
 
 /// The reference as far as it has come.
 #[derive(Clone)]
@@ -130,7 +129,7 @@ fn run(
         }
         if let Some(Start { key, scene }) = newest {
             let (w, h) = key.1;
-            match modes::create(
+            match meso_modes::create(
                 ModeKind::Spmm,
                 Device::Cpu,
                 *scene,
@@ -201,14 +200,14 @@ mod tests {
 
     #[test]
     fn the_reference_refines_to_the_asked_samples_and_restarts_on_a_new_version() {
-        let scene = meso_core::scene::load_scene(&crate::studio::default_scene_path())
+        let scene = meso_render::scene::load_scene(&crate::studio::default_scene_path())
             .expect("default scene");
         let mut r = ReferenceRenderer::spawn(None);
         r.request(3, &scene, (24, 16), 2);
         let a = wait(&r, 3, 2);
         assert_eq!((a.image.width(), a.image.height(), a.spp), (24, 16, 2));
         // The same image as core's mode at the same samples: it is the spmm mode.
-        let mut m = modes::create(
+        let mut m = meso_modes::create(
             ModeKind::Spmm,
             Device::Cpu,
             scene.clone(),

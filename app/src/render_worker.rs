@@ -14,12 +14,12 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use meso_core::image::Image;
-use meso_core::render::{
+use meso_materials::image::Image;
+use meso_render::{
     Denoiser, Device, Guides, ImageOnDevice, ModeKind, Prepare, Progress, RenderMode, SceneEdit,
     denoise, preview,
 };
-use meso_core::scene::Scene;
+use meso_render::scene::Scene;
 
 use crate::mode_maker::{ModeMaker, core_modes};
 
@@ -124,7 +124,7 @@ pub struct Frame {
     /// The mode's own one-line state (`RenderMode::summary`).
     pub summary: Option<String>,
     /// Prepared material data held and what preparing everything would hold.
-    pub material_bytes: Option<meso_core::render::MaterialBytes>,
+    pub material_bytes: Option<meso_render::MaterialBytes>,
 }
 
 impl Frame {
@@ -309,7 +309,7 @@ fn changes_guides(command: &Command) -> bool {
 /// through the denoiser on its grid (a few milliseconds later).
 fn publish_preview(
     m: &dyn RenderMode,
-    (stats, stride, version): (meso_core::render::FrameStats, u32, u64),
+    (stats, stride, version): (meso_render::FrameStats, u32, u64),
     denoise: bool,
     publish: &dyn Fn(Frame),
 ) {
@@ -370,7 +370,7 @@ fn edited_frame_of(
 /// stale).
 fn frame_of(
     m: &dyn RenderMode,
-    stats: meso_core::render::FrameStats,
+    stats: meso_render::FrameStats,
     version: u64,
     (denoise, guides): (bool, &mut Option<Option<Guides>>),
     stop: &mut dyn FnMut() -> bool,
@@ -391,7 +391,7 @@ fn frame_of(
 
 fn frame_with(
     m: &dyn RenderMode,
-    stats: meso_core::render::FrameStats,
+    stats: meso_render::FrameStats,
     version: u64,
     estimate: Estimate,
     shown: Option<Arc<Image>>,
@@ -634,7 +634,7 @@ fn run(
 mod tests {
     use std::sync::atomic::{AtomicU32, Ordering};
 
-    use meso_core::render::{
+    use meso_render::{
         EditError, FrameStats, Invalidation, ModeError, PreparationReport, SceneEdit,
     };
 
@@ -783,7 +783,7 @@ mod tests {
             }),
         );
         let path = crate::studio::default_scene_path().with_file_name("cornell.toml");
-        let scene = meso_core::scene::load_scene(&path).expect("the Cornell scene");
+        let scene = meso_render::scene::load_scene(&path).expect("the Cornell scene");
         assert!(worker.send(Command::Load {
             version: 1,
             scene: Box::new(scene.clone()),
@@ -836,7 +836,7 @@ mod tests {
                 Prepare::quietly(),
             )
             .expect("the CPU mode");
-        meso_core::render::run_frames(reference.as_mut(), frame.progress.frames, |_, _| {});
+        meso_render::run_frames(reference.as_mut(), frame.progress.frames, |_, _| {});
         assert!(frame.progress.frames > 0);
         assert_eq!(frame.image().pixels(), reference.image().pixels());
     }
@@ -877,7 +877,7 @@ mod tests {
         };
         let worker = RenderWorker::spawn_with(None, Arc::new(modes));
         let path = crate::studio::default_scene_path().with_file_name("cornell.toml");
-        let scene = meso_core::scene::load_scene(&path).expect("the Cornell scene");
+        let scene = meso_render::scene::load_scene(&path).expect("the Cornell scene");
         (worker, go, starts, scene)
     }
 

@@ -8,8 +8,8 @@
 
 use egui::Ui;
 use glam::DVec2;
-use meso_core::render::SceneEdit;
-use meso_core::scene::Material;
+use meso_render::SceneEdit;
+use meso_render::scene::Material;
 
 use crate::brdf_editor::{brdf_editor, rgb_editor};
 use crate::document::Document;

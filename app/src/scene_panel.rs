@@ -10,8 +10,8 @@ use std::sync::Arc;
 
 use egui::Ui;
 use glam::{DVec2, DVec3};
-use meso_core::render::{Device, ModeKind, SceneEdit};
-use meso_core::scene::{Ambient, Background, Environment, Light, Material};
+use meso_render::{Device, ModeKind, SceneEdit};
+use meso_render::scene::{Ambient, Background, Environment, Light, Material};
 
 use crate::disabled::Disabled;
 use crate::document::Document;
@@ -390,7 +390,7 @@ pub fn show(ui: &mut Ui, doc: &Document, state: &PanelState<'_>) -> Vec<Request>
     // Points on each area light per frame (`[render] light_samples`): soft shadows
     // clean up in fewer frames; every sample restarts with a new count.
     let mut n = scene.render.light_samples;
-    let drag = egui::DragValue::new(&mut n).range(1..=meso_core::scene::MAX_LIGHT_SAMPLES);
+    let drag = egui::DragValue::new(&mut n).range(1..=meso_render::scene::MAX_LIGHT_SAMPLES);
     let row = ui.horizontal(|ui| labelled_drag(ui, "light samples per frame", drag));
     row.response.on_hover_text(
         "points drawn on each area light per frame: soft shadows clean up in fewer frames",

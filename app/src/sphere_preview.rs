@@ -8,8 +8,8 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use glam::DVec3;
-use meso_core::brdf::AnalyticBrdf;
-use meso_core::image::Image;
+use meso_materials::brdf::AnalyticBrdf;
+use meso_materials::image::Image;
 use rayon::prelude::*;
 
 /// Irradiance of the light on a surface facing it, W/m^2. Chosen as pi so that a white
@@ -154,7 +154,7 @@ impl Drop for PreviewWorker {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use meso_core::brdf::BrdfModel;
+    use meso_materials::brdf::BrdfModel;
 
     #[test]
     fn lambertian_centre_pixel_matches_closed_form() {

@@ -12,16 +12,16 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use egui::{Key, KeyboardShortcut, Modifiers, Ui};
-use meso_core::geometry::{BrushUnits, SceneBvh, brush, pick};
-use meso_core::image::Image;
-use meso_core::metrics::{self, Comparison};
-use meso_core::render::{
+use meso_render::geometry::{BrushUnits, SceneBvh, brush, pick};
+use meso_materials::image::Image;
+use meso_materials::metrics::{self, Comparison};
+use meso_render::{
     Device, ModeError, ModeKind, Prepare, RenderMode, SceneEdit, Unrenderable, Unsupported,
 };
-use meso_core::scene::mesh::{Placement, load_obj};
-use meso_core::scene::{Environment, Material, Scene, load_scene};
-use meso_core::spmm::SpmmMaterial;
-use meso_core::spmm::pack::ResidualPrecision;
+use meso_render::scene::mesh::{Placement, load_obj};
+use meso_render::scene::{Environment, Material, Scene, load_scene};
+use meso_materials::spmm::SpmmMaterial;
+use meso_materials::spmm::pack::ResidualPrecision;
 
 use crate::disabled::Disabled;
 use crate::document::{Document, read_pack_file};
@@ -344,7 +344,7 @@ impl Studio {
     /// are shown from there. `None`: frames reach the window through the host.
     pub fn drawn_by(
         mut self,
-        window: Option<(eframe::egui_wgpu::RenderState, meso_core::gpu::GpuContext)>,
+        window: Option<(eframe::egui_wgpu::RenderState, meso_gpu::GpuContext)>,
     ) -> Self {
         if let Some((rs, shared)) = window {
             self.viewport.set_window(rs, &shared);
@@ -543,9 +543,9 @@ impl Studio {
         let path = path.to_path_buf();
         let name = job_name("reading", &path);
         self.env_job = Some(Job::spawn(name, self.repaint.clone(), move || {
-            let map = meso_core::image::read_image(&path)
+            let map = meso_materials::image::read_image(&path)
                 .map_err(|e| format!("`{}`: {e}", path.display()))?;
-            if let Some(p) = meso_core::environment::check_map(&map) {
+            if let Some(p) = meso_render::environment::check_map(&map) {
                 return Err(format!("`{}`: {p}", path.display()));
             }
             Ok((path, Arc::new(map)))
@@ -677,7 +677,7 @@ impl Studio {
         if named == (ModeKind::Spmm, Device::Cpu)
             && self.settings.gpu_by_default
             && self.maker.supports(gpu.0, gpu.1, &doc.scene).is_ok()
-            && meso_core::gpu::hardware_adapter().is_some()
+            && meso_gpu::hardware_adapter().is_some()
         {
             gpu
         } else {
@@ -998,7 +998,7 @@ impl Studio {
             self.error = Some("no frame has been rendered yet".into());
             return;
         };
-        if let Err(e) = meso_core::image::write_image(path, &frame.image(), self.settings.exposure)
+        if let Err(e) = meso_materials::image::write_image(path, &frame.image(), self.settings.exposure)
         {
             self.error = Some(format!("exporting failed: {e}"));
         }
@@ -1348,7 +1348,7 @@ impl Studio {
                     (true, true) => {
                         let mut used = (*npca).min(material.npca());
                         if self.moving {
-                            used = used.min(meso_core::spmm::MOVING_NPCA);
+                            used = used.min(meso_materials::spmm::MOVING_NPCA);
                         }
                         let moving = if self.moving { " while moving" } else { "" };
                         format!("bases + residual, N_PCA {used}/{}{moving}", material.npca())

@@ -12,9 +12,9 @@ use std::time::{Duration, Instant};
 use egui::accesskit::Role;
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use meso_core::geometry::{SceneBvh, pick};
-use meso_core::scene::Material;
-use meso_core::spmm::SpmmMaterial;
+use meso_render::geometry::{SceneBvh, pick};
+use meso_render::scene::Material;
+use meso_materials::spmm::SpmmMaterial;
 
 use super::*;
 
@@ -180,7 +180,7 @@ fn save_then_reopen_is_byte_identical_and_a_failed_save_keeps_the_edits() {
 
 #[test]
 fn a_pack_with_8_bit_components_saves_back_at_8_bits_with_its_residual_unchanged() {
-    use meso_core::spmm::pack::{self, ResidualPrecision};
+    use meso_materials::spmm::pack::{self, ResidualPrecision};
     let dir = tempfile::tempdir().expect("temp dir");
     let shipped = std::path::PathBuf::from(concat!(
         env!("CARGO_MANIFEST_DIR"),
@@ -286,13 +286,13 @@ fn seen_clusters(h: &Harness<'_, Studio>, w: u32, hgt: u32) -> Vec<Option<Option
 
 /// Core's spmm mode on `scene` at `w` x `h` after `frames` frames.
 fn core_render(
-    scene: &meso_core::scene::Scene,
+    scene: &meso_render::scene::Scene,
     w: u32,
     h: u32,
     frames: u32,
-) -> meso_core::image::Image {
-    use meso_core::render::{Device, ModeKind, Prepare, run_frames};
-    let mut mode = meso_core::modes::create(
+) -> meso_materials::image::Image {
+    use meso_render::{Device, ModeKind, Prepare, run_frames};
+    let mut mode = meso_modes::create(
         ModeKind::Spmm,
         Device::Cpu,
         scene.clone(),
@@ -307,7 +307,7 @@ fn core_render(
 
 /// The mean of frames `m..n` per pixel from renders of `0..n` and `0..m`.
 fn frames_between(
-    scene: &meso_core::scene::Scene,
+    scene: &meso_render::scene::Scene,
     w: u32,
     h: u32,
     m: u32,
@@ -331,8 +331,8 @@ fn frames_between(
 fn assert_only_the_object_restarted(
     after: &crate::render_worker::Frame,
     m: u32,
-    edited: &meso_core::scene::Scene,
-    before: &meso_core::scene::Scene,
+    edited: &meso_render::scene::Scene,
+    before: &meso_render::scene::Scene,
     seen: &[Option<Option<usize>>],
 ) -> (usize, usize) {
     let (w, h, n) = (
@@ -580,7 +580,7 @@ fn the_main_window_matches_its_snapshot() {
 /// the `meso render` path bit for bit at the same size and sample count.
 #[test]
 fn a_saved_pack_renders_in_core_exactly_as_in_the_viewport() {
-    use meso_core::render::{ModeKind, run_frames};
+    use meso_render::{ModeKind, run_frames};
     let dir = tempfile::tempdir().expect("temp dir");
     let mut h = harness();
     h.get_by_role_and_label(Role::Slider, "normal θ (deg)")
@@ -629,14 +629,14 @@ fn a_saved_pack_renders_in_core_exactly_as_in_the_viewport() {
         *material(&h),
         "the saved pack reopens identically"
     );
-    let scene = meso_core::scene::load_scene(&scene_path).expect("scene");
-    let mut mode = meso_core::modes::create(
+    let scene = meso_render::scene::load_scene(&scene_path).expect("scene");
+    let mut mode = meso_modes::create(
         ModeKind::Spmm,
-        meso_core::render::Device::Cpu,
+        meso_render::Device::Cpu,
         scene,
         frame.progress.width,
         frame.progress.height,
-        meso_core::render::Prepare::quietly(),
+        meso_render::Prepare::quietly(),
     )
     .expect("size");
     run_frames(mode.as_mut(), frame.progress.frames, |_, _| {});
@@ -735,9 +735,9 @@ fn two_points_on_the_pack(h: &Harness<'_, Studio>, gap: u32) -> ((u32, u32), (u3
 
 #[test]
 fn a_real_drag_on_the_viewport_paints_only_the_brushed_texels_and_undoes_in_one_step() {
-    use meso_core::geometry::{Brush, BrushUnits};
-    use meso_core::spmm::Falloff;
-    use meso_core::spmm::pack::{ResidualPrecision, encode_pack};
+    use meso_render::geometry::{Brush, BrushUnits};
+    use meso_materials::spmm::Falloff;
+    use meso_materials::spmm::pack::{ResidualPrecision, encode_pack};
 
     let mut h = resting_studio(None, 2);
     rested_frame(&mut h, 2);
@@ -854,7 +854,7 @@ fn a_real_drag_on_the_viewport_paints_only_the_brushed_texels_and_undoes_in_one_
 
 #[test]
 fn per_basis_rows_scale_one_basis_and_solo_changes_the_view_not_the_pack() {
-    use meso_core::spmm::pack::{ResidualPrecision, encode_pack};
+    use meso_materials::spmm::pack::{ResidualPrecision, encode_pack};
 
     let mut h = harness();
     wait_for_current_frame(&mut h);
@@ -917,7 +917,7 @@ fn a_pack_dropped_on_the_window_goes_on_the_object_and_other_files_are_named() {
     loaded(&mut h);
     let now = material(&h);
     assert!(!Arc::ptr_eq(&now, &original));
-    let expected = meso_core::spmm::pack::read_pack(&other).expect("shipped pack");
+    let expected = meso_materials::spmm::pack::read_pack(&other).expect("shipped pack");
     assert_eq!(now.weights(), expected.weights());
     assert_eq!(
         h.state()
@@ -982,7 +982,7 @@ fn a_click_in_the_library_assigns_the_pack_and_undo_restores_the_object() {
     }
     loaded(&mut h);
     let now = material(&h);
-    let expected = meso_core::spmm::pack::read_pack(&metal).expect("shipped pack");
+    let expected = meso_materials::spmm::pack::read_pack(&metal).expect("shipped pack");
     assert!(now.stores_same(&expected));
     assert_eq!(pack_path(&h), Some((slot, metal.clone())));
     assert!(!h.state().doc.as_ref().expect("doc").dirty());
@@ -1018,8 +1018,8 @@ fn a_click_in_the_library_assigns_the_pack_and_undo_restores_the_object() {
     // A MERL table dropped on the window goes on the selected floor too.
     let dir = tempfile::tempdir().expect("temp dir");
     let table = dir.path().join("grey.binary");
-    meso_core::merl::tabulate(
-        &meso_core::brdf::AnalyticBrdf::with_defaults(meso_core::brdf::BrdfModel::Lambertian),
+    meso_materials::merl::tabulate(
+        &meso_materials::brdf::AnalyticBrdf::with_defaults(meso_materials::brdf::BrdfModel::Lambertian),
         glam::DVec3::splat(0.5),
     )
     .expect("tabulates")
@@ -1071,8 +1071,8 @@ fn save_crop(h: &mut Harness<'_, Studio>, dir: &std::path::Path, name: &str, r: 
 #[test]
 #[ignore = "writes the documentation's screenshots when asked"]
 fn docs_screenshots() {
-    use meso_core::geometry::{Brush, BrushUnits};
-    use meso_core::spmm::Falloff;
+    use meso_render::geometry::{Brush, BrushUnits};
+    use meso_materials::spmm::Falloff;
 
     let dir = std::path::PathBuf::from(
         std::env::var_os("MESO_DOC_SHOTS").expect("MESO_DOC_SHOTS names the folder"),

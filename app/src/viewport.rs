@@ -15,9 +15,9 @@ use eframe::egui_wgpu::RenderState;
 use eframe::wgpu;
 use egui::{ColorImage, Sense, TextureHandle, TextureId, TextureOptions, Ui, Vec2};
 use glam::DVec3;
-use meso_core::gpu::{DisplayTexture, GpuContext};
-use meso_core::image::{Image, to_srgb8};
-use meso_core::scene::Camera;
+use meso_gpu::{DisplayTexture, GpuContext};
+use meso_materials::image::{Image, to_srgb8};
+use meso_render::scene::Camera;
 
 use crate::render_worker::Frame;
 

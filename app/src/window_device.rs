@@ -9,7 +9,7 @@ use std::sync::Arc;
 
 use eframe::egui_wgpu::{RenderState, WgpuConfiguration, WgpuSetup};
 use eframe::wgpu;
-use meso_core::gpu::GpuContext;
+use meso_gpu::GpuContext;
 
 use crate::mode_maker::CoreModes;
 

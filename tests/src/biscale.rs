@@ -7,14 +7,13 @@ use std::collections::BTreeMap;
 use std::collections::btree_map::Entry;
 use std::path::PathBuf;
 
-use meso_core::biscale::{BiscaleMode, BiscaleSettings};
-use meso_core::brdf::{AnalyticBrdf, BrdfModel};
-use meso_core::image::Image;
-use meso_core::metrics::compare;
-use meso_core::modes;
-use meso_core::render::{Device, ModeKind, Prepare, RenderMode, SceneEdit, run_frames};
-use meso_core::rng::SampleStream;
-use meso_core::scene::{Background, Material, Scene, load_scene};
+use meso_modes::biscale::{BiscaleMode, BiscaleSettings};
+use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
+use meso_materials::image::Image;
+use meso_materials::metrics::compare;
+use meso_render::{Device, ModeKind, Prepare, RenderMode, SceneEdit, run_frames};
+use meso_materials::rng::SampleStream;
+use meso_render::scene::{Background, Material, Scene, load_scene};
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -61,7 +60,7 @@ fn with_material(scene: &Scene, name: &str) -> Material {
 fn reference(scene: &Scene, t: &Tolerance) -> Image {
     let mut scene = scene.clone();
     scene.render.seed ^= 0x5245_4645;
-    let mut mode = modes::create(
+    let mut mode = meso_modes::create(
         ModeKind::Spmm,
         Device::Cpu,
         scene,

@@ -5,7 +5,7 @@
 //! Tolerance: relative 1e-9 with an absolute floor (see `REL_TOL`, `ABS_FLOOR`).
 
 use glam::DVec3;
-use meso_core::brdf::{AnalyticBrdf, BasisFunction, BrdfModel};
+use meso_materials::brdf::{AnalyticBrdf, BasisFunction, BrdfModel};
 
 // Meso evaluates in f64 with cancellation-free forms; the largest measured disagreement
 // is 1.3e-12 over 1846 values. 1e-9 still catches any formula slip (a wrong constant, a

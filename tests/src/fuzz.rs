@@ -17,9 +17,8 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use meso_core::modes;
-use meso_core::render::{Prepare, run_frames};
-use meso_core::scene::load_scene;
+use meso_render::{Prepare, run_frames};
+use meso_render::scene::load_scene;
 
 /// Cases per reader in the test suite (about a minute in all on 2 cores).
 const CI_CASES: u64 = 300;
@@ -303,7 +302,7 @@ fn load_and_render(path: &Path) -> Result<(), String> {
     let scene = load_scene(path).map_err(|e| e.to_string())?;
     let (kind, device) = (scene.render.mode, scene.render.device);
     let mut mode =
-        modes::create(kind, device, scene, 8, 8, Prepare::quietly()).map_err(|e| e.to_string())?;
+        meso_modes::create(kind, device, scene, 8, 8, Prepare::quietly()).map_err(|e| e.to_string())?;
     run_frames(mode.as_mut(), 1, |_, _| {});
     let img = mode.image();
     assert_eq!((img.width(), img.height()), (8, 8));
@@ -363,7 +362,7 @@ fn fuzz_scene_files() {
 #[test]
 fn fuzz_obj_files() {
     use glam::{DMat3, DVec3};
-    use meso_core::scene::mesh::{Placement, load_obj};
+    use meso_render::scene::mesh::{Placement, load_obj};
     let dir = tempfile::tempdir().expect("temp dir");
     let teapot = std::fs::read_to_string(root().join("scenes/meshes/teapot.obj")).expect("teapot");
     // The teapot's first 60 vertices and faces among them, plus a tiny hand-made OBJ
@@ -396,7 +395,7 @@ fn fuzz_obj_files() {
                 load_obj(&path, &placement, 0).map(|m| {
                     // What the tracer receives: finite and within the scene extent.
                     assert!(m.positions.iter().all(|p| p.is_finite()));
-                    meso_core::geometry::SceneBvh::build(std::slice::from_ref(&m));
+                    meso_render::geometry::SceneBvh::build(std::slice::from_ref(&m));
                 })
             })
         },
@@ -408,12 +407,12 @@ fn exr_seeds() -> Vec<Vec<u8>> {
     let dir = tempfile::tempdir().expect("temp dir");
     let mut seeds = Vec::new();
     for (w, h) in [(8u32, 8u32), (3, 17)] {
-        let mut img = meso_core::image::Image::new(w, h);
+        let mut img = meso_materials::image::Image::new(w, h);
         for (i, p) in img.pixels_mut().iter_mut().enumerate() {
             *p = [i as f32 * 0.1, 1.0, (i % 3) as f32];
         }
         let p = dir.path().join("seed.exr");
-        meso_core::image::write_exr(&p, &img).expect("write seed");
+        meso_materials::image::write_exr(&p, &img).expect("write seed");
         seeds.push(std::fs::read(&p).expect("read seed"));
     }
     for entry in std::fs::read_dir(root().join("reference/metrics_fixtures")).expect("fixtures") {
@@ -436,7 +435,7 @@ fn fuzz_exr_files() {
         |input| {
             std::fs::write(&path, input).expect("write case");
             check("exr", &format!("({} bytes)", input.len()), || {
-                meso_core::image::read_image(&path)
+                meso_materials::image::read_image(&path)
             })
         },
     );
@@ -454,7 +453,7 @@ fn fuzz_spmm_packs() {
         |s, rng| mutate_bytes(s, rng),
         |input| {
             check("spmm", &format!("({} bytes)", input.len()), || {
-                meso_core::spmm::pack::decode_pack(input)
+                meso_materials::spmm::pack::decode_pack(input)
             })
         },
     );
@@ -463,8 +462,8 @@ fn fuzz_spmm_packs() {
 /// Small BTFs (3x2 texels, 6 light and 4 view directions on rings) as Meso writes
 /// them, in both precisions.
 fn btf_seeds() -> Vec<Vec<u8>> {
-    use meso_core::btf::file::{BtfPrecision, encode_btf};
-    use meso_core::btf::{Btf, directions::rings};
+    use meso_materials::btf::file::{BtfPrecision, encode_btf};
+    use meso_materials::btf::{Btf, directions::rings};
     let (light, view) = (rings(&[(0.0, 1), (45.0, 5)]), rings(&[(0.0, 1), (60.0, 3)]));
     let data: Vec<f32> = (0..3 * 2 * light.len() * view.len() * 3)
         .map(|i| (i % 17) as f32 * 0.05)
@@ -484,7 +483,7 @@ fn fuzz_btf_files() {
         |s, rng| mutate_bytes(s, rng),
         |input| {
             check("btf", &format!("({} bytes)", input.len()), || {
-                meso_core::btf::file::decode_btf(input)
+                meso_materials::btf::file::decode_btf(input)
             })
         },
     );
@@ -494,8 +493,8 @@ fn fuzz_btf_files() {
 /// are (the header) and anywhere in the table.
 #[test]
 fn fuzz_merl_files() {
-    use meso_core::brdf::{AnalyticBrdf, BrdfModel};
-    use meso_core::merl::{MerlBrdf, tabulate};
+    use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
+    use meso_materials::merl::{MerlBrdf, tabulate};
     let table = tabulate(
         &AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
         glam::DVec3::splat(0.5),
@@ -540,7 +539,7 @@ fn fuzz_merl_files() {
 #[test]
 fn the_corpus_of_past_failures_is_handled() {
     use glam::{DMat3, DVec3};
-    use meso_core::scene::mesh::{Placement, load_obj};
+    use meso_render::scene::mesh::{Placement, load_obj};
     let placement = Placement {
         scale: 1.0,
         rotation: DMat3::IDENTITY,
@@ -559,11 +558,11 @@ fn the_corpus_of_past_failures_is_handled() {
             match reader {
                 "scene" => check(reader, &name, || load_and_render(&path)),
                 "obj" => check(reader, &name, || load_obj(&path, &placement, 0)),
-                "exr" => check(reader, &name, || meso_core::image::read_image(&path)),
-                "spmm" => check(reader, &name, || meso_core::spmm::pack::decode_pack(&bytes)),
-                "btf" => check(reader, &name, || meso_core::btf::file::decode_btf(&bytes)),
+                "exr" => check(reader, &name, || meso_materials::image::read_image(&path)),
+                "spmm" => check(reader, &name, || meso_materials::spmm::pack::decode_pack(&bytes)),
+                "btf" => check(reader, &name, || meso_materials::btf::file::decode_btf(&bytes)),
                 _ => check(reader, &name, || {
-                    meso_core::merl::MerlBrdf::from_bytes(&bytes)
+                    meso_materials::merl::MerlBrdf::from_bytes(&bytes)
                 }),
             };
         }

@@ -6,11 +6,10 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-use meso_core::image::{Image, read_exr, write_exr};
-use meso_core::metrics::{Comparison, compare};
-use meso_core::modes;
-use meso_core::render::{Prepare, run_frames};
-use meso_core::scene::load_scene;
+use meso_materials::image::{Image, read_exr, write_exr};
+use meso_materials::metrics::{Comparison, compare};
+use meso_render::{Prepare, run_frames};
+use meso_render::scene::load_scene;
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -80,7 +79,7 @@ fn render(g: &Golden, threads: usize) -> Image {
         .expect("thread pool");
     pool.install(|| {
         let (kind, device) = (scene.render.mode, scene.render.device);
-        let mut mode = modes::create(kind, device, scene, g.width, g.height, Prepare::quietly())
+        let mut mode = meso_modes::create(kind, device, scene, g.width, g.height, Prepare::quietly())
             .expect("the scene's mode renders it");
         let run = run_frames(mode.as_mut(), g.frames, |_, _| {});
         assert_eq!(run.dropped, 0, "{}: no non-finite sample", g.scene);

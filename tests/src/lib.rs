@@ -3,6 +3,8 @@
 //! as render modes arrive, image regressions against golden references.
 
 #[cfg(test)]
+mod architecture;
+#[cfg(test)]
 mod biscale;
 #[cfg(test)]
 mod brdf_reference;

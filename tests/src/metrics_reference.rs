@@ -1,12 +1,12 @@
-//! `meso_core::metrics::compare` against independent values from scikit-image 0.26 and
+//! `meso_materials::metrics::compare` against independent values from scikit-image 0.26 and
 //! numpy (tests/reference/metrics_reference.py), on EXR fixtures written by the OpenEXR
 //! Python bindings, so this is also an EXR interoperability test (float32, half, Y-only).
 //! Needs no Python: the fixtures and metrics_values.json are committed.
 
 use std::path::{Path, PathBuf};
 
-use meso_core::image::read_exr;
-use meso_core::metrics::compare;
+use meso_materials::image::read_exr;
+use meso_materials::metrics::compare;
 use serde::Deserialize;
 
 /// RMSE and PSNR: both sides compute in f64 from the same stored f32/half samples and

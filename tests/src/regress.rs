@@ -8,11 +8,11 @@
 
 use std::path::{Path, PathBuf};
 
-use meso_core::regress::{
+use meso_reports::regress::{
     self, CaseReport, Manifest, Pattern, Report, RunRequest, Shard, Status, UpdateRequest,
     report::junit,
 };
-use meso_core::spmm::pack::{ResidualPrecision, read_pack, residual_precision, write_pack};
+use meso_materials::spmm::pack::{ResidualPrecision, read_pack, residual_precision, write_pack};
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -461,7 +461,7 @@ fn the_html_report_opens_in_headless_chromium_with_the_failing_case_first() {
     assert!(fail < pass, "failing row at y {fail}, passing at y {pass}");
     // The pictures load from the file system: the heat maps' bottom colour (viridis
     // at 0) fills most of each map, scaled up without smoothing.
-    let dark = meso_core::regress::report::images::VIRIDIS[0];
+    let dark = meso_reports::regress::report::images::VIRIDIS[0];
     let dark_pixels = img.pixels().filter(|p| p.0 == dark).count();
     assert!(
         dark_pixels > 2000,
@@ -523,11 +523,11 @@ fn only_selects_by_pattern() {
 /// from both: each kind of substitution reaches the render.
 #[test]
 fn merl_file_and_analytic_substitutions_reach_the_render() {
-    use meso_core::brdf::{AnalyticBrdf, BrdfModel};
+    use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
     let dir = tempfile::tempdir().expect("temp dir");
     let brdf =
         AnalyticBrdf::new(BrdfModel::CookTorrance, &[("m", 0.25), ("f0", 0.8)]).expect("valid");
-    meso_core::merl::tabulate(&brdf, glam::DVec3::new(0.9, 0.6, 0.3))
+    meso_materials::merl::tabulate(&brdf, glam::DVec3::new(0.9, 0.6, 0.3))
         .expect("tabulated")
         .write(&dir.path().join("ct.binary"))
         .expect("written");
@@ -576,7 +576,7 @@ modes = ["spmm"]
     let r = run(&manifest, None, 1, 2, Some(&update), None);
     assert_eq!(r.counts().updated, 4, "{:?}", r.cases);
     let golden = |case: &str| {
-        meso_core::image::read_exr(
+        meso_materials::image::read_exr(
             &dir.path()
                 .join(format!("goldens/default.{case}.spmm-cpu.exr")),
         )

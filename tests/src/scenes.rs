@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use meso_core::scene::{Background, Light, Material, load_scene};
+use meso_render::scene::{Background, Light, Material, load_scene};
 
 #[test]
 fn the_default_scene_loads() {

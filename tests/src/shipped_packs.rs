@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use meso_core::spmm::{pack, recipe};
+use meso_materials::spmm::{pack, recipe};
 
 const PACKS: [&str; 3] = ["woven_wool", "leather", "brushed_metal"];
 
@@ -42,7 +42,7 @@ fn shipped_packs_validate_and_match_their_recipes() {
 /// residual tabulated on the 81 x 81 Bonn directions.
 #[test]
 fn fitted_packs_validate_and_stay_small() {
-    let bonn = meso_core::btf::directions::bonn81();
+    let bonn = meso_materials::btf::directions::bonn81();
     for name in ["knitted_wool", "woven_cloth", "grain_leather", "corduroy"] {
         let file = root().join("materials").join(format!("{name}.spmm"));
         let len = std::fs::metadata(&file).expect("the pack is shipped").len();

@@ -1,0 +1,324 @@
+//! `meso btf synth|import|info|slice`: make BTFs by ray tracing a mesostructure
+//! recipe, import measured image sets, summarise a `.btf`, and render one direction
+//! pair of a BTF (optionally beside an SPMM pack's fit) as an image.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::anyhow;
+use clap::Subcommand;
+use glam::DVec3;
+use meso_materials::btf::{self, Btf, directions, file, synth};
+use meso_materials::image::Image;
+use meso_materials::spmm::pack;
+use serde_json::json;
+
+use crate::failure::{CliError, ResultExt};
+use crate::progress::{ProgressLine, cancel_flag};
+
+#[derive(Subcommand, Debug)]
+pub enum BtfCommand {
+    /// Ray trace a height-field mesostructure recipe (TOML) into a BTF.
+    Synth {
+        recipe: PathBuf,
+        #[arg(short = 'o', long)]
+        output: PathBuf,
+        /// Store the values as f32 (default: f16 when every value fits).
+        #[arg(long)]
+        f32: bool,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Build a BTF from a folder of images listed in directions.csv or directions.toml.
+    Import {
+        dir: PathBuf,
+        #[arg(short = 'o', long)]
+        output: PathBuf,
+        /// The BTF's name (default: the folder's name).
+        #[arg(long)]
+        name: Option<String>,
+        #[arg(long)]
+        f32: bool,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Summary of a .btf file (validated on load).
+    Info {
+        file: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+    /// The texel grid at one light and view direction (nearest tabulated pair) as PNG
+    /// or EXR; with --pack, the pack without and with its residual beside it.
+    Slice {
+        file: PathBuf,
+        #[arg(short = 'o', long)]
+        output: PathBuf,
+        /// Light direction THETA,PHI in degrees.
+        #[arg(long, value_name = "THETA,PHI", allow_hyphen_values = true)]
+        light: String,
+        /// View direction THETA,PHI in degrees.
+        #[arg(long, value_name = "THETA,PHI", allow_hyphen_values = true)]
+        view: String,
+        /// An SPMM pack fitted to this BTF, shown beside it.
+        #[arg(long)]
+        pack: Option<PathBuf>,
+        /// Pixels per texel.
+        #[arg(long, default_value_t = 4)]
+        scale: u32,
+        /// Exposure in stops for PNG output.
+        #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+        exposure: f64,
+    },
+}
+
+pub fn run(command: BtfCommand) -> Result<(), CliError> {
+    match command {
+        BtfCommand::Synth {
+            recipe,
+            output,
+            f32,
+            json,
+        } => synth_cmd(&recipe, &output, f32, json),
+        BtfCommand::Import {
+            dir,
+            output,
+            name,
+            f32,
+            json,
+        } => import_cmd(&dir, &output, name, f32, json),
+        BtfCommand::Info { file, json } => info(&file, json),
+        BtfCommand::Slice {
+            file,
+            output,
+            light,
+            view,
+            pack,
+            scale,
+            exposure,
+        } => slice(
+            &file,
+            &output,
+            &light,
+            &view,
+            pack.as_deref(),
+            scale,
+            exposure,
+        ),
+    }
+}
+
+pub fn load(path: &Path) -> Result<Btf, CliError> {
+    file::read_btf(path).map_err(CliError::bad_input)
+}
+
+fn write(output: &Path, b: &Btf, force_f32: bool) -> Result<u64, CliError> {
+    let precision = if force_f32 {
+        file::BtfPrecision::F32
+    } else {
+        file::best_precision(b)
+    };
+    file::write_btf(output, b, precision).map_err(CliError::failure)?;
+    Ok(std::fs::metadata(output).map(|m| m.len()).unwrap_or(0))
+}
+
+fn synth_cmd(recipe: &Path, output: &Path, force_f32: bool, as_json: bool) -> Result<(), CliError> {
+    let setup = synth::load_recipe(recipe).map_err(CliError::bad_input)?;
+    let started = Instant::now();
+    let bar = ProgressLine::new();
+    let result = synth::synthesize(&setup, cancel_flag(), &|d, n| bar.update("synthesis", d, n));
+    bar.finish();
+    let b = match result {
+        Ok(b) => b,
+        Err(synth::SynthErrorKind::Cancelled) => {
+            return Err(CliError::failure(anyhow!(
+                "cancelled (Ctrl-C); `{}` was not written",
+                output.display()
+            )));
+        }
+        Err(e) => return Err(CliError::failure(anyhow!("`{}`: {e}", recipe.display()))),
+    };
+    let seconds = started.elapsed().as_secs_f64();
+    let bytes = write(output, &b, force_f32)?;
+    if as_json {
+        return crate::print_json(&json!({
+            "output": output.display().to_string(),
+            "width": b.width(), "height": b.height(),
+            "lights": b.light_dirs().len(), "views": b.view_dirs().len(),
+            "supersample": setup.supersample,
+            "interreflection_samples": setup.interreflection_samples,
+            "seconds": seconds,
+            "bytes": bytes,
+            "mean_reflectance": b.mean_value(),
+        }));
+    }
+    println!(
+        "wrote {} ({}x{} texels, {} x {} directions, {bytes} bytes) in {seconds:.1} s",
+        output.display(),
+        b.width(),
+        b.height(),
+        b.light_dirs().len(),
+        b.view_dirs().len()
+    );
+    Ok(())
+}
+
+fn import_cmd(
+    dir: &Path,
+    output: &Path,
+    name: Option<String>,
+    force_f32: bool,
+    as_json: bool,
+) -> Result<(), CliError> {
+    let name = name.unwrap_or_else(|| {
+        dir.file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "imported".into())
+    });
+    let b = btf::import::import_dir(dir, &name).map_err(CliError::bad_input)?;
+    let bytes = write(output, &b, force_f32)?;
+    if as_json {
+        return crate::print_json(&json!({
+            "output": output.display().to_string(),
+            "width": b.width(), "height": b.height(),
+            "lights": b.light_dirs().len(), "views": b.view_dirs().len(),
+            "bytes": bytes,
+        }));
+    }
+    println!(
+        "wrote {} ({}x{} texels, {} x {} directions)",
+        output.display(),
+        b.width(),
+        b.height(),
+        b.light_dirs().len(),
+        b.view_dirs().len()
+    );
+    Ok(())
+}
+
+fn info(path: &Path, as_json: bool) -> Result<(), CliError> {
+    let b = load(path)?;
+    let angles = |d: &[DVec3]| -> Vec<[f64; 2]> {
+        d.iter()
+            .map(|v| {
+                let (t, p) = directions::to_angles_deg(*v);
+                [t, p]
+            })
+            .collect()
+    };
+    let (lo, hi) = b
+        .data()
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, c), &x| {
+            (a.min(x), c.max(x))
+        });
+    if as_json {
+        return crate::print_json(&json!({
+            "file": path.display().to_string(),
+            "name": b.name(), "provenance": b.provenance(),
+            "width": b.width(), "height": b.height(),
+            "light_dirs_deg": angles(b.light_dirs()), "view_dirs_deg": angles(b.view_dirs()),
+            "mean": b.mean_value(), "min": lo, "max": hi,
+        }));
+    }
+    println!("{}: BTF `{}`", path.display(), b.name());
+    println!("provenance   {}", b.provenance());
+    println!("texels       {} x {}", b.width(), b.height());
+    println!(
+        "directions   {} light x {} view",
+        b.light_dirs().len(),
+        b.view_dirs().len()
+    );
+    println!(
+        "values       mean {:.5}, min {lo:.5}, max {hi:.5}",
+        b.mean_value()
+    );
+    Ok(())
+}
+
+fn parse_dir(flag: &str, text: &str) -> Result<DVec3, CliError> {
+    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+    let nums: Option<Vec<f64>> = parts.iter().map(|p| p.parse::<f64>().ok()).collect();
+    match nums.as_deref() {
+        Some([t, p]) if t.is_finite() && p.is_finite() && (0.0..90.0).contains(t) => {
+            Ok(directions::from_angles_deg(*t, *p))
+        }
+        _ => Err(CliError::bad_input(anyhow!(
+            "--{flag} `{text}`: expected THETA,PHI in degrees with THETA in [0, 90)"
+        ))),
+    }
+}
+
+fn nearest(dirs: &[DVec3], d: DVec3) -> usize {
+    (0..dirs.len())
+        .max_by(|&a, &b| dirs[a].dot(d).total_cmp(&dirs[b].dot(d)))
+        .unwrap_or(0)
+}
+
+fn slice(
+    path: &Path,
+    output: &Path,
+    light: &str,
+    view: &str,
+    pack_path: Option<&Path>,
+    scale: u32,
+    exposure: f64,
+) -> Result<(), CliError> {
+    if !(1..=64).contains(&scale) || !exposure.is_finite() {
+        return Err(CliError::bad_input(anyhow!(
+            "--scale must be in 1..=64 and --exposure finite"
+        )));
+    }
+    let b = load(path)?;
+    let l = nearest(b.light_dirs(), parse_dir("light", light)?);
+    let v = nearest(b.view_dirs(), parse_dir("view", view)?);
+    let (wi, wo) = (b.light_dirs()[l], b.view_dirs()[v]);
+    let material = match pack_path {
+        Some(p) => {
+            let m = pack::read_pack(p).map_err(CliError::bad_input)?;
+            if (m.width(), m.height()) != (b.width(), b.height()) {
+                return Err(CliError::bad_input(anyhow!(
+                    "`{}` is {}x{} texels but `{}` is {}x{}",
+                    p.display(),
+                    m.width(),
+                    m.height(),
+                    path.display(),
+                    b.width(),
+                    b.height()
+                )));
+            }
+            Some(m)
+        }
+        None => None,
+    };
+    let panels = if material.is_some() { 3 } else { 1 };
+    let (w, h) = (b.width() * scale, b.height() * scale);
+    let gap = 4;
+    let mut img = Image::new(panels * w + (panels - 1) * gap, h);
+    for y in 0..h {
+        for x in 0..w {
+            let t = ((y / scale) * b.width() + x / scale) as usize;
+            img.set(x, y, b.value(t, l, v));
+            if let Some(m) = &material {
+                let off = m.eval_texel(t, wi, wo, false, 0);
+                let on = m.eval_texel(t, wi, wo, true, usize::MAX);
+                img.set(w + gap + x, y, off.as_vec3().to_array());
+                img.set(2 * (w + gap) + x, y, on.as_vec3().to_array());
+            }
+        }
+    }
+    meso_materials::image::write_image(output, &img, exposure)
+        .failure_ctx(|| format!("writing `{}`", output.display()))?;
+    let (ti, pi) = directions::to_angles_deg(wi);
+    let (tv, pv) = directions::to_angles_deg(wo);
+    println!(
+        "wrote {} (light {ti:.0},{pi:.0} deg, view {tv:.0},{pv:.0} deg{})",
+        output.display(),
+        if material.is_some() {
+            "; panels: BTF, SPMM without residual, SPMM with residual"
+        } else {
+            ""
+        }
+    );
+    Ok(())
+}

@@ -1,0 +1,269 @@
+//! `meso report fit BTF PACK [--scene SCENE] -o DIR [--json]`: how a fitted pack looks
+//! against its BTF (`meso_reports::fidelity`): table-space RMSE (overall, grazing,
+//! elsewhere, basis sum alone), then per scene the BTF and the pack rendered alike,
+//! their `meso compare` metrics, and a side-by-side PNG (BTF, pack, difference); and
+//! the image error split into the fit's part and the direction interpolation's, by a
+//! third render of the pack tabulated at the BTF's pairs.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::anyhow;
+use clap::Args;
+use meso_materials::atomic::write_bytes_atomic;
+use meso_materials::btf::file::read_btf;
+use meso_materials::btf::table::BtfTable;
+use meso_reports::fidelity::{
+    ImageErrors, RenderRequest, image_errors, render_all, side_by_side, table_errors, tabulate_pack,
+};
+use meso_materials::image::{write_exr, write_image};
+use meso_render::scene::{RenderSettings, load_scene};
+use meso_materials::spmm::pack::read_pack;
+use serde_json::json;
+
+use crate::failure::{CliError, ResultExt};
+
+/// The default scenes, in the source tree: the bunny under an area light and the
+/// studio environment, and a flat patch at grazing light.
+const DEFAULT_SCENES: [&str; 2] = ["fit_bunny.toml", "fit_grazing.toml"];
+
+#[derive(Args, Debug)]
+pub struct FitReportArgs {
+    /// The BTF (.btf) the pack was fitted to: the ground truth.
+    btf: PathBuf,
+    /// The fitted pack (.spmm).
+    pack: PathBuf,
+    /// Scene to render (repeatable); default: tests/scenes/fit_bunny.toml and
+    /// fit_grazing.toml of the source tree.
+    #[arg(long)]
+    scene: Vec<PathBuf>,
+    /// The scene material the BTF and the pack replace (keeping its tiling).
+    #[arg(long, default_value = "sample")]
+    material: String,
+    /// Output folder (created if missing).
+    #[arg(short = 'o', long)]
+    output: PathBuf,
+    #[arg(long, default_value_t = 160)]
+    width: u32,
+    #[arg(long, default_value_t = 160)]
+    height: u32,
+    /// Frames of each render (both use the same random numbers).
+    #[arg(long, default_value_t = 256)]
+    frames: u32,
+    /// Exposure in stops of the PNG panels.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    exposure: f64,
+    /// Gain of the difference panel.
+    #[arg(long, default_value_t = 4.0)]
+    diff_gain: f32,
+    #[arg(long)]
+    json: bool,
+}
+
+fn default_scenes() -> Vec<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/scenes");
+    DEFAULT_SCENES.iter().map(|s| dir.join(s)).collect()
+}
+
+fn stem(path: &Path) -> String {
+    path.file_stem()
+        .map_or("scene".into(), |s| s.to_string_lossy().into_owned())
+}
+
+pub fn run(args: &FitReportArgs) -> Result<(), CliError> {
+    if let Some(p) = RenderSettings::size_problem(args.width, args.height) {
+        return Err(CliError::bad_input(anyhow!("--width/--height: {p}")));
+    }
+    if args.frames == 0 {
+        return Err(CliError::bad_input(anyhow!("--frames must be at least 1")));
+    }
+    if !(args.diff_gain.is_finite() && args.diff_gain > 0.0 && args.exposure.is_finite()) {
+        return Err(CliError::bad_input(anyhow!(
+            "--diff-gain must be positive and --exposure finite"
+        )));
+    }
+    let scenes = if args.scene.is_empty() {
+        default_scenes()
+    } else {
+        args.scene.clone()
+    };
+    let mut names: Vec<String> = scenes.iter().map(|s| stem(s)).collect();
+    names.sort();
+    names.dedup();
+    if names.len() != scenes.len() {
+        return Err(CliError::bad_input(anyhow!(
+            "--scene: two scenes share a file name; their images would overwrite each other"
+        )));
+    }
+    let started = Instant::now();
+    let btf = read_btf(&args.btf).map_err(CliError::bad_input)?;
+    let pack = read_pack(&args.pack).map_err(CliError::bad_input)?;
+    let pack_bytes = std::fs::metadata(&args.pack)
+        .failure_ctx(|| format!("reading `{}`", args.pack.display()))?
+        .len();
+    let table = table_errors(&btf, &pack)
+        .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", args.pack.display())))?;
+    let shaded = Arc::new(
+        BtfTable::new(&btf)
+            .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", args.btf.display())))?,
+    );
+    // The pack at the BTF's pairs, shown as a BTF: the third render's material.
+    let tabulated = tabulate_pack(&btf, &pack)
+        .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", args.pack.display())))?;
+    let tabulated =
+        Arc::new(BtfTable::new(&tabulated).map_err(|e| {
+            CliError::failure(anyhow!("the pack tabulated at the BTF's pairs: {e}"))
+        })?);
+    drop(btf);
+    let pack = Arc::new(pack);
+    std::fs::create_dir_all(&args.output)
+        .failure_ctx(|| format!("creating `{}`", args.output.display()))?;
+    let request = RenderRequest {
+        width: args.width,
+        height: args.height,
+        frames: args.frames,
+        material: args.material.clone(),
+    };
+    let out = |name: &str| args.output.join(name);
+    let mut rows = Vec::new();
+    let mut worst: Option<ImageErrors> = None;
+    let mut worst_fit: Option<ImageErrors> = None;
+    for path in &scenes {
+        let scene = load_scene(path).map_err(CliError::bad_input)?;
+        let name = stem(path);
+        let r = render_all(
+            &scene,
+            Arc::clone(&shaded),
+            Arc::clone(&pack),
+            Arc::clone(&tabulated),
+            &request,
+        )
+        .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", path.display())))?;
+        let e = image_errors(&r.btf, &r.pack).map_err(CliError::failure)?;
+        let fit = image_errors(&r.btf, &r.tabulated).map_err(CliError::failure)?;
+        let interpolation = image_errors(&r.tabulated, &r.pack).map_err(CliError::failure)?;
+        let files = [
+            "btf.exr",
+            "pack.exr",
+            "tabulated.exr",
+            "side_by_side.png",
+            "fit_side_by_side.png",
+        ]
+        .map(|suffix| format!("{name}_{suffix}"));
+        let [btf_exr, pack_exr, tab_exr, panels, fit_panels] = &files;
+        for (file, image) in [
+            (btf_exr, &r.btf),
+            (pack_exr, &r.pack),
+            (tab_exr, &r.tabulated),
+        ] {
+            write_exr(&out(file), image).failure_ctx(|| format!("writing `{file}`"))?;
+        }
+        for (file, (a, b)) in [
+            (panels, (&r.btf, &r.pack)),
+            (fit_panels, (&r.btf, &r.tabulated)),
+        ] {
+            write_image(
+                &out(file),
+                &side_by_side(a, b, args.diff_gain),
+                args.exposure,
+            )
+            .failure_ctx(|| format!("writing `{file}`"))?;
+        }
+        worst = Some(worse(worst, e));
+        worst_fit = Some(worse(worst_fit, fit));
+        rows.push(json!({
+            "scene": path.display().to_string(),
+            "btf_image": btf_exr,
+            "pack_image": pack_exr,
+            "tabulated_image": tab_exr,
+            "side_by_side": panels,
+            "fit_side_by_side": fit_panels,
+            "image_relative_rmse": e.relative_rmse,
+            "image_rmse": e.rmse,
+            "image_psnr_db": e.psnr_db,
+            "image_mssim": e.mssim,
+            "fit_image_relative_rmse": fit.relative_rmse,
+            "fit_image_rmse": fit.rmse,
+            "fit_image_mssim": fit.mssim,
+            "interpolation_image_relative_rmse": interpolation.relative_rmse,
+            "interpolation_image_rmse": interpolation.rmse,
+            "interpolation_image_mssim": interpolation.mssim,
+        }));
+    }
+    let (worst, worst_fit) = (
+        worst.expect("at least one scene"),
+        worst_fit.expect("at least one scene"),
+    );
+    let report = json!({
+        "btf": args.btf.display().to_string(),
+        "pack": args.pack.display().to_string(),
+        "pack_bytes": pack_bytes,
+        "btf_resident_bytes": shaded.bytes(),
+        "width": args.width,
+        "height": args.height,
+        "frames": args.frames,
+        "material": args.material,
+        // Worst over the scenes: largest RMSE, smallest PSNR and MSSIM.
+        "image_relative_rmse": worst.relative_rmse,
+        "image_psnr_db": worst.psnr_db,
+        "image_mssim": worst.mssim,
+        "fit_image_relative_rmse": worst_fit.relative_rmse,
+        "fit_image_mssim": worst_fit.mssim,
+        "table_relative_rmse": table.relative_rmse,
+        "table_grazing_relative_rmse": table.grazing_relative_rmse,
+        "table_elsewhere_relative_rmse": table.elsewhere_relative_rmse,
+        "table_grazing_fraction": table.grazing_fraction,
+        "table_basis_relative_rmse": table.basis_relative_rmse,
+        "mean_reflectance": table.mean_reflectance,
+        "scenes": rows,
+        "seconds": started.elapsed().as_secs_f64(),
+    });
+    let text = serde_json::to_string_pretty(&report)
+        .map_err(|e| CliError::failure(anyhow!("cannot encode the report: {e}")))?;
+    write_bytes_atomic(&out("report.json"), text.as_bytes())
+        .failure_ctx(|| format!("writing `{}`", out("report.json").display()))?;
+    if args.json {
+        return crate::print_json(&report);
+    }
+    println!("pack         {} ({pack_bytes} bytes)", args.pack.display());
+    println!(
+        "table        relative RMSE {:.2}% (grazing {:.2}%, elsewhere {:.2}%, basis sum alone {:.2}%)",
+        100.0 * table.relative_rmse,
+        100.0 * table.grazing_relative_rmse,
+        100.0 * table.elsewhere_relative_rmse,
+        100.0 * table.basis_relative_rmse
+    );
+    let number = |r: &serde_json::Value, k: &str| r[k].as_f64().unwrap_or(f64::NAN);
+    for r in &rows {
+        println!(
+            "{:<12} relative RMSE {:.2}%  PSNR {}  MSSIM {:.4}  (fit {:.2}%, MSSIM {:.4}; interpolation {:.2}%, MSSIM {:.4})",
+            stem(Path::new(r["scene"].as_str().unwrap_or("scene"))),
+            100.0 * number(r, "image_relative_rmse"),
+            r["image_psnr_db"]
+                .as_f64()
+                .map_or("inf".into(), |p| format!("{p:.2} dB")),
+            number(r, "image_mssim"),
+            100.0 * number(r, "fit_image_relative_rmse"),
+            number(r, "fit_image_mssim"),
+            100.0 * number(r, "interpolation_image_relative_rmse"),
+            number(r, "interpolation_image_mssim"),
+        );
+    }
+    println!("wrote {}", args.output.display());
+    Ok(())
+}
+
+/// The worse of two scenes' errors: largest RMSE, smallest PSNR and MSSIM.
+fn worse(w: Option<ImageErrors>, e: ImageErrors) -> ImageErrors {
+    let Some(w) = w else { return e };
+    ImageErrors {
+        relative_rmse: w.relative_rmse.max(e.relative_rmse),
+        rmse: w.rmse.max(e.rmse),
+        psnr_db: match (w.psnr_db, e.psnr_db) {
+            (Some(x), Some(y)) => Some(x.min(y)),
+            (x, y) => x.or(y),
+        },
+        mssim: w.mssim.min(e.mssim),
+    }
+}

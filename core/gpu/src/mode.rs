@@ -1,0 +1,1040 @@
+//! `GpuSpmmMode`: the spmm mode with its per-pixel work on a wgpu device. Each frame
+//! dispatches `shaders/integrator.wgsl` once per sample (one invocation per pixel)
+//! and adds the sample to the film on the device (`film.rs`, the CPU film's rules:
+//! layers per light, edits that keep samples, the moving flag, per-pixel
+//! invalidation); a frame reads back only its counters. Geometry (BVH nodes and
+//! triangles), the prepared SPMM data, BRDFs, materials and lights live on the device.
+
+use std::time::Instant;
+
+use bytemuck::{Pod, Zeroable};
+use glam::DVec3;
+
+use super::data::{DataBytes, Words};
+use super::display::DeviceImage;
+use super::environment;
+use super::film::{self, DeviceFilm, MAX_LAYERS};
+use super::geometry::GeometryBuffers;
+use super::kernel::{self, Kernel, Slot};
+use super::reach::{Reach, reachable_clusters};
+use super::shaders;
+use super::{GpuContext, GpuError, Sharing};
+use meso_render::environment::EnvironmentSampler;
+use meso_render::geometry::SceneBvh;
+use meso_materials::image::Image;
+use meso_render::film::{LayeredFilm, material_bit};
+use meso_render::layers::{Before, Layers, MANY_LIGHTS};
+use meso_render::reach::EditedTexels;
+use meso_render::{
+    Counters, Device, EditError, FrameStats, ImageOnDevice, Invalidation, ModeError, ModeKind,
+    PreparationReport, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable, Unsupported,
+};
+use meso_render::scene::{Light, Material, RenderSettings, Scene};
+use meso_materials::spmm::PrepareRequest;
+use meso_render::light_selection::{LightSampling, LightSelection};
+
+const MATERIAL_WORDS: usize = 8;
+/// Words of one light record (`shaders/lights.wgsl`).
+const LIGHT_WORDS: usize = 24;
+/// Counter slots of `shaders/integrator.wgsl` (two traversal overflows, then rays;
+/// the last is the environment's, `shaders/environment.wgsl`).
+const COUNTERS: usize = 8;
+
+/// Device memory by kind, in bytes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct DeviceBytes {
+    pub bvh: u64,
+    pub triangles: u64,
+    pub spmm_bases: u64,
+    /// Per-texel weights, basis indices and texel clusters.
+    pub spmm_weights: u64,
+    pub residual_tables: u64,
+    /// BRDF records, the material and light tables.
+    pub materials: u64,
+    /// The environment map with its sampling tables, and the background image.
+    pub environment: u64,
+    /// MERL tables and their sampling tables.
+    pub merl_tables: u64,
+    /// `btf` materials' values and direction tables.
+    pub btf_tables: u64,
+    /// The film (f32 sums per layer, per-pixel marks, the resolved image) and one
+    /// sample's layers.
+    pub film: u64,
+}
+
+impl DeviceBytes {
+    pub fn total(&self) -> u64 {
+        self.bvh
+            + self.triangles
+            + self.spmm_bases
+            + self.spmm_weights
+            + self.residual_tables
+            + self.materials
+            + self.environment
+            + self.merl_tables
+            + self.btf_tables
+            + self.film
+    }
+}
+
+/// The uniform block of `shaders/integrator.wgsl` (`Params`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct Params {
+    width: u32,
+    height: u32,
+    layers: u32,
+    seed: u32,
+    sample_lo: u32,
+    sample_hi: u32,
+    max_depth: u32,
+    moving: u32,
+    lights: u32,
+    light_table: u32,
+    material_table: u32,
+    background: u32,
+    ambient_radius: f32,
+    materials: u32,
+    /// 1: lights chosen stochastically (more than `MANY_LIGHTS`, as the CPU).
+    stochastic: u32,
+    /// Points per area light per shading point (`[render] light_samples`).
+    light_samples: u32,
+    cam_origin: [f32; 4],
+    cam_forward: [f32; 4],
+    cam_right: [f32; 4],
+    cam_up: [f32; 4],
+}
+
+/// Why the film's sums at `width` x `height` (its largest buffer) would not fit in one
+/// buffer of the device (`None` if they fit): refused before anything is allocated.
+fn device_size_problem(ctx: &GpuContext, width: u32, height: u32, layers: usize) -> Option<String> {
+    let bytes = film::largest_buffer(width, height, layers);
+    let limits = ctx.limits();
+    let limit = limits
+        .max_buffer_size
+        .min(limits.max_storage_buffer_binding_size);
+    (bytes > limit).then(|| {
+        format!(
+            "{width} x {height} with {layers} film layers needs a {bytes}-byte buffer on the GPU; `{}` allows {limit}",
+            ctx.adapter_name()
+        )
+    })
+}
+
+const ENVIRONMENT_WORDS: &str =
+    "the [environment] map with its sampling tables and the [background] image";
+const MATERIAL_WORDS_NAME: &str = "the materials (SPMM packs, MERL tables) and lights";
+
+/// Why `words` words of `what` would not fit in one buffer of the device (`None` if
+/// they fit).
+fn words_size_problem(ctx: &GpuContext, what: &str, words: usize) -> Option<String> {
+    let bytes = words as u64 * 4;
+    let limits = ctx.limits();
+    let limit = limits
+        .max_buffer_size
+        .min(limits.max_storage_buffer_binding_size);
+    (bytes > limit).then(|| {
+        format!(
+            "{what} need a {bytes}-byte buffer on the GPU; `{}` allows {limit}",
+            ctx.adapter_name()
+        )
+    })
+}
+
+/// The scene's materials and lights as data words, with where their tables start.
+struct SceneData {
+    words: Words,
+    material_table: u32,
+    /// The light table, last in `words`, with room for `light_capacity` lights.
+    light_table: u32,
+    light_capacity: usize,
+    /// Per material: the moving flag changes it (an SPMM residual in use with more
+    /// components than a moving camera keeps, `MOVING_NPCA`).
+    moving_changes: Vec<bool>,
+    /// Per SPMM material, the clusters uploaded (`reach::reachable_clusters`).
+    reach: Reach,
+}
+
+fn f(v: f64) -> u32 {
+    (v as f32).to_bits()
+}
+
+/// The light table of `shaders/lights.wgsl`, one record per light: kind, position or
+/// corner, edges; the film layer its samples go to and the factor they are multiplied
+/// by (`Layers::light_targets`: one, or its emission in a bounded film's shared layer);
+/// and above `MANY_LIGHTS` the CPU's selection table (`LightSelection`: alias bin,
+/// pmf, 1 / area, the resampling weight's scale, the emitting normal).
+fn light_table(scene: &Scene, layers: &Layers) -> Vec<u32> {
+    let targets = layers.light_targets(scene);
+    let selection = LightSampling::Auto
+        .stochastic(scene.lights.len())
+        .then(|| LightSelection::new(&scene.lights))
+        .flatten();
+    // The scale only matters relative to the other lights' (it cancels in the
+    // estimate): divided by the largest, so f32 holds it whatever the emissions.
+    let max_scale = selection.as_ref().map_or(1.0, |sel| {
+        sel.lights.iter().map(|l| l.w_scale).fold(0.0, f64::max)
+    });
+    let mut table = vec![0u32; scene.lights.len() * LIGHT_WORDS];
+    for (k, (light, rec)) in scene
+        .lights
+        .iter()
+        .zip(table.chunks_exact_mut(LIGHT_WORDS))
+        .enumerate()
+    {
+        let (kind, a, b, c) = match *light {
+            Light::Point { position, .. } => (0, position, DVec3::ZERO, DVec3::ZERO),
+            Light::Area {
+                corner,
+                edge_u,
+                edge_v,
+                ..
+            } => (1, corner, edge_u, edge_v),
+        };
+        rec[0] = kind;
+        for (i, v) in [a, b, c].iter().enumerate() {
+            rec[1 + 3 * i..4 + 3 * i].copy_from_slice(&[f(v.x), f(v.y), f(v.z)]);
+        }
+        rec[10] = targets[k].layer as u32;
+        let factor = targets[k].factor.min(DVec3::splat(f64::from(f32::MAX)));
+        rec[11..14].copy_from_slice(&[f(factor.x), f(factor.y), f(factor.z)]);
+        if let Some(sel) = &selection {
+            let (keep, alias) = sel.table.bins()[k];
+            let l = &sel.lights[k];
+            rec[14] = f(keep);
+            rec[15] = alias;
+            rec[16] = f(sel.table.pmf()[k]);
+            rec[17] = f(l.inv_area);
+            rec[18] = f(l.w_scale / max_scale);
+            rec[19..22].copy_from_slice(&[f(l.normal.x), f(l.normal.y), f(l.normal.z)]);
+        }
+    }
+    table
+}
+
+/// Room for the light table: at least `MANY_LIGHTS`, and a power of two above, so
+/// light edits rewrite it in place and an added light seldom re-uploads the data.
+fn light_capacity(lights: usize) -> usize {
+    lights.max(MANY_LIGHTS).next_power_of_two()
+}
+
+impl SceneData {
+    /// Every material (SPMM packs prepared as the CPU mode prepares them, only the
+    /// clusters the scene can reach unless `all_clusters`; a pack no mesh carries not
+    /// at all) and the light table (`light_table`) with room to grow, so light edits
+    /// rewrite it in place.
+    fn build(scene: &Scene, layers: &Layers, all_clusters: bool) -> Self {
+        let reach = if all_clusters {
+            scene
+                .materials
+                .iter()
+                .map(|m| match m {
+                    Material::Spmm { material, .. } => Some(vec![true; material.clusters().len()]),
+                    Material::Btf { .. } => Some(vec![true]),
+                    _ => None,
+                })
+                .collect()
+        } else {
+            reachable_clusters(scene)
+        };
+        let mut words = Words::default();
+        let mut table = Vec::with_capacity(scene.materials.len() * MATERIAL_WORDS);
+        let mut moving_changes = Vec::with_capacity(scene.materials.len());
+        let mut merl: Vec<(*const meso_materials::merl::MerlBrdf, u32)> = Vec::new();
+        for (i, m) in scene.materials.iter().enumerate() {
+            let mut rec = [0u32; MATERIAL_WORDS];
+            let mut changes_when_moving = false;
+            match m {
+                Material::Brdf { brdf, albedo } => {
+                    rec[0] = 0;
+                    rec[1] = words.push_brdf(brdf);
+                    rec[4..7].copy_from_slice(&[f(albedo.x), f(albedo.y), f(albedo.z)]);
+                }
+                Material::Spmm {
+                    material,
+                    uv_scale,
+                    residual: wanted,
+                    npca,
+                } => {
+                    let used = reach[i].clone().unwrap_or_default();
+                    if !used.contains(&true) {
+                        // No ray can shade it: nothing uploaded, a record of no kind.
+                        rec[0] = u32::MAX;
+                        table.extend_from_slice(&rec);
+                        moving_changes.push(false);
+                        continue;
+                    }
+                    let prepared = material.prepare(&PrepareRequest {
+                        used_clusters: Some(used.clone()),
+                        residual: *wanted,
+                        max_npca: *npca,
+                    });
+                    let uses_residual = *wanted && prepared.has_residual();
+                    changes_when_moving =
+                        uses_residual && prepared.prepared_npca() > meso_materials::spmm::MOVING_NPCA;
+                    rec[0] = 1;
+                    rec[1] = words.push_spmm(&prepared, *uv_scale, Some(&used));
+                    rec[2] = u32::from(uses_residual);
+                }
+                Material::Mirror { reflectance } => {
+                    rec[0] = 2;
+                    rec[4..7].copy_from_slice(&[
+                        f(reflectance.x),
+                        f(reflectance.y),
+                        f(reflectance.z),
+                    ]);
+                }
+                Material::Merl { brdf, tint } => {
+                    rec[0] = 3;
+                    // A table shared by several materials goes up once.
+                    let key = std::sync::Arc::as_ptr(brdf);
+                    rec[1] = match merl.iter().find(|(k, _)| *k == key) {
+                        Some(&(_, at)) => at,
+                        None => {
+                            let at = words.push_merl(brdf);
+                            merl.push((key, at));
+                            at
+                        }
+                    };
+                    rec[4..7].copy_from_slice(&[f(tint.x), f(tint.y), f(tint.z)]);
+                }
+                Material::Btf { table, uv_scale } => {
+                    if reach[i].as_ref().is_some_and(|r| r.contains(&true)) {
+                        rec[0] = 4;
+                        rec[1] = words.push_btf(table, *uv_scale);
+                    } else {
+                        // No mesh carries it: nothing uploaded, a record of no kind.
+                        rec[0] = u32::MAX;
+                    }
+                }
+            }
+            table.extend_from_slice(&rec);
+            moving_changes.push(changes_when_moving);
+        }
+        let before = words.words.len();
+        let material_table = words.at();
+        words.words.extend_from_slice(&table);
+        let light_table = words.at();
+        let light_capacity = light_capacity(scene.lights.len());
+        let lights = self::light_table(scene, layers);
+        words.words.extend_from_slice(&lights);
+        words
+            .words
+            .resize(light_table as usize + light_capacity * LIGHT_WORDS, 0);
+        // BRDF records sit among the SPMM data; count the tables as materials.
+        words.bytes.materials += 4 * (words.words.len() - before) as u64;
+        Self {
+            words,
+            material_table,
+            light_table,
+            light_capacity,
+            moving_changes,
+            reach,
+        }
+    }
+}
+
+/// The device side of a prepared scene.
+struct Resources {
+    geometry: GeometryBuffers,
+    data: wgpu::Buffer,
+    data_bytes: DataBytes,
+    params: wgpu::Buffer,
+    counters: wgpu::Buffer,
+    env: wgpu::Buffer,
+    bind: wgpu::BindGroup,
+}
+
+/// The `spmm` mode on a wgpu device.
+pub struct GpuSpmmMode {
+    ctx: GpuContext,
+    scene: Scene,
+    bvh: SceneBvh,
+    film: DeviceFilm,
+    layers: Layers,
+    kernel: Kernel,
+    res: Resources,
+    scene_data: SceneData,
+    /// The environment map's importance sampler (`None`: no environment, or black).
+    env_sampler: Option<EnvironmentSampler>,
+    /// The `env` words (`environment::words`).
+    env_words: Vec<u32>,
+    samples_per_frame: u32,
+    next_sample: u64,
+    frames: u32,
+    moving: bool,
+    preparation: PreparationReport,
+    /// Traversals that overflowed the stack or the step bound (should stay zero).
+    overflows: [u64; 2],
+    /// Set once the device fails: the mode renders nothing more.
+    failure: Option<GpuError>,
+    /// Every cluster of every pack on the device, not just the reachable ones.
+    all_clusters: bool,
+}
+
+const SLOTS: [Slot; 9] = [
+    Slot::Uniform,
+    Slot::Read,
+    Slot::Read,
+    Slot::Read,
+    Slot::Read,
+    Slot::ReadWrite,
+    Slot::ReadWrite,
+    Slot::ReadWrite,
+    Slot::Read,
+];
+
+impl GpuSpmmMode {
+    /// What this mode cannot render in `scene`, each by name: nothing the CPU mode
+    /// renders (what would not fit on the adapter is refused by size instead).
+    pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
+        // Exhaustive, so a new material kind cannot be added without saying here
+        // whether the device shades it.
+        let shaded = |m: &Material| match m {
+            Material::Brdf { .. }
+            | Material::Merl { .. }
+            | Material::Spmm { .. }
+            | Material::Btf { .. }
+            | Material::Mirror { .. } => true,
+        };
+        let parts = scene
+            .materials
+            .iter()
+            .enumerate()
+            .filter(|(_, m)| !shaded(m))
+            .map(|(index, m)| Unrenderable::Material {
+                index,
+                name: scene.material_name(index),
+                kind: m.kind_name(),
+            })
+            .collect();
+        Unsupported::check(ModeKind::Spmm, Device::Gpu, parts)
+    }
+
+    /// Prepares `scene` on the device `ctx` at `width` x `height`: the BVH, the
+    /// materials and lights, the device buffers, each a reported, cancellable stage.
+    pub fn prepare(
+        ctx: GpuContext,
+        scene: Scene,
+        width: u32,
+        height: u32,
+        prepare: Prepare,
+    ) -> Result<Self, ModeError> {
+        Self::prepare_uploading(ctx, scene, (width, height), prepare, false)
+    }
+
+    /// `prepare`, with every cluster of every pack uploaded when `all_clusters` (the
+    /// tests' reference for the reachable set).
+    pub(super) fn prepare_uploading(
+        ctx: GpuContext,
+        scene: Scene,
+        (width, height): (u32, u32),
+        prepare: Prepare,
+        all_clusters: bool,
+    ) -> Result<Self, ModeError> {
+        if let Some(p) = RenderSettings::size_problem(width, height) {
+            return Err(ModeError::Size(p));
+        }
+        Self::supports(&scene)?;
+        let layers = Layers::new(&scene);
+        let layer_count = layers.layer_count(&scene);
+        debug_assert!(
+            layer_count <= MAX_LAYERS,
+            "render::layers bounds the layers"
+        );
+        if let Some(p) = device_size_problem(&ctx, width, height, layer_count) {
+            return Err(ModeError::Size(p));
+        }
+        let mut report = PreparationReport::default();
+        let bvh = prepare.bvh(&scene.meshes, &mut report)?;
+        prepare.report("materials", 0.0)?;
+        let start = Instant::now();
+        let scene_data = SceneData::build(&scene, &layers, all_clusters);
+        if let Some(p) = words_size_problem(&ctx, MATERIAL_WORDS_NAME, scene_data.words.words.len())
+        {
+            return Err(ModeError::Size(p));
+        }
+        report.record_since("materials", start);
+        prepare.report("environment", 0.0)?;
+        let start = Instant::now();
+        let env_sampler = scene
+            .environment
+            .as_ref()
+            .and_then(|e| EnvironmentSampler::new(&e.map));
+        let env_words = environment::words(&scene, env_sampler.as_ref());
+        if let Some(p) = words_size_problem(&ctx, ENVIRONMENT_WORDS, env_words.len()) {
+            return Err(ModeError::Size(p));
+        }
+        report.record_since("environment", start);
+        prepare.report("device", 0.0)?;
+        let start = Instant::now();
+        let kernel = Kernel::new(&ctx, &shaders::integrator(), "render", &SLOTS);
+        let film = DeviceFilm::new(&ctx, width, height, layer_count);
+        let res = Resources::upload(
+            &ctx,
+            &kernel,
+            &bvh,
+            &scene,
+            (&scene_data, &env_words),
+            &film,
+        );
+        report.record_since("device", start);
+        if let Some(e) = ctx.failure() {
+            return Err(ModeError::DeviceFailed(e.to_string()));
+        }
+        prepare.report("device", 1.0)?;
+        Ok(Self {
+            ctx,
+            scene,
+            bvh,
+            film,
+            layers,
+            kernel,
+            res,
+            scene_data,
+            env_sampler,
+            env_words,
+            samples_per_frame: 1,
+            next_sample: 0,
+            frames: 0,
+            moving: false,
+            preparation: report,
+            overflows: [0; 2],
+            failure: None,
+            all_clusters,
+        })
+    }
+
+    /// Device memory by kind.
+    pub fn device_bytes(&self) -> DeviceBytes {
+        let d = self.res.data_bytes;
+        DeviceBytes {
+            bvh: self.res.geometry.bvh_bytes,
+            triangles: self.res.geometry.triangle_bytes,
+            spmm_bases: d.spmm_bases,
+            spmm_weights: d.spmm_weights,
+            residual_tables: d.residual_tables,
+            materials: d.materials,
+            environment: self.res.env.size(),
+            merl_tables: d.merl_tables,
+            btf_tables: d.btf_tables,
+            film: self.film.bytes(),
+        }
+    }
+
+    /// Traversals that ran out of stack, and out of steps, since the mode was made.
+    /// Either would be a wrong image, so tests require zero.
+    pub fn overflows(&self) -> (u64, u64) {
+        (self.overflows[0], self.overflows[1])
+    }
+
+    /// The film's layers (one per emitter, or a bounded film's).
+    pub fn film_layers(&self) -> usize {
+        self.film.layers()
+    }
+
+    fn params(&self, sample: u64) -> Params {
+        let cam = &self.scene.camera;
+        let (w, h) = (self.film.width(), self.film.height());
+        let forward = (cam.look_at - cam.position).normalize();
+        let right = forward.cross(cam.up).normalize();
+        let up = right.cross(forward);
+        let half_h = (cam.fov_y_deg.to_radians() * 0.5).tan();
+        let half_w = half_h * w as f64 / h as f64;
+        let v4 = |v: DVec3, w: f64| [v.x as f32, v.y as f32, v.z as f32, w as f32];
+        Params {
+            width: w,
+            height: h,
+            layers: self.film.layers() as u32,
+            seed: self.scene.render.seed as u32,
+            sample_lo: sample as u32,
+            sample_hi: (sample >> 32) as u32,
+            max_depth: self.scene.render.max_specular_depth,
+            moving: u32::from(self.moving),
+            lights: self.scene.lights.len() as u32,
+            light_table: self.scene_data.light_table,
+            material_table: self.scene_data.material_table,
+            background: environment::escape(&self.scene),
+            ambient_radius: self
+                .scene
+                .ambient
+                .map_or(-1.0, |a| a.radius.min(3.0e38) as f32),
+            materials: self.scene.materials.len() as u32,
+            stochastic: u32::from(LightSampling::Auto.stochastic(self.scene.lights.len())),
+            light_samples: self.scene.render.light_samples,
+            cam_origin: v4(cam.position, 0.0),
+            cam_forward: v4(forward, half_w),
+            cam_right: v4(right, half_h),
+            cam_up: v4(up, 0.0),
+        }
+    }
+
+    /// `count` samples per pixel from sample index `first`: per sample a dispatch of
+    /// the integrator and one of the film's accumulation, then one read-back of the
+    /// frame's counters (no image). A failed device adds nothing more.
+    fn render_samples(&mut self, first: u64, count: u32) -> Result<Counters, GpuError> {
+        let ctx = &self.ctx;
+        let active = self.layers.active(&self.scene);
+        let (w, h) = (self.film.width(), self.film.height());
+        let mut enc = kernel::encoder(ctx);
+        enc.clear_buffer(&self.res.counters, 0, None);
+        ctx.queue.submit([enc.finish()]);
+        // The film's parameters (the active layers) are the same for every sample.
+        self.film.set_params(&active, false, &[]);
+        for i in 0..u64::from(count) {
+            // Written before the submission that reads them (the queue keeps order).
+            ctx.queue.write_buffer(
+                &self.res.params,
+                0,
+                bytemuck::bytes_of(&self.params(first + i)),
+            );
+            let mut enc = kernel::encoder(ctx);
+            self.kernel.record(&mut enc, &self.res.bind, w * h);
+            self.film.record_accumulate(&mut enc);
+            if i + 1 == u64::from(count) {
+                self.film.record_min_samples(&mut enc);
+            }
+            ctx.queue.submit([enc.finish()]);
+        }
+        let bytes = kernel::submit_and_read(
+            ctx,
+            kernel::encoder(ctx),
+            &[
+                (&self.res.counters, COUNTERS as u64 * 4),
+                (self.film.stats(), 8),
+            ],
+        )?;
+        let counters: &[u32] = bytemuck::cast_slice(&bytes[0]);
+        self.film.refresh(bytemuck::cast_slice(&bytes[1]));
+        self.overflows[0] += u64::from(counters[0]);
+        self.overflows[1] += u64::from(counters[1]);
+        Ok(Counters {
+            samples: u64::from(w) * u64::from(h) * u64::from(count),
+            shading_points: u64::from(counters[6]),
+            rays: RayCounts {
+                primary: u64::from(counters[2]),
+                shadow: u64::from(counters[3]),
+                ambient: u64::from(counters[4]),
+                environment: u64::from(counters[7]),
+                specular: u64::from(counters[5]),
+            },
+        })
+    }
+
+    /// The materials whose evaluation changes with the moving flag.
+    fn moving_mask(&self) -> u64 {
+        self.scene_data
+            .moving_changes
+            .iter()
+            .enumerate()
+            .filter(|(_, r)| **r)
+            .fold(0, |m, (i, _)| m | material_bit(i))
+    }
+
+    /// The film resolved on the device (`None` once the device failed).
+    fn device_image(&self) -> Option<DeviceImage> {
+        if self.failure.is_some() {
+            return None;
+        }
+        Some(self.film.resolve(
+            &self.layers.active(&self.scene),
+            &self.layers.weights(&self.scene),
+        ))
+    }
+
+    /// The pixels an edit restarted; a device that failed while they were found
+    /// restarts nothing more (the mode reports the failure).
+    fn restarted(&mut self, pixels: Result<Vec<u32>, GpuError>) -> Invalidation {
+        match pixels {
+            Ok(p) => Invalidation::Pixels(p.len()),
+            Err(e) => {
+                self.failure = Some(e);
+                Invalidation::All
+            }
+        }
+    }
+
+    fn restart_all(&mut self) -> Invalidation {
+        self.film.reset();
+        self.frames = 0;
+        self.next_sample = 0;
+        Invalidation::All
+    }
+
+    /// The data words (materials, lights) of the scene as it is, or why they would
+    /// not fit in one buffer of the device.
+    fn rebuild_data(&self) -> Result<SceneData, EditError> {
+        let data = SceneData::build(&self.scene, &self.layers, self.all_clusters);
+        match words_size_problem(&self.ctx, MATERIAL_WORDS_NAME, data.words.words.len()) {
+            Some(p) => Err(EditError::Size(p)),
+            None => Ok(data),
+        }
+    }
+
+    /// A device whose buffers are limited to `bytes` (the tests' way to meet the
+    /// limit without allocating it).
+    #[cfg(test)]
+    pub(super) fn limit_buffers(&mut self, bytes: u64) {
+        self.ctx = self.ctx.with_buffer_limit(bytes);
+    }
+
+    /// The bytes of the data words now on the device.
+    #[cfg(test)]
+    pub(super) fn data_words_bytes(&self) -> u64 {
+        self.scene_data.words.words.len() as u64 * 4
+    }
+
+    fn rebind(&mut self) {
+        self.res = Resources::upload(
+            &self.ctx,
+            &self.kernel,
+            &self.bvh,
+            &self.scene,
+            (&self.scene_data, &self.env_words),
+            &self.film,
+        );
+    }
+
+    /// Rebuilds the environment and background words (and the map's sampler when
+    /// `new_map`) and rebinds.
+    fn reupload_environment(&mut self, new_map: bool) {
+        if new_map {
+            self.env_sampler = self
+                .scene
+                .environment
+                .as_ref()
+                .and_then(|e| EnvironmentSampler::new(&e.map));
+        }
+        self.env_words = environment::words(&self.scene, self.env_sampler.as_ref());
+        self.rebind();
+    }
+
+    /// Rewrites the light table after a light edit: in place while it has room (every
+    /// other buffer kept), else grown at the end of the data words; true if the data
+    /// buffer must be uploaded again (`rebind`).
+    fn write_lights(&mut self) -> bool {
+        let table = light_table(&self.scene, &self.layers);
+        let at = self.scene_data.light_table as usize;
+        let n = self.scene.lights.len();
+        let grow = n > self.scene_data.light_capacity;
+        if grow {
+            let capacity = light_capacity(n);
+            let words = &mut self.scene_data.words;
+            let before = words.words.len();
+            words.words.resize(at + capacity * LIGHT_WORDS, 0);
+            words.bytes.materials += 4 * (words.words.len() - before) as u64;
+            self.scene_data.light_capacity = capacity;
+        }
+        let words = &mut self.scene_data.words.words;
+        words[at..at + table.len()].copy_from_slice(&table);
+        // Records past the last light: zero (not read; kept clean).
+        words[at + table.len()..].fill(0);
+        if !grow {
+            self.ctx.queue.write_buffer(
+                &self.res.data,
+                at as u64 * 4,
+                bytemuck::cast_slice(&words[at..]),
+            );
+        }
+        grow
+    }
+}
+
+impl Resources {
+    fn upload(
+        ctx: &GpuContext,
+        kernel: &Kernel,
+        bvh: &SceneBvh,
+        scene: &Scene,
+        (data, env_words): (&SceneData, &[u32]),
+        film: &DeviceFilm,
+    ) -> Self {
+        let geometry = GeometryBuffers::upload(ctx, bvh, &scene.meshes);
+        let data_buf = kernel::storage(ctx, "data", bytemuck::cast_slice(&data.words.words));
+        let params = kernel::uniform(ctx, "params", bytemuck::bytes_of(&Params::default()));
+        let counters = kernel::zeroed(ctx, "counters", COUNTERS as u64 * 4);
+        let env = kernel::storage(ctx, "environment", bytemuck::cast_slice(env_words));
+        let bind = kernel.bind(
+            ctx,
+            &[
+                &params,
+                &geometry.nodes,
+                &geometry.tris,
+                &geometry.shade,
+                &data_buf,
+                &film.frame,
+                &film.aux,
+                &counters,
+                &env,
+            ],
+        );
+        Self {
+            geometry,
+            data: data_buf,
+            data_bytes: data.words.bytes,
+            params,
+            counters,
+            env,
+            bind,
+        }
+    }
+}
+
+impl RenderMode for GpuSpmmMode {
+    fn kind(&self) -> ModeKind {
+        ModeKind::Spmm
+    }
+
+    fn device(&self) -> Device {
+        Device::Gpu
+    }
+
+    fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    fn render_frame(&mut self) -> FrameStats {
+        let start = Instant::now();
+        let dropped_before = self.film.dropped();
+        if self.failure.is_some() {
+            return FrameStats::default();
+        }
+        let counters = match self.render_samples(self.next_sample, self.samples_per_frame) {
+            Ok(c) => c,
+            Err(e) => {
+                self.failure = Some(e);
+                Counters::default()
+            }
+        };
+        self.next_sample += u64::from(self.samples_per_frame);
+        self.frames += 1;
+        FrameStats {
+            counters,
+            seconds: start.elapsed().as_secs_f64(),
+            dropped: self.film.dropped() - dropped_before,
+        }
+    }
+
+    /// The film resolved on the device and read back; black once the device failed
+    /// (its film is gone with it: `failure` says why).
+    fn image(&self) -> Image {
+        self.device_image().and_then(|d| d.read().ok()).map_or_else(
+            || Image::new(self.film.width(), self.film.height()),
+            |img| (*img).clone(),
+        )
+    }
+
+    fn image_on_device(&self) -> Option<std::sync::Arc<dyn ImageOnDevice>> {
+        self.device_image().map(|d| std::sync::Arc::new(d) as _)
+    }
+
+    fn progress(&self) -> Progress {
+        Progress {
+            frames: self.frames,
+            min_samples: self.film.min_samples(),
+            dropped: self.film.dropped(),
+            width: self.film.width(),
+            height: self.film.height(),
+            film_bytes: self.film.bytes(),
+        }
+    }
+
+    fn set_samples_per_frame(&mut self, samples: u32) {
+        self.samples_per_frame = samples.max(1);
+    }
+
+    fn preparation(&self) -> PreparationReport {
+        self.preparation.clone()
+    }
+
+    fn device_memory(&self) -> Vec<(&'static str, u64)> {
+        let b = self.device_bytes();
+        vec![
+            ("bvh", b.bvh),
+            ("triangles", b.triangles),
+            ("spmm_bases", b.spmm_bases),
+            ("spmm_weights", b.spmm_weights),
+            ("residual_tables", b.residual_tables),
+            ("materials", b.materials),
+            ("environment", b.environment),
+            ("merl_tables", b.merl_tables),
+            ("btf_tables", b.btf_tables),
+            ("film", b.film),
+        ]
+    }
+
+    fn adapter(&self) -> Option<String> {
+        Some(self.ctx.adapter_name())
+    }
+
+    fn failure(&self) -> Option<ModeError> {
+        self.failure
+            .as_ref()
+            .map(|e| ModeError::DeviceFailed(e.to_string()))
+    }
+
+    fn traversal_overflows(&self) -> u64 {
+        self.overflows[0] + self.overflows[1]
+    }
+
+    fn summary(&self) -> Option<String> {
+        let (stack, steps) = self.overflows();
+        let mut s = format!(
+            "{} · {:.1} MB on the device",
+            self.ctx.adapter_name(),
+            self.device_bytes().total() as f64 / 1e6
+        );
+        match self.ctx.sharing() {
+            Sharing::Own => {}
+            Sharing::Shared => s.push_str(" · shared with the window"),
+            Sharing::OwnBecause(why) => s.push_str(&format!(" · own device ({why})")),
+        }
+        if stack + steps > 0 {
+            s.push_str(&format!(" · {stack} stack and {steps} step overflows"));
+        }
+        Some(s)
+    }
+
+    fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
+        let result = self.apply_edit(edit);
+        // The film's fewest samples as the edit left them (one small read-back).
+        if result.is_ok()
+            && self.failure.is_none()
+            && let Err(e) = self.film.recount(&self.layers.active(&self.scene))
+        {
+            self.failure = Some(e);
+        }
+        result
+    }
+}
+
+impl GpuSpmmMode {
+    fn apply_edit(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
+        if let SceneEdit::Resize { width, height } = edit
+            && let Some(p) = device_size_problem(&self.ctx, width, height, self.film.layers())
+        {
+            return Err(EditError::Size(p));
+        }
+        let env_words = match &edit {
+            SceneEdit::Environment(e) => {
+                environment::word_count(e.as_ref(), &self.scene.background)
+            }
+            SceneEdit::Background(b) => environment::word_count(self.scene.environment.as_ref(), b),
+            _ => 0,
+        };
+        if let Some(p) = words_size_problem(&self.ctx, ENVIRONMENT_WORDS, env_words) {
+            return Err(EditError::Size(p));
+        }
+        if let SceneEdit::AddLight(_) = edit {
+            let (w, h) = (self.film.width(), self.film.height());
+            let layers = meso_render::layers::FIRST_LIGHT + self.scene.lights.len() + 1;
+            let layers = if self.scene.lights.len() < MANY_LIGHTS {
+                layers
+            } else {
+                meso_render::layers::SHARED_LIGHTS + 1
+            };
+            if let Some(p) = device_size_problem(&self.ctx, w, h, layers) {
+                return Err(EditError::Size(p));
+            }
+        }
+        let before = Before::of(&self.scene, &edit);
+        let material_before = match &edit {
+            SceneEdit::Material { index, .. } => self.scene.materials.get(*index).cloned(),
+            _ => None,
+        };
+        let meshes_before = matches!(edit, SceneEdit::Meshes(_)).then(|| self.scene.meshes.clone());
+        let layer_count = self.film.layers();
+        edit.apply_to(&mut self.scene)?;
+        if let Some(invalidation) = self
+            .layers
+            .apply(&mut self.film, &before, &edit, &self.scene)
+        {
+            let grown = matches!(
+                edit,
+                SceneEdit::Light { .. } | SceneEdit::AddLight(_) | SceneEdit::RemoveLight(_)
+            ) && self.write_lights();
+            match &edit {
+                // A new map, rotation or sampling changes the tables; a strength
+                // edit (nothing invalidated) only re-weights the layer.
+                SceneEdit::Environment(_) if invalidation != Invalidation::Nothing => {
+                    self.reupload_environment(true);
+                }
+                SceneEdit::Background(_) => self.reupload_environment(false),
+                _ if self.film.layers() != layer_count || grown => {
+                    // A light added or removed: the device's frame buffer follows, or
+                    // the light table outgrew its room.
+                    self.rebind();
+                }
+                _ => {}
+            }
+            return Ok(invalidation);
+        }
+        Ok(match edit {
+            SceneEdit::Camera(_) | SceneEdit::LightSamples(_) => self.restart_all(),
+            SceneEdit::Resize { width, height } => {
+                self.film.resize(width, height);
+                self.rebind();
+                self.restart_all()
+            }
+            SceneEdit::Meshes(_) => {
+                // New UVs or material assignments may reach other clusters.
+                if reachable_clusters(&self.scene) != self.scene_data.reach && !self.all_clusters {
+                    match self.rebuild_data() {
+                        Ok(data) => self.scene_data = data,
+                        Err(e) => {
+                            if let Some(meshes) = meshes_before {
+                                self.scene.meshes = meshes;
+                            }
+                            return Err(e);
+                        }
+                    }
+                }
+                self.bvh.update(&self.scene.meshes);
+                self.rebind();
+                self.restart_all()
+            }
+            SceneEdit::Material { index, .. } => {
+                // The re-upload is checked against the device's limit first; the
+                // material stays as it was if it would not fit.
+                match self.rebuild_data() {
+                    Ok(data) => self.scene_data = data,
+                    Err(e) => {
+                        if let Some(material) = material_before {
+                            self.scene.materials[index] = material;
+                        }
+                        return Err(e);
+                    }
+                }
+                self.rebind();
+                let after = &self.scene.materials[index];
+                let bit = material_bit(index);
+                let restarted = match material_before.and_then(|b| EditedTexels::between(&b, after))
+                {
+                    Some(texels) => self
+                        .film
+                        .reset_where(|mask, b| mask & bit != 0 && texels.reaches(b)),
+                    None => self.film.reset_where(|mask, _| mask & bit != 0),
+                };
+                self.restarted(restarted)
+            }
+            SceneEdit::Moving(moving) if moving == self.moving => Invalidation::Nothing,
+            SceneEdit::Moving(moving) => {
+                self.moving = moving;
+                match self.moving_mask() {
+                    // No material shades differently while moving: every sample stands.
+                    0 => Invalidation::Nothing,
+                    residual => {
+                        let restarted = self.film.reset_where(|mask, _| mask & residual != 0);
+                        self.restarted(restarted)
+                    }
+                }
+            }
+            SceneEdit::Light { .. }
+            | SceneEdit::AddLight(_)
+            | SceneEdit::RemoveLight(_)
+            | SceneEdit::Ambient(_)
+            | SceneEdit::Environment(_)
+            | SceneEdit::Background(_) => unreachable!("emitter edits are the layers' to handle"),
+        })
+    }
+}

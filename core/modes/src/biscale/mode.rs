@@ -1,0 +1,548 @@
+//! The biscale mode behind the `RenderMode` seam. Preparation: BVH, the precomputation
+//! (or its cache), the BTF tables, the lighting vector and L* = T L by Algorithm 2.
+//! Per frame: one jittered primary ray per pixel; at a hit, L* of the triangle's
+//! vertices interpolated barycentrically, the view direction in the spmm mode's
+//! shading frame (normal, tangent along +u), and the tabulated BTF row dotted with L*
+//! (eq. 3). Environment strength re-weights the film; turning or replacing the map is
+//! a light change (new L, new L*); the precomputation is redone only for new meshes.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use glam::DVec3;
+
+use super::btf_table::{BtfTable, Tabulation, ViewLookup};
+use super::cubemap::CubeLayout;
+use super::hemisphere::HemisphereGrid;
+use super::precompute::{Precomputed, precompute};
+use super::{BiscaleSettings, cpca::Cpca, sh::ShTransfer};
+use meso_render::geometry::{PinholeCamera, SceneBvh};
+use meso_materials::image::Image;
+use meso_render::film::{material_bit, memory_limit_bytes};
+use meso_render::layers::{self, Before, ENVIRONMENT, Layers};
+use meso_render::{
+    Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind,
+    PreparationReport, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
+    Unsupported,
+};
+use meso_materials::rng::SampleStream;
+use meso_render::scene::{Environment, Light, Material, RenderSettings, Scene};
+use crate::trace::shading::{dpdu, tangent_frame};
+
+/// Which representation of the transfer gives L* (the report compares them).
+#[derive(Clone, Debug)]
+pub enum TransferSource {
+    /// Algorithm 2 over the biclusters (the mode's own).
+    Biclustered,
+    /// The uncompressed matrix.
+    Dense,
+    /// Sloan et al.'s SH bi-scale baseline.
+    Sh(Arc<ShTransfer>),
+    /// Clustered PCA of the matrix's rows.
+    Cpca(Arc<Cpca>),
+}
+
+pub struct BiscaleMode {
+    scene: Scene,
+    settings: BiscaleSettings,
+    bvh: SceneBvh,
+    camera: PinholeCamera,
+    film: Film,
+    layers: Layers,
+    tab: Tabulation,
+    tables: Vec<Option<BtfTable>>,
+    pre: Arc<Precomputed>,
+    source: TransferSource,
+    /// The cube-map lighting vector (unit strength).
+    light: Vec<[f32; 3]>,
+    /// Per vertex, L* laid out [channel][M].
+    local: Vec<f32>,
+    samples_per_frame: u32,
+    next_sample: u64,
+    frames: u32,
+    preparation: PreparationReport,
+    light_change_ms: f64,
+    /// Milliseconds of the last frame (a view change re-renders every pixel).
+    frame_ms: f64,
+    /// The camera is being dragged: nearest view, no residual (`BtfTable::shade`).
+    moving: bool,
+}
+
+fn name_of(scene: &Scene, index: usize) -> String {
+    scene
+        .material_names
+        .get(index)
+        .cloned()
+        .unwrap_or_else(|| format!("#{index}"))
+}
+
+/// L* rows (j = p M + m, RGB) laid out per vertex as [channel][M], the layout a
+/// pixel interpolates.
+fn per_vertex(rows: &[[f32; 3]], mc: usize) -> Vec<f32> {
+    let mut local = vec![0.0f32; rows.len() * 3];
+    for (j, v) in rows.iter().enumerate() {
+        let (p, m) = (j / mc, j % mc);
+        for (c, x) in v.iter().enumerate() {
+            local[(p * 3 + c) * mc + m] = *x;
+        }
+    }
+    local
+}
+
+impl BiscaleMode {
+    /// What the mode cannot render: mirror and MERL materials, point and area lights,
+    /// the ambient term, and a scene without an environment.
+    pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
+        let mut parts: Vec<Unrenderable> = scene
+            .materials
+            .iter()
+            .enumerate()
+            .filter_map(|(i, m)| Self::unrenderable(scene, i, m))
+            .collect();
+        parts.extend(
+            scene
+                .lights
+                .iter()
+                .enumerate()
+                .map(|(index, l)| Unrenderable::Light {
+                    index,
+                    kind: match l {
+                        Light::Point { .. } => "point",
+                        Light::Area { .. } => "area",
+                    },
+                }),
+        );
+        if scene.ambient.is_some() {
+            parts.push(Unrenderable::Ambient);
+        }
+        if scene.environment.is_none() {
+            parts.push(Unrenderable::NoEnvironment);
+        }
+        Unsupported::check(ModeKind::Biscale, Device::Cpu, parts)
+    }
+
+    fn unrenderable(scene: &Scene, index: usize, m: &Material) -> Option<Unrenderable> {
+        matches!(
+            m,
+            Material::Mirror { .. } | Material::Merl { .. } | Material::Btf { .. }
+        )
+        .then(|| Unrenderable::Material {
+            index,
+            name: name_of(scene, index),
+            kind: m.kind_name(),
+        })
+    }
+
+    /// Prepares the mode with the default settings.
+    pub fn new(scene: Scene, width: u32, height: u32, prepare: Prepare) -> Result<Self, ModeError> {
+        Self::prepare(scene, width, height, BiscaleSettings::default(), prepare)
+    }
+
+    pub fn prepare(
+        scene: Scene,
+        width: u32,
+        height: u32,
+        settings: BiscaleSettings,
+        prepare: Prepare,
+    ) -> Result<Self, ModeError> {
+        if let Some(p) = RenderSettings::size_problem(width, height) {
+            return Err(ModeError::Size(p));
+        }
+        if let Some(p) = settings.problem() {
+            return Err(ModeError::Size(format!("biscale settings: {p}")));
+        }
+        Self::supports(&scene)?;
+        let layers = Layers::new(&scene);
+        let film = Film::try_new(
+            width,
+            height,
+            layers.layer_count(&scene),
+            memory_limit_bytes(),
+        )?;
+        let mut report = PreparationReport::default();
+        let bvh = prepare.bvh(&scene.meshes, &mut report)?;
+        let pre = precompute(&scene.meshes, &bvh, &settings, &prepare)?;
+        if pre.stats.from_cache {
+            report.record("cache", pre.stats.cache_seconds);
+        } else {
+            report.record("visibility", pre.stats.visibility_seconds);
+            report.record("binning", pre.stats.binning_seconds);
+            report.record("biclustering", pre.stats.biclustering_seconds);
+        }
+        let tab = Tabulation {
+            local: HemisphereGrid::new(settings.local_res),
+            views: HemisphereGrid::new(settings.view_res),
+        };
+        prepare.report("tables", 0.0)?;
+        let start = Instant::now();
+        let mut tables = Vec::with_capacity(scene.materials.len());
+        for (i, m) in scene.materials.iter().enumerate() {
+            prepare.report("tables", i as f32 / scene.materials.len().max(1) as f32)?;
+            tables.push(tab.table(m));
+        }
+        report.record_since("tables", start);
+        let mut mode = Self {
+            camera: PinholeCamera::new(&scene.camera, width, height),
+            settings,
+            bvh,
+            film,
+            layers,
+            tab,
+            tables,
+            pre: Arc::new(pre),
+            source: TransferSource::Biclustered,
+            light: Vec::new(),
+            local: Vec::new(),
+            samples_per_frame: 1,
+            next_sample: 0,
+            frames: 0,
+            preparation: PreparationReport::default(),
+            light_change_ms: 0.0,
+            frame_ms: 0.0,
+            moving: false,
+            scene,
+        };
+        prepare.report("lighting", 0.0)?;
+        let start = Instant::now();
+        mode.relight();
+        report.record_since("lighting", start);
+        mode.preparation = report;
+        Ok(mode)
+    }
+
+    /// The precomputation in use (matrices, biclusters, frames, stage times).
+    pub fn precomputed(&self) -> &Precomputed {
+        &self.pre
+    }
+
+    pub fn settings(&self) -> &BiscaleSettings {
+        &self.settings
+    }
+
+    /// Milliseconds of the last light change (resampling L, the product, the layout).
+    pub fn light_change_ms(&self) -> f64 {
+        self.light_change_ms
+    }
+
+    /// Bytes of the BTF tables.
+    pub fn table_bytes(&self) -> usize {
+        self.tables.iter().flatten().map(BtfTable::bytes).sum()
+    }
+
+    /// Switches how L* is computed (for the reports), and restarts the image.
+    pub fn set_transfer_source(&mut self, source: TransferSource) {
+        self.source = source;
+        self.relight();
+        self.restart_all();
+    }
+
+    /// The lighting vector and L* for the current environment.
+    fn relight(&mut self) {
+        let start = Instant::now();
+        let cube = CubeLayout::new(self.settings.cube_n);
+        self.light = match &self.scene.environment {
+            Some(e) => cube.lighting(e),
+            None => vec![[0.0; 3]; cube.len()],
+        };
+        let rows = match &self.source {
+            TransferSource::Biclustered => self.pre.biclusters.apply(&self.light),
+            TransferSource::Dense => self.pre.transfer.apply(&self.light),
+            TransferSource::Sh(sh) => sh.apply(&self.light),
+            TransferSource::Cpca(c) => c.apply(&self.light),
+        };
+        self.local = per_vertex(&rows, self.tab.local.len());
+        self.light_change_ms = start.elapsed().as_secs_f64() * 1e3;
+    }
+
+    /// Replaces the lighting vector directly (tests of the binning rule).
+    #[cfg(test)]
+    pub(crate) fn relight_with(&mut self, light: Vec<[f32; 3]>) {
+        self.local = per_vertex(&self.pre.biclusters.apply(&light), self.tab.local.len());
+        self.light = light;
+        self.restart_all();
+    }
+
+    fn restart_all(&mut self) -> Invalidation {
+        self.film.reset();
+        self.frames = 0;
+        self.next_sample = 0;
+        Invalidation::All
+    }
+
+    /// One sample of pixel (x, y): its environment-layer radiance (unit strength) or
+    /// what an escaping ray sees, and the material it shaded.
+    fn sample(
+        &self,
+        x: u32,
+        y: u32,
+        index: u64,
+        lstar: &mut [f32],
+    ) -> (Option<(usize, DVec3)>, u64) {
+        let pixel = u64::from(y) * u64::from(self.film.width()) + u64::from(x);
+        let mut rng = SampleStream::new(&[self.scene.render.seed, index, pixel]);
+        let ray = self.camera.ray(x, y, rng.next_2d());
+        let Some(hit) = self
+            .bvh
+            .closest_hit(ray.origin, ray.dir, 0.0, f64::INFINITY)
+        else {
+            return (layers::escaped(&self.scene, ray.dir), 0);
+        };
+        let mesh = &self.scene.meshes[hit.mesh];
+        let idx = mesh.indices[hit.triangle].map(|i| i as usize);
+        let w = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
+        let n = (mesh.normals[idx[0]] * w[0]
+            + mesh.normals[idx[1]] * w[1]
+            + mesh.normals[idx[2]] * w[2])
+            .normalize_or(DVec3::Y);
+        let (p0, p1, p2) = (
+            mesh.positions[idx[0]],
+            mesh.positions[idx[1]],
+            mesh.positions[idx[2]],
+        );
+        let uv_at = |i: usize| mesh.uvs.get(i).copied().unwrap_or_default();
+        let (u0, u1, u2) = (uv_at(idx[0]), uv_at(idx[1]), uv_at(idx[2]));
+        let uv = u0 * w[0] + u1 * w[1] + u2 * w[2];
+        let (t, b) = tangent_frame(n, dpdu(p1 - p0, p2 - p0, u1 - u0, u2 - u0));
+        let wo = -ray.dir;
+        let wo_local = DVec3::new(wo.dot(t), wo.dot(b), wo.dot(n));
+        let stride = lstar.len();
+        let base = self.pre.frames.mesh_offsets[hit.mesh];
+        lstar.iter_mut().for_each(|v| *v = 0.0);
+        for (i, &vi) in idx.iter().enumerate() {
+            let src = &self.local[(base + vi) * stride..(base + vi + 1) * stride];
+            let wi = w[i] as f32;
+            for (d, s) in lstar.iter_mut().zip(src) {
+                *d += wi * s;
+            }
+        }
+        let rgb = match &self.tables[mesh.material] {
+            Some(table) => {
+                let lookup = if self.moving {
+                    ViewLookup::Nearest
+                } else {
+                    ViewLookup::Pick(rng.next())
+                };
+                table.shade(&self.tab, uv, wo_local, lstar, lookup)
+            }
+            None => [0.0; 3],
+        };
+        (
+            Some((
+                ENVIRONMENT,
+                DVec3::new(rgb[0] as f64, rgb[1] as f64, rgb[2] as f64),
+            )),
+            material_bit(mesh.material),
+        )
+    }
+}
+
+impl RenderMode for BiscaleMode {
+    fn kind(&self) -> ModeKind {
+        ModeKind::Biscale
+    }
+
+    fn device(&self) -> Device {
+        Device::Cpu
+    }
+
+    fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    fn render_frame(&mut self) -> FrameStats {
+        let start = Instant::now();
+        let first = self.next_sample;
+        let k = u64::from(self.samples_per_frame);
+        let active = self.layers.active(&self.scene);
+        let width = self.film.width();
+        let stride = 3 * self.tab.local.len();
+        let dropped_before = self.film.dropped();
+        let mut film = std::mem::replace(&mut self.film, Film::new(0, 0, 0));
+        let rows = film.par_rows(|row| {
+            let mut lstar = vec![0.0f32; stride];
+            let mut shaded = 0u64;
+            for x in 0..width {
+                for index in first..first + k {
+                    let (value, mask) = self.sample(x, row.y, index, &mut lstar);
+                    shaded += u64::from(mask != 0);
+                    // Every active layer gets a sample (zero where this one saw nothing).
+                    for &l in &active {
+                        let v = value
+                            .filter(|(at, _)| *at == l)
+                            .map_or(DVec3::ZERO, |(_, v)| v);
+                        row.add(x, l, v);
+                    }
+                    row.touch(x, mask);
+                }
+            }
+            Counters {
+                samples: u64::from(width) * k,
+                shading_points: shaded,
+                rays: RayCounts {
+                    primary: u64::from(width) * k,
+                    ..Default::default()
+                },
+            }
+        });
+        self.film = film;
+        self.next_sample += k;
+        self.frames += 1;
+        self.frame_ms = start.elapsed().as_secs_f64() * 1e3;
+        FrameStats {
+            counters: rows.into_iter().fold(Counters::default(), |a, c| a + c),
+            seconds: start.elapsed().as_secs_f64(),
+            dropped: self.film.dropped() - dropped_before,
+        }
+    }
+
+    fn image(&self) -> Image {
+        self.film.resolve(&self.layers.weights(&self.scene))
+    }
+
+    fn progress(&self) -> Progress {
+        self.film
+            .progress(self.frames, &self.layers.active(&self.scene))
+    }
+
+    fn set_samples_per_frame(&mut self, samples: u32) {
+        self.samples_per_frame = samples.max(1);
+    }
+
+    fn preparation(&self) -> PreparationReport {
+        self.preparation.clone()
+    }
+
+    fn summary(&self) -> Option<String> {
+        let pre = &self.pre;
+        let source = match self.source {
+            TransferSource::Biclustered => "",
+            TransferSource::Dense => " (dense product)",
+            TransferSource::Sh(_) => " (SH baseline)",
+            TransferSource::Cpca(_) => " (CPCA baseline)",
+        };
+        let origin = if pre.stats.from_cache {
+            "precomputed: from cache".to_string()
+        } else {
+            format!(
+                "precomputed in {:.1} s",
+                pre.stats.visibility_seconds
+                    + pre.stats.binning_seconds
+                    + pre.stats.biclustering_seconds
+            )
+        };
+        Some(format!(
+            "{origin} · {} biclusters · FLOP ratio {:.3}{source} · view change {:.1} ms · light change {:.1} ms",
+            pre.biclusters.len(),
+            pre.flop_ratio(),
+            self.frame_ms,
+            self.light_change_ms
+        ))
+    }
+
+    fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
+        let refuse = |parts: Vec<Unrenderable>| -> Result<Invalidation, EditError> {
+            Err(Unsupported {
+                mode: ModeKind::Biscale,
+                device: Device::Cpu,
+                parts,
+            }
+            .into())
+        };
+        match &edit {
+            SceneEdit::Material { index, material } => {
+                if let Some(part) = Self::unrenderable(&self.scene, *index, material) {
+                    return refuse(vec![part]);
+                }
+            }
+            SceneEdit::Light { index, light } => {
+                let kind = match light {
+                    Light::Point { .. } => "point",
+                    Light::Area { .. } => "area",
+                };
+                return refuse(vec![Unrenderable::Light {
+                    index: *index,
+                    kind,
+                }]);
+            }
+            SceneEdit::AddLight(light) => {
+                let kind = match light {
+                    Light::Point { .. } => "point",
+                    Light::Area { .. } => "area",
+                };
+                return refuse(vec![Unrenderable::Light {
+                    index: self.scene.lights.len(),
+                    kind,
+                }]);
+            }
+            SceneEdit::Ambient(Some(_)) => return refuse(vec![Unrenderable::Ambient]),
+            SceneEdit::Environment(None) => return refuse(vec![Unrenderable::NoEnvironment]),
+            SceneEdit::Resize { width, height } => {
+                Film::check(
+                    *width,
+                    *height,
+                    self.film.layers(),
+                    memory_limit_bytes() + self.film.bytes(),
+                )?;
+            }
+            _ => {}
+        }
+        let before = Before::of(&self.scene, &edit);
+        let old_env: Option<Environment> = self.scene.environment.clone();
+        edit.apply_to(&mut self.scene)?;
+        if let Some(invalidation) = self
+            .layers
+            .apply(&mut self.film, &before, &edit, &self.scene)
+        {
+            if let (SceneEdit::Environment(Some(e)), Some(old)) = (&edit, &old_env)
+                && !old.same_but_strength(e)
+            {
+                // A light change: a new lighting vector, a new L*; T is unchanged.
+                self.relight();
+            }
+            return Ok(invalidation);
+        }
+        Ok(match edit {
+            SceneEdit::Camera(camera) => {
+                self.camera = PinholeCamera::new(&camera, self.film.width(), self.film.height());
+                self.restart_all()
+            }
+            SceneEdit::Resize { width, height } => {
+                self.camera = PinholeCamera::new(&self.scene.camera, width, height);
+                self.film.resize(width, height);
+                self.restart_all()
+            }
+            SceneEdit::Meshes(_) => {
+                // New geometry: new visibility, so the precomputation runs again.
+                self.bvh = SceneBvh::build(&self.scene.meshes);
+                let pre = precompute(
+                    &self.scene.meshes,
+                    &self.bvh,
+                    &self.settings,
+                    &Prepare::quietly(),
+                )
+                .expect("an uncancellable preparation is never cancelled");
+                self.pre = Arc::new(pre);
+                if !matches!(
+                    self.source,
+                    TransferSource::Biclustered | TransferSource::Dense
+                ) {
+                    self.source = TransferSource::Biclustered;
+                }
+                self.relight();
+                self.restart_all()
+            }
+            SceneEdit::Material { index, .. } => {
+                self.tables[index] = self.tab.table(&self.scene.materials[index]);
+                Invalidation::Pixels(self.film.reset_touching(material_bit(index)))
+            }
+            SceneEdit::Moving(moving) if moving == self.moving => Invalidation::Nothing,
+            SceneEdit::Moving(moving) => {
+                // Samples shaded the fast way and the full way must not mix.
+                self.moving = moving;
+                self.restart_all()
+            }
+            // No area lights here: light samples change nothing.
+            _ => Invalidation::Nothing,
+        })
+    }
+}

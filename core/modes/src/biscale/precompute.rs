@@ -1,0 +1,163 @@
+//! The biscale precomputation, stage by stage (visibility, binning, biclustering),
+//! with progress and cancel, and the disk cache in front of it: a cache whose key
+//! matches and that validates is used; a stale or corrupt one is rebuilt (and
+//! overwritten), never trusted.
+
+use std::time::Instant;
+
+use serde::Serialize;
+
+use super::BiscaleSettings;
+use super::bicluster::{self, Biclustering, LevelMatrix};
+use super::cache;
+use super::cubemap::CubeLayout;
+use super::hemisphere::HemisphereGrid;
+use super::transfer::{self, TransferMatrix, VertexFrames};
+use meso_render::geometry::SceneBvh;
+use meso_render::{Cancelled, Prepare};
+use meso_render::scene::TriangleMesh;
+
+/// What the precomputation produced.
+#[derive(Clone, Debug)]
+pub struct Precomputed {
+    pub frames: VertexFrames,
+    pub transfer: TransferMatrix,
+    pub biclusters: Biclustering,
+    pub key: u64,
+    pub stats: PrecomputeStats,
+}
+
+/// Times and sizes of one precomputation (or cache load).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct PrecomputeStats {
+    pub visibility_seconds: f64,
+    pub binning_seconds: f64,
+    pub biclustering_seconds: f64,
+    pub cache_seconds: f64,
+    pub from_cache: bool,
+    /// Why an existing cache was not used, when one was found but rejected.
+    pub cache_rejected: Option<String>,
+    /// Why the cache could not be written, when it could not.
+    pub cache_write_error: Option<String>,
+    pub cache_path: Option<String>,
+}
+
+impl Precomputed {
+    /// Biclustered / dense multiply-adds per lighting change.
+    pub fn flop_ratio(&self) -> f64 {
+        self.biclusters.flops() as f64 / self.transfer.dense_flops().max(1) as f64
+    }
+}
+
+/// The cache key: every input the matrices depend on (world-space meshes, so their
+/// transform is included; the resolutions; the seed; the format version).
+pub fn cache_key(meshes: &[TriangleMesh], s: &BiscaleSettings) -> u64 {
+    let mut h = Fnv::default();
+    h.word(cache::VERSION.len() as u64);
+    h.bytes(cache::VERSION.as_bytes());
+    for v in [s.cube_n, s.local_res, s.rays_per_side] {
+        h.word(u64::from(v));
+    }
+    h.word(s.seed);
+    for m in meshes {
+        h.word(m.positions.len() as u64);
+        for p in m.positions.iter().chain(&m.normals) {
+            for c in p.to_array() {
+                h.word(c.to_bits());
+            }
+        }
+        for uv in &m.uvs {
+            h.word(uv.x.to_bits());
+            h.word(uv.y.to_bits());
+        }
+        for t in &m.indices {
+            for i in t {
+                h.word(u64::from(*i));
+            }
+        }
+    }
+    h.0
+}
+
+/// FNV-1a, 64 bits: a stable hash for cache keys and checksums.
+pub(crate) struct Fnv(pub u64);
+
+impl Default for Fnv {
+    fn default() -> Self {
+        Self(0xcbf2_9ce4_8422_2325)
+    }
+}
+
+impl Fnv {
+    pub fn bytes(&mut self, b: &[u8]) {
+        for &x in b {
+            self.0 ^= u64::from(x);
+            self.0 = self.0.wrapping_mul(0x100_0000_01b3);
+        }
+    }
+    pub fn word(&mut self, w: u64) {
+        self.bytes(&w.to_le_bytes());
+    }
+}
+
+/// Runs (or loads) the precomputation for `meshes` with `bvh` built from them.
+pub fn precompute(
+    meshes: &[TriangleMesh],
+    bvh: &SceneBvh,
+    settings: &BiscaleSettings,
+    prepare: &Prepare,
+) -> Result<Precomputed, Cancelled> {
+    let key = cache_key(meshes, settings);
+    let frames = VertexFrames::of(meshes);
+    let mut stats = PrecomputeStats::default();
+    let path = settings.cache_dir.as_ref().map(|d| cache::path_in(d, key));
+    if let Some(path) = &path {
+        stats.cache_path = Some(path.display().to_string());
+        if path.exists() {
+            let start = Instant::now();
+            match cache::read(path, key, settings, frames.len()) {
+                Ok((transfer, biclusters)) => {
+                    stats.from_cache = true;
+                    stats.cache_seconds = start.elapsed().as_secs_f64();
+                    return Ok(Precomputed {
+                        frames,
+                        transfer,
+                        biclusters,
+                        key,
+                        stats,
+                    });
+                }
+                Err(e) => stats.cache_rejected = Some(e.to_string()),
+            }
+        }
+    }
+    let cube = CubeLayout::new(settings.cube_n);
+    let local = HemisphereGrid::new(settings.local_res);
+    let start = Instant::now();
+    let seen = transfer::visibility(&frames, bvh, cube, settings.rays_per_side, prepare)?;
+    stats.visibility_seconds = start.elapsed().as_secs_f64();
+    prepare.report("binning", 0.0)?;
+    let start = Instant::now();
+    let t = transfer::bin(&frames, &seen, cube, local, settings.rays_per_side);
+    drop(seen);
+    stats.binning_seconds = start.elapsed().as_secs_f64();
+    let start = Instant::now();
+    let levels = LevelMatrix::from_transfer(&t);
+    let found = bicluster::bicluster(&levels, settings.seed, prepare)?;
+    let biclusters = bicluster::layout(&levels, &found);
+    stats.biclustering_seconds = start.elapsed().as_secs_f64();
+    if let Some(path) = &path {
+        let start = Instant::now();
+        if let Err(e) = cache::write(path, key, settings, &t, &biclusters) {
+            stats.cache_write_error = Some(e.to_string());
+        }
+        stats.cache_seconds = start.elapsed().as_secs_f64();
+    }
+    Ok(Precomputed {
+        frames,
+        transfer: t,
+        biclusters,
+        key,
+        stats,
+    })
+}

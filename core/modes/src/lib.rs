@@ -1,0 +1,251 @@
+//! The registry above every render mode: makes a mode by kind and device, says whether
+//! a mode can render a scene (naming what it cannot), and holds what drives any mode
+//! (the convergence report's reference seed). The one place that knows every mode:
+//! `meso`, the studio and the reports ask it, never a mode's type directly. The GPU
+//! mode is built with the `gpu` feature.
+
+pub mod adaptive;
+pub mod biscale;
+pub mod trace;
+
+use crate::adaptive::AdaptiveMode;
+use crate::biscale::BiscaleMode;
+#[cfg(feature = "gpu")]
+use meso_gpu::{GpuContext, GpuSpmmMode};
+use meso_render::scene::Scene;
+use meso_render::{Device, ModeError, ModeKind, Prepare, RenderMode};
+
+use crate::trace::SpmmMode;
+
+/// The reference renders with the scene's seed XOR this constant, so its samples are
+/// independent of the progressive images it measures. With the scene's own seed the
+/// reference would contain the first frames of every progressive image, and the error
+/// after k of its N frames would come out as `sqrt(1/k - 1/N)` of one frame's noise
+/// instead of `sqrt(1/k + 1/N)` (zero at k = N).
+pub const REFERENCE_SEED_XOR: u64 = 0x5245_4645_5245_4e43; // "REFERENC"
+
+/// True if the mode exists in this build on that device.
+pub fn is_built(kind: ModeKind, device: Device) -> bool {
+    match (kind, device) {
+        (ModeKind::Spmm | ModeKind::Biscale | ModeKind::Adaptive, Device::Cpu) => true,
+        (ModeKind::Spmm, Device::Gpu) => cfg!(feature = "gpu"),
+        _ => false,
+    }
+}
+
+/// `Ok` if the mode exists and can render everything in `scene`; otherwise what stops
+/// it (not built, or the materials and lights it cannot render, each by name).
+pub fn supports(kind: ModeKind, device: Device, scene: &Scene) -> Result<(), ModeError> {
+    match (kind, device) {
+        (ModeKind::Spmm, Device::Cpu) => Ok(SpmmMode::supports(scene)?),
+        #[cfg(feature = "gpu")]
+        (ModeKind::Spmm, Device::Gpu) => Ok(GpuSpmmMode::supports(scene)?),
+        (ModeKind::Biscale, Device::Cpu) => Ok(BiscaleMode::supports(scene)?),
+        (ModeKind::Adaptive, Device::Cpu) => Ok(AdaptiveMode::supports(scene)?),
+        _ => Err(ModeError::NotBuilt { mode: kind, device }),
+    }
+}
+
+/// Makes the mode for `scene` at `width` x `height`; a long preparation reports its
+/// progress through `prepare` and stops when asked.
+pub fn create(
+    kind: ModeKind,
+    device: Device,
+    scene: Scene,
+    width: u32,
+    height: u32,
+    prepare: Prepare,
+) -> Result<Box<dyn RenderMode>, ModeError> {
+    create_on(GpuDevice::Own, kind, device, scene, width, height, prepare)
+}
+
+/// The device a GPU mode renders on.
+#[derive(Clone, Copy, Debug)]
+pub enum GpuDevice<'a> {
+    /// One of its own, made for the mode.
+    Own,
+    /// One of its own, because a shared one could not be had (the reason, which the
+    /// mode's summary shows).
+    OwnBecause(&'a str),
+    /// One made elsewhere (the studio's window's) or kept for several modes.
+    #[cfg(feature = "gpu")]
+    Shared(&'a GpuContext),
+}
+
+/// `create`, with a GPU mode on the device `gpu` says.
+pub fn create_on(
+    gpu: GpuDevice,
+    kind: ModeKind,
+    device: Device,
+    scene: Scene,
+    width: u32,
+    height: u32,
+    prepare: Prepare,
+) -> Result<Box<dyn RenderMode>, ModeError> {
+    match (kind, device) {
+        (ModeKind::Spmm, Device::Cpu) => {
+            Ok(Box::new(SpmmMode::prepare(scene, width, height, prepare)?))
+        }
+        #[cfg(feature = "gpu")]
+        (ModeKind::Spmm, Device::Gpu) => {
+            // The scene is checked before a device is looked for, so a scene at fault
+            // is named whether or not this machine has an adapter.
+            GpuSpmmMode::supports(&scene)?;
+            let own = || GpuContext::new().map_err(|e| ModeError::NoDevice(e.to_string()));
+            let ctx = match gpu {
+                GpuDevice::Shared(ctx) => ctx.clone(),
+                GpuDevice::Own => own()?,
+                GpuDevice::OwnBecause(why) => own()?.own_because(why),
+            };
+            Ok(Box::new(GpuSpmmMode::prepare(
+                ctx, scene, width, height, prepare,
+            )?))
+        }
+        (ModeKind::Biscale, Device::Cpu) => {
+            Ok(Box::new(BiscaleMode::new(scene, width, height, prepare)?))
+        }
+        (ModeKind::Adaptive, Device::Cpu) => Ok(Box::new(AdaptiveMode::prepare(
+            scene, width, height, prepare,
+        )?)),
+        _ => {
+            let _ = gpu;
+            Err(ModeError::NotBuilt { mode: kind, device })
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::atomic::AtomicBool;
+
+    use super::*;
+    use meso_render::{Unrenderable, Unsupported};
+    use meso_render::scene::test_scenes::edit_test_scene;
+
+    #[test]
+    fn modes_not_built_say_so() {
+        let scene = edit_test_scene();
+        for (kind, device) in [
+            (ModeKind::Adaptive, Device::Gpu),
+            (ModeKind::Biscale, Device::Gpu),
+        ] {
+            let err = create(kind, device, scene.clone(), 8, 8, Prepare::quietly())
+                .err()
+                .expect("not built");
+            assert_eq!(err, ModeError::NotBuilt { mode: kind, device });
+            assert!(err.to_string().contains(kind.name()), "{err}");
+        }
+        assert!(create(ModeKind::Spmm, Device::Cpu, scene, 8, 8, Prepare::quietly()).is_ok());
+        assert_eq!(is_built(ModeKind::Spmm, Device::Gpu), cfg!(feature = "gpu"));
+    }
+
+    #[test]
+    fn a_cancelled_preparation_stops_and_progress_is_reported() {
+        let scene = edit_test_scene();
+        let cancel = AtomicBool::new(true);
+        let err = create(
+            ModeKind::Spmm,
+            Device::Cpu,
+            scene.clone(),
+            8,
+            8,
+            Prepare::new(&|_, _| {}, &cancel),
+        )
+        .err()
+        .expect("cancelled");
+        assert_eq!(err, ModeError::Cancelled(meso_render::Cancelled));
+        let stages = std::sync::Mutex::new(Vec::new());
+        let record = |s: &str, f: f32| {
+            stages
+                .lock()
+                .expect("not poisoned")
+                .push((s.to_string(), f))
+        };
+        let cancel = AtomicBool::new(false);
+        let mode = create(
+            ModeKind::Spmm,
+            Device::Cpu,
+            scene,
+            8,
+            8,
+            Prepare::new(&record, &cancel),
+        )
+        .expect("prepared");
+        let seen = stages.into_inner().expect("not poisoned");
+        for s in ["bvh", "materials", "environment"] {
+            assert!(seen.iter().any(|(n, _)| n == s), "{seen:?}");
+            assert!(mode.preparation().seconds(s).is_some());
+        }
+    }
+
+    #[test]
+    fn bad_sizes_are_refused_by_the_one_size_rule() {
+        for (w, h) in [(0, 8), (8, 0), (16385, 8)] {
+            let err = create(
+                ModeKind::Spmm,
+                Device::Cpu,
+                edit_test_scene(),
+                w,
+                h,
+                Prepare::quietly(),
+            )
+            .err()
+            .expect("refused");
+            assert!(
+                matches!(err, ModeError::Size(ref m) if m.contains("16384")),
+                "{err}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_spmm_mode_shades_every_material_kind() {
+        use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
+        use meso_materials::merl::tabulate;
+        use meso_render::scene::Material;
+        let gold = Material::Merl {
+            brdf: std::sync::Arc::new(
+                tabulate(
+                    &AnalyticBrdf::with_defaults(BrdfModel::CookTorrance),
+                    glam::DVec3::new(0.9, 0.7, 0.2),
+                )
+                .expect("tabulates"),
+            ),
+            tint: glam::DVec3::ONE,
+        };
+        let mut scene = edit_test_scene();
+        scene.materials.push(gold);
+        scene.material_names.push("gold".into());
+        scene.materials.push(Material::Mirror {
+            reflectance: glam::DVec3::splat(0.9),
+        });
+        scene.material_names.push("chrome".into());
+        // brdf, spmm, merl and mirror.
+        supports(ModeKind::Spmm, Device::Cpu, &scene).expect("all shaded");
+        assert!(create(ModeKind::Spmm, Device::Cpu, scene, 8, 8, Prepare::quietly()).is_ok());
+    }
+
+    #[test]
+    fn unsupported_names_every_part() {
+        let u = Unsupported {
+            mode: ModeKind::Biscale,
+            device: Device::Cpu,
+            parts: vec![
+                Unrenderable::Material {
+                    index: 2,
+                    name: "gold".into(),
+                    kind: "merl",
+                },
+                Unrenderable::Light {
+                    index: 0,
+                    kind: "point",
+                },
+            ],
+        };
+        assert_eq!(
+            u.to_string(),
+            "the biscale mode (cpu) cannot render material `gold` (merl), light[0] (point)"
+        );
+        assert!(!u.only_lights());
+    }
+}

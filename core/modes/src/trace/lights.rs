@@ -1,0 +1,339 @@
+//! Light sampling in the spmm mode (Silva & Santos 2013, eq. 4-7): up to `MANY_LIGHTS`
+//! lights, each point light with one shadow ray and each area light with one shadow ray
+//! to each of `light_samples` points drawn uniformly on its area (in the area measure:
+//! A L_e f cos_i cos_l / r^2, each weighted 1 / light_samples); above, `LIGHT_SAMPLES x
+//! light_samples` lights per shading point chosen by resampling
+//! (`light_selection.rs`). Ambient occlusion: one ray limited to the ambient radius
+//! (pi L_a V f per cosine-distributed sample). Each adds to its light's film layer.
+//! On MERL materials each area light also gets a material sample, and the two are
+//! combined by MIS (power heuristic) on the per-light path; the many-light path keeps
+//! light samples alone.
+
+use std::f64::consts::PI;
+
+use glam::DVec3;
+
+use meso_render::light_selection::{CANDIDATES, LIGHT_SAMPLES, LightSelection};
+use super::shading::{Shader, Shading, power_heuristic};
+use super::{Path, SpmmMode};
+use meso_render::geometry::hit_parallelogram;
+use meso_render::layers::AMBIENT;
+use meso_render::scene::{Light, Material};
+
+/// A point on a light seen from a shading point, unshadowed.
+#[derive(Clone, Copy, Default)]
+struct LightPoint {
+    light: usize,
+    q: DVec3,
+    wi: DVec3,
+    /// `1 / r^2` (point) or `cos_l / r^2` (area, per unit area); zero if the light
+    /// cannot reach the point (behind it, or below the surface).
+    falloff: f64,
+}
+
+/// A candidate of the stochastic path (`sample_chosen_lights`).
+#[derive(Clone, Copy, Default)]
+struct Candidate {
+    light: usize,
+    q: DVec3,
+    to: DVec3,
+    d2: f64,
+    falloff: f64,
+    pmf: f64,
+    w: f64,
+}
+
+impl SpmmMode {
+    /// One shadow ray to each point light and `light_samples` to each area light, or
+    /// `LIGHT_SAMPLES x light_samples` chosen lights above `MANY_LIGHTS`; `lift` is
+    /// the ray origin just off the surface.
+    pub(super) fn sample_lights(
+        &self,
+        s: &Shading,
+        wo: DVec3,
+        lift: DVec3,
+        throughput: DVec3,
+        path: &mut Path,
+    ) {
+        if let Some(selection) = &self.light_selection {
+            self.sample_chosen_lights(selection, s, wo, lift, throughput, path);
+            return;
+        }
+        let n = self.scene.render.light_samples;
+        for (k, light) in self.scene.lights.iter().enumerate() {
+            // Both kinds draw the same numbers, so the dimension layout does not depend
+            // on which kinds the scene has.
+            let points = path.rng.next_2d_set(n);
+            // Light samples of an area light meet a material sample by MIS where the
+            // material's lobe can be narrower than the light (`area_light_mis`).
+            let mis = matches!(light, Light::Area { .. }) && self.area_light_mis(s);
+            let directions = mis.then(|| path.rng.next_2d_set(n));
+            // A point light is one exact sample; an area light's `n` share its weight
+            // (times one for one sample, which keeps that image's bits).
+            let (count, share) = match light {
+                Light::Point { .. } => (1, throughput),
+                Light::Area { .. } => (n, throughput * (1.0 / f64::from(n))),
+            };
+            for r in 0..count {
+                if let Some(directions) = &directions {
+                    self.sample_area_light_by_material(
+                        k,
+                        s,
+                        wo,
+                        lift,
+                        share,
+                        directions.get(r),
+                        path,
+                    );
+                }
+                self.sample_light_point(k, points.get(r), mis, s, wo, lift, share, path);
+            }
+        }
+    }
+
+    /// One shadow ray to light `k`: its position, or the point `u` on its area.
+    #[allow(clippy::too_many_arguments)]
+    fn sample_light_point(
+        &self,
+        k: usize,
+        u: glam::DVec2,
+        mis: bool,
+        s: &Shading,
+        wo: DVec3,
+        lift: DVec3,
+        throughput: DVec3,
+        path: &mut Path,
+    ) {
+        let (q, geometry) = match self.scene.lights[k] {
+            Light::Point { position, .. } => (position, None),
+            Light::Area {
+                corner,
+                edge_u,
+                edge_v,
+                ..
+            } => (
+                corner + edge_u * u.x + edge_v * u.y,
+                Some(edge_u.cross(edge_v)),
+            ),
+        };
+        let to = q - s.p;
+        let d2 = to.length_squared();
+        let wi = to / d2.sqrt();
+        let falloff = match geometry {
+            None => 1.0 / d2,
+            Some(cross) => {
+                // One-sided: the light emits towards edge_u x edge_v.
+                let area = cross.length();
+                let cos_l = -wi.dot(cross / area);
+                if cos_l <= 0.0 {
+                    return;
+                }
+                cos_l * area / d2
+            }
+        };
+        let cos_i = wi.dot(s.n);
+        if cos_i.is_nan() || cos_i <= 0.0 {
+            return;
+        }
+        path.counts.shadow += 1;
+        if !self
+            .bvh
+            .occluded(lift, wi, 0.0, (q - lift).length() * (1.0 - 1e-6))
+        {
+            let target = self.light_targets[k];
+            // Solid-angle pdf of this point: 1 / falloff.
+            let weight = if mis {
+                power_heuristic(1.0 / falloff, self.material_pdf(s, wi, wo))
+            } else {
+                1.0
+            };
+            // The factor is exactly one outside a bounded film's shared layer, so
+            // the per-light path keeps its bits.
+            path.out[target.layer] +=
+                throughput * self.response(s, wi, wo) * (falloff * weight) * target.factor;
+        }
+    }
+
+    /// True where area lights are sampled by MIS of light and material samples: MERL
+    /// tables, whose measured lobes can be far narrower than a light. Analytic BRDFs
+    /// and SPMM packs keep the light samples alone (and their images' bits).
+    fn area_light_mis(&self, s: &Shading) -> bool {
+        matches!(self.scene.materials[s.material], Material::Merl { .. })
+    }
+
+    /// The material's strategy for area light `k`: a direction drawn from the BRDF,
+    /// kept if it meets the light's front face unshadowed, weighted by the power
+    /// heuristic against the light's solid-angle pdf (Veach 1997, ch. 9), from the
+    /// pair `u`.
+    #[allow(clippy::too_many_arguments)]
+    fn sample_area_light_by_material(
+        &self,
+        k: usize,
+        s: &Shading,
+        wo: DVec3,
+        lift: DVec3,
+        throughput: DVec3,
+        u: glam::DVec2,
+        path: &mut Path,
+    ) {
+        let Light::Area {
+            corner,
+            edge_u,
+            edge_v,
+            ..
+        } = self.scene.lights[k]
+        else {
+            return;
+        };
+        let Some((wi, pdf)) = self.material_sample(s, wo, u) else {
+            return;
+        };
+        if wi.dot(s.n) <= 0.0 || pdf <= 0.0 {
+            return;
+        }
+        let Some((distance, falloff)) = hit_parallelogram(s.p, wi, corner, edge_u, edge_v) else {
+            return;
+        };
+        path.counts.shadow += 1;
+        if self.bvh.occluded(lift, wi, 0.0, distance * (1.0 - 1e-6)) {
+            return;
+        }
+        let weight = power_heuristic(pdf, 1.0 / falloff);
+        let target = self.light_targets[k];
+        path.out[target.layer] +=
+            throughput * self.response(s, wi, wo) * (weight / pdf) * target.factor;
+    }
+
+    /// `LIGHT_SAMPLES` lights, each kept from `CANDIDATES` drawn by power by
+    /// resampled importance sampling (Talbot et al. 2005) towards the unshadowed
+    /// `emission x falloff` (zero behind a one-sided area light or below the surface,
+    /// where the contribution is zero too, so the estimate stays unbiased):
+    /// `f(y) / target(y) x mean_j(target_j / p_j)` with one shadow ray to `y`.
+    /// Draws `LIGHT_SAMPLES x (CANDIDATES + 1)` dimensions whatever it finds (a
+    /// candidate's light and point from one: 32, 16 and 16 bits).
+    fn sample_chosen_lights(
+        &self,
+        sel: &LightSelection,
+        s: &Shading,
+        wo: DVec3,
+        lift: DVec3,
+        throughput: DVec3,
+        path: &mut Path,
+    ) {
+        // `light_samples` times the selections, each weighted by its share.
+        let selections = LIGHT_SAMPLES * self.scene.render.light_samples as usize;
+        for _ in 0..selections {
+            // Per candidate: light, point, to, r^2, falloff, pmf, weight target / p_src.
+            let mut candidates = [Candidate::default(); CANDIDATES];
+            let mut total = 0.0;
+            for c in &mut candidates {
+                let [u_light, u_x, u_y] = path.rng.next_32_16_16();
+                let (k, pmf) = sel.table.sample(u_light);
+                let l = &sel.lights[k];
+                let q = l.origin + l.edge_u * u_x + l.edge_v * u_y;
+                let to = q - s.p;
+                let d2 = to.length_squared();
+                // Zero below the surface and behind a one-sided area light, where the
+                // contribution is zero too.
+                let cos_l = if l.normal == DVec3::ZERO {
+                    1.0
+                } else {
+                    -to.dot(l.normal) / d2.sqrt()
+                };
+                let falloff = if to.dot(s.n) > 0.0 && cos_l > 0.0 {
+                    cos_l / d2
+                } else {
+                    0.0
+                };
+                let w = l.w_scale * falloff;
+                if w.is_finite() {
+                    total += w;
+                }
+                *c = Candidate {
+                    light: k,
+                    q,
+                    to,
+                    d2,
+                    falloff,
+                    pmf,
+                    w,
+                };
+            }
+            let pick = path.rng.next() * total;
+            if !(total > 0.0 && total.is_finite()) {
+                continue;
+            }
+            let mut acc = 0.0;
+            let mut chosen = None;
+            for c in &candidates {
+                if !(c.w > 0.0 && c.w.is_finite()) {
+                    continue;
+                }
+                acc += c.w;
+                chosen = Some(*c);
+                if pick < acc {
+                    break;
+                }
+            }
+            let Some(c) = chosen else {
+                continue;
+            };
+            // target(y) = w(y) p_src(y), p_src per light or per unit area; the estimate
+            // is f(y) / target(y) x total / M.
+            let target = c.w * c.pmf * sel.lights[c.light].inv_area;
+            let lp = LightPoint {
+                light: c.light,
+                q: c.q,
+                wi: c.to / c.d2.sqrt(),
+                falloff: c.falloff,
+            };
+            path.counts.shadow += 1;
+            if self
+                .bvh
+                .occluded(lift, lp.wi, 0.0, (lp.q - lift).length() * (1.0 - 1e-6))
+            {
+                continue;
+            }
+            let t = self.light_targets[lp.light];
+            let weight = total / (CANDIDATES as f64 * target * selections as f64);
+            path.out[t.layer] +=
+                throughput * self.response(s, lp.wi, wo) * (lp.falloff * weight) * t.factor;
+        }
+    }
+
+    /// One ambient-occlusion ray (eq. 6-7). Draws its two numbers whether or not the
+    /// scene has an ambient term, so toggling it keeps every other sample's numbers.
+    pub(super) fn sample_ambient(
+        &self,
+        s: &Shading,
+        wo: DVec3,
+        lift: DVec3,
+        throughput: DVec3,
+        path: &mut Path,
+    ) {
+        let u = path.rng.next_2d();
+        let Some(ambient) = &self.scene.ambient else {
+            return;
+        };
+        let shader = &self.shaders[s.material];
+        let (wi, weight) = match shader {
+            // 1 / pdf, written as the cosine case always was (pi / cos) to keep its bits.
+            Shader::Scene => {
+                let (local, _) = shader.hemisphere_sample(u);
+                if local.z <= 0.0 {
+                    return;
+                }
+                (s.to_world(local), PI / local.z)
+            }
+            // A pack draws from its texel's bases (and a defensive share).
+            Shader::Spmm { .. } | Shader::Table => match self.material_sample(s, wo, u) {
+                Some((wi, pdf)) if wi.dot(s.n) > 0.0 => (wi, 1.0 / pdf),
+                _ => return,
+            },
+        };
+        path.counts.ambient += 1;
+        if !self.bvh.occluded(lift, wi, 0.0, ambient.radius) {
+            path.out[AMBIENT] += throughput * self.response(s, wi, wo) * weight;
+        }
+    }
+}

@@ -1,0 +1,445 @@
+//! The seam every render mode plugs into (DESIGN.md, "The three render modes"): the
+//! `RenderMode` trait (prepared for a scene with progress and cancel, renders one
+//! progressive frame into its film, says what an edit invalidates), the film and its
+//! layers, edits, `Unsupported` (what a mode cannot render, by name) and mode-neutral
+//! statistics. It knows no mode: the registry above the modes makes them by kind
+//! (`modes`). `meso render`, the reports and the studio drive modes through it.
+
+pub mod denoise;
+pub mod environment;
+pub mod geometry;
+pub mod light_selection;
+pub mod scene;
+pub mod edit;
+pub mod film;
+pub mod layers;
+pub mod preview;
+pub mod reach;
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+pub use denoise::{Denoiser, Guides};
+pub use edit::{EditError, Invalidation, SceneEdit};
+pub use film::{Film, FilmTooLarge};
+
+use crate::geometry::SceneBvh;
+use meso_materials::image::Image;
+pub use crate::scene::{Device, ModeKind};
+use crate::scene::{Scene, TriangleMesh};
+
+/// Rays traced, by kind (zero for modes that trace none of a kind).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct RayCounts {
+    pub primary: u64,
+    pub shadow: u64,
+    pub ambient: u64,
+    /// Rays towards the environment (its samples and the BRDF's samples of it).
+    pub environment: u64,
+    pub specular: u64,
+}
+
+impl std::ops::Add for RayCounts {
+    type Output = Self;
+    fn add(self, o: Self) -> Self {
+        Self {
+            primary: self.primary + o.primary,
+            shadow: self.shadow + o.shadow,
+            ambient: self.ambient + o.ambient,
+            environment: self.environment + o.environment,
+            specular: self.specular + o.specular,
+        }
+    }
+}
+
+impl RayCounts {
+    pub fn total(&self) -> u64 {
+        self.primary + self.shadow + self.ambient + self.environment + self.specular
+    }
+}
+
+/// Mode-neutral counters of some amount of rendering.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Counters {
+    /// Pixel samples added to the film.
+    pub samples: u64,
+    /// Surface points whose material was evaluated.
+    pub shading_points: u64,
+    /// Rays traced, where the mode traces rays.
+    pub rays: RayCounts,
+}
+
+impl std::ops::Add for Counters {
+    type Output = Self;
+    fn add(self, o: Self) -> Self {
+        Self {
+            samples: self.samples + o.samples,
+            shading_points: self.shading_points + o.shading_points,
+            rays: self.rays + o.rays,
+        }
+    }
+}
+
+/// What one call of `render_frame` did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FrameStats {
+    pub counters: Counters,
+    pub seconds: f64,
+    /// Non-finite samples dropped in this frame.
+    pub dropped: u64,
+}
+
+/// Where the accumulation stands.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Progress {
+    /// Frames rendered since the last full restart.
+    pub frames: u32,
+    /// The fewest samples of any pixel in any active layer.
+    pub min_samples: u32,
+    /// Non-finite samples dropped since the mode was made.
+    pub dropped: u64,
+    pub width: u32,
+    pub height: u32,
+    /// Bytes the film's buffers hold (`Film::bytes`; 0 for modes without one).
+    pub film_bytes: u64,
+}
+
+/// How a mode's preparation went: each stage and its time.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct PreparationReport {
+    pub stages: Vec<PreparationStage>,
+}
+
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct PreparationStage {
+    pub name: String,
+    pub seconds: f64,
+}
+
+impl PreparationReport {
+    /// Records stage `name`, which took `seconds`.
+    pub fn record(&mut self, name: &str, seconds: f64) {
+        self.stages.push(PreparationStage {
+            name: name.into(),
+            seconds,
+        });
+    }
+
+    /// Records stage `name`, begun at `start` and ended now.
+    pub fn record_since(&mut self, name: &str, start: Instant) {
+        self.record(name, start.elapsed().as_secs_f64());
+    }
+
+    pub fn seconds(&self, stage: &str) -> Option<f64> {
+        self.stages
+            .iter()
+            .find(|s| s.name == stage)
+            .map(|s| s.seconds)
+    }
+    pub fn total_seconds(&self) -> f64 {
+        self.stages.iter().map(|s| s.seconds).sum()
+    }
+}
+
+/// The preparation was cancelled by its caller.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("the preparation was cancelled")]
+pub struct Cancelled;
+
+/// A long preparation's link to its caller: progress reports and a cancel flag that
+/// the mode checks between steps.
+#[derive(Clone, Copy)]
+pub struct Prepare<'a> {
+    on_progress: &'a (dyn Fn(&str, f32) + Sync),
+    cancel: &'a AtomicBool,
+}
+
+static NEVER_CANCELLED: AtomicBool = AtomicBool::new(false);
+
+impl<'a> Prepare<'a> {
+    pub fn new(on_progress: &'a (dyn Fn(&str, f32) + Sync), cancel: &'a AtomicBool) -> Self {
+        Self {
+            on_progress,
+            cancel,
+        }
+    }
+
+    /// No progress shown, never cancelled (tests, benchmarks, quick scripts).
+    pub fn quietly() -> Prepare<'static> {
+        Prepare {
+            on_progress: &|_, _| {},
+            cancel: &NEVER_CANCELLED,
+        }
+    }
+
+    /// The scene's BVH, built as the stage `bvh` of `report` (every mode's first).
+    pub fn bvh(
+        &self,
+        meshes: &[TriangleMesh],
+        report: &mut PreparationReport,
+    ) -> Result<SceneBvh, Cancelled> {
+        self.report("bvh", 0.0)?;
+        let start = Instant::now();
+        let bvh = SceneBvh::build(meshes);
+        report.record_since("bvh", start);
+        Ok(bvh)
+    }
+
+    /// Reports that `fraction` (0..=1) of `stage` is done; `Err` once cancelled.
+    pub fn report(&self, stage: &str, fraction: f32) -> Result<(), Cancelled> {
+        if self.cancel.load(Ordering::Relaxed) {
+            return Err(Cancelled);
+        }
+        (self.on_progress)(stage, fraction.clamp(0.0, 1.0));
+        Ok(())
+    }
+}
+
+/// What a mode cannot render in a scene, each by name.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Unrenderable {
+    Material {
+        index: usize,
+        name: String,
+        /// The material's kind in scene files (`merl`, `mirror`, ...).
+        kind: &'static str,
+    },
+    Light {
+        index: usize,
+        kind: &'static str,
+    },
+    Ambient,
+    /// The mode needs an `[environment]` and the scene has none.
+    NoEnvironment,
+    /// The mode cannot light with the scene's `[environment]`.
+    Environment,
+    /// The mode cannot show the scene's `[background]` image.
+    BackgroundImage,
+}
+
+impl std::fmt::Display for Unrenderable {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Unrenderable::Material { name, kind, .. } => write!(f, "material `{name}` ({kind})"),
+            Unrenderable::Light { index, kind } => write!(f, "light[{index}] ({kind})"),
+            Unrenderable::Ambient => write!(f, "the [ambient] term"),
+            Unrenderable::NoEnvironment => write!(f, "a scene without [environment]"),
+            Unrenderable::Environment => write!(f, "the [environment] lighting"),
+            Unrenderable::BackgroundImage => write!(f, "the [background] image"),
+        }
+    }
+}
+
+/// A scene a mode cannot render: every part at fault, so a caller can name them all
+/// or offer to render without the lights among them.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("the {} mode ({}) cannot render {}", .mode.name(), .device.name(), list(.parts))]
+pub struct Unsupported {
+    pub mode: ModeKind,
+    pub device: Device,
+    pub parts: Vec<Unrenderable>,
+}
+
+fn list(parts: &[Unrenderable]) -> String {
+    parts
+        .iter()
+        .map(|p| p.to_string())
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+impl Unsupported {
+    /// `Ok` if nothing is at fault.
+    pub fn check(mode: ModeKind, device: Device, parts: Vec<Unrenderable>) -> Result<(), Self> {
+        if parts.is_empty() {
+            Ok(())
+        } else {
+            Err(Self {
+                mode,
+                device,
+                parts,
+            })
+        }
+    }
+
+    /// True if only lights or the ambient term are at fault: the scene renders in
+    /// this mode with them left out.
+    pub fn only_lights(&self) -> bool {
+        self.parts
+            .iter()
+            .all(|p| matches!(p, Unrenderable::Light { .. } | Unrenderable::Ambient))
+    }
+}
+
+/// Why a mode could not be made for a scene.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum ModeError {
+    #[error("the {} mode on the {} is not built yet", .mode.name(), .device.name())]
+    NotBuilt { mode: ModeKind, device: Device },
+    #[error(transparent)]
+    Unsupported(#[from] Unsupported),
+    #[error("{0}")]
+    Size(String),
+    /// The film would not fit in memory (refused before it is allocated).
+    #[error(transparent)]
+    TooLarge(#[from] FilmTooLarge),
+    #[error(transparent)]
+    Cancelled(#[from] Cancelled),
+    /// No device to run the mode on (e.g. no GPU adapter), in one line.
+    #[error("{0}")]
+    NoDevice(String),
+    /// The device failed while the mode ran (a GPU lost or reset), in one line: the
+    /// mode renders nothing more; its film keeps the samples from before.
+    #[error("{0}")]
+    DeviceFailed(String),
+}
+
+/// A frame's image left on a GPU mode's device, one frame's and unchanged by later
+/// ones: a window that draws with that device shows it from there (the GPU module's
+/// `DisplayTexture`), and the host reads it back only when it asks (`read`).
+pub trait ImageOnDevice: Send + Sync + std::fmt::Debug {
+    fn size(&self) -> (u32, u32);
+    /// The image on the host: read back the first time it is asked for.
+    fn read(&self) -> Result<std::sync::Arc<Image>, ModeError>;
+    /// The concrete image, for the module that shows it.
+    fn as_any(&self) -> &dyn std::any::Any;
+}
+
+/// A progressive render mode.
+pub trait RenderMode: Send {
+    fn kind(&self) -> ModeKind;
+    fn device(&self) -> Device;
+    /// The scene as edited so far.
+    fn scene(&self) -> &Scene;
+    /// Adds one frame (`samples_per_frame` samples per pixel) to the film.
+    fn render_frame(&mut self) -> FrameStats;
+    /// `render_frame`, asking `stop` between parts of the frame (tiles of rows) and
+    /// returning early, the frame unfinished, once it says yes: the next call (of
+    /// either) finishes that frame, so an edit need not wait for a whole frame and
+    /// the samples are those an uninterrupted frame would take. Modes that cannot
+    /// stop mid-frame render the whole frame.
+    fn render_frame_yielding(&mut self, stop: &mut dyn FnMut() -> bool) -> FrameStats {
+        let _ = stop;
+        self.render_frame()
+    }
+    /// When no pixel has a sample yet (after a camera, resize or mesh edit, or at
+    /// the start), renders the next frame's samples of one pixel per `stride` x
+    /// `stride` block (`preview::grid_pixels`) and returns their statistics; the frame
+    /// then completes the other pixels, so the film is an uninterrupted frame's.
+    /// `None` when the film has samples or the mode does not preview (it is then
+    /// unchanged). The viewport shows `preview::spread` of `image` meanwhile.
+    fn render_preview(&mut self, stride: u32) -> Option<FrameStats> {
+        let _ = stride;
+        None
+    }
+    /// The guides of the pixels a preview with this `stride` renders
+    /// (`preview::grid_pixels`), as an image of one pixel per block
+    /// (`preview::grid_size`), so the viewport can denoise a preview; `None` where
+    /// the mode has no guides or does not preview.
+    fn preview_guides(&self, stride: u32) -> Option<Guides> {
+        let _ = stride;
+        None
+    }
+    /// Whether `image` has a value at every pixel: each pixel's own samples, or (the
+    /// adaptive mode) a value up-sampled from its neighbours'. The render thread then
+    /// shows an edit that keeps samples at once and lets commands stop frames.
+    fn shows_every_pixel(&self) -> bool {
+        self.progress().min_samples > 0
+    }
+    /// The image accumulated so far, with the current emissions.
+    fn image(&self) -> Image;
+    /// The same image left on the mode's GPU device (`None`: the mode's film is on the
+    /// host): a window drawn with that device shows it without a read-back.
+    fn image_on_device(&self) -> Option<std::sync::Arc<dyn ImageOnDevice>> {
+        None
+    }
+    fn progress(&self) -> Progress;
+    /// Applies an edit and restarts only what it invalidates. An edit that brings
+    /// what the mode cannot render is refused (`EditError::Unsupported`).
+    fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError>;
+    /// Samples per pixel per frame (at least 1).
+    fn set_samples_per_frame(&mut self, samples: u32);
+    /// The stages of the last preparation (first build, or the last rebuild an edit
+    /// caused) and their times.
+    fn preparation(&self) -> PreparationReport;
+    /// What each pixel's centre ray first sees, for the viewport denoiser
+    /// (`denoise`); `None` where the mode has no such pass (the image is shown as is).
+    fn guides(&self) -> Option<Guides> {
+        None
+    }
+    /// A mode's own state in one line for status bars (e.g. the biscale mode's
+    /// biclusters and light-change time); `None` where a mode has nothing to add.
+    fn summary(&self) -> Option<String> {
+        None
+    }
+    /// Device memory by kind (`bvh`, `triangles`, `spmm_bases`, ...) for a mode on a
+    /// GPU; empty where the mode runs on the CPU.
+    fn device_memory(&self) -> Vec<(&'static str, u64)> {
+        Vec::new()
+    }
+    /// The GPU adapter a mode runs on (`None` on the CPU).
+    fn adapter(&self) -> Option<String> {
+        None
+    }
+    /// Ray traversals that ran past a device's bounds (stack or steps) and so may have
+    /// missed a hit; always 0 on the CPU. A correct render keeps it at 0.
+    fn traversal_overflows(&self) -> u64 {
+        0
+    }
+    /// Why the mode stopped rendering (its device failed), if it did: every later
+    /// `render_frame` adds nothing, and callers should report it or switch device.
+    /// Always `None` on the CPU.
+    fn failure(&self) -> Option<ModeError> {
+        None
+    }
+    /// Debug images of the mode's own decisions, by name (the adaptive mode's
+    /// bandwidth-buffer level and samples per pixel, as colour maps); none by default.
+    fn debug_overlays(&self) -> Vec<(&'static str, Image)> {
+        Vec::new()
+    }
+    /// Prepared material data held now and what preparing every material would hold,
+    /// where the mode prepares materials on demand; `None` by default.
+    fn material_bytes(&self) -> Option<MaterialBytes> {
+        None
+    }
+}
+
+/// Bytes of prepared material data (`meso render --json`: `material_bytes_resident`,
+/// `material_bytes_full`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct MaterialBytes {
+    pub resident: u64,
+    pub full: u64,
+}
+
+/// Totals of a run of frames.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RunStats {
+    pub frames: u32,
+    pub counters: Counters,
+    /// Time spent in `render_frame`.
+    pub seconds: f64,
+    pub dropped: u64,
+}
+
+/// Renders `frames` more frames, calling `on_frame(done, stats)` after each (for
+/// progress bars); stops early if the mode fails (`RenderMode::failure`).
+pub fn run_frames(
+    mode: &mut dyn RenderMode,
+    frames: u32,
+    mut on_frame: impl FnMut(u32, &FrameStats),
+) -> RunStats {
+    let mut total = RunStats::default();
+    for f in 0..frames {
+        let s = mode.render_frame();
+        total.frames += 1;
+        total.counters = total.counters + s.counters;
+        total.seconds += s.seconds;
+        total.dropped += s.dropped;
+        on_frame(f + 1, &s);
+        if mode.failure().is_some() {
+            break;
+        }
+    }
+    total
+}

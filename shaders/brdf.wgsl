@@ -1,4 +1,4 @@
-// The analytic BRDF dictionary of spec/brdf.md in f32, mirroring core/src/brdf/ (the
+// The analytic BRDF dictionary of docs/brdf.md in f32, mirroring core/materials/src/brdf/ (the
 // f64 reference) formula by formula: the same half-vector forms, the same log-space
 // powers, so the f32 error stays within the tolerances stated in docs/gpu.md.
 // A BRDF is a record of 8 words in the `data` buffer: model, then up to 7 parameters.
@@ -136,7 +136,7 @@ fn brdf_eval(b: Brdf, wi: vec3<f32>, wo: vec3<f32>) -> f32 {
     }
 }
 
-// An SPMM basis function (spec/brdf.md): the BRDF tilted onto its own normal, with
+// An SPMM basis function (docs/brdf.md): the BRDF tilted onto its own normal, with
 // the foreshortening cosine. Record: the BRDF's 8 words, then the frame x, y, z (9).
 const BASIS_WORDS: u32 = 20u;
 
@@ -153,7 +153,7 @@ fn basis_eval(at: u32, wi: vec3<f32>, wo: vec3<f32>) -> f32 {
     return brdf_eval(load_brdf(at), li, lo) * c;
 }
 
-// Importance sampling of the analytic BRDFs, as core/src/brdf/ draws them (warp.rs and
+// Importance sampling of the analytic BRDFs, as core/materials/src/brdf/ draws them (warp.rs and
 // each model's `sample_half`/`pdf_half`): the cosine hemisphere for Lambertian and
 // Oren-Nayar, the half vector for Blinn-Phong, Ward, Cook-Torrance and
 // Ashikhmin-Shirley (p(wi) = p(h) / (4 wo.h)), the Phong lobe about the reflected

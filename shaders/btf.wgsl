@@ -1,4 +1,4 @@
-// `btf` materials (core/src/btf/table.rs): the nearest texel's reflectance, tiled like
+// `btf` materials (core/materials/src/btf/table.rs): the nearest texel's reflectance, tiled like
 // an SPMM pack, interpolated over the light and the view direction sets exactly as the
 // SPMM residual is (`direction_weights` in spmm.wgsl: barycentric weights in the
 // Delaunay triangle holding the projected direction, the nearest hull point outside;
@@ -7,7 +7,7 @@
 // table(t, l, v) / cos theta_l, at most 3 x 3 reads.
 // Values are f16 two to a word (low half first) when the CPU holds them as f16, else f32.
 
-// Header of one BTF in `data` (core/src/gpu/data.rs, `push_btf`).
+// Header of one BTF in `data` (core/gpu/src/data.rs, `push_btf`).
 const BTF_WIDTH: u32 = 0u;
 const BTF_HEIGHT: u32 = 1u;
 const BTF_LIGHTS: u32 = 2u;

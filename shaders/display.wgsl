@@ -1,5 +1,5 @@
 // A resolved image (film.wgsl's `resolve`) to the viewport's texture, as
-// core/src/image/tonemap.rs encodes it for a PNG or the host's texture: exposure
+// core/materials/src/image/tonemap.rs encodes it for a PNG or the host's texture: exposure
 // (a scale of 2^stops), clamp to [0, 1] (NaN shows black), the sRGB curve of
 // IEC 61966-2-1, then 8-bit quantisation. The texture is `rgba8unorm` holding the
 // encoded values, which the window (egui's renderer) samples as they are. One

@@ -1,5 +1,5 @@
-// Environment lighting and background images (core/src/environment/ and
-// core/src/trace/environment.rs are the reference): the lat-long map, its radiance
+// Environment lighting and background images (core/render/src/environment/ and
+// core/modes/src/trace/environment.rs are the reference): the lat-long map, its radiance
 // seen in a direction, and the CPU's own importance-sampling tables (the row
 // marginal and per-row column CDFs, the per-pixel pdf in solid angle) uploaded as
 // they are, in f32. Per shading point one direction from the map and one from the

@@ -1,5 +1,5 @@
-// The GPU spmm mode's film, kept on the device (core/src/gpu/film.rs; the CPU's
-// core/src/render/film.rs is the reference for every rule here): per layer and pixel
+// The GPU spmm mode's film, kept on the device (core/gpu/src/film.rs; the CPU's
+// core/render/src/film.rs is the reference for every rule here): per layer and pixel
 // an f32 running sum of RGB with its sample count in w, per pixel the materials its
 // samples shaded and the box of their texture coordinates. Layers are laid out one
 // after the other (index layer * pixels + pixel), so the host clears or copies a

@@ -1,5 +1,5 @@
 // The spmm mode's integrator on the GPU, one invocation per pixel and one sample per
-// dispatch (core/src/trace/integrator.rs is the reference): a jittered primary ray,
+// dispatch (core/modes/src/trace/integrator.rs is the reference): a jittered primary ray,
 // perfect mirrors up to the scene's depth, then at the first other surface the
 // lights, ambient occlusion (lights.wgsl) with the materials' response (brdf.wgsl,
 // spmm.wgsl). Each emitter's contribution goes to its own layer for unit emission;
@@ -220,7 +220,7 @@ fn response(s: Shading, wi: vec3<f32>, wo: vec3<f32>) -> vec3<f32> {
 
 @compute @workgroup_size(64)
 fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
-    // Rows of workgroups beyond 65,535 (core/src/gpu/kernel.rs, `groups`).
+    // Rows of workgroups beyond 65,535 (core/gpu/src/kernel.rs, `groups`).
     let pixel = id.x + id.y * groups.x * 64u;
     if pixel >= params.width * params.height {
         return;

@@ -1,10 +1,10 @@
 // Light sampling of the spmm mode (Silva & Santos 2013 eq. 4-7), as
-// core/src/trace/lights.rs does it: up to 16 lights, each point light one shadow ray
+// core/modes/src/trace/lights.rs does it: up to 16 lights, each point light one shadow ray
 // and each area light `light_samples` shadow rays to points drawn uniformly on it (A
 // L_e f cos_i cos_l / r^2 each, one-sided, weighted by its share), at MERL surfaces
 // each combined by MIS with a material sample towards it; above 16, `light_samples`
 // lights per shading point, each kept from CANDIDATES drawn from the
-// CPU's alias table by resampled importance sampling (core/src/trace/light_selection.rs).
+// CPU's alias table by resampled importance sampling (core/render/src/light_selection.rs).
 // One ambient-occlusion ray limited to the ambient radius. Each light adds to the film
 // layer the CPU's `Layers::light_targets` gives it, times its factor (one, or its
 // emission in a bounded film's shared layer).

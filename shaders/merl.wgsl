@@ -1,4 +1,4 @@
-// MERL materials (core/src/merl/ is the reference): the table looked up at the cell
+// MERL materials (core/materials/src/merl/ is the reference): the table looked up at the cell
 // that holds the pair's Rusinkiewicz half/difference angles, as the MERL reader and
 // `MerlBrdf::eval` do (nearest cell, the same atan2 forms and fold), and the CPU's
 // tabulated importance sampling (`MerlSampler`: per band of theta_o a piecewise-

@@ -1,8 +1,8 @@
 // SPMM evaluation (Silva & Santos 2013 eq. 1-3) in f32, mirroring
-// core/src/spmm/prepared.rs: the sparse basis sum of a texel plus its cluster's PCA
+// core/materials/src/spmm/prepared.rs: the sparse basis sum of a texel plus its cluster's PCA
 // residual, interpolated over the tabulated light and view directions (the light
 // side over value / cos theta_l, `cosine_weights`)
-// (core/src/spmm/directions.rs: a DIRECTION_GRID x DIRECTION_GRID grid of triangle
+// (core/materials/src/spmm/directions.rs: a DIRECTION_GRID x DIRECTION_GRID grid of triangle
 // lists over the projected directions, barycentric weights, the nearest hull edge
 // outside the hull; this shader tests every hull edge, the CPU only its cell's list).
 // Every loop is bounded by a count read from the data (llvmpipe ends loops silently).
@@ -127,7 +127,7 @@ fn direction_weights(table: u32, d: vec3<f32>) -> DirectionWeights {
 }
 
 // The largest factor cos theta_i / cos theta_l (`MAX_COSINE_RATIO` in
-// core/src/spmm/directions.rs).
+// core/materials/src/spmm/directions.rs).
 const MAX_COSINE_RATIO: f32 = 20.0;
 
 // Light-side weights of a tabulated quantity that includes the light's foreshortening
@@ -224,7 +224,7 @@ fn texel_in_grid(w: u32, h: u32, scale: vec2<f32>, uv: vec2<f32>) -> u32 {
     return y * w + x;
 }
 
-// Importance sampling of a texel's BTF (core/src/spmm/prepared/sampling.rs): a mixture
+// Importance sampling of a texel's BTF (core/materials/src/spmm/prepared/sampling.rs): a mixture
 // of the texel's own bases, each drawn by its BRDF's sampler in its own frame and
 // chosen in proportion to its weight's luminance times its selection albedo (word 17
 // of its record), plus DEFENSIVE_SHARE of the half-cosine, half-uniform mixture.

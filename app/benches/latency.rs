@@ -18,8 +18,8 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use glam::DVec3;
 use meso_materials::brdf::BasisFunction;
 use meso_render::denoise;
-use meso_render::{ModeKind, SceneEdit};
 use meso_render::scene::{Material, load_scene};
+use meso_render::{ModeKind, SceneEdit};
 use meso_studio::render_worker::{Command, Frame, RenderWorker};
 use meso_studio::studio::{Settings, Studio, default_scene_path};
 

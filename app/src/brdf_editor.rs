@@ -1,5 +1,5 @@
 //! Editors shared by the panels: one analytic BRDF (model and parameters on sliders
-//! within spec/brdf.md's ranges) and an RGB value that may exceed 1 (a colour button
+//! within docs/brdf.md's ranges) and an RGB value that may exceed 1 (a colour button
 //! for picking, exact entry for every value; nothing is clamped unless picked).
 
 use std::hash::Hash;

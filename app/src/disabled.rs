@@ -5,8 +5,8 @@
 //! disabled light's edits stay in the document only). Per mode: switching builds a new
 //! set from that mode's `Unsupported` answer.
 
-use meso_render::{SceneEdit, Unrenderable, Unsupported};
 use meso_render::scene::Scene;
+use meso_render::{SceneEdit, Unrenderable, Unsupported};
 
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Disabled {
@@ -102,8 +102,8 @@ impl Disabled {
 #[cfg(test)]
 mod tests {
     use glam::DVec3;
-    use meso_render::{Device, ModeKind};
     use meso_render::scene::Light;
+    use meso_render::{Device, ModeKind};
 
     use super::*;
 

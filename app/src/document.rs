@@ -10,10 +10,10 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use meso_render::{EditError, SceneEdit};
-use meso_render::scene::{Ambient, Background, Environment, Light, Material, Scene};
 use meso_materials::spmm::SpmmMaterial;
 use meso_materials::spmm::pack::{self, ResidualPrecision};
+use meso_render::scene::{Ambient, Background, Environment, Light, Material, Scene};
+use meso_render::{EditError, SceneEdit};
 
 /// What undo restores.
 #[derive(Clone, Debug)]

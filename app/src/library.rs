@@ -15,13 +15,14 @@ use std::thread::JoinHandle;
 
 use egui::{ColorImage, TextureHandle, TextureOptions, Ui};
 use glam::{DVec2, DVec3};
+use meso_materials::hash::fnv1a128;
 use meso_materials::image::{Image, to_srgb8};
 use meso_materials::merl::MerlBrdf;
-use meso_render::{Device, ModeKind, Prepare};
 use meso_materials::rng::Sampler;
+use meso_materials::spmm::pack;
 use meso_render::scene::mesh::TriangleMesh;
 use meso_render::scene::{Ambient, Background, Camera, Light, Material, RenderSettings, Scene};
-use meso_materials::spmm::pack;
+use meso_render::{Device, ModeKind, Prepare};
 
 /// Thumbnail side in pixels and samples per pixel.
 pub const THUMB_SIZE: u32 = 96;
@@ -101,14 +102,7 @@ pub fn default_cache_dir() -> PathBuf {
 /// 128-bit FNV-1a of the thumbnail recipe and then `bytes`: the cache key of a file's
 /// thumbnail (a different file content or recipe gives a different key).
 pub fn content_key(bytes: &[u8]) -> u128 {
-    const OFFSET: u128 = 0x6c62272e07bb014262b821756295c58d;
-    const PRIME: u128 = 0x0000000001000000000000000000013b;
-    let mut h = OFFSET;
-    for &b in THUMB_RECIPE.as_bytes().iter().chain(bytes) {
-        h ^= u128::from(b);
-        h = h.wrapping_mul(PRIME);
-    }
-    h
+    fnv1a128([THUMB_RECIPE.as_bytes(), bytes])
 }
 
 /// A thumbnail as shown: sRGB, 8 bits per channel, row-major RGB.

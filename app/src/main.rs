@@ -2,7 +2,7 @@
 //! line, or the built-in default scene (the bunny in leather), with its SPMM pack in
 //! the material panel and the progressive viewport (studio.rs), its GPU mode on the
 //! window's wgpu device where it can be shared (window_device.rs). A thin shell: all
-//! it computes comes from `meso-core`'s public API.
+//! it computes comes from the core crates' public APIs.
 
 use std::path::PathBuf;
 use std::sync::Arc;

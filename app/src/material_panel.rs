@@ -14,10 +14,10 @@ use std::sync::Arc;
 use egui::{Color32, ColorImage, TextureHandle, TextureOptions, Ui};
 use glam::DVec3;
 use meso_materials::brdf::{AnalyticBrdf, BasisFunction, BrdfModel, LobePoint};
-use meso_render::geometry::{Brush, BrushUnits};
-use meso_render::SceneEdit;
-use meso_render::scene::Material;
 use meso_materials::spmm::{Falloff, SpmmMaterial, TexelMask, WeightTarget};
+use meso_render::SceneEdit;
+use meso_render::geometry::{Brush, BrushUnits};
+use meso_render::scene::Material;
 
 use crate::brdf_editor::brdf_editor;
 use crate::document::Document;

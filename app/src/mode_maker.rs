@@ -9,8 +9,8 @@ use std::sync::Arc;
 
 use meso_gpu::GpuContext;
 use meso_modes::GpuDevice;
-use meso_render::{Device, ModeError, ModeKind, Prepare, RenderMode};
 use meso_render::scene::Scene;
+use meso_render::{Device, ModeError, ModeKind, Prepare, RenderMode};
 
 /// Makes render modes by kind and device.
 pub trait ModeMaker: Send + Sync {

@@ -14,11 +14,11 @@ use egui_kittest::Harness;
 use egui_kittest::kittest::{NodeT, Queryable};
 use glam::DVec3;
 use meso_materials::image::Image;
+use meso_render::scene::{Light, Scene};
 use meso_render::{
     Device, EditError, FrameStats, Invalidation, ModeError, ModeKind, PreparationReport, Prepare,
     Progress, RenderMode, SceneEdit, Unrenderable, Unsupported,
 };
-use meso_render::scene::{Light, Scene};
 
 use super::tests::{loaded, wait_for_current_frame};
 use super::*;

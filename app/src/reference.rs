@@ -10,8 +10,8 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use meso_materials::image::Image;
-use meso_render::{Device, ModeKind, Prepare, RenderMode};
 use meso_render::scene::Scene;
+use meso_render::{Device, ModeKind, Prepare, RenderMode};
 
 /// The reference as far as it has come.
 #[derive(Clone)]

@@ -15,11 +15,11 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use meso_materials::image::Image;
+use meso_render::scene::Scene;
 use meso_render::{
     Denoiser, Device, Guides, ImageOnDevice, ModeKind, Prepare, Progress, RenderMode, SceneEdit,
     denoise, preview,
 };
-use meso_render::scene::Scene;
 
 use crate::mode_maker::{ModeMaker, core_modes};
 

@@ -10,8 +10,8 @@ use std::sync::Arc;
 
 use egui::Ui;
 use glam::{DVec2, DVec3};
-use meso_render::{Device, ModeKind, SceneEdit};
 use meso_render::scene::{Ambient, Background, Environment, Light, Material};
+use meso_render::{Device, ModeKind, SceneEdit};
 
 use crate::disabled::Disabled;
 use crate::document::Document;

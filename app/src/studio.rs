@@ -12,16 +12,16 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use egui::{Key, KeyboardShortcut, Modifiers, Ui};
-use meso_render::geometry::{BrushUnits, SceneBvh, brush, pick};
 use meso_materials::image::Image;
 use meso_materials::metrics::{self, Comparison};
+use meso_materials::spmm::SpmmMaterial;
+use meso_materials::spmm::pack::ResidualPrecision;
+use meso_render::geometry::{BrushUnits, SceneBvh, brush, pick};
+use meso_render::scene::mesh::{Placement, load_obj};
+use meso_render::scene::{Environment, Material, Scene, load_scene};
 use meso_render::{
     Device, ModeError, ModeKind, Prepare, RenderMode, SceneEdit, Unrenderable, Unsupported,
 };
-use meso_render::scene::mesh::{Placement, load_obj};
-use meso_render::scene::{Environment, Material, Scene, load_scene};
-use meso_materials::spmm::SpmmMaterial;
-use meso_materials::spmm::pack::ResidualPrecision;
 
 use crate::disabled::Disabled;
 use crate::document::{Document, read_pack_file};
@@ -998,7 +998,8 @@ impl Studio {
             self.error = Some("no frame has been rendered yet".into());
             return;
         };
-        if let Err(e) = meso_materials::image::write_image(path, &frame.image(), self.settings.exposure)
+        if let Err(e) =
+            meso_materials::image::write_image(path, &frame.image(), self.settings.exposure)
         {
             self.error = Some(format!("exporting failed: {e}"));
         }

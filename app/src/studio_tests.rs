@@ -12,9 +12,9 @@ use std::time::{Duration, Instant};
 use egui::accesskit::Role;
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
+use meso_materials::spmm::SpmmMaterial;
 use meso_render::geometry::{SceneBvh, pick};
 use meso_render::scene::Material;
-use meso_materials::spmm::SpmmMaterial;
 
 use super::*;
 
@@ -735,9 +735,9 @@ fn two_points_on_the_pack(h: &Harness<'_, Studio>, gap: u32) -> ((u32, u32), (u3
 
 #[test]
 fn a_real_drag_on_the_viewport_paints_only_the_brushed_texels_and_undoes_in_one_step() {
-    use meso_render::geometry::{Brush, BrushUnits};
     use meso_materials::spmm::Falloff;
     use meso_materials::spmm::pack::{ResidualPrecision, encode_pack};
+    use meso_render::geometry::{Brush, BrushUnits};
 
     let mut h = resting_studio(None, 2);
     rested_frame(&mut h, 2);
@@ -1019,7 +1019,9 @@ fn a_click_in_the_library_assigns_the_pack_and_undo_restores_the_object() {
     let dir = tempfile::tempdir().expect("temp dir");
     let table = dir.path().join("grey.binary");
     meso_materials::merl::tabulate(
-        &meso_materials::brdf::AnalyticBrdf::with_defaults(meso_materials::brdf::BrdfModel::Lambertian),
+        &meso_materials::brdf::AnalyticBrdf::with_defaults(
+            meso_materials::brdf::BrdfModel::Lambertian,
+        ),
         glam::DVec3::splat(0.5),
     )
     .expect("tabulates")
@@ -1071,8 +1073,8 @@ fn save_crop(h: &mut Harness<'_, Studio>, dir: &std::path::Path, name: &str, r: 
 #[test]
 #[ignore = "writes the documentation's screenshots when asked"]
 fn docs_screenshots() {
-    use meso_render::geometry::{Brush, BrushUnits};
     use meso_materials::spmm::Falloff;
+    use meso_render::geometry::{Brush, BrushUnits};
 
     let dir = std::path::PathBuf::from(
         std::env::var_os("MESO_DOC_SHOTS").expect("MESO_DOC_SHOTS names the folder"),

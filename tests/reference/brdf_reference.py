@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Reference values of the analytic BRDF dictionary, independent of the Rust code.
 
-Evaluates each model of shared spec/brdf.md straight from its written formula (angles,
+Evaluates each model of docs/brdf.md straight from its written formula (angles,
 1 - cos^2, acos/atan2: the textbook forms the Rust code deliberately avoids) in 40-digit
 mpmath arithmetic, at directions written as 17-significant-digit decimals, taken on both sides
 as the same binary64 values. Writes brdf_values.csv and brdf_basis_values.csv beside
@@ -85,7 +85,7 @@ def schlick(f0, wi, wo, h):
 
 
 def f_model(model, p, wi, wo):
-    """f(wi, wo) of spec/brdf.md, as written there."""
+    """f(wi, wo) of docs/brdf.md, as written there."""
     ci, co = wi[2], wo[2]
     if ci <= 0 or co <= 0:
         return mp.mpf(0)
@@ -130,7 +130,7 @@ def f_model(model, p, wi, wo):
 
 
 def spmm_frame(n):
-    """The R_j frame rule of spec/brdf.md, literally."""
+    """The R_j frame rule of docs/brdf.md, literally."""
     x = [mp.mpf(1), mp.mpf(0), mp.mpf(0)]
     xp = [a - dot(x, n) * b for a, b in zip(x, n)]
     if mp.sqrt(dot(xp, xp)) < mp.mpf("1e-6"):

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Independent reference values for `meso_core::metrics::compare` (docs/formats/images.md).
+"""Independent reference values for `meso_materials::metrics::compare` (docs/formats/images.md).
 
 Builds fixed image pairs deterministically (fixed numpy seeds), writes them as EXR
 fixtures with the OpenEXR Python bindings, reads them back, and computes RMSE, PSNR,

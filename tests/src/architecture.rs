@@ -12,8 +12,7 @@ fn root() -> PathBuf {
 }
 
 fn read_toml(path: &Path) -> toml::Table {
-    let text = std::fs::read_to_string(path)
-        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     text.parse()
         .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
@@ -42,9 +41,9 @@ fn diagram() -> Vec<(String, BTreeSet<String>)> {
         .collect()
 }
 
-/// Every workspace member's name and the workspace crates among its normal
-/// dependencies (optional ones included: a feature turns them on).
-fn manifests() -> BTreeMap<String, BTreeSet<String>> {
+/// Every workspace member's name and its normal dependencies (optional ones
+/// included: a feature turns them on; dev-dependencies left out).
+fn member_dependencies() -> BTreeMap<String, BTreeSet<String>> {
     let workspace = read_toml(&root().join("Cargo.toml"));
     let members = workspace["workspace"]["members"]
         .as_array()
@@ -53,7 +52,10 @@ fn manifests() -> BTreeMap<String, BTreeSet<String>> {
     for m in members {
         let dir = root().join(m.as_str().expect("member path"));
         let manifest = read_toml(&dir.join("Cargo.toml"));
-        let name = manifest["package"]["name"].as_str().expect("name").to_string();
+        let name = manifest["package"]["name"]
+            .as_str()
+            .expect("name")
+            .to_string();
         let mut tables: Vec<&toml::Table> = Vec::new();
         if let Some(d) = manifest.get("dependencies").and_then(|d| d.as_table()) {
             tables.push(d);
@@ -65,15 +67,24 @@ fn manifests() -> BTreeMap<String, BTreeSet<String>> {
                 }
             }
         }
-        let deps = tables
-            .iter()
-            .flat_map(|t| t.keys())
-            .filter(|k| k.starts_with("meso-"))
-            .cloned()
-            .collect();
+        let deps = tables.iter().flat_map(|t| t.keys()).cloned().collect();
         out.insert(name, deps);
     }
     out
+}
+
+/// The workspace crates among each member's normal dependencies.
+fn manifests() -> BTreeMap<String, BTreeSet<String>> {
+    member_dependencies()
+        .into_iter()
+        .map(|(name, deps)| {
+            let ours = deps
+                .into_iter()
+                .filter(|d| d.starts_with("meso-"))
+                .collect();
+            (name, ours)
+        })
+        .collect()
 }
 
 #[test]
@@ -101,7 +112,9 @@ fn the_diagram_is_the_crate_graph() {
     }
 }
 
-/// Cargo.lock's packages by name, each with the names of its dependencies.
+/// Every package by name with the names of what it needs to build: a workspace
+/// member's normal dependencies from its manifest (Cargo.lock would add its
+/// dev-dependencies), any other package's from Cargo.lock.
 fn lock_graph() -> BTreeMap<String, Vec<String>> {
     let lock = read_toml(&root().join("Cargo.lock"));
     let mut graph: BTreeMap<String, Vec<String>> = BTreeMap::new();
@@ -119,6 +132,9 @@ fn lock_graph() -> BTreeMap<String, Vec<String>> {
             })
             .unwrap_or_default();
         graph.entry(name).or_default().extend(deps);
+    }
+    for (name, deps) in member_dependencies() {
+        graph.insert(name, deps.into_iter().collect());
     }
     graph
 }
@@ -141,7 +157,11 @@ fn the_materials_and_the_fit_need_no_gpu_and_no_command_line() {
     let graph = lock_graph();
     for krate in ["meso-materials", "meso-fit"] {
         let all = reachable(&graph, krate);
-        assert!(all.len() > 5, "{krate} reaches {} packages: lock read wrong", all.len());
+        assert!(
+            all.len() > 5,
+            "{krate} reaches {} packages: lock read wrong",
+            all.len()
+        );
         for banned in ["wgpu", "clap", "anyhow", "eframe", "meso-render"] {
             assert!(!all.contains(banned), "{krate} depends on {banned}");
         }

@@ -7,13 +7,13 @@ use std::collections::BTreeMap;
 use std::collections::btree_map::Entry;
 use std::path::PathBuf;
 
-use meso_modes::biscale::{BiscaleMode, BiscaleSettings};
 use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
 use meso_materials::image::Image;
 use meso_materials::metrics::compare;
-use meso_render::{Device, ModeKind, Prepare, RenderMode, SceneEdit, run_frames};
 use meso_materials::rng::SampleStream;
+use meso_modes::biscale::{BiscaleMode, BiscaleSettings};
 use meso_render::scene::{Background, Material, Scene, load_scene};
+use meso_render::{Device, ModeKind, Prepare, RenderMode, SceneEdit, run_frames};
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

@@ -1,4 +1,4 @@
-//! The BRDF dictionary against values computed independently from spec/brdf.md by
+//! The BRDF dictionary against values computed independently from docs/brdf.md by
 //! tests/reference/brdf_reference.py (40-digit mpmath, the formulas as written there,
 //! angles and all). Directions are 17-digit decimals that both sides read identically.
 //!

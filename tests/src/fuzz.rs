@@ -17,8 +17,8 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use meso_render::{Prepare, run_frames};
 use meso_render::scene::load_scene;
+use meso_render::{Prepare, run_frames};
 
 /// Cases per reader in the test suite (about a minute in all on 2 cores).
 const CI_CASES: u64 = 300;
@@ -301,8 +301,8 @@ fn absolute_scene(path: &Path) -> String {
 fn load_and_render(path: &Path) -> Result<(), String> {
     let scene = load_scene(path).map_err(|e| e.to_string())?;
     let (kind, device) = (scene.render.mode, scene.render.device);
-    let mut mode =
-        meso_modes::create(kind, device, scene, 8, 8, Prepare::quietly()).map_err(|e| e.to_string())?;
+    let mut mode = meso_modes::create(kind, device, scene, 8, 8, Prepare::quietly())
+        .map_err(|e| e.to_string())?;
     run_frames(mode.as_mut(), 1, |_, _| {});
     let img = mode.image();
     assert_eq!((img.width(), img.height()), (8, 8));
@@ -559,8 +559,12 @@ fn the_corpus_of_past_failures_is_handled() {
                 "scene" => check(reader, &name, || load_and_render(&path)),
                 "obj" => check(reader, &name, || load_obj(&path, &placement, 0)),
                 "exr" => check(reader, &name, || meso_materials::image::read_image(&path)),
-                "spmm" => check(reader, &name, || meso_materials::spmm::pack::decode_pack(&bytes)),
-                "btf" => check(reader, &name, || meso_materials::btf::file::decode_btf(&bytes)),
+                "spmm" => check(reader, &name, || {
+                    meso_materials::spmm::pack::decode_pack(&bytes)
+                }),
+                "btf" => check(reader, &name, || {
+                    meso_materials::btf::file::decode_btf(&bytes)
+                }),
                 _ => check(reader, &name, || {
                     meso_materials::merl::MerlBrdf::from_bytes(&bytes)
                 }),

@@ -8,8 +8,8 @@ use std::path::PathBuf;
 
 use meso_materials::image::{Image, read_exr, write_exr};
 use meso_materials::metrics::{Comparison, compare};
-use meso_render::{Prepare, run_frames};
 use meso_render::scene::load_scene;
+use meso_render::{Prepare, run_frames};
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -79,8 +79,9 @@ fn render(g: &Golden, threads: usize) -> Image {
         .expect("thread pool");
     pool.install(|| {
         let (kind, device) = (scene.render.mode, scene.render.device);
-        let mut mode = meso_modes::create(kind, device, scene, g.width, g.height, Prepare::quietly())
-            .expect("the scene's mode renders it");
+        let mut mode =
+            meso_modes::create(kind, device, scene, g.width, g.height, Prepare::quietly())
+                .expect("the scene's mode renders it");
         let run = run_frames(mode.as_mut(), g.frames, |_, _| {});
         assert_eq!(run.dropped, 0, "{}: no non-finite sample", g.scene);
         mode.image()

@@ -8,11 +8,11 @@
 
 use std::path::{Path, PathBuf};
 
+use meso_materials::spmm::pack::{ResidualPrecision, read_pack, residual_precision, write_pack};
 use meso_reports::regress::{
     self, CaseReport, Manifest, Pattern, Report, RunRequest, Shard, Status, UpdateRequest,
     report::junit,
 };
-use meso_materials::spmm::pack::{ResidualPrecision, read_pack, residual_precision, write_pack};
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

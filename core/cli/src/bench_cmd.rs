@@ -1,4 +1,4 @@
-//! `meso bench rays MESH.obj [--size 512] [--threads N] [--json]` (spec/cli.md):
+//! `meso bench rays MESH.obj [--size 512] [--threads N] [--json]` (docs/cli.md):
 //! closest-hit throughput of the tracer's BVH without shading, on rays the spec fixes
 //! so other tracers can be measured on the same rays. Coherent: one ray through each
 //! pixel centre of a `size` x `size` pinhole camera at c + (0, 0.3, 1.6) r looking at
@@ -19,8 +19,8 @@ use anyhow::anyhow;
 use clap::{Args, Subcommand};
 use glam::{DMat3, DVec2, DVec3};
 use meso_materials::brdf::warp;
-use meso_render::geometry::{PinholeCamera, SceneBvh};
 use meso_materials::rng::SampleStream;
+use meso_render::geometry::{PinholeCamera, SceneBvh};
 use meso_render::scene::mesh::{Placement, load_obj};
 use meso_render::scene::{Camera, TriangleMesh};
 use rayon::prelude::*;

@@ -11,8 +11,8 @@ use std::time::Instant;
 
 use anyhow::anyhow;
 use clap::Args;
-use meso_render::{Device, ModeKind, Prepare, SceneEdit, run_frames};
 use meso_render::scene::{Material, Scene, load_scene};
+use meso_render::{Device, ModeKind, Prepare, SceneEdit, run_frames};
 use serde_json::json;
 
 use crate::failure::{CliError, ResultExt};

@@ -20,12 +20,12 @@ use std::time::Instant;
 use anyhow::anyhow;
 use clap::Args;
 use glam::DVec2;
-use meso_render::geometry::brush::{self, Brush, BrushUnits};
-use meso_render::geometry::pick;
-use meso_render::{Invalidation, RenderMode, SceneEdit};
-use meso_render::scene::{Material, load_scene};
 use meso_materials::spmm::{Falloff, TexelMask, WeightTarget};
 use meso_modes::trace::SpmmMode;
+use meso_render::geometry::brush::{self, Brush, BrushUnits};
+use meso_render::geometry::pick;
+use meso_render::scene::{Material, load_scene};
+use meso_render::{Invalidation, RenderMode, SceneEdit};
 use serde_json::json;
 
 use crate::failure::{CliError, ResultExt};

@@ -1,5 +1,5 @@
 //! `meso brdf ...`: evaluate a model of the analytic dictionary on CSV directions
-//! (spec/cli.md), estimate its directional albedo by Monte Carlo, and plot its lobe.
+//! (docs/cli.md), estimate its directional albedo by Monte Carlo, and plot its lobe.
 
 use std::io::{BufRead, Write};
 use std::path::PathBuf;
@@ -127,7 +127,7 @@ fn eval(model: &ModelArgs, json: bool) -> Result<(), CliError> {
     let stdout = std::io::stdout();
     let mut out = std::io::BufWriter::new(stdout.lock());
     for v in &values {
-        // Nine significant digits: enough to round-trip an f32 exactly (spec/cli.md).
+        // Nine significant digits: enough to round-trip an f32 exactly (docs/cli.md).
         writeln!(out, "{:.8e}", v).failure_ctx(|| "writing to stdout".into())?;
     }
     out.flush().failure_ctx(|| "writing to stdout".into())

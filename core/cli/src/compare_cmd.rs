@@ -1,4 +1,4 @@
-//! `meso compare A B`: image error of B against the reference A (spec/cli.md),
+//! `meso compare A B`: image error of B against the reference A (docs/cli.md),
 //! using the metric definitions of `meso_materials::metrics` (docs/formats/images.md).
 
 use std::path::PathBuf;

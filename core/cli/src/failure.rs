@@ -1,5 +1,5 @@
 //! How the `meso` binary fails: one `error:` line on stderr and an exit code that
-//! tells bad input (2) from other failures (1), as spec/cli.md requires.
+//! tells bad input (2) from other failures (1), as docs/cli.md requires.
 
 use std::process::ExitCode;
 

@@ -1,4 +1,4 @@
-//! `meso`: the headless command line (spec/cli.md). Every subcommand prints one
+//! `meso`: the headless command line (docs/cli.md). Every subcommand prints one
 //! `error:` line on failure and exits 2 for bad input or usage, 1 for anything else;
 //! `--json` prints exactly one JSON object on stdout.
 

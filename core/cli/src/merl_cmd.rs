@@ -1,5 +1,5 @@
 //! `meso merl ...`: summarise, validate and look up measured BRDFs in the MERL binary
-//! format (docs/formats/merl.md), and tabulate an analytic model into one (spec/cli.md).
+//! format (docs/formats/merl.md), and tabulate an analytic model into one (docs/cli.md).
 //! Every reading or validation fault is bad input (exit 2); a failed write is exit 1.
 
 use std::io::Write;

@@ -1,11 +1,11 @@
-//! `--mode` and `--device`, shared by the subcommands that render (spec/cli.md): they
+//! `--mode` and `--device`, shared by the subcommands that render (docs/cli.md): they
 //! override the scene's `[render] mode` and `device`; a mode that cannot render the
 //! scene, or is not built, is bad input (exit 2) naming why, never a fallback.
 
 use anyhow::anyhow;
 use clap::Args;
-use meso_render::{Device, ModeError, ModeKind};
 use meso_render::scene::Scene;
+use meso_render::{Device, ModeError, ModeKind};
 
 use crate::failure::CliError;
 

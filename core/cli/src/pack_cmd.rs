@@ -1,5 +1,5 @@
 //! `meso pack info FILE` and `meso pack validate FILE`: summarise an SPMM pack, or
-//! check it fully (exit 0, or 2 with the first fault named), per spec/cli.md; `new`,
+//! check it fully (exit 0, or 2 with the first fault named), per docs/cli.md; `new`,
 //! `preview`, `eval` (with each basis's contribution in JSON) and `edit`
 //! (`pack_edit_cmd.rs`).
 

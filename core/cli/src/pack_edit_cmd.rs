@@ -51,7 +51,7 @@ pub struct PackEditArgs {
     /// Append a basis to cluster C (needs --model).
     #[arg(long, value_name = "C")]
     add_basis: Option<usize>,
-    /// The added basis's BRDF model (spec/brdf.md names).
+    /// The added basis's BRDF model (docs/brdf.md names).
     #[arg(long, value_name = "NAME", requires = "add_basis")]
     model: Option<String>,
     /// A parameter of the added basis; repeatable; the others keep their defaults.

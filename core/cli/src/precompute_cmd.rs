@@ -1,4 +1,4 @@
-//! `meso precompute SCENE --mode biscale [-o CACHE] [--json]` (spec/cli.md): the
+//! `meso precompute SCENE --mode biscale [-o CACHE] [--json]` (docs/cli.md): the
 //! biscale mode's precomputation with a progress line, its report (stage times, sizes,
 //! FLOP ratio, losslessness, the SH and CPCA baselines), and the cache written to
 //! `-o` or to the cache folder the mode reads (`MESO_CACHE_DIR`, docs/rendering.md).
@@ -8,10 +8,10 @@ use std::path::PathBuf;
 
 use anyhow::anyhow;
 use clap::Args;
-use meso_reports::biscale::precompute_report;
 use meso_modes::biscale::{BiscaleMode, BiscaleSettings, cache};
-use meso_render::{ModeKind, Prepare};
 use meso_render::scene::load_scene;
+use meso_render::{ModeKind, Prepare};
+use meso_reports::biscale::precompute_report;
 
 use crate::failure::{CliError, ResultExt};
 

@@ -1,4 +1,4 @@
-//! Progress on stderr for long commands (only when stderr is a terminal, spec/cli.md)
+//! Progress on stderr for long commands (only when stderr is a terminal, docs/cli.md)
 //! and the Ctrl-C flag they poll: the first Ctrl-C sets it, the work stops between
 //! items, and no output file is written.
 

@@ -1,5 +1,5 @@
 //! `meso render SCENE -o OUT.exr|OUT.png`: a progressive render of a scene file through
-//! a render mode (spec/cli.md: `--mode`, `--device`; `--light-samples` overrides the
+//! a render mode (docs/cli.md: `--mode`, `--device`; `--light-samples` overrides the
 //! scene's); `--json` reports time, frames,
 //! the mode and device, its counters (samples, shading points, rays by kind), rays
 //! per second, the preparation's stages, the film's bytes and dropped non-finite
@@ -11,8 +11,8 @@ use std::time::Instant;
 
 use anyhow::anyhow;
 use clap::Args;
-use meso_render::{Denoiser, Prepare, run_frames};
 use meso_render::scene::{RenderSettings, load_scene};
+use meso_render::{Denoiser, Prepare, run_frames};
 use serde_json::json;
 
 use crate::failure::{CliError, ResultExt};

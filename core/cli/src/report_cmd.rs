@@ -10,8 +10,8 @@ use std::path::PathBuf;
 use anyhow::anyhow;
 use clap::{Args, Subcommand};
 use meso_materials::atomic::write_bytes_atomic;
-use meso_reports::convergence::{ConvergenceReport, ConvergenceRequest, convergence_report};
 use meso_render::scene::{RenderSettings, load_scene};
+use meso_reports::convergence::{ConvergenceReport, ConvergenceRequest, convergence_report};
 
 use crate::failure::{CliError, ResultExt};
 use crate::mode_args::ModeArgs;

@@ -14,12 +14,12 @@ use clap::Args;
 use meso_materials::atomic::write_bytes_atomic;
 use meso_materials::btf::file::read_btf;
 use meso_materials::btf::table::BtfTable;
+use meso_materials::image::{write_exr, write_image};
+use meso_materials::spmm::pack::read_pack;
+use meso_render::scene::{RenderSettings, load_scene};
 use meso_reports::fidelity::{
     ImageErrors, RenderRequest, image_errors, render_all, side_by_side, table_errors, tabulate_pack,
 };
-use meso_materials::image::{write_exr, write_image};
-use meso_render::scene::{RenderSettings, load_scene};
-use meso_materials::spmm::pack::read_pack;
 use serde_json::json;
 
 use crate::failure::{CliError, ResultExt};

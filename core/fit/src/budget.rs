@@ -15,8 +15,8 @@
 //! N_PCA").
 
 use super::FitError;
-use meso_materials::spmm::pack::{self, ResidualPrecision};
 pub use meso_materials::spmm::components::with_component_counts;
+use meso_materials::spmm::pack::{self, ResidualPrecision};
 use meso_materials::spmm::{SpmmError, SpmmMaterial};
 
 /// Why a pack cannot be brought under a budget.

@@ -1,4 +1,4 @@
-//! Fitting a cluster's dictionary of basis functions rho_j (spec/brdf.md) to its
+//! Fitting a cluster's dictionary of basis functions rho_j (docs/brdf.md) to its
 //! representatives (Wu et al. 2011 via Silva & Santos 2013, section 3; the seed used
 //! IPOPT). Per representative, greedily: fit each of the seven models (parameters and
 //! normal) to what the bases kept so far leave unexplained, take the best, refine all

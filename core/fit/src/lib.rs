@@ -26,12 +26,12 @@ use glam::DVec3;
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 
+use dictionary::{DictionarySettings, Pairs};
 use meso_materials::brdf::{AnalyticBrdf, BasisFunction, BrdfModel};
 use meso_materials::btf::Btf;
 use meso_materials::rng::SampleStream;
 use meso_materials::spmm::pack::ResidualPrecision;
 use meso_materials::spmm::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial, lobe_bound};
-use dictionary::{DictionarySettings, Pairs};
 pub use report::{ClusterReport, ErrorRow, FitReport, StageSeconds};
 
 /// The knobs of `meso fit`.

@@ -272,9 +272,10 @@ weight = [0.3, 0.3, 0.6]
 model = "lambertian"
 weight = [0.05, 0.05, 0.05]
 "#;
-    let setup =
-        meso_materials::btf::synth::parse_recipe(text, std::path::Path::new("."), "t").expect("recipe");
-    meso_materials::btf::synth::synthesize(&setup, &AtomicBool::new(false), &|_, _| {}).expect("synth")
+    let setup = meso_materials::btf::synth::parse_recipe(text, std::path::Path::new("."), "t")
+        .expect("recipe");
+    meso_materials::btf::synth::synthesize(&setup, &AtomicBool::new(false), &|_, _| {})
+        .expect("synth")
 }
 
 #[test]
@@ -348,7 +349,10 @@ fn fits_are_the_same_bytes_on_1_and_2_threads_and_cancellable() {
         let out = pool.install(|| {
             fit_btf(&btf, "w", "t", &settings, &AtomicBool::new(false), &quiet).expect("fit")
         });
-        meso_materials::spmm::pack::encode_pack(&out.material, meso_materials::spmm::pack::ResidualPrecision::F32)
+        meso_materials::spmm::pack::encode_pack(
+            &out.material,
+            meso_materials::spmm::pack::ResidualPrecision::F32,
+        )
     };
     let one = fit_on(1);
     assert!(one == fit_on(2), "1 and 2 threads fit different packs");
@@ -381,9 +385,11 @@ fn small_leather_btf() -> Btf {
         .replace("supersample = 2", "supersample = 1")
         .replace("interreflection_samples = 8", "interreflection_samples = 0")
         .replace("cells = 40", "cells = 8");
-    let setup = meso_materials::btf::synth::parse_recipe(&text, std::path::Path::new("."), "leather")
-        .expect("recipe");
-    meso_materials::btf::synth::synthesize(&setup, &AtomicBool::new(false), &|_, _| {}).expect("synth")
+    let setup =
+        meso_materials::btf::synth::parse_recipe(&text, std::path::Path::new("."), "leather")
+            .expect("recipe");
+    meso_materials::btf::synth::synthesize(&setup, &AtomicBool::new(false), &|_, _| {})
+        .expect("synth")
 }
 
 #[test]
@@ -498,7 +504,10 @@ fn a_byte_budget_keeps_the_components_that_remove_most_error() {
     assert!(got < even_sse, "budget {got} vs even split {even_sse}");
     // The file holds the chosen counts and reads back to the same values.
     let back = decode_pack(&bytes).expect("valid");
-    assert_eq!(meso_materials::spmm::pack::cluster_component_counts(&back), counts);
+    assert_eq!(
+        meso_materials::spmm::pack::cluster_component_counts(&back),
+        counts
+    );
     assert_eq!(encode_pack(&back, ResidualPrecision::F32), bytes);
     assert!((sse(&back) - got).abs() <= 1e-9 * got.max(1e-30));
     // At 8 bits the same bytes hold more components, and the file as read back, its

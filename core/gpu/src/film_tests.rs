@@ -11,8 +11,8 @@ use super::film::{AUX_WORDS, DeviceFilm};
 use super::kernel::{encoder, storage};
 use super::tests::context;
 use meso_materials::image::{Image, to_srgb8};
-use meso_render::film::{EMPTY_UV_BOX, Film, LayeredFilm, UvBox, material_bit};
 use meso_materials::rng::SampleStream;
+use meso_render::film::{EMPTY_UV_BOX, Film, LayeredFilm, UvBox, material_bit};
 
 /// One sample of every pixel: per pixel and layer RGB, per pixel a material mask and
 /// a texture-coordinate box.

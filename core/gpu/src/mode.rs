@@ -19,19 +19,20 @@ use super::kernel::{self, Kernel, Slot};
 use super::reach::{Reach, reachable_clusters};
 use super::shaders;
 use super::{GpuContext, GpuError, Sharing};
-use meso_render::environment::EnvironmentSampler;
-use meso_render::geometry::SceneBvh;
 use meso_materials::image::Image;
+use meso_materials::spmm::PrepareRequest;
+use meso_render::environment::EnvironmentSampler;
 use meso_render::film::{LayeredFilm, material_bit};
+use meso_render::geometry::SceneBvh;
 use meso_render::layers::{Before, Layers, MANY_LIGHTS};
+use meso_render::light_selection::{LightSampling, LightSelection};
 use meso_render::reach::EditedTexels;
+use meso_render::scene::{Light, Material, RenderSettings, Scene};
 use meso_render::{
     Counters, Device, EditError, FrameStats, ImageOnDevice, Invalidation, ModeError, ModeKind,
-    PreparationReport, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable, Unsupported,
+    PreparationReport, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
+    Unsupported,
 };
-use meso_render::scene::{Light, Material, RenderSettings, Scene};
-use meso_materials::spmm::PrepareRequest;
-use meso_render::light_selection::{LightSampling, LightSelection};
 
 const MATERIAL_WORDS: usize = 8;
 /// Words of one light record (`shaders/lights.wgsl`).
@@ -270,8 +271,8 @@ impl SceneData {
                         max_npca: *npca,
                     });
                     let uses_residual = *wanted && prepared.has_residual();
-                    changes_when_moving =
-                        uses_residual && prepared.prepared_npca() > meso_materials::spmm::MOVING_NPCA;
+                    changes_when_moving = uses_residual
+                        && prepared.prepared_npca() > meso_materials::spmm::MOVING_NPCA;
                     rec[0] = 1;
                     rec[1] = words.push_spmm(&prepared, *uv_scale, Some(&used));
                     rec[2] = u32::from(uses_residual);

@@ -184,7 +184,7 @@ pub(super) mod tests {
     /// The edit test scene with a 16 x 16 panel pack whose right half is cluster 1
     /// alone, and the panel's UVs inside that half (columns 10 to 12 after the 2 x
     /// tiling): cluster 0 is unreachable.
-    pub(in crate) fn partial_panel_scene() -> Scene {
+    pub(crate) fn partial_panel_scene() -> Scene {
         let mut scene = meso_render::scene::test_scenes::edit_test_scene();
         let pack = meso_materials::spmm::testing::sample_material(16, 16, 2, Some(3));
         // Cluster 1 has the larger dictionary, so every texel's basis indices fit it.

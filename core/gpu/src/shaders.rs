@@ -76,7 +76,10 @@ mod tests {
     /// A moving camera keeps as many residual components on the device as on the CPU.
     #[test]
     fn the_moving_components_match_the_cpus() {
-        let line = format!("const MOVING_NPCA: u32 = {}u;", meso_materials::spmm::MOVING_NPCA);
+        let line = format!(
+            "const MOVING_NPCA: u32 = {}u;",
+            meso_materials::spmm::MOVING_NPCA
+        );
         assert!(
             super::SPMM.contains(&line),
             "shaders/spmm.wgsl lacks `{line}`"

@@ -276,11 +276,12 @@ fn basis_functions_and_spmm_texels_match_the_f64_reference() {
     // file), as halves two to a word; and with the first `MOVING_NPCA` of its 6
     // components (the moving camera: kind 11).
     let material = meso_materials::spmm::testing::sample_material(4, 3, 3, Some(6));
-    let half_material = meso_materials::spmm::pack::decode_pack(&meso_materials::spmm::pack::encode_pack(
-        &material,
-        meso_materials::spmm::pack::ResidualPrecision::F16,
-    ))
-    .expect("an F16 pack reads back");
+    let half_material =
+        meso_materials::spmm::pack::decode_pack(&meso_materials::spmm::pack::encode_pack(
+            &material,
+            meso_materials::spmm::pack::ResidualPrecision::F16,
+        ))
+        .expect("an F16 pack reads back");
     for (material, residual, halves) in [
         (&material, false, false),
         (&material, true, false),
@@ -557,7 +558,8 @@ fn mode_agrees_with_the_cpu(
 ) {
     use meso_render::{RenderMode, run_frames};
     scene.render.sampler = meso_materials::rng::Sampler::Independent;
-    let mut reference = meso_modes::trace::SpmmMode::new(scene.clone(), size, size).expect("CPU mode");
+    let mut reference =
+        meso_modes::trace::SpmmMode::new(scene.clone(), size, size).expect("CPU mode");
     run_frames(&mut reference, 16 * frames, |_, _| {});
     let reference = reference.image();
     // Another seed than the reference's, so the two are independent.
@@ -979,7 +981,8 @@ fn brdf_sampling_matches_the_f64_reference() {
 fn merl_test_table() -> (Words, u32, meso_materials::merl::MerlBrdf) {
     let lobe =
         AnalyticBrdf::new(BrdfModel::CookTorrance, &[("m", 0.15), ("f0", 0.6)]).expect("a lobe");
-    let tabulated = meso_materials::merl::tabulate(&lobe, DVec3::new(0.9, 0.6, 0.3)).expect("tabulates");
+    let tabulated =
+        meso_materials::merl::tabulate(&lobe, DVec3::new(0.9, 0.6, 0.3)).expect("tabulates");
     let mut stored = tabulated.stored().to_vec();
     for cell in stored.iter_mut().step_by(7) {
         cell[0] = -1.0;
@@ -1146,7 +1149,7 @@ fn software_adapters_are_not_hardware() {
 }
 
 /// Diagnostics (not a check): means of the MERL scene's variants after many frames on
-/// both devices. `cargo test -p meso-core --lib merl_means -- --ignored --nocapture`.
+/// both devices. `cargo test -p meso-gpu --lib merl_means -- --ignored --nocapture`.
 #[test]
 #[ignore]
 fn merl_means() {

@@ -9,6 +9,7 @@ pub mod atomic;
 pub mod brdf;
 pub mod btf;
 pub mod container;
+pub mod hash;
 pub mod image;
 pub mod merl;
 pub mod metrics;

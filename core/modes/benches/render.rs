@@ -20,15 +20,15 @@ use std::path::Path;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group};
 use glam::{DMat3, DVec2, DVec3};
 use meso_materials::brdf::warp;
-use meso_render::geometry::SceneBvh;
-use meso_render::Film;
-use meso_render::layers::layer_count;
-use meso_render::{Denoiser, Device, ModeKind, Prepare, RenderMode, SceneEdit};
 use meso_materials::rng::SampleStream;
+use meso_modes::trace::SpmmMode;
+use meso_render::Film;
+use meso_render::geometry::SceneBvh;
+use meso_render::layers::layer_count;
+use meso_render::light_selection::LightSampling;
 use meso_render::scene::mesh::{Placement, load_obj, vertex_normals};
 use meso_render::scene::{Light, Scene, TriangleMesh, load_scene};
-use meso_modes::trace::SpmmMode;
-use meso_render::light_selection::LightSampling;
+use meso_render::{Denoiser, Device, ModeKind, Prepare, RenderMode, SceneEdit};
 use rayon::prelude::*;
 
 fn root() -> std::path::PathBuf {
@@ -448,7 +448,8 @@ fn many_lights_report() {
     let mut budget = 0.0;
     for f in 1..=4 {
         budget += exact.render_frame().seconds;
-        let c = meso_materials::metrics::compare(&reference, &exact.image(), 0.0).expect("same size");
+        let c =
+            meso_materials::metrics::compare(&reference, &exact.image(), 0.0).expect("same size");
         println!(
             "every light | {f} | {budget:.2} | {:.4} | {:.4}",
             c.rmse, c.mssim
@@ -460,7 +461,8 @@ fn many_lights_report() {
         spent += auto.render_frame().seconds;
         frames += 1;
         if spent >= next || spent >= budget {
-            let c = meso_materials::metrics::compare(&reference, &auto.image(), 0.0).expect("same size");
+            let c = meso_materials::metrics::compare(&reference, &auto.image(), 0.0)
+                .expect("same size");
             println!(
                 "stochastic | {frames} | {spent:.2} | {:.4} | {:.4}",
                 c.rmse, c.mssim

@@ -26,10 +26,9 @@ pub const REFERENCE_SEED_XOR: u64 = 0x5245_4645_5245_4e43; // "REFERENC"
 
 /// True if the mode exists in this build on that device.
 pub fn is_built(kind: ModeKind, device: Device) -> bool {
-    match (kind, device) {
-        (ModeKind::Spmm | ModeKind::Biscale | ModeKind::Adaptive, Device::Cpu) => true,
-        (ModeKind::Spmm, Device::Gpu) => cfg!(feature = "gpu"),
-        _ => false,
+    match device {
+        Device::Cpu => true,
+        Device::Gpu => cfg!(feature = "gpu") && kind == ModeKind::Spmm,
     }
 }
 
@@ -119,8 +118,8 @@ mod tests {
     use std::sync::atomic::AtomicBool;
 
     use super::*;
-    use meso_render::{Unrenderable, Unsupported};
     use meso_render::scene::test_scenes::edit_test_scene;
+    use meso_render::{Unrenderable, Unsupported};
 
     #[test]
     fn modes_not_built_say_so() {

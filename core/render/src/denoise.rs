@@ -606,7 +606,8 @@ mod tests {
         let mut img = Image::new(w, h);
         for y in 0..h {
             for x in 0..w {
-                let u = meso_materials::rng::SampleStream::new(&[u64::from(x), u64::from(y)]).at(0) as f32;
+                let u = meso_materials::rng::SampleStream::new(&[u64::from(x), u64::from(y)]).at(0)
+                    as f32;
                 img.set(x, y, [level + amplitude * (u - 0.5) * 2.0; 3]);
             }
         }

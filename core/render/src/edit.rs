@@ -1,5 +1,5 @@
 //! Edits a render mode accepts while it accumulates, and what each one invalidated.
-//! The rule (DESIGN.md, the seed's section 4): restart only what the edit changes. An
+//! The rule (docs/rendering.md): restart only what the edit changes. An
 //! emission change re-weights the film's layers and keeps every sample; a moved light
 //! or a new ambient radius restarts that one layer (`layers.rs`); a material edit
 //! restarts the pixels whose samples shaded the material; a camera, size or geometry

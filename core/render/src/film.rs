@@ -3,7 +3,7 @@
 //! the background, so a mode accumulates each of them for unit emission in its own
 //! layer and `resolve` weights the layers: an emission edit re-weights without losing a
 //! sample, and a moved light restarts only its layer. A non-finite sample is dropped
-//! and counted, never added (STYLE.md).
+//! and counted, never added (docs/rendering.md).
 
 use glam::DVec3;
 use rayon::prelude::*;

@@ -1,4 +1,4 @@
-//! The seam every render mode plugs into (DESIGN.md, "The three render modes"): the
+//! The seam every render mode plugs into (docs/rendering.md): the
 //! `RenderMode` trait (prepared for a scene with progress and cancel, renders one
 //! progressive frame into its film, says what an edit invalidates), the film and its
 //! layers, edits, `Unsupported` (what a mode cannot render, by name) and mode-neutral
@@ -6,15 +6,16 @@
 //! (`modes`). `meso render`, the reports and the studio drive modes through it.
 
 pub mod denoise;
-pub mod environment;
-pub mod geometry;
-pub mod light_selection;
-pub mod scene;
 pub mod edit;
+pub mod environment;
 pub mod film;
+pub mod geometry;
 pub mod layers;
+pub mod light_selection;
+mod mode_kind;
 pub mod preview;
 pub mod reach;
+pub mod scene;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -24,9 +25,9 @@ pub use edit::{EditError, Invalidation, SceneEdit};
 pub use film::{Film, FilmTooLarge};
 
 use crate::geometry::SceneBvh;
-use meso_materials::image::Image;
-pub use crate::scene::{Device, ModeKind};
+pub use crate::mode_kind::{Device, ModeKind};
 use crate::scene::{Scene, TriangleMesh};
+use meso_materials::image::Image;
 
 /// Rays traced, by kind (zero for modes that trace none of a kind).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]

@@ -10,13 +10,13 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use meso_modes::adaptive::{AdaptiveMode, AdaptiveOptions};
+use crate::convergence::REFERENCE_SEED_XOR;
 use meso_materials::image::Image;
 use meso_materials::metrics::compare;
-use crate::convergence::REFERENCE_SEED_XOR;
-use meso_render::{ModeError, Prepare, RenderMode, run_frames};
-use meso_render::scene::Scene;
+use meso_modes::adaptive::{AdaptiveMode, AdaptiveOptions};
 use meso_modes::trace::SpmmMode;
+use meso_render::scene::Scene;
+use meso_render::{ModeError, Prepare, RenderMode, run_frames};
 
 #[derive(Clone, Debug)]
 pub struct SpeedupRequest {
@@ -299,8 +299,8 @@ mod allocation_tests {
     /// (as one shared per 2 x 2 block was) falls well below.
     #[test]
     fn the_predicted_deviation_recovers_most_of_the_oracle_allocation_gain() {
-        let path =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/scenes/merl_dragon.toml");
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../tests/scenes/merl_dragon.toml");
         let scene = meso_render::scene::load_scene(&path).expect("the shipped dragon scene");
         let request = SpeedupRequest {
             width: 128,

@@ -1,4 +1,4 @@
-//! The precomputation report (`meso precompute --json`, spec/cli.md): the matrix's
+//! The precomputation report (`meso precompute --json`, docs/cli.md): the matrix's
 //! size, the biclustering's FLOP ratio and bytes, its losslessness on a random
 //! lighting vector, and the SH and CPCA baselines built from the same matrix, each
 //! with its bytes, build time, product time and error against the exact product.
@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use meso_materials::rng::SampleStream;
 use meso_modes::biscale::BiscaleSettings;
 use meso_modes::biscale::cpca::Cpca;
 use meso_modes::biscale::cubemap::CubeLayout;
@@ -14,9 +15,8 @@ use meso_modes::biscale::hemisphere::HemisphereGrid;
 use meso_modes::biscale::precompute::{PrecomputeStats, Precomputed, precompute};
 use meso_modes::biscale::sh::ShTransfer;
 use meso_render::geometry::SceneBvh;
-use meso_render::{Cancelled, Prepare};
-use meso_materials::rng::SampleStream;
 use meso_render::scene::Scene;
+use meso_render::{Cancelled, Prepare};
 
 /// SH order of the baseline (Sloan et al.: 25 coefficients).
 pub const SH_ORDER: usize = 5;

@@ -1,5 +1,5 @@
-//! The speed-against-error report of a render mode (DESIGN.md: "every fast path
-//! reports its speed against its error"): a converged reference, then the error of the
+//! The speed-against-error report of a render mode (every fast path
+//! reports its speed against its error): a converged reference, then the error of the
 //! progressive image after 1, 2, 4, ... frames with the render time spent, for the
 //! scene as written and for its variants (independent random numbers instead of the
 //! scene's Sobol points; one light sample per frame where the scene asks for more; AO off; environment light without MIS; the
@@ -16,17 +16,17 @@ use serde::Serialize;
 
 use std::sync::Arc;
 
+use crate::biscale as report;
+use meso_materials::image::Image;
+use meso_materials::metrics::{Comparison, MetricsError, compare};
+use meso_materials::rng::Sampler;
 use meso_modes::biscale::cpca::Cpca;
 use meso_modes::biscale::cubemap::CubeLayout;
 use meso_modes::biscale::hemisphere::HemisphereGrid;
 use meso_modes::biscale::sh::ShTransfer;
 use meso_modes::biscale::{BiscaleMode, TransferSource};
-use crate::biscale as report;
-use meso_materials::image::Image;
-use meso_materials::metrics::{Comparison, MetricsError, compare};
-use meso_render::{Device, ModeError, ModeKind, Prepare, RenderMode, run_frames};
-use meso_materials::rng::Sampler;
 use meso_render::scene::{Material, Scene};
+use meso_render::{Device, ModeError, ModeKind, Prepare, RenderMode, run_frames};
 
 /// What the report renders.
 #[derive(Clone, Debug)]

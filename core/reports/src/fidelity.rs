@@ -18,15 +18,15 @@ use glam::DVec3;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::regress::case::substitute;
 use meso_materials::btf::Btf;
 use meso_materials::btf::table::BtfTable;
 use meso_materials::image::Image;
 use meso_materials::metrics::{MetricsError, compare};
-use crate::regress::case::substitute;
-use meso_render::{ModeError, RenderMode};
-use meso_render::scene::{Material, Scene};
 use meso_materials::spmm::SpmmMaterial;
 use meso_modes::trace::{PackSampling, SpmmMode};
+use meso_render::scene::{Material, Scene};
+use meso_render::{ModeError, RenderMode};
 
 /// Polar angle beyond which a direction counts as grazing, degrees.
 pub const GRAZING_DEG: f64 = 60.0;

@@ -6,7 +6,7 @@ relative difference and the relative RMSE (also between two Meso seeds, the nois
 floor). Not part of the test suite (it needs Mitsuba):
 
     python3 -m venv venv && venv/bin/pip install mitsuba numpy openexr
-    cargo build --release -p meso-core
+    cargo build --release -p meso-cli
     venv/bin/python tests/reference/mitsuba_env/cross_check.py [ROT_DEG ...]
 
 Conventions, probed on Mitsuba 3.9 with a map whose pixels encode their coordinates:

@@ -1,5 +1,5 @@
 //! Ashikhmin-Shirley anisotropic Phong specular BRDF (Ashikhmin & Shirley 2000, eq. 4
-//! as spec/brdf.md writes it, with Schlick's Fresnel) and its half-vector sampling
+//! as docs/brdf.md writes it, with Schlick's Fresnel) and its half-vector sampling
 //! (their eq. 9-10). The exponent e = (nu h.x^2 + nv h.y^2)/(h.x^2 + h.y^2) is taken as
 //! a ratio of tangential parts; at h = n the spec's limit cos_h^e = 1 applies.
 

@@ -1,5 +1,5 @@
 //! The SPMM basis function rho_j(wi, wo) = f_j(R_j wi, R_j wo) max(0, n_j . wi)
-//! (Silva & Santos 2013 eq. 2; spec/brdf.md): an analytic BRDF tilted onto its own
+//! (Silva & Santos 2013 eq. 2; docs/brdf.md): an analytic BRDF tilted onto its own
 //! normal n_j, foreshortening cosine included. Vectors are in the texel's tangent frame.
 
 use glam::DVec3;

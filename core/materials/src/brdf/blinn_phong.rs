@@ -1,4 +1,4 @@
-//! Normalised Blinn-Phong BRDF, f = (n + 8)/(8 pi) cos_h^n (spec/brdf.md; the
+//! Normalised Blinn-Phong BRDF, f = (n + 8)/(8 pi) cos_h^n (docs/brdf.md; the
 //! normalisation is the usual approximation, so albedo may slightly exceed 1, see
 //! docs/brdf.md). Sampled by drawing h with density (n + 1)/(2 pi) cos_h^n.
 

@@ -1,5 +1,5 @@
 //! Cook-Torrance microfacet BRDF with the Beckmann distribution, Schlick's Fresnel and
-//! the V-cavity masking term (Cook & Torrance 1982; spec/brdf.md). Sampled by drawing
+//! the V-cavity masking term (Cook & Torrance 1982; docs/brdf.md). Sampled by drawing
 //! h from D(h) cos_h (Walter et al. 2007, eq. 28-29 for Beckmann).
 
 use std::f64::consts::PI;

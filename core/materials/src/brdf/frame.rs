@@ -1,5 +1,5 @@
 //! Orthonormal shading frames. `Frame::from_normal_spmm` is the exact frame rule of
-//! an SPMM basis function's own normal n_j (spec/brdf.md, "The SPMM basis function").
+//! an SPMM basis function's own normal n_j (docs/brdf.md, "The SPMM basis function").
 
 use glam::DVec3;
 
@@ -12,7 +12,7 @@ pub struct Frame {
 }
 
 impl Frame {
-    /// The frame (x', y', n) of spec/brdf.md: x' is the tangent (1,0,0) made
+    /// The frame (x', y', n) of docs/brdf.md: x' is the tangent (1,0,0) made
     /// orthogonal to n; when that is degenerate (|x - (x.n) n| < 1e-6) the bitangent
     /// (0,1,0) is used instead, with y' = n x x' and then x' = y' x n.
     pub fn from_normal_spmm(n: DVec3) -> Self {

@@ -1,5 +1,5 @@
 //! Lafortune's generalised cosine lobe, f = s^n with s = cx wi.x wo.x + cy wi.y wo.y +
-//! cz wi.z wo.z, 0 where s <= 0 (Lafortune et al. 1997; spec/brdf.md). Sampled as a
+//! cz wi.z wo.z, 0 where s <= 0 (Lafortune et al. 1997; docs/brdf.md). Sampled as a
 //! Phong lobe around the axis (cx wo.x, cy wo.y, cz wo.z), since s = wi . axis. Where
 //! s^n exceeds f64's range (|c| ~ 1e3 with n ~ 1e4) it saturates at f64::MAX.
 

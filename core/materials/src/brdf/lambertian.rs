@@ -1,4 +1,4 @@
-//! Lambertian BRDF, f = 1/pi (spec/brdf.md). The colour lives in the SPMM weights or
+//! Lambertian BRDF, f = 1/pi (docs/brdf.md). The colour lives in the SPMM weights or
 //! the material's albedo, not here. Sampled with the cosine-weighted hemisphere.
 
 use std::f64::consts::FRAC_1_PI;

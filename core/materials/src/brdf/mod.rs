@@ -1,4 +1,4 @@
-//! The analytic BRDF dictionary of spec/brdf.md: seven models, exactly as specified,
+//! The analytic BRDF dictionary of docs/brdf.md: seven models, exactly as specified,
 //! as a closed `Copy` enum of validated parameter sets, with importance sampling and
 //! the matching pdfs. Evaluated in `f64`: exponents up to 1e5 amplify the rounding
 //! of cos_h by the exponent, which `f32` arithmetic cannot keep within float precision.
@@ -382,7 +382,7 @@ impl AnalyticBrdf {
         Self::from_values(model, &values)
     }
 
-    /// The BRDF value f(wi, wo) in 1/sr, spec/brdf.md; 0 unless both directions lie
+    /// The BRDF value f(wi, wo) in 1/sr, docs/brdf.md; 0 unless both directions lie
     /// strictly above the surface. `wi` and `wo` must be unit vectors.
     #[inline]
     pub fn eval(&self, wi: DVec3, wo: DVec3) -> f64 {

@@ -1,5 +1,5 @@
 //! Oren-Nayar rough diffuse BRDF, the qualitative model of Oren & Nayar 1994 (eq. 30)
-//! as spec/brdf.md writes it. Sampled with the cosine-weighted hemisphere.
+//! as docs/brdf.md writes it. Sampled with the cosine-weighted hemisphere.
 
 use std::f64::consts::FRAC_1_PI;
 

@@ -780,7 +780,7 @@ type Params = Vec<(&'static str, f64)>;
 
 #[test]
 fn parameter_specs_are_the_spec_ranges() {
-    // spec/brdf.md, "The models and their parameter names", transcribed.
+    // docs/brdf.md's table of models, parameters and ranges, transcribed.
     let expected: [(BrdfModel, &[Range]); 7] = [
         (BrdfModel::Lambertian, &[]),
         (BrdfModel::OrenNayar, &[("sigma", 0.0, FRAC_PI_2)]),
@@ -831,7 +831,7 @@ fn parameter_specs_are_the_spec_ranges() {
 /// The measurement behind the energy table of docs/brdf.md: the largest directional
 /// albedo of each model over a parameter grid and view angles down to 89.94 degrees.
 /// Slow (minutes); run with
-/// `cargo test -p meso-core --lib brdf::tests::measure_albedo_maxima -- --ignored --nocapture`.
+/// `cargo test -p meso-materials --lib brdf::tests::measure_albedo_maxima -- --ignored --nocapture`.
 #[test]
 #[ignore = "a measurement for the docs, not a check"]
 fn measure_albedo_maxima() {

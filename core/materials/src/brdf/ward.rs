@@ -1,4 +1,4 @@
-//! Anisotropic Ward BRDF in its original normalisation (Ward 1992, eq. 5 as spec/brdf.md
+//! Anisotropic Ward BRDF in its original normalisation (Ward 1992, eq. 5 as docs/brdf.md
 //! writes it; its albedo exceeds 1 at grazing angles, see docs/brdf.md). Sampled with
 //! the half-vector warp of Walter 2005 ("Notes on the Ward BRDF", eq. 6-9).
 

@@ -1,7 +1,7 @@
 //! Bidirectional texture functions (Dana et al. 1999): per texel, the reflectance
 //! tabulated over a light-direction set and a view-direction set, RGB, with the
 //! foreshortening cosine included (the convention of an SPMM basis function rho_j,
-//! spec/brdf.md). `synth.rs` makes BTFs by ray tracing a height-field mesostructure
+//! docs/brdf.md). `synth.rs` makes BTFs by ray tracing a height-field mesostructure
 //! (Sloan et al. 2003, section 4.2), `import.rs` reads measured image sets, `file.rs`
 //! is the `.btf` container (docs/formats/btf.md), `table.rs` the BTF as the spmm mode
 //! shades it (the scene's `btf` material). Fitting them lives in `fit`.

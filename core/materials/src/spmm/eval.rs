@@ -51,7 +51,7 @@ impl Default for EvalSettings {
 impl SpmmMaterial {
     /// BTF(t, wi, wo), RGB, for texel `t` (row-major) with unit `wi`, `wo` in the tangent
     /// frame; 0 unless both lie above the surface. Includes the foreshortening cosine,
-    /// like every rho_j (spec/brdf.md): shading integrates L_i BTF dwi.
+    /// like every rho_j (docs/brdf.md): shading integrates L_i BTF dwi.
     pub fn eval_texel(
         &self,
         t: usize,

@@ -15,7 +15,7 @@
 //!    directions (h -> n while cos_o -> 0 and G stays near 1, so
 //!    f cos_i ~ D F / (4 cos_o)); this bounds that growth by the data's brightness down
 //!    to the stated angle. Beyond it (the last 1/32 of cos theta) it still grows as
-//!    1/cos_o: bounding that band needs an evaluation rule of spec/brdf.md.
+//!    1/cos_o: bounding that band needs an evaluation rule of docs/brdf.md.
 //!
 //! Peaks are found by dense sampling (a stratified grid of 24 x 24 light directions
 //! times 16 x 16 views, uniform in cos theta and phi, plus for each light the mirror

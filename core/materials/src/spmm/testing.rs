@@ -9,12 +9,7 @@ use crate::rng::SampleStream;
 
 /// A small but complete material: `clusters` clusters of mixed models, 1-4 weights
 /// per texel, and (optionally) a residual on 5 x 4 directions with `npca` terms.
-pub fn sample_material(
-    w: u32,
-    h: u32,
-    clusters: usize,
-    residual: Option<usize>,
-) -> SpmmMaterial {
+pub fn sample_material(w: u32, h: u32, clusters: usize, residual: Option<usize>) -> SpmmMaterial {
     let models = [
         AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
         AnalyticBrdf::new(BrdfModel::Ward, &[("ax", 0.1), ("ay", 0.3)]).expect("valid"),

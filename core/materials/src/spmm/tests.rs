@@ -5,8 +5,8 @@ use glam::DVec3;
 use proptest::prelude::*;
 
 use super::pack::{PackErrorKind, ResidualPrecision, decode_pack, encode_pack};
-use super::*;
 pub(crate) use super::testing::sample_material;
+use super::*;
 
 /// `m` with its residual's mean and components rounded to half floats, as a pack read
 /// from a file stored in f16 holds them (prepared tables are then half floats).

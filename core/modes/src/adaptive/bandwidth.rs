@@ -11,8 +11,8 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 use super::wavelet::{Pyramid, max_blocks};
-use meso_render::environment::pixel_of;
 use meso_materials::image::{Image, luminance};
+use meso_render::environment::pixel_of;
 use meso_render::scene::{Environment, Light, Material};
 
 /// Fixed directions per side (theta x phi) and stored outgoing cells per side.
@@ -273,7 +273,9 @@ mod tests {
 
     fn merl_of(brdf: &AnalyticBrdf) -> Material {
         Material::Merl {
-            brdf: std::sync::Arc::new(meso_materials::merl::tabulate(brdf, DVec3::ONE).expect("tabulates")),
+            brdf: std::sync::Arc::new(
+                meso_materials::merl::tabulate(brdf, DVec3::ONE).expect("tabulates"),
+            ),
             tint: DVec3::ONE,
         }
     }

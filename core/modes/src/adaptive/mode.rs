@@ -22,18 +22,18 @@ use super::preconvolved::Prefiltered;
 use super::surface::{self, Surface};
 use super::upsample::{self, Guide};
 use meso_materials::brdf::warp;
-use meso_render::environment::{EnvironmentSampler, rotate_y};
-use meso_render::geometry::{PinholeCamera, SceneBvh};
 use meso_materials::image::Image;
+use meso_materials::rng::SampleStream;
+use meso_render::environment::{EnvironmentSampler, rotate_y};
 use meso_render::film::{material_bit, memory_limit_bytes};
+use meso_render::geometry::{PinholeCamera, SceneBvh};
 use meso_render::layers::{self, Before, ENVIRONMENT, Layers, LightTarget};
+use meso_render::scene::{Light, Material, RenderSettings, Scene};
 use meso_render::{
     Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind,
     PreparationReport, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
     Unsupported,
 };
-use meso_materials::rng::SampleStream;
-use meso_render::scene::{Light, Material, RenderSettings, Scene};
 
 /// Offset of secondary ray origins along the normal, relative to the hit point's
 /// magnitude (the spmm mode's rule).
@@ -87,7 +87,8 @@ impl Default for AdaptiveOptions {
 fn material_bandwidth(m: &Material) -> Option<Arc<MaterialBandwidth>> {
     use std::collections::HashMap;
     use std::sync::{Mutex, OnceLock, Weak};
-    type Cache = Mutex<HashMap<usize, (Weak<meso_materials::merl::MerlBrdf>, Arc<MaterialBandwidth>)>>;
+    type Cache =
+        Mutex<HashMap<usize, (Weak<meso_materials::merl::MerlBrdf>, Arc<MaterialBandwidth>)>>;
     static CACHE: OnceLock<Cache> = OnceLock::new();
     let Material::Merl { brdf, .. } = m else {
         return MaterialBandwidth::of_material(m).map(Arc::new);
@@ -629,7 +630,9 @@ impl AdaptiveMode {
                 &self.scene.environment,
                 &self.env_bandwidth,
             ) {
-                (meso_render::scene::Background::FromEnvironment, Some(e), Some(b)) => b.rate(e, px.dir),
+                (meso_render::scene::Background::FromEnvironment, Some(e), Some(b)) => {
+                    b.rate(e, px.dir)
+                }
                 _ => 0.0,
             };
             if let Some((layer, radiance)) = layers::escaped(&self.scene, px.dir) {

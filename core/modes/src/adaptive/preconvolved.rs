@@ -9,8 +9,8 @@ use std::f64::consts::PI;
 
 use glam::DVec3;
 
-use meso_render::environment::{EnvironmentSampler, pixel_of, rotate_y};
 use meso_materials::image::Image;
+use meso_render::environment::{EnvironmentSampler, pixel_of, rotate_y};
 use meso_render::scene::Environment;
 
 /// The slowest rate (samples per radian) a level is chosen for: the cosine factor that

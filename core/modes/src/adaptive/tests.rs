@@ -6,13 +6,13 @@ use std::sync::Arc;
 use glam::DVec3;
 
 use super::{AdaptiveMode, AdaptiveOptions};
+use crate::REFERENCE_SEED_XOR;
 use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
 use meso_materials::image::Image;
 use meso_materials::metrics::compare;
-use crate::REFERENCE_SEED_XOR;
-use meso_render::{Prepare, RenderMode, run_frames};
 use meso_render::scene::mesh::quad;
 use meso_render::scene::{Background, Camera, Environment, Light, Material, RenderSettings, Scene};
+use meso_render::{Prepare, RenderMode, run_frames};
 
 const SIZE: u32 = 32;
 
@@ -47,8 +47,8 @@ pub(crate) fn merl_test_scene() -> Scene {
             frames: 1,
             seed: 3,
             max_specular_depth: 2,
-            mode: meso_render::scene::ModeKind::Adaptive,
-            device: meso_render::scene::Device::Cpu,
+            mode: meso_render::ModeKind::Adaptive,
+            device: meso_render::Device::Cpu,
             // The adaptive mode draws independent hashed numbers; the brute force it is
             // compared with at equal samples draws the same kind (Sobol would lower its
             // noise at equal spp, a different comparison).

@@ -13,8 +13,8 @@ use std::collections::BinaryHeap;
 use rayon::prelude::*;
 
 use super::transfer::TransferMatrix;
-use meso_render::{Cancelled, Prepare};
 use meso_materials::rng::SampleStream;
+use meso_render::{Cancelled, Prepare};
 
 /// A matrix whose entry (j, k) is `level * scale[k]`, as the algorithm sees it.
 #[derive(Clone, Debug, PartialEq)]

@@ -16,8 +16,8 @@ use rayon::prelude::*;
 
 use super::hemisphere::HemisphereGrid;
 use meso_materials::brdf::AnalyticBrdf;
-use meso_render::scene::Material;
 use meso_materials::spmm::{MOVING_NPCA, SpmmMaterial};
+use meso_render::scene::Material;
 
 /// Strata per side for the cell averages.
 const STRATA: u32 = 3;

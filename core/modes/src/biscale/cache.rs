@@ -15,9 +15,9 @@ use super::BiscaleSettings;
 use super::bicluster::Biclustering;
 use super::cubemap::CubeLayout;
 use super::hemisphere::HemisphereGrid;
-use super::precompute::Fnv;
 use super::transfer::TransferMatrix;
 use meso_materials::container::{self, Tensor};
+use meso_materials::hash::Fnv1a;
 
 pub const FORMAT: &str = "meso-biscale-cache";
 pub const VERSION: &str = "1";
@@ -64,12 +64,12 @@ fn f32_bytes(v: &[f32]) -> Vec<u8> {
 }
 
 fn checksum(parts: &[&[u8]]) -> u64 {
-    let mut h = Fnv::default();
+    let mut h = Fnv1a::default();
     for p in parts {
         h.word(p.len() as u64);
         h.bytes(p);
     }
-    h.0
+    h.finish()
 }
 
 /// The container bytes of a precomputation.

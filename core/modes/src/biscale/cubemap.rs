@@ -150,8 +150,8 @@ mod tests {
     use std::sync::Arc;
 
     use super::*;
-    use meso_render::environment::pixel_solid_angle;
     use meso_materials::image::Image;
+    use meso_render::environment::pixel_solid_angle;
 
     #[test]
     fn pixels_tile_the_sphere() {

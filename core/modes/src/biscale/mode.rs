@@ -16,18 +16,18 @@ use super::cubemap::CubeLayout;
 use super::hemisphere::HemisphereGrid;
 use super::precompute::{Precomputed, precompute};
 use super::{BiscaleSettings, cpca::Cpca, sh::ShTransfer};
-use meso_render::geometry::{PinholeCamera, SceneBvh};
+use crate::trace::shading::{dpdu, tangent_frame};
 use meso_materials::image::Image;
+use meso_materials::rng::SampleStream;
 use meso_render::film::{material_bit, memory_limit_bytes};
+use meso_render::geometry::{PinholeCamera, SceneBvh};
 use meso_render::layers::{self, Before, ENVIRONMENT, Layers};
+use meso_render::scene::{Environment, Light, Material, RenderSettings, Scene};
 use meso_render::{
     Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind,
     PreparationReport, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
     Unsupported,
 };
-use meso_materials::rng::SampleStream;
-use meso_render::scene::{Environment, Light, Material, RenderSettings, Scene};
-use crate::trace::shading::{dpdu, tangent_frame};
 
 /// Which representation of the transfer gives L* (the report compares them).
 #[derive(Clone, Debug)]

@@ -13,9 +13,10 @@ use super::cache;
 use super::cubemap::CubeLayout;
 use super::hemisphere::HemisphereGrid;
 use super::transfer::{self, TransferMatrix, VertexFrames};
+use meso_materials::hash::Fnv1a;
 use meso_render::geometry::SceneBvh;
-use meso_render::{Cancelled, Prepare};
 use meso_render::scene::TriangleMesh;
+use meso_render::{Cancelled, Prepare};
 
 /// What the precomputation produced.
 #[derive(Clone, Debug)]
@@ -52,7 +53,7 @@ impl Precomputed {
 /// The cache key: every input the matrices depend on (world-space meshes, so their
 /// transform is included; the resolutions; the seed; the format version).
 pub fn cache_key(meshes: &[TriangleMesh], s: &BiscaleSettings) -> u64 {
-    let mut h = Fnv::default();
+    let mut h = Fnv1a::default();
     h.word(cache::VERSION.len() as u64);
     h.bytes(cache::VERSION.as_bytes());
     for v in [s.cube_n, s.local_res, s.rays_per_side] {
@@ -76,28 +77,7 @@ pub fn cache_key(meshes: &[TriangleMesh], s: &BiscaleSettings) -> u64 {
             }
         }
     }
-    h.0
-}
-
-/// FNV-1a, 64 bits: a stable hash for cache keys and checksums.
-pub(crate) struct Fnv(pub u64);
-
-impl Default for Fnv {
-    fn default() -> Self {
-        Self(0xcbf2_9ce4_8422_2325)
-    }
-}
-
-impl Fnv {
-    pub fn bytes(&mut self, b: &[u8]) {
-        for &x in b {
-            self.0 ^= u64::from(x);
-            self.0 = self.0.wrapping_mul(0x100_0000_01b3);
-        }
-    }
-    pub fn word(&mut self, w: u64) {
-        self.bytes(&w.to_le_bytes());
-    }
+    h.finish()
 }
 
 /// Runs (or loads) the precomputation for `meshes` with `bvh` built from them.

@@ -14,9 +14,9 @@ use super::sh::ShTransfer;
 use super::{BiscaleMode, BiscaleSettings, TransferSource, cache};
 use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
 use meso_materials::image::Image;
-use meso_render::{ModeError, Prepare, RenderMode, SceneEdit, Unrenderable, run_frames};
 use meso_render::scene::test_scenes::floor_scene;
 use meso_render::scene::{Environment, Light, Material, Scene};
+use meso_render::{ModeError, Prepare, RenderMode, SceneEdit, Unrenderable, run_frames};
 
 const ALBEDO: f64 = 0.6;
 

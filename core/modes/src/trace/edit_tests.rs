@@ -8,9 +8,9 @@ use super::SpmmMode;
 use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
 use meso_materials::image::Image;
 use meso_render::layers::{AMBIENT, FIRST_LIGHT};
-use meso_render::{Invalidation, RenderMode, SceneEdit};
 use meso_render::scene::test_scenes::edit_test_scene as scene;
 use meso_render::scene::{Ambient, Background, Light, Material, Scene};
+use meso_render::{Invalidation, RenderMode, SceneEdit};
 
 const SIZE: u32 = 24;
 

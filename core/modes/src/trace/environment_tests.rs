@@ -15,11 +15,11 @@ use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
 use meso_materials::image::Image;
 use meso_materials::metrics::compare;
 use meso_render::layers::ENVIRONMENT;
-use meso_render::{Invalidation, RenderMode, SceneEdit};
 use meso_render::scene::mesh::quad;
 use meso_render::scene::{
     Ambient, Background, Camera, Environment, Light, Material, Scene, TriangleMesh,
 };
+use meso_render::{Invalidation, RenderMode, SceneEdit};
 
 fn constant_map(l: f32) -> Arc<Image> {
     let mut img = Image::new(16, 8);

@@ -6,10 +6,10 @@ use glam::{DVec2, DVec3};
 
 use super::SpmmMode;
 use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
-use meso_render::{RenderMode, SceneEdit};
 use meso_render::scene::mesh::quad;
 use meso_render::scene::{Ambient, Camera, RenderSettings, TriangleMesh};
 use meso_render::scene::{Background, Light, Material, Scene};
+use meso_render::{RenderMode, SceneEdit};
 
 /// Degenerate triangles, normals facing away from the geometry, UVs far outside
 /// [0, 1], a grazing light, a mirror pair, and a camera inside a closed box: the
@@ -85,8 +85,8 @@ fn no_nan_and_no_panic_on_hard_geometry() {
             frames: 1,
             seed: 5,
             max_specular_depth: 3,
-            mode: meso_render::scene::ModeKind::Spmm,
-            device: meso_render::scene::Device::Cpu,
+            mode: meso_render::ModeKind::Spmm,
+            device: meso_render::Device::Cpu,
             sampler: meso_materials::rng::Sampler::Sobol,
             light_samples: 1,
         },

@@ -8,21 +8,21 @@ use std::time::Instant;
 
 use glam::DVec3;
 
-use meso_render::light_selection::{LightSampling, LightSelection};
 use super::shading::{PackSampling, Shader, shading_at};
-use meso_render::environment::EnvironmentSampler;
-use meso_render::geometry::{PinholeCamera, SceneBvh};
 use meso_materials::image::Image;
+use meso_materials::rng::SampleStream;
+use meso_render::environment::EnvironmentSampler;
 use meso_render::film::{EMPTY_UV_BOX, UvBox, extend_uv_box, material_bit, memory_limit_bytes};
+use meso_render::geometry::{PinholeCamera, SceneBvh};
 use meso_render::layers::{self, Before, Layers, LightTarget};
+use meso_render::light_selection::{LightSampling, LightSelection};
 use meso_render::reach::EditedTexels;
+use meso_render::scene::{Material, RenderSettings, Scene};
 use meso_render::{
     Counters, Device, EditError, Film, FrameStats, Invalidation, MaterialBytes, ModeError,
     ModeKind, PreparationReport, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
     Unsupported,
 };
-use meso_materials::rng::SampleStream;
-use meso_render::scene::{Material, RenderSettings, Scene};
 
 /// Offset of secondary ray origins along the normal, relative to the hit point's
 /// magnitude: well above the f32 rounding of the BVH's triangles (6e-8 relative).
@@ -79,7 +79,10 @@ pub(super) struct Path<'a> {
 }
 
 /// The selection table when `sampling` chooses lights stochastically for `lights`.
-fn selection(sampling: LightSampling, lights: &[meso_render::scene::Light]) -> Option<LightSelection> {
+fn selection(
+    sampling: LightSampling,
+    lights: &[meso_render::scene::Light],
+) -> Option<LightSelection> {
     if sampling.stochastic(lights.len()) {
         LightSelection::new(lights)
     } else {

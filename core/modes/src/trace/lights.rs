@@ -13,11 +13,11 @@ use std::f64::consts::PI;
 
 use glam::DVec3;
 
-use meso_render::light_selection::{CANDIDATES, LIGHT_SAMPLES, LightSelection};
 use super::shading::{Shader, Shading, power_heuristic};
 use super::{Path, SpmmMode};
 use meso_render::geometry::hit_parallelogram;
 use meso_render::layers::AMBIENT;
+use meso_render::light_selection::{CANDIDATES, LIGHT_SAMPLES, LightSelection};
 use meso_render::scene::{Light, Material};
 
 /// A point on a light seen from a shading point, unshadowed.

@@ -7,12 +7,12 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 use super::SpmmMode;
-use meso_render::light_selection::LightSampling;
 use meso_materials::image::Image;
 use meso_render::layers::{FIRST_LIGHT, MANY_LIGHTS, OWN_LIGHT_LAYERS, SHARED_LIGHTS};
-use meso_render::{Film, Invalidation, ModeError, RenderMode, SceneEdit};
+use meso_render::light_selection::LightSampling;
 use meso_render::scene::test_scenes::many_lights_scene;
 use meso_render::scene::{Light, Scene};
+use meso_render::{Film, Invalidation, ModeError, RenderMode, SceneEdit};
 
 /// Per sample index, the mean over the image of the weighted sample, per pixel too.
 fn samples(m: &SpmmMode, size: u32, indices: std::ops::Range<u64>) -> Vec<Vec<f64>> {

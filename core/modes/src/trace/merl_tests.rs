@@ -14,9 +14,9 @@ use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
 use meso_materials::image::Image;
 use meso_materials::merl::tabulate;
 use meso_materials::metrics::compare;
-use meso_render::{RenderMode, SceneEdit};
 use meso_render::scene::test_scenes::edit_test_scene;
 use meso_render::scene::{Environment, Light, Material, Scene};
+use meso_render::{RenderMode, SceneEdit};
 
 fn render(scene: &Scene, frames: u32) -> Image {
     let mut m = SpmmMode::new(scene.clone(), scene.render.width, scene.render.height)

@@ -7,11 +7,11 @@ use std::sync::Arc;
 use glam::{DVec2, DVec3};
 
 use super::SpmmMode;
+use meso_materials::spmm::{Falloff, TexelMask, WeightTarget};
 use meso_render::geometry::brush::{self, Brush, BrushUnits};
-use meso_render::{Invalidation, RenderMode, SceneEdit};
 use meso_render::scene::Material;
 use meso_render::scene::test_scenes::edit_test_scene;
-use meso_materials::spmm::{Falloff, TexelMask, WeightTarget};
+use meso_render::{Invalidation, RenderMode, SceneEdit};
 
 const SIZE: u32 = 64;
 

@@ -14,12 +14,12 @@ use glam::{DVec2, DVec3};
 
 use super::SpmmMode;
 use meso_materials::brdf::warp;
-use meso_render::geometry::Hit;
-use meso_render::scene::{Material, Scene};
 use meso_materials::spmm::{
     EvalSettings, MOVING_NPCA, PrepareRequest, PreparedSpmm, SpmmMaterial, TexelFilter,
     defensive_pdf, defensive_sample,
 };
+use meso_render::geometry::Hit;
+use meso_render::scene::{Material, Scene};
 
 /// How the spmm mode draws directions over the hemisphere at SPMM packs (ambient
 /// occlusion, environment and material samples in MIS). Both are unbiased; they

@@ -451,7 +451,12 @@ fn only_the_residual_tables_of_clusters_rays_reach_are_held_and_the_image_is_the
     // rendered with every table laid out up front, bit for bit.
     let mut scene = meso_render::scene::test_scenes::edit_test_scene();
     scene.materials[1] = Material::Spmm {
-        material: std::sync::Arc::new(meso_materials::spmm::testing::sample_material(16, 16, 4, Some(4))),
+        material: std::sync::Arc::new(meso_materials::spmm::testing::sample_material(
+            16,
+            16,
+            4,
+            Some(4),
+        )),
         uv_scale: glam::DVec2::splat(0.1),
         residual: true,
         npca: 4,

@@ -1,4 +1,4 @@
-//! Distant lighting from a latitude-longitude HDR map (spec/scene.md, `[environment]`):
+//! Distant lighting from a latitude-longitude HDR map (docs/scenes.md, `[environment]`):
 //! the direction convention (+y up; u = 0.5 + atan2(z, x) / 2 pi, v = acos(y) / pi,
 //! row 0 at the zenith), the rotation about +y, the nearest-pixel lookup every mode
 //! uses, and the importance sampler (`sampler.rs`); `scene::Environment` holds a map

@@ -9,9 +9,9 @@ use std::sync::Arc;
 use glam::DVec3;
 
 use super::*;
+use crate::scene::Environment;
 use meso_materials::image::read_image;
 use meso_materials::rng::SampleStream;
-use crate::scene::Environment;
 
 fn shipped(name: &str) -> Image {
     read_image(

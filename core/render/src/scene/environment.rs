@@ -1,5 +1,5 @@
 //! The `[environment]` of a scene: a lat-long map, its strength and its turn about +y
-//! (spec/scene.md). The map's convention, lookup and sampler are in `crate::environment`.
+//! (docs/scenes.md). The map's convention, lookup and sampler are in `crate::environment`.
 
 use std::sync::Arc;
 
@@ -11,7 +11,7 @@ use meso_materials::image::Image;
 
 /// A lat-long environment as a scene holds it: the map, a radiance multiplier and a
 /// turn about +y. What the unrotated map shows in direction d is seen in direction
-/// R_y(angle) d (spec/scene.md).
+/// R_y(angle) d (docs/scenes.md).
 #[derive(Clone, Debug)]
 pub struct Environment {
     pub map: Arc<Image>,

@@ -1,4 +1,4 @@
-//! The scene file as written (spec/scene.md): serde structs with
+//! The scene file as written (docs/scenes.md): serde structs with
 //! `deny_unknown_fields`, spans kept on the values whose meaning is checked after
 //! parsing (material names, geometry, light sizes) so those errors can name the line.
 

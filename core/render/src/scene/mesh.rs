@@ -51,7 +51,7 @@ impl TriangleMesh {
     }
 }
 
-/// Scale, then rotate, then translate (spec/scene.md).
+/// Scale, then rotate, then translate (docs/scenes.md).
 #[derive(Clone, Copy, Debug)]
 pub struct Placement {
     pub scale: f64,

@@ -1,4 +1,4 @@
-//! Scenes (spec/scene.md, docs/scenes.md): a TOML file read with serde and
+//! Scenes (docs/scenes.md): a TOML file read with serde and
 //! `deny_unknown_fields`, checked into a `Scene` whose every value is valid: camera,
 //! analytic / SPMM / mirror materials, OBJ meshes and quads in world space, point and
 //! area lights, ambient occlusion, environment lighting, background, and the render
@@ -22,6 +22,9 @@ use std::sync::Arc;
 use glam::{DMat3, DVec2, DVec3};
 use toml::Spanned;
 
+use crate::{Device, ModeKind};
+pub use environment::Environment;
+pub use mesh::TriangleMesh;
 use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
 use meso_materials::btf::{self, table::BtfTable};
 use meso_materials::image::{self, Image};
@@ -29,8 +32,6 @@ use meso_materials::merl::{self, MerlBrdf};
 use meso_materials::rng::Sampler;
 use meso_materials::spmm::SpmmMaterial;
 use meso_materials::spmm::pack;
-pub use environment::Environment;
-pub use mesh::TriangleMesh;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderSettings {
@@ -103,70 +104,6 @@ impl RenderSettings {
     pub fn light_samples_problem(n: u32) -> Option<String> {
         (!(1..=MAX_LIGHT_SAMPLES).contains(&n))
             .then(|| format!("{n} light samples is outside 1..={MAX_LIGHT_SAMPLES}"))
-    }
-}
-
-/// The render modes (DESIGN.md, "The three render modes").
-#[derive(
-    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize,
-)]
-#[serde(rename_all = "lowercase")]
-pub enum ModeKind {
-    /// Progressive ray tracing of SPMM and analytic materials (Silva & Santos 2013).
-    #[default]
-    Spmm,
-    /// Bi-scale precomputed radiance transfer with biclustering (Sun et al. 2010).
-    Biscale,
-    /// Frequency-adaptive shading of measured BRDFs (Bagher et al. 2013).
-    Adaptive,
-}
-
-impl ModeKind {
-    pub const ALL: [ModeKind; 3] = [ModeKind::Spmm, ModeKind::Biscale, ModeKind::Adaptive];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            ModeKind::Spmm => "spmm",
-            ModeKind::Biscale => "biscale",
-            ModeKind::Adaptive => "adaptive",
-        }
-    }
-
-    pub fn from_name(name: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|m| m.name() == name)
-    }
-
-    /// True if the mode's preparation depends on the geometry (biscale's transfer
-    /// matrices), so a mesh change is a new preparation, which an editor runs in the
-    /// background rather than as an edit on the render thread.
-    pub fn prepares_geometry(self) -> bool {
-        self == ModeKind::Biscale
-    }
-}
-
-/// Where a mode runs.
-#[derive(
-    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize,
-)]
-#[serde(rename_all = "lowercase")]
-pub enum Device {
-    #[default]
-    Cpu,
-    Gpu,
-}
-
-impl Device {
-    pub const ALL: [Device; 2] = [Device::Cpu, Device::Gpu];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Device::Cpu => "cpu",
-            Device::Gpu => "gpu",
-        }
-    }
-
-    pub fn from_name(name: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|d| d.name() == name)
     }
 }
 

@@ -22,8 +22,8 @@ pub fn edit_test_scene() -> Scene {
             frames: 1,
             seed: 9,
             max_specular_depth: 2,
-            mode: crate::scene::ModeKind::Spmm,
-            device: crate::scene::Device::Cpu,
+            mode: crate::ModeKind::Spmm,
+            device: crate::Device::Cpu,
             sampler: meso_materials::rng::Sampler::Sobol,
             light_samples: 1,
         },
@@ -113,8 +113,8 @@ pub fn floor_scene(material: Material, wall: bool) -> Scene {
             frames: 1,
             seed: 1,
             max_specular_depth: 2,
-            mode: crate::scene::ModeKind::Spmm,
-            device: crate::scene::Device::Cpu,
+            mode: crate::ModeKind::Spmm,
+            device: crate::Device::Cpu,
             sampler: meso_materials::rng::Sampler::Sobol,
             light_samples: 1,
         },
@@ -212,8 +212,8 @@ pub fn tilted_spmm() -> Material {
 /// texel, tiled by `uv_scale`.
 pub fn tabulated_btf(brdf: &AnalyticBrdf, albedo: DVec3, uv_scale: DVec2) -> Material {
     let dirs = meso_materials::btf::directions::bonn81();
-    let btf =
-        meso_materials::btf::Btf::from_brdf(brdf, albedo, 1, 1, dirs.clone(), dirs).expect("valid BTF");
+    let btf = meso_materials::btf::Btf::from_brdf(brdf, albedo, 1, 1, dirs.clone(), dirs)
+        .expect("valid BTF");
     Material::Btf {
         table: Arc::new(meso_materials::btf::table::BtfTable::new(&btf).expect("shadeable")),
         uv_scale,

@@ -132,8 +132,8 @@ fn the_spec_example_loads_with_its_values() {
             frames: 8,
             seed: 3,
             max_specular_depth: 2,
-            mode: crate::scene::ModeKind::Spmm,
-            device: crate::scene::Device::Cpu,
+            mode: crate::ModeKind::Spmm,
+            device: crate::Device::Cpu,
             sampler: meso_materials::rng::Sampler::Sobol,
             light_samples: 1,
         }
@@ -577,8 +577,9 @@ fn btf_materials_load_tiled_and_bad_ones_name_the_material() {
     let dir = setup();
     let dirs = meso_materials::btf::directions::bonn81();
     let lambert = AnalyticBrdf::with_defaults(BrdfModel::Lambertian);
-    let btf = meso_materials::btf::Btf::from_brdf(&lambert, DVec3::splat(0.5), 2, 2, dirs.clone(), dirs)
-        .expect("valid BTF");
+    let btf =
+        meso_materials::btf::Btf::from_brdf(&lambert, DVec3::splat(0.5), 2, 2, dirs.clone(), dirs)
+            .expect("valid BTF");
     meso_materials::btf::file::write_btf(
         &dir.path().join("lambert.btf"),
         &btf,

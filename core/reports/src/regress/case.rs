@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use meso_render::{Device, ModeKind};
 use meso_render::scene::{Material, Scene};
+use meso_render::{Device, ModeKind};
 
 /// In `materials = [...]`, the scene's own material (no substitution).
 pub const NO_SUBSTITUTION: &str = "scene";
@@ -175,7 +175,9 @@ mod tests {
         );
         // A BTF swapped for the pack keeps its tiling too.
         let mut scene = edit_test_scene();
-        let lambert = meso_materials::brdf::AnalyticBrdf::with_defaults(meso_materials::brdf::BrdfModel::Lambertian);
+        let lambert = meso_materials::brdf::AnalyticBrdf::with_defaults(
+            meso_materials::brdf::BrdfModel::Lambertian,
+        );
         let btf = tabulated_btf(&lambert, glam::DVec3::ONE, DVec2::splat(5.0));
         substitute(&mut scene, "panel", btf.clone(), false).expect("panel exists");
         assert!(

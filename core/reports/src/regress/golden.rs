@@ -176,7 +176,10 @@ mod tests {
         )
         .expect_err("b is a folder");
         assert!(err.to_string().contains("b.exr"), "{err}");
-        assert_eq!(meso_materials::image::read_exr(&c).expect("c written"), other);
+        assert_eq!(
+            meso_materials::image::read_exr(&c).expect("c written"),
+            other
+        );
         assert_eq!(std::fs::read(&a).expect("a"), before);
         let log = std::fs::read_to_string(goldens.join(LOG_FILE)).expect("log");
         assert_eq!(log.matches("## ").count(), 2, "{log}");

@@ -11,8 +11,8 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 use toml::Spanned;
 
-use meso_render::{Device, ModeKind};
 use meso_render::scene::{self, Material, MaterialTable, RenderSettings};
+use meso_render::{Device, ModeKind};
 
 use super::case::{Case, NO_SUBSTITUTION, Tolerance, case_name, check_case_name, check_key};
 

@@ -19,8 +19,8 @@ use meso_materials::atomic::write_bytes_atomic;
 use meso_materials::image::{Image, read_exr};
 use meso_materials::metrics::compare;
 
-use meso_render::{ModeError, Prepare, run_frames};
 use meso_render::scene::{Scene, load_scene};
+use meso_render::{ModeError, Prepare, run_frames};
 
 /// How to run.
 pub struct RunOptions<'a> {

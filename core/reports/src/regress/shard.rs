@@ -46,27 +46,11 @@ pub fn shard_of(name: &str, count: u32) -> u32 {
     (fnv1a64(name.as_bytes()) % u64::from(count.max(1))) as u32 + 1
 }
 
-/// FNV-1a, 64 bits: a fixed, documented hash, the same on every platform and Rust
-/// version (std's hashers promise neither).
-pub fn fnv1a64(bytes: &[u8]) -> u64 {
-    const OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
-    const PRIME: u64 = 0x0000_0100_0000_01b3;
-    bytes
-        .iter()
-        .fold(OFFSET, |h, &b| (h ^ u64::from(b)).wrapping_mul(PRIME))
-}
+pub use meso_materials::hash::fnv1a64;
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn fnv1a64_matches_the_published_test_vectors() {
-        // From the FNV reference (Fowler, Noll, Vo): "" and "a" and "foobar".
-        assert_eq!(fnv1a64(b""), 0xcbf29ce484222325);
-        assert_eq!(fnv1a64(b"a"), 0xaf63dc4c8601ec8c);
-        assert_eq!(fnv1a64(b"foobar"), 0x85944171f73967e8);
-    }
 
     fn names(n: usize) -> Vec<String> {
         (0..n)

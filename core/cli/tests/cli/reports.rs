@@ -1,0 +1,167 @@
+//! `meso report convergence` and `meso precompute`.
+
+use crate::*;
+
+#[test]
+fn report_convergence_writes_csv_json_charts_and_the_reference() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let out = dir.path().join("conv");
+    let scene = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../tests/scenes/default.toml"
+    );
+    let args = [
+        "report",
+        "convergence",
+        scene,
+        "-o",
+        out.to_str().expect("utf-8"),
+        "--width",
+        "16",
+        "--height",
+        "16",
+        "--reference-frames",
+        "64",
+        "--max-frames",
+        "8",
+        "--json",
+    ];
+    let o = meso(&args, "");
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    let variants: Vec<&str> = v["summaries"]
+        .as_array()
+        .expect("summaries")
+        .iter()
+        .map(|s| s["variant"].as_str().expect("name"))
+        .collect();
+    assert_eq!(
+        variants,
+        [
+            "full",
+            "full_denoised",
+            "independent",
+            "one_light_sample",
+            "no_ao"
+        ],
+        "the default scene has AO, two light samples and no residual; the denoiser's and the independent sampler's rows come with every scene"
+    );
+    let csv = std::fs::read_to_string(out.join("convergence.csv")).expect("csv");
+    let rows: Vec<&str> = csv.lines().collect();
+    assert_eq!(
+        rows[0],
+        "variant,reference,frames,seconds,rmse,psnr_db,mssim"
+    );
+    assert_eq!(
+        rows.len(),
+        1 + 5 * 8,
+        "frames 1 to 8 for the five variants (the denoiser's rows too)"
+    );
+    for name in [
+        "convergence_rmse.svg",
+        "convergence_mssim.svg",
+        "reference.png",
+    ] {
+        assert!(out.join(name).metadata().expect(name).len() > 100, "{name}");
+    }
+    let reference = meso_materials::image::read_image(&out.join("reference.exr")).expect("EXR");
+    assert_eq!((reference.width(), reference.height()), (16, 16));
+    let mut bad = args.to_vec();
+    bad[10] = "4";
+    assert_bad_input(&meso(&bad, ""), &["--max-frames", "--reference-frames"]);
+}
+
+#[test]
+fn precompute_biscale_reports_json_and_writes_a_cache() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../..");
+    // A floor and a wall beside it (occlusion) under the studio map: 8 vertices.
+    let scene = dir.path().join("plane.toml");
+    std::fs::write(
+        &scene,
+        format!(
+            r#"version = 1
+[render]
+width = 16
+height = 16
+[camera]
+position = [0.0, 2.0, 3.0]
+look_at = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov_y_deg = 40.0
+[materials.white]
+kind = "brdf"
+model = "lambertian"
+albedo = [0.6, 0.6, 0.6]
+[[quad]]
+corner = [-1.0, 0.0, 1.0]
+edge_u = [2.0, 0.0, 0.0]
+edge_v = [0.0, 0.0, -2.0]
+material = "white"
+[[quad]]
+corner = [0.0, 0.0, 1.0]
+edge_u = [0.0, 0.0, -2.0]
+edge_v = [0.0, 1.0, 0.0]
+material = "white"
+[environment]
+path = "{root}/materials/env/env_studio.exr"
+strength = 1.0
+"#
+        ),
+    )
+    .expect("write scene");
+    let cache = dir.path().join("plane.biscale");
+    let scene_arg = scene.to_str().expect("utf-8");
+    let cache_arg = cache.to_str().expect("utf-8");
+    let o = meso(
+        &[
+            "precompute",
+            scene_arg,
+            "--mode",
+            "biscale",
+            "-o",
+            cache_arg,
+            "--cube-n",
+            "8",
+            "--json",
+        ],
+        "",
+    );
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("one JSON object");
+    for key in [
+        "seconds",
+        "vertices",
+        "local_dirs",
+        "env_pixels",
+        "dense_nonzeros",
+        "biclusters",
+        "flop_ratio",
+        "bytes_dense",
+        "bytes_biclustered",
+        "bytes_cpca",
+        "bytes_sh",
+        "max_abs_error",
+    ] {
+        assert!(v.get(key).is_some(), "missing `{key}` in {v}");
+    }
+    assert_eq!(v["vertices"], 8);
+    assert_eq!(v["local_dirs"], 64);
+    assert_eq!(v["env_pixels"], 6 * 8 * 8);
+    assert!(v["flop_ratio"].as_f64().expect("number") <= 1.0);
+    assert!(v["max_rel_error"].as_f64().expect("number") < 1e-6);
+    assert!(cache.exists(), "the cache was written");
+    // Bad input: another mode, a scene without an environment.
+    assert_bad_input(
+        &meso(&["precompute", scene_arg, "--mode", "spmm"], ""),
+        &["spmm", "only the biscale mode"],
+    );
+    let default = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../tests/scenes/default.toml"
+    );
+    assert_bad_input(
+        &meso(&["precompute", default, "--mode", "biscale"], ""),
+        &["biscale", "without [environment]"],
+    );
+}

@@ -20,6 +20,7 @@ use meso_materials::image::{Image, to_srgb8};
 use meso_materials::merl::MerlBrdf;
 use meso_materials::rng::Sampler;
 use meso_materials::spmm::pack;
+use meso_render::RenderModeExt;
 use meso_render::scene::mesh::TriangleMesh;
 use meso_render::scene::{Ambient, Background, Camera, Light, Material, RenderSettings, Scene};
 use meso_render::{Device, ModeKind, Prepare};

@@ -16,13 +16,14 @@ use glam::DVec3;
 use meso_materials::image::Image;
 use meso_render::scene::{Light, Scene};
 use meso_render::{
-    Device, EditError, FrameStats, Invalidation, ModeError, ModeKind, PreparationReport, Prepare,
-    Progress, RenderMode, SceneEdit, Unrenderable, Unsupported,
+    Device, Diagnostic, Diagnostics, EditError, FrameStats, Invalidation, ModeError, ModeKind,
+    Pass, Prepare, Progress, RenderMode, SceneEdit, Unrenderable, Unsupported,
 };
 
 use super::tests::{loaded, wait_for_current_frame};
 use super::*;
 use crate::mode_maker::{CoreModes, ModeMaker};
+use meso_render::RenderModeExt;
 
 /// Light edits a test mode received: (mode index, light).
 type Applied = Arc<Mutex<Vec<(usize, Light)>>>;
@@ -44,8 +45,13 @@ impl RenderMode for Tagged {
     fn scene(&self) -> &Scene {
         self.inner.scene()
     }
-    fn render_frame(&mut self) -> FrameStats {
-        self.inner.render_frame()
+    /// Whole frames, no preview.
+    fn render(
+        &mut self,
+        pass: Pass,
+        _stop: Option<&mut dyn FnMut() -> bool>,
+    ) -> Option<FrameStats> {
+        (pass == Pass::Frame).then(|| self.inner.render_frame())
     }
     fn image(&self) -> Image {
         self.inner.image()
@@ -65,8 +71,10 @@ impl RenderMode for Tagged {
     fn set_samples_per_frame(&mut self, samples: u32) {
         self.inner.set_samples_per_frame(samples);
     }
-    fn preparation(&self) -> PreparationReport {
-        self.inner.preparation()
+    fn diagnostics(&self) -> Diagnostics {
+        Diagnostics(vec![Diagnostic::Preparation(
+            self.inner.diagnostics().preparation(),
+        )])
     }
 }
 
@@ -809,7 +817,7 @@ fn a_window_device_too_small_to_share_is_named_in_the_summary() {
             Prepare::quietly(),
         )
         .expect("a GPU mode on its own device");
-    let summary = mode.summary().unwrap_or_default();
+    let summary = mode.diagnostics().summary().unwrap_or_default();
     assert!(
         summary.contains("own device (the device on")
             && summary.contains("max_storage_buffers_per_shader_stage is 4"),

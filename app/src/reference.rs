@@ -10,6 +10,7 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use meso_materials::image::Image;
+use meso_render::RenderModeExt;
 use meso_render::scene::Scene;
 use meso_render::{Device, ModeKind, Prepare, RenderMode};
 

@@ -17,11 +17,12 @@ use std::time::{Duration, Instant};
 use meso_materials::image::Image;
 use meso_render::scene::Scene;
 use meso_render::{
-    Denoiser, Device, Guides, ImageOnDevice, ModeKind, Prepare, Progress, RenderMode, SceneEdit,
-    denoise, preview,
+    Denoiser, Device, Guides, ImageOnDevice, ModeKind, Pass, Prepare, Progress, RenderMode,
+    SceneEdit, denoise, preview,
 };
 
 use crate::mode_maker::{ModeMaker, core_modes};
+use meso_render::RenderModeExt;
 
 pub enum Command {
     /// Replace the scene (and mode) entirely.
@@ -261,7 +262,7 @@ fn estimate_and_shown(
 ) -> Option<(Estimate, Option<Arc<Image>>)> {
     let strength = denoise::viewport_strength(samples);
     let g = if denoise && strength > 0.0 {
-        guides.get_or_insert_with(|| m.guides()).as_ref()
+        guides.get_or_insert_with(|| m.guides(Pass::Frame)).as_ref()
     } else {
         None
     };
@@ -336,7 +337,7 @@ fn publish_preview(
 /// factor of two of the stride (about the full filter's footprint in image pixels),
 /// then spread.
 fn denoised_preview(m: &dyn RenderMode, estimate: &Image, stride: u32) -> Option<Image> {
-    let guides = m.preview_guides(stride)?;
+    let guides = m.guides(Pass::Preview { stride })?;
     let full = Denoiser::for_samples(1);
     let coarse = Denoiser {
         passes: full.passes.saturating_sub(stride.max(1).ilog2()).max(1),
@@ -396,6 +397,8 @@ fn frame_with(
     estimate: Estimate,
     shown: Option<Arc<Image>>,
 ) -> Frame {
+    let diagnostics = m.diagnostics();
+    let (summary, material_bytes) = (diagnostics.summary(), diagnostics.material_bytes());
     Frame {
         version,
         mode: m.kind(),
@@ -404,16 +407,16 @@ fn frame_with(
         estimate,
         preview: false,
         progress: m.progress(),
-        overlays: m
-            .debug_overlays()
+        overlays: diagnostics
+            .overlays()
             .into_iter()
             .map(|(name, img)| (name, Arc::new(img)))
             .collect(),
         frame_ms: stats.seconds * 1e3,
         rays_per_second: stats.counters.rays.total() as f64 / stats.seconds.max(1e-9),
         finished: Instant::now(),
-        summary: m.summary(),
-        material_bytes: m.material_bytes(),
+        summary,
+        material_bytes,
     }
 }
 
@@ -560,7 +563,7 @@ fn run(
         // Every pixel keeps a sample (an emission edit re-weights, a stopped frame
         // left its rows): show the edit now, then go on with the frame. (A preview
         // leaves unsampled pixels, so this holds as it did before it.)
-        let shows_whole = m.shows_every_pixel();
+        let shows_whole = m.progress().shows_every_pixel;
         if changed && shows_whole && yield_to_edits {
             publish(edited_frame_of(m.as_ref(), version, denoise, &mut guides));
         }
@@ -634,9 +637,7 @@ fn run(
 mod tests {
     use std::sync::atomic::{AtomicU32, Ordering};
 
-    use meso_render::{
-        EditError, FrameStats, Invalidation, ModeError, PreparationReport, SceneEdit,
-    };
+    use meso_render::{Diagnostics, EditError, FrameStats, Invalidation, ModeError, SceneEdit};
 
     use super::*;
     use crate::mode_maker::CoreModes;
@@ -687,7 +688,15 @@ mod tests {
         fn scene(&self) -> &Scene {
             self.inner.scene()
         }
-        fn render_frame(&mut self) -> FrameStats {
+        /// Frames go through the gate and render whole (they do not stop).
+        fn render(
+            &mut self,
+            pass: Pass,
+            stop: Option<&mut dyn FnMut() -> bool>,
+        ) -> Option<FrameStats> {
+            if let Pass::Preview { .. } = pass {
+                return self.inner.render(pass, stop);
+            }
             if let Some(gate) = &self.gate {
                 let _ = gate.started.send(());
                 // Bounded, so a failed test cannot leave the thread waiting forever.
@@ -695,27 +704,18 @@ mod tests {
             }
             self.frames += 1;
             if self.fails_as_gpu && self.frames >= 3 {
-                return FrameStats::default();
+                return Some(FrameStats::default());
             }
-            self.inner.render_frame()
+            self.inner.render(pass, None)
         }
-        fn render_preview(&mut self, stride: u32) -> Option<FrameStats> {
-            self.inner.render_preview(stride)
-        }
-        fn guides(&self) -> Option<Guides> {
-            self.inner.guides()
-        }
-        fn preview_guides(&self, stride: u32) -> Option<Guides> {
-            self.inner.preview_guides(stride)
+        fn guides(&self, pass: Pass) -> Option<Guides> {
+            self.inner.guides(pass)
         }
         fn image(&self) -> Image {
             self.inner.image()
         }
         fn image_on_device(&self) -> Option<Arc<dyn ImageOnDevice>> {
             self.inner.image_on_device()
-        }
-        fn shows_every_pixel(&self) -> bool {
-            self.inner.shows_every_pixel()
         }
         fn progress(&self) -> Progress {
             self.inner.progress()
@@ -726,12 +726,12 @@ mod tests {
         fn set_samples_per_frame(&mut self, samples: u32) {
             self.inner.set_samples_per_frame(samples);
         }
-        fn preparation(&self) -> PreparationReport {
-            self.inner.preparation()
-        }
         fn failure(&self) -> Option<ModeError> {
             (self.fails_as_gpu && self.frames >= 3)
                 .then(|| ModeError::DeviceFailed("the GPU `fake` failed".into()))
+        }
+        fn diagnostics(&self) -> Diagnostics {
+            self.inner.diagnostics()
         }
     }
 
@@ -996,7 +996,7 @@ mod tests {
         direct.render_frame();
         direct.apply(edit).expect("an emission edit");
         let image = direct.image();
-        let guides = direct.guides().expect("guides");
+        let guides = direct.guides(Pass::Frame).expect("guides");
         let denoiser = Denoiser::for_samples(3);
         let strength = denoise::viewport_strength(3);
         // Frame 3 is published with version 1, then the edit's quick picture; frame 4

@@ -16,6 +16,7 @@ use meso_render::{Device, ModeKind, Prepare, SceneEdit, run_frames};
 use serde_json::json;
 
 use crate::failure::{CliError, ResultExt};
+use meso_render::RenderModeExt;
 
 #[derive(Args, Debug)]
 pub struct FramesArgs {
@@ -99,14 +100,13 @@ fn measure(
         return Err(e.to_string());
     }
     Ok(json!({
-        "adapter": mode.adapter(),
+        "adapter": mode.diagnostics().adapter(),
         "prepare_seconds": prepare_s,
         "ms_per_frame": run.seconds * 1e3 / f64::from(frames),
         "rays_per_second": rays as f64 / run.seconds.max(1e-12),
         "edit_to_frame_ms": edit_ms,
-        "traversal_overflows": mode.traversal_overflows(),
-        "device_bytes": mode
-            .device_memory()
+        "traversal_overflows": mode.diagnostics().traversal_overflows(),
+        "device_bytes": mode.diagnostics().device_memory()
             .into_iter()
             .map(|(k, v)| (k.to_string(), json!(v)))
             .collect::<serde_json::Map<String, serde_json::Value>>(),

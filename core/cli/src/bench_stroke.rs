@@ -29,6 +29,7 @@ use meso_render::{Invalidation, RenderMode, SceneEdit};
 use serde_json::json;
 
 use crate::failure::{CliError, ResultExt};
+use meso_render::RenderModeExt;
 
 #[derive(Args, Debug)]
 pub struct StrokeArgs {

@@ -12,7 +12,7 @@ use std::time::Instant;
 use anyhow::anyhow;
 use clap::Args;
 use meso_render::scene::{RenderSettings, load_scene};
-use meso_render::{Denoiser, Prepare, run_frames};
+use meso_render::{Denoiser, Pass, Prepare, run_frames};
 use serde_json::json;
 
 use crate::failure::{CliError, ResultExt};
@@ -101,7 +101,7 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
     )
     .map_err(mode_error)?;
     mode.set_samples_per_frame(args.spp_per_frame);
-    let preparation = mode.preparation();
+    let preparation = mode.diagnostics().preparation();
     if progress {
         eprintln!();
     }
@@ -122,7 +122,7 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
     let trace_s = run.seconds;
     let mut image = mode.image();
     if args.denoise {
-        let guides = mode.guides().ok_or_else(|| {
+        let guides = mode.guides(Pass::Frame).ok_or_else(|| {
             CliError::bad_input(anyhow!(
                 "--denoise: the {} mode has no denoiser guides",
                 mode.kind().name()
@@ -162,16 +162,15 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
             "rays_per_second": rays_per_s,
             "nonfinite_dropped": dropped,
             "film_bytes": mode.progress().film_bytes,
-            "material_bytes_resident": mode.material_bytes().map(|b| b.resident),
-            "material_bytes_full": mode.material_bytes().map(|b| b.full),
+            "material_bytes_resident": mode.diagnostics().material_bytes().map(|b| b.resident),
+            "material_bytes_full": mode.diagnostics().material_bytes().map(|b| b.full),
             "ms_per_frame": trace_s * 1e3 / f64::from(frames),
-            "adapter": mode.adapter(),
-            "device_bytes": mode
-                .device_memory()
+            "adapter": mode.diagnostics().adapter(),
+            "device_bytes": mode.diagnostics().device_memory()
                 .into_iter()
                 .map(|(kind, bytes)| (kind.to_string(), json!(bytes)))
                 .collect::<serde_json::Map<String, serde_json::Value>>(),
-            "traversal_overflows": mode.traversal_overflows(),
+            "traversal_overflows": mode.diagnostics().traversal_overflows(),
             "denoised": args.denoise,
         }));
     }

@@ -29,9 +29,9 @@ use meso_render::light_selection::{LightSampling, LightSelection};
 use meso_render::reach::EditedTexels;
 use meso_render::scene::{Light, Material, RenderSettings, Scene};
 use meso_render::{
-    Counters, Device, EditError, FrameStats, ImageOnDevice, Invalidation, ModeError, ModeKind,
-    PreparationReport, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
-    Unsupported,
+    Counters, Device, Diagnostic, Diagnostics, EditError, FrameStats, ImageOnDevice, Invalidation,
+    ModeError, ModeKind, Pass, PreparationReport, Prepare, Progress, RayCounts, RenderMode,
+    SceneEdit, Unrenderable, Unsupported,
 };
 
 const MATERIAL_WORDS: usize = 8;
@@ -781,6 +781,27 @@ impl Resources {
     }
 }
 
+impl GpuSpmmMode {
+    /// The status-bar line: the adapter, the bytes on it, traversal overflows.
+    fn summary(&self) -> String {
+        let (stack, steps) = self.overflows();
+        let mut s = format!(
+            "{} · {:.1} MB on the device",
+            self.ctx.adapter_name(),
+            self.device_bytes().total() as f64 / 1e6
+        );
+        match self.ctx.sharing() {
+            Sharing::Own => {}
+            Sharing::Shared => s.push_str(" · shared with the window"),
+            Sharing::OwnBecause(why) => s.push_str(&format!(" · own device ({why})")),
+        }
+        if stack + steps > 0 {
+            s.push_str(&format!(" · {stack} stack and {steps} step overflows"));
+        }
+        s
+    }
+}
+
 impl RenderMode for GpuSpmmMode {
     fn kind(&self) -> ModeKind {
         ModeKind::Spmm
@@ -794,11 +815,19 @@ impl RenderMode for GpuSpmmMode {
         &self.scene
     }
 
-    fn render_frame(&mut self) -> FrameStats {
+    fn render(
+        &mut self,
+        pass: Pass,
+        _stop: Option<&mut dyn FnMut() -> bool>,
+    ) -> Option<FrameStats> {
+        // No preview; a frame is one dispatch per sample (it does not stop).
+        if pass != Pass::Frame {
+            return None;
+        }
         let start = Instant::now();
         let dropped_before = self.film.dropped();
         if self.failure.is_some() {
-            return FrameStats::default();
+            return Some(FrameStats::default());
         }
         let counters = match self.render_samples(self.next_sample, self.samples_per_frame) {
             Ok(c) => c,
@@ -809,11 +838,11 @@ impl RenderMode for GpuSpmmMode {
         };
         self.next_sample += u64::from(self.samples_per_frame);
         self.frames += 1;
-        FrameStats {
+        Some(FrameStats {
             counters,
             seconds: start.elapsed().as_secs_f64(),
             dropped: self.film.dropped() - dropped_before,
-        }
+        })
     }
 
     /// The film resolved on the device and read back; black once the device failed
@@ -837,6 +866,7 @@ impl RenderMode for GpuSpmmMode {
             width: self.film.width(),
             height: self.film.height(),
             film_bytes: self.film.bytes(),
+            shows_every_pixel: self.film.min_samples() > 0,
         }
     }
 
@@ -844,13 +874,9 @@ impl RenderMode for GpuSpmmMode {
         self.samples_per_frame = samples.max(1);
     }
 
-    fn preparation(&self) -> PreparationReport {
-        self.preparation.clone()
-    }
-
-    fn device_memory(&self) -> Vec<(&'static str, u64)> {
+    fn diagnostics(&self) -> Diagnostics {
         let b = self.device_bytes();
-        vec![
+        let memory = vec![
             ("bvh", b.bvh),
             ("triangles", b.triangles),
             ("spmm_bases", b.spmm_bases),
@@ -861,39 +887,20 @@ impl RenderMode for GpuSpmmMode {
             ("merl_tables", b.merl_tables),
             ("btf_tables", b.btf_tables),
             ("film", b.film),
-        ]
-    }
-
-    fn adapter(&self) -> Option<String> {
-        Some(self.ctx.adapter_name())
+        ];
+        Diagnostics(vec![
+            Diagnostic::Preparation(self.preparation.clone()),
+            Diagnostic::DeviceMemory(memory),
+            Diagnostic::Adapter(self.ctx.adapter_name()),
+            Diagnostic::TraversalOverflows(self.overflows[0] + self.overflows[1]),
+            Diagnostic::Summary(self.summary()),
+        ])
     }
 
     fn failure(&self) -> Option<ModeError> {
         self.failure
             .as_ref()
             .map(|e| ModeError::DeviceFailed(e.to_string()))
-    }
-
-    fn traversal_overflows(&self) -> u64 {
-        self.overflows[0] + self.overflows[1]
-    }
-
-    fn summary(&self) -> Option<String> {
-        let (stack, steps) = self.overflows();
-        let mut s = format!(
-            "{} · {:.1} MB on the device",
-            self.ctx.adapter_name(),
-            self.device_bytes().total() as f64 / 1e6
-        );
-        match self.ctx.sharing() {
-            Sharing::Own => {}
-            Sharing::Shared => s.push_str(" · shared with the window"),
-            Sharing::OwnBecause(why) => s.push_str(&format!(" · own device ({why})")),
-        }
-        if stack + steps > 0 {
-            s.push_str(&format!(" · {stack} stack and {steps} step overflows"));
-        }
-        Some(s)
     }
 
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {

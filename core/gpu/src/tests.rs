@@ -13,6 +13,7 @@ use super::kernel::{Kernel, Slot, encoder, storage, submit_and_read, zeroed};
 use super::shaders;
 use meso_materials::brdf::{AnalyticBrdf, BasisFunction, BrdfModel, warp::spherical};
 use meso_materials::rng::SampleStream;
+use meso_render::RenderModeExt;
 
 pub(super) fn context() -> &'static GpuContext {
     static CONTEXT: OnceLock<GpuContext> = OnceLock::new();
@@ -849,10 +850,11 @@ fn a_shared_device_renders_what_an_own_device_renders() {
     assert!(on_shared.failure().is_none());
     assert!(
         on_shared
+            .diagnostics()
             .summary()
             .is_some_and(|s| s.contains("shared with the window")),
         "{:?}",
-        on_shared.summary()
+        on_shared.diagnostics().summary()
     );
     let (a, b) = (on_shared.image(), on_own.image());
     assert!(a.pixels().iter().flatten().any(|v| *v > 0.0), "not black");

@@ -29,6 +29,7 @@ use meso_render::light_selection::LightSampling;
 use meso_render::scene::mesh::{Placement, load_obj, vertex_normals};
 use meso_render::scene::{Light, Scene, TriangleMesh, load_scene};
 use meso_render::{Denoiser, Device, ModeKind, Prepare, RenderMode, SceneEdit};
+use meso_render::{Pass, RenderModeExt};
 use rayon::prelude::*;
 
 fn root() -> std::path::PathBuf {
@@ -291,7 +292,7 @@ fn bench_denoise(c: &mut Criterion) {
         mode.render_frame();
         let (image, guides) = (
             mode.image(),
-            mode.guides().expect("the spmm mode has guides"),
+            mode.guides(Pass::Frame).expect("the spmm mode has guides"),
         );
         let denoiser = Denoiser::for_samples(1);
         let mut group = c.benchmark_group(format!("denoise {size}x{size}"));

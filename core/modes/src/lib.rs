@@ -173,7 +173,7 @@ mod tests {
         let seen = stages.into_inner().expect("not poisoned");
         for s in ["bvh", "materials", "environment"] {
             assert!(seen.iter().any(|(n, _)| n == s), "{seen:?}");
-            assert!(mode.preparation().seconds(s).is_some());
+            assert!(mode.diagnostics().preparation().seconds(s).is_some());
         }
     }
 

@@ -328,9 +328,11 @@ impl Film {
     /// Where a mode with this film stands after `frames` frames, counting the samples
     /// of the `active` layers (`min_samples`).
     pub fn progress(&self, frames: u32, active: &[usize]) -> super::Progress {
+        let min_samples = self.min_samples(active);
         super::Progress {
             frames,
-            min_samples: self.min_samples(active),
+            min_samples,
+            shows_every_pixel: min_samples > 0,
             dropped: self.dropped,
             width: self.width,
             height: self.height,

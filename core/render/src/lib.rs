@@ -1,6 +1,6 @@
 //! The seam every render mode plugs into (docs/rendering.md): the
 //! `RenderMode` trait (prepared for a scene with progress and cancel, renders one
-//! progressive frame into its film, says what an edit invalidates), the film and its
+//! progressive frame into its film, says what an edit invalidates; `mode.rs`), the film and its
 //! layers, edits, `Unsupported` (what a mode cannot render, by name) and mode-neutral
 //! statistics. It knows no mode: the registry above the modes makes them by kind
 //! (`modes`). `meso render`, the reports and the studio drive modes through it.
@@ -12,6 +12,7 @@ pub mod film;
 pub mod geometry;
 pub mod layers;
 pub mod light_selection;
+mod mode;
 mod mode_kind;
 pub mod preview;
 pub mod reach;
@@ -23,11 +24,14 @@ use std::time::Instant;
 pub use denoise::{Denoiser, Guides};
 pub use edit::{EditError, Invalidation, SceneEdit};
 pub use film::{Film, FilmTooLarge};
+pub use mode::{
+    Diagnostic, Diagnostics, ImageOnDevice, MaterialBytes, Pass, RenderMode, RenderModeExt,
+    RunStats, run_frames,
+};
 
 use crate::geometry::SceneBvh;
 pub use crate::mode_kind::{Device, ModeKind};
-use crate::scene::{Scene, TriangleMesh};
-use meso_materials::image::Image;
+use crate::scene::TriangleMesh;
 
 /// Rays traced, by kind (zero for modes that trace none of a kind).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
@@ -103,6 +107,11 @@ pub struct Progress {
     pub height: u32,
     /// Bytes the film's buffers hold (`Film::bytes`; 0 for modes without one).
     pub film_bytes: u64,
+    /// Whether the image has a value at every pixel: each pixel's own samples
+    /// (`min_samples > 0`), or (the adaptive mode) a value up-sampled from its
+    /// neighbours'. The render thread then shows an edit that keeps samples at once
+    /// and lets commands stop frames.
+    pub shows_every_pixel: bool,
 }
 
 /// How a mode's preparation went: each stage and its time.
@@ -293,154 +302,4 @@ pub enum ModeError {
     /// mode renders nothing more; its film keeps the samples from before.
     #[error("{0}")]
     DeviceFailed(String),
-}
-
-/// A frame's image left on a GPU mode's device, one frame's and unchanged by later
-/// ones: a window that draws with that device shows it from there (the GPU module's
-/// `DisplayTexture`), and the host reads it back only when it asks (`read`).
-pub trait ImageOnDevice: Send + Sync + std::fmt::Debug {
-    fn size(&self) -> (u32, u32);
-    /// The image on the host: read back the first time it is asked for.
-    fn read(&self) -> Result<std::sync::Arc<Image>, ModeError>;
-    /// The concrete image, for the module that shows it.
-    fn as_any(&self) -> &dyn std::any::Any;
-}
-
-/// A progressive render mode.
-pub trait RenderMode: Send {
-    fn kind(&self) -> ModeKind;
-    fn device(&self) -> Device;
-    /// The scene as edited so far.
-    fn scene(&self) -> &Scene;
-    /// Adds one frame (`samples_per_frame` samples per pixel) to the film.
-    fn render_frame(&mut self) -> FrameStats;
-    /// `render_frame`, asking `stop` between parts of the frame (tiles of rows) and
-    /// returning early, the frame unfinished, once it says yes: the next call (of
-    /// either) finishes that frame, so an edit need not wait for a whole frame and
-    /// the samples are those an uninterrupted frame would take. Modes that cannot
-    /// stop mid-frame render the whole frame.
-    fn render_frame_yielding(&mut self, stop: &mut dyn FnMut() -> bool) -> FrameStats {
-        let _ = stop;
-        self.render_frame()
-    }
-    /// When no pixel has a sample yet (after a camera, resize or mesh edit, or at
-    /// the start), renders the next frame's samples of one pixel per `stride` x
-    /// `stride` block (`preview::grid_pixels`) and returns their statistics; the frame
-    /// then completes the other pixels, so the film is an uninterrupted frame's.
-    /// `None` when the film has samples or the mode does not preview (it is then
-    /// unchanged). The viewport shows `preview::spread` of `image` meanwhile.
-    fn render_preview(&mut self, stride: u32) -> Option<FrameStats> {
-        let _ = stride;
-        None
-    }
-    /// The guides of the pixels a preview with this `stride` renders
-    /// (`preview::grid_pixels`), as an image of one pixel per block
-    /// (`preview::grid_size`), so the viewport can denoise a preview; `None` where
-    /// the mode has no guides or does not preview.
-    fn preview_guides(&self, stride: u32) -> Option<Guides> {
-        let _ = stride;
-        None
-    }
-    /// Whether `image` has a value at every pixel: each pixel's own samples, or (the
-    /// adaptive mode) a value up-sampled from its neighbours'. The render thread then
-    /// shows an edit that keeps samples at once and lets commands stop frames.
-    fn shows_every_pixel(&self) -> bool {
-        self.progress().min_samples > 0
-    }
-    /// The image accumulated so far, with the current emissions.
-    fn image(&self) -> Image;
-    /// The same image left on the mode's GPU device (`None`: the mode's film is on the
-    /// host): a window drawn with that device shows it without a read-back.
-    fn image_on_device(&self) -> Option<std::sync::Arc<dyn ImageOnDevice>> {
-        None
-    }
-    fn progress(&self) -> Progress;
-    /// Applies an edit and restarts only what it invalidates. An edit that brings
-    /// what the mode cannot render is refused (`EditError::Unsupported`).
-    fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError>;
-    /// Samples per pixel per frame (at least 1).
-    fn set_samples_per_frame(&mut self, samples: u32);
-    /// The stages of the last preparation (first build, or the last rebuild an edit
-    /// caused) and their times.
-    fn preparation(&self) -> PreparationReport;
-    /// What each pixel's centre ray first sees, for the viewport denoiser
-    /// (`denoise`); `None` where the mode has no such pass (the image is shown as is).
-    fn guides(&self) -> Option<Guides> {
-        None
-    }
-    /// A mode's own state in one line for status bars (e.g. the biscale mode's
-    /// biclusters and light-change time); `None` where a mode has nothing to add.
-    fn summary(&self) -> Option<String> {
-        None
-    }
-    /// Device memory by kind (`bvh`, `triangles`, `spmm_bases`, ...) for a mode on a
-    /// GPU; empty where the mode runs on the CPU.
-    fn device_memory(&self) -> Vec<(&'static str, u64)> {
-        Vec::new()
-    }
-    /// The GPU adapter a mode runs on (`None` on the CPU).
-    fn adapter(&self) -> Option<String> {
-        None
-    }
-    /// Ray traversals that ran past a device's bounds (stack or steps) and so may have
-    /// missed a hit; always 0 on the CPU. A correct render keeps it at 0.
-    fn traversal_overflows(&self) -> u64 {
-        0
-    }
-    /// Why the mode stopped rendering (its device failed), if it did: every later
-    /// `render_frame` adds nothing, and callers should report it or switch device.
-    /// Always `None` on the CPU.
-    fn failure(&self) -> Option<ModeError> {
-        None
-    }
-    /// Debug images of the mode's own decisions, by name (the adaptive mode's
-    /// bandwidth-buffer level and samples per pixel, as colour maps); none by default.
-    fn debug_overlays(&self) -> Vec<(&'static str, Image)> {
-        Vec::new()
-    }
-    /// Prepared material data held now and what preparing every material would hold,
-    /// where the mode prepares materials on demand; `None` by default.
-    fn material_bytes(&self) -> Option<MaterialBytes> {
-        None
-    }
-}
-
-/// Bytes of prepared material data (`meso render --json`: `material_bytes_resident`,
-/// `material_bytes_full`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
-pub struct MaterialBytes {
-    pub resident: u64,
-    pub full: u64,
-}
-
-/// Totals of a run of frames.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct RunStats {
-    pub frames: u32,
-    pub counters: Counters,
-    /// Time spent in `render_frame`.
-    pub seconds: f64,
-    pub dropped: u64,
-}
-
-/// Renders `frames` more frames, calling `on_frame(done, stats)` after each (for
-/// progress bars); stops early if the mode fails (`RenderMode::failure`).
-pub fn run_frames(
-    mode: &mut dyn RenderMode,
-    frames: u32,
-    mut on_frame: impl FnMut(u32, &FrameStats),
-) -> RunStats {
-    let mut total = RunStats::default();
-    for f in 0..frames {
-        let s = mode.render_frame();
-        total.frames += 1;
-        total.counters = total.counters + s.counters;
-        total.seconds += s.seconds;
-        total.dropped += s.dropped;
-        on_frame(f + 1, &s);
-        if mode.failure().is_some() {
-            break;
-        }
-    }
-    total
 }

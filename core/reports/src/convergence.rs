@@ -26,7 +26,7 @@ use meso_modes::biscale::hemisphere::HemisphereGrid;
 use meso_modes::biscale::sh::ShTransfer;
 use meso_modes::biscale::{BiscaleMode, TransferSource};
 use meso_render::scene::{Material, Scene};
-use meso_render::{Device, ModeError, ModeKind, Prepare, RenderMode, run_frames};
+use meso_render::{Device, ModeError, ModeKind, Pass, Prepare, RenderMode, run_frames};
 
 /// What the report renders.
 #[derive(Clone, Debug)]
@@ -221,7 +221,7 @@ pub const DENOISED_FRAMES: u32 = 16;
 /// mode gives no guides.
 fn denoise(mode: &dyn RenderMode, image: &Image) -> Option<(Image, f64)> {
     let start = Instant::now();
-    let guides = mode.guides()?;
+    let guides = mode.guides(Pass::Frame)?;
     let samples = mode.progress().min_samples;
     let img = meso_render::Denoiser::for_samples(samples).apply(image, &guides)?;
     Some((img, start.elapsed().as_secs_f64()))

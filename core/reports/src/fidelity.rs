@@ -25,6 +25,7 @@ use meso_materials::image::Image;
 use meso_materials::metrics::{MetricsError, compare};
 use meso_materials::spmm::SpmmMaterial;
 use meso_modes::trace::{PackSampling, SpmmMode};
+use meso_render::RenderModeExt;
 use meso_render::scene::{Material, Scene};
 use meso_render::{ModeError, RenderMode};
 

@@ -30,9 +30,9 @@ use meso_render::geometry::{PinholeCamera, SceneBvh};
 use meso_render::layers::{self, Before, ENVIRONMENT, Layers, LightTarget};
 use meso_render::scene::{Light, Material, RenderSettings, Scene};
 use meso_render::{
-    Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind,
-    PreparationReport, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
-    Unsupported,
+    Counters, Device, Diagnostic, Diagnostics, EditError, Film, FrameStats, Invalidation,
+    ModeError, ModeKind, Pass, PreparationReport, Prepare, Progress, RayCounts, RenderMode,
+    SceneEdit, Unrenderable, Unsupported,
 };
 
 /// Offset of secondary ray origins along the normal, relative to the hit point's
@@ -1291,33 +1291,13 @@ impl AdaptiveMode {
     }
 }
 
-impl RenderMode for AdaptiveMode {
-    fn kind(&self) -> ModeKind {
-        ModeKind::Adaptive
-    }
-
-    fn device(&self) -> Device {
-        Device::Cpu
-    }
-
-    fn scene(&self) -> &Scene {
-        &self.scene
-    }
-
-    fn render_frame(&mut self) -> FrameStats {
-        self.render_tiles(None)
-    }
-
-    fn render_frame_yielding(&mut self, stop: &mut dyn FnMut() -> bool) -> FrameStats {
-        self.render_tiles(Some(stop))
-    }
-
+impl AdaptiveMode {
     /// One sample at each previewed pixel (`preview::grid_pixels`) before the first
     /// frame after a restart, which waits for the bandwidth pass (1.6 s at 512 x 512
     /// on 2 cores). The samples stay out of the film (the frames' plan decides each
     /// pixel's samples), so the film is an uninterrupted render's; they cost about a
     /// 128 x 128 frame.
-    fn render_preview(&mut self, stride: u32) -> Option<FrameStats> {
+    fn render_preview_pass(&mut self, stride: u32) -> Option<FrameStats> {
         use meso_render::preview;
         use rayon::prelude::*;
         let untouched = self.frames == 0 && self.unfinished.is_none() && self.preview.is_none();
@@ -1356,10 +1336,26 @@ impl RenderMode for AdaptiveMode {
             dropped: 0,
         })
     }
+}
 
-    fn shows_every_pixel(&self) -> bool {
-        // After a frame every pixel has its own samples or up-sampled ones.
-        self.frames > 0
+impl RenderMode for AdaptiveMode {
+    fn kind(&self) -> ModeKind {
+        ModeKind::Adaptive
+    }
+
+    fn device(&self) -> Device {
+        Device::Cpu
+    }
+
+    fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    fn render(&mut self, pass: Pass, stop: Option<&mut dyn FnMut() -> bool>) -> Option<FrameStats> {
+        match pass {
+            Pass::Frame => Some(self.render_tiles(stop)),
+            Pass::Preview { stride } => self.render_preview_pass(stride),
+        }
     }
 
     fn image(&self) -> Image {
@@ -1380,7 +1376,6 @@ impl RenderMode for AdaptiveMode {
         }
         img
     }
-
     fn progress(&self) -> Progress {
         Progress {
             frames: self.frames,
@@ -1389,6 +1384,8 @@ impl RenderMode for AdaptiveMode {
             width: self.width(),
             height: self.height(),
             film_bytes: self.film.bytes(),
+            // After a frame every pixel has its own samples or up-sampled ones.
+            shows_every_pixel: self.frames > 0,
         }
     }
 
@@ -1458,18 +1455,22 @@ impl RenderMode for AdaptiveMode {
         self.samples_per_frame = samples.max(1);
     }
 
-    fn preparation(&self) -> PreparationReport {
-        self.preparation.clone()
-    }
-
-    fn debug_overlays(&self) -> Vec<(&'static str, Image)> {
-        super::overlay::overlays(self)
+    fn diagnostics(&self) -> Diagnostics {
+        let overlays = super::overlay::overlays(self)
+            .into_iter()
+            .map(|(name, image)| Diagnostic::Overlay { name, image });
+        Diagnostics(
+            std::iter::once(Diagnostic::Preparation(self.preparation.clone()))
+                .chain(overlays)
+                .collect(),
+        )
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use meso_render::RenderModeExt;
 
     #[test]
     fn a_visibility_step_between_neighbours_marks_both_sides_and_noise_below_it_does_not() {

@@ -62,6 +62,7 @@ pub fn overlays(mode: &AdaptiveMode) -> Vec<(&'static str, Image)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use meso_render::RenderModeExt;
     use meso_render::{Prepare, RenderMode};
 
     #[test]
@@ -69,12 +70,12 @@ mod tests {
         let scene = super::super::tests::merl_test_scene();
         let mut mode = AdaptiveMode::prepare(scene, 32, 32, Prepare::quietly()).expect("adaptive");
         assert_eq!(
-            mode.debug_overlays().len(),
+            mode.diagnostics().overlays().len(),
             1,
             "no level before the first frame"
         );
         mode.render_frame();
-        let o = mode.debug_overlays();
+        let o = mode.diagnostics().overlays();
         assert_eq!(
             o.iter().map(|x| x.0).collect::<Vec<_>>(),
             ["bandwidth level", "samples per pixel"]

@@ -10,6 +10,7 @@ use crate::REFERENCE_SEED_XOR;
 use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
 use meso_materials::image::Image;
 use meso_materials::metrics::compare;
+use meso_render::RenderModeExt;
 use meso_render::scene::mesh::quad;
 use meso_render::scene::{Background, Camera, Environment, Light, Material, RenderSettings, Scene};
 use meso_render::{Prepare, RenderMode, run_frames};
@@ -408,7 +409,7 @@ fn frames_that_yield_and_a_preview_leave_the_image_of_whole_frames() {
     whole.render_frame();
 
     let mut yielding = prepare();
-    assert!(!yielding.shows_every_pixel());
+    assert!(!yielding.progress().shows_every_pixel);
     assert!(yielding.render_preview(1).is_none(), "stride 1: no preview");
     let stats = yielding
         .render_preview(4)
@@ -447,7 +448,7 @@ fn frames_that_yield_and_a_preview_leave_the_image_of_whole_frames() {
         edited && calls > 10,
         "{calls} calls: the frames did not yield"
     );
-    assert!(yielding.shows_every_pixel());
+    assert!(yielding.progress().shows_every_pixel);
     let (a, b) = (whole.image(), yielding.image());
     assert!(
         a.pixels()

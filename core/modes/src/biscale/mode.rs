@@ -24,9 +24,9 @@ use meso_render::geometry::{PinholeCamera, SceneBvh};
 use meso_render::layers::{self, Before, ENVIRONMENT, Layers};
 use meso_render::scene::{Environment, Light, Material, RenderSettings, Scene};
 use meso_render::{
-    Counters, Device, EditError, Film, FrameStats, Invalidation, ModeError, ModeKind,
-    PreparationReport, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
-    Unsupported,
+    Counters, Device, Diagnostic, Diagnostics, EditError, Film, FrameStats, Invalidation,
+    ModeError, ModeKind, Pass, PreparationReport, Prepare, Progress, RayCounts, RenderMode,
+    SceneEdit, Unrenderable, Unsupported,
 };
 
 /// Which representation of the transfer gives L* (the report compares them).
@@ -336,6 +336,37 @@ impl BiscaleMode {
     }
 }
 
+impl BiscaleMode {
+    /// The status-bar line: where the precomputation came from, the biclusters and
+    /// the view- and light-change times.
+    fn summary(&self) -> String {
+        let pre = &self.pre;
+        let source = match self.source {
+            TransferSource::Biclustered => "",
+            TransferSource::Dense => " (dense product)",
+            TransferSource::Sh(_) => " (SH baseline)",
+            TransferSource::Cpca(_) => " (CPCA baseline)",
+        };
+        let origin = if pre.stats.from_cache {
+            "precomputed: from cache".to_string()
+        } else {
+            format!(
+                "precomputed in {:.1} s",
+                pre.stats.visibility_seconds
+                    + pre.stats.binning_seconds
+                    + pre.stats.biclustering_seconds
+            )
+        };
+        format!(
+            "{origin} · {} biclusters · FLOP ratio {:.3}{source} · view change {:.1} ms · light change {:.1} ms",
+            pre.biclusters.len(),
+            pre.flop_ratio(),
+            self.frame_ms,
+            self.light_change_ms
+        )
+    }
+}
+
 impl RenderMode for BiscaleMode {
     fn kind(&self) -> ModeKind {
         ModeKind::Biscale
@@ -349,7 +380,15 @@ impl RenderMode for BiscaleMode {
         &self.scene
     }
 
-    fn render_frame(&mut self) -> FrameStats {
+    fn render(
+        &mut self,
+        pass: Pass,
+        _stop: Option<&mut dyn FnMut() -> bool>,
+    ) -> Option<FrameStats> {
+        // No preview, and a frame is one pass over the rows (it does not stop).
+        if pass != Pass::Frame {
+            return None;
+        }
         let start = Instant::now();
         let first = self.next_sample;
         let k = u64::from(self.samples_per_frame);
@@ -388,11 +427,11 @@ impl RenderMode for BiscaleMode {
         self.next_sample += k;
         self.frames += 1;
         self.frame_ms = start.elapsed().as_secs_f64() * 1e3;
-        FrameStats {
+        Some(FrameStats {
             counters: rows.into_iter().fold(Counters::default(), |a, c| a + c),
             seconds: start.elapsed().as_secs_f64(),
             dropped: self.film.dropped() - dropped_before,
-        }
+        })
     }
 
     fn image(&self) -> Image {
@@ -408,35 +447,11 @@ impl RenderMode for BiscaleMode {
         self.samples_per_frame = samples.max(1);
     }
 
-    fn preparation(&self) -> PreparationReport {
-        self.preparation.clone()
-    }
-
-    fn summary(&self) -> Option<String> {
-        let pre = &self.pre;
-        let source = match self.source {
-            TransferSource::Biclustered => "",
-            TransferSource::Dense => " (dense product)",
-            TransferSource::Sh(_) => " (SH baseline)",
-            TransferSource::Cpca(_) => " (CPCA baseline)",
-        };
-        let origin = if pre.stats.from_cache {
-            "precomputed: from cache".to_string()
-        } else {
-            format!(
-                "precomputed in {:.1} s",
-                pre.stats.visibility_seconds
-                    + pre.stats.binning_seconds
-                    + pre.stats.biclustering_seconds
-            )
-        };
-        Some(format!(
-            "{origin} · {} biclusters · FLOP ratio {:.3}{source} · view change {:.1} ms · light change {:.1} ms",
-            pre.biclusters.len(),
-            pre.flop_ratio(),
-            self.frame_ms,
-            self.light_change_ms
-        ))
+    fn diagnostics(&self) -> Diagnostics {
+        Diagnostics(vec![
+            Diagnostic::Preparation(self.preparation.clone()),
+            Diagnostic::Summary(self.summary()),
+        ])
     }
 
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {

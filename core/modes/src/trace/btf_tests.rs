@@ -9,6 +9,7 @@ use super::SpmmMode;
 use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
 use meso_materials::image::Image;
 use meso_render::RenderMode;
+use meso_render::RenderModeExt;
 use meso_render::scene::test_scenes::{edit_test_scene, tabulated_btf};
 use meso_render::scene::{Light, Material, Scene};
 

@@ -11,6 +11,7 @@ use meso_render::layers::{AMBIENT, FIRST_LIGHT};
 use meso_render::scene::test_scenes::edit_test_scene as scene;
 use meso_render::scene::{Ambient, Background, Light, Material, Scene};
 use meso_render::{Invalidation, RenderMode, SceneEdit};
+use meso_render::{Pass, RenderModeExt};
 
 const SIZE: u32 = 24;
 
@@ -600,8 +601,10 @@ fn a_preview_takes_the_frames_own_samples_of_one_pixel_per_block() {
     );
     // The preview's guides are the full guides at the previewed pixels.
     let (full, small) = (
-        previewed.guides().expect("guides"),
-        previewed.preview_guides(STRIDE).expect("preview guides"),
+        previewed.guides(Pass::Frame).expect("guides"),
+        previewed
+            .guides(Pass::Preview { stride: STRIDE })
+            .expect("preview guides"),
     );
     let size = meso_render::preview::grid_size(W, W, STRIDE);
     assert_eq!((small.width, small.height), size);

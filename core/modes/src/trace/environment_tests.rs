@@ -14,6 +14,7 @@ use super::SpmmMode;
 use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
 use meso_materials::image::Image;
 use meso_materials::metrics::compare;
+use meso_render::RenderModeExt;
 use meso_render::layers::ENVIRONMENT;
 use meso_render::scene::mesh::quad;
 use meso_render::scene::{

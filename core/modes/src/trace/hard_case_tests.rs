@@ -6,6 +6,7 @@ use glam::{DVec2, DVec3};
 
 use super::SpmmMode;
 use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
+use meso_render::RenderModeExt;
 use meso_render::scene::mesh::quad;
 use meso_render::scene::{Ambient, Camera, RenderSettings, TriangleMesh};
 use meso_render::scene::{Background, Light, Material, Scene};

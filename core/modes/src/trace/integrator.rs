@@ -19,9 +19,9 @@ use meso_render::light_selection::{LightSampling, LightSelection};
 use meso_render::reach::EditedTexels;
 use meso_render::scene::{Material, RenderSettings, Scene};
 use meso_render::{
-    Counters, Device, EditError, Film, FrameStats, Invalidation, MaterialBytes, ModeError,
-    ModeKind, PreparationReport, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
-    Unsupported,
+    Counters, Device, Diagnostic, Diagnostics, EditError, Film, FrameStats, Invalidation,
+    MaterialBytes, ModeError, ModeKind, Pass, PreparationReport, Prepare, Progress, RayCounts,
+    RenderMode, SceneEdit, Unrenderable, Unsupported,
 };
 
 /// Offset of secondary ray origins along the normal, relative to the hit point's
@@ -525,22 +525,20 @@ impl RenderMode for SpmmMode {
         &self.scene
     }
 
-    fn render_frame(&mut self) -> FrameStats {
-        self.render_tiles(None)
-    }
-
-    fn render_frame_yielding(&mut self, stop: &mut dyn FnMut() -> bool) -> FrameStats {
-        self.render_tiles(Some(stop))
-    }
-
-    fn render_preview(&mut self, stride: u32) -> Option<FrameStats> {
-        let untouched =
-            self.next_sample == 0 && self.catch_up.is_empty() && !self.done_early.contains(&true);
-        if stride <= 1 || !untouched {
-            return None;
+    fn render(&mut self, pass: Pass, stop: Option<&mut dyn FnMut() -> bool>) -> Option<FrameStats> {
+        match pass {
+            Pass::Frame => Some(self.render_tiles(stop)),
+            Pass::Preview { stride } => {
+                let untouched = self.next_sample == 0
+                    && self.catch_up.is_empty()
+                    && !self.done_early.contains(&true);
+                if stride <= 1 || !untouched {
+                    return None;
+                }
+                let (w, h) = (self.film.width(), self.film.height());
+                Some(self.render_pixels(&meso_render::preview::grid_pixels(w, h, stride)))
+            }
         }
-        let (w, h) = (self.film.width(), self.film.height());
-        Some(self.render_pixels(&meso_render::preview::grid_pixels(w, h, stride)))
     }
 
     fn image(&self) -> Image {
@@ -556,30 +554,30 @@ impl RenderMode for SpmmMode {
         self.samples_per_frame = samples.max(1);
     }
 
-    fn preparation(&self) -> PreparationReport {
-        self.preparation.clone()
-    }
-
-    fn guides(&self) -> Option<meso_render::Guides> {
-        Some(self.compute_guides())
-    }
-
-    fn preview_guides(&self, stride: u32) -> Option<meso_render::Guides> {
+    fn guides(&self, pass: Pass) -> Option<meso_render::Guides> {
         use meso_render::preview;
-        let (w, h) = (self.film.width(), self.film.height());
-        let grid = preview::grid_pixels(w, h, stride);
-        Some(self.guides_of(&grid, preview::grid_size(w, h, stride)))
+        Some(match pass {
+            Pass::Frame => self.compute_guides(),
+            Pass::Preview { stride } => {
+                let (w, h) = (self.film.width(), self.film.height());
+                let grid = preview::grid_pixels(w, h, stride);
+                self.guides_of(&grid, preview::grid_size(w, h, stride))
+            }
+        })
     }
 
-    fn material_bytes(&self) -> Option<MaterialBytes> {
+    fn diagnostics(&self) -> Diagnostics {
         let sum = |f: fn(&Shader, &Material) -> usize| {
             let each = self.shaders.iter().zip(&self.scene.materials);
             each.map(|(s, m)| f(s, m)).sum::<usize>() as u64
         };
-        Some(MaterialBytes {
-            resident: sum(Shader::resident_bytes),
-            full: sum(Shader::full_bytes),
-        })
+        Diagnostics(vec![
+            Diagnostic::Preparation(self.preparation.clone()),
+            Diagnostic::MaterialBytes(MaterialBytes {
+                resident: sum(Shader::resident_bytes),
+                full: sum(Shader::full_bytes),
+            }),
+        ])
     }
 
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {

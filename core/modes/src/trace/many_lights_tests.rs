@@ -8,6 +8,7 @@ use rayon::prelude::*;
 
 use super::SpmmMode;
 use meso_materials::image::Image;
+use meso_render::RenderModeExt;
 use meso_render::layers::{FIRST_LIGHT, MANY_LIGHTS, OWN_LIGHT_LAYERS, SHARED_LIGHTS};
 use meso_render::light_selection::LightSampling;
 use meso_render::scene::test_scenes::many_lights_scene;

@@ -14,6 +14,7 @@ use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
 use meso_materials::image::Image;
 use meso_materials::merl::tabulate;
 use meso_materials::metrics::compare;
+use meso_render::RenderModeExt;
 use meso_render::scene::test_scenes::edit_test_scene;
 use meso_render::scene::{Environment, Light, Material, Scene};
 use meso_render::{RenderMode, SceneEdit};
@@ -219,11 +220,15 @@ fn sampling_tables_are_built_only_for_tables_rays_reach() {
         !built(&scene, 2),
         "no ray shades the panel behind the camera"
     );
-    let bytes = mode.material_bytes().expect("spmm reports");
+    let bytes = mode.diagnostics().material_bytes().expect("spmm reports");
     let spmm_panel = {
         let probe = SpmmMode::new(edit_test_scene(), 24, 24).expect("mode");
         probe.prepare_every_material();
-        probe.material_bytes().expect("spmm reports").full
+        probe
+            .diagnostics()
+            .material_bytes()
+            .expect("spmm reports")
+            .full
     };
     assert_eq!(
         bytes.full,

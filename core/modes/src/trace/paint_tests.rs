@@ -8,6 +8,7 @@ use glam::{DVec2, DVec3};
 
 use super::SpmmMode;
 use meso_materials::spmm::{Falloff, TexelMask, WeightTarget};
+use meso_render::RenderModeExt;
 use meso_render::geometry::brush::{self, Brush, BrushUnits};
 use meso_render::scene::Material;
 use meso_render::scene::test_scenes::edit_test_scene;

@@ -7,6 +7,7 @@ use glam::DVec3;
 use super::SpmmMode;
 use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
 use meso_render::RenderMode;
+use meso_render::RenderModeExt;
 use meso_render::scene::Ambient;
 use meso_render::scene::{Light, Material, Scene};
 
@@ -396,7 +397,10 @@ fn packs_no_ray_reaches_hold_nothing_and_the_image_is_the_same_bit_for_bit() {
     let visible_full = |scene: &Scene| {
         let mode = SpmmMode::new(scene.clone(), 24, 24).expect("mode");
         mode.prepare_every_material();
-        mode.material_bytes().expect("spmm reports").full
+        mode.diagnostics()
+            .material_bytes()
+            .expect("spmm reports")
+            .full
     };
     let visible = visible_full(&scene);
     for (i, z) in [(2usize, 4.0), (3, 5.0)] {
@@ -422,8 +426,8 @@ fn packs_no_ray_reaches_hold_nothing_and_the_image_is_the_same_bit_for_bit() {
         meso_render::run_frames(mode, 8, |_, _| {});
     }
     let (l, e) = (
-        lazy.material_bytes().expect("bytes"),
-        eager.material_bytes().expect("bytes"),
+        lazy.diagnostics().material_bytes().expect("bytes"),
+        eager.diagnostics().material_bytes().expect("bytes"),
     );
     assert_eq!(l.full, e.full);
     assert_eq!(e.resident, e.full, "everything prepared");
@@ -468,8 +472,8 @@ fn only_the_residual_tables_of_clusters_rays_reach_are_held_and_the_image_is_the
         meso_render::run_frames(mode, 8, |_, _| {});
     }
     let (l, e) = (
-        lazy.material_bytes().expect("bytes"),
-        eager.material_bytes().expect("bytes"),
+        lazy.diagnostics().material_bytes().expect("bytes"),
+        eager.diagnostics().material_bytes().expect("bytes"),
     );
     assert_eq!((e.resident, l.full), (e.full, e.full));
     // One cluster's tables: 5 lights x 4 views cells of (1 + 4) RGB f32 values, each

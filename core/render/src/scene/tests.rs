@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use glam::{DVec2, DVec3};
 
 use super::*;
+use meso_materials::brdf::BrdfModel;
 
 /// A unit right tetrahedron without normals or UVs.
 const TETRA: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";

@@ -2,7 +2,7 @@
 //! is a dependency in the crates' manifests and every dependency between the
 //! workspace's crates is drawn, top to bottom (so no crate depends on one above it).
 //! The materials layer stays free of the GPU stack and the command line's crates
-//! however deep they would come in (read from Cargo.lock).
+//! however deep they would come in (read from `cargo metadata`).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -112,29 +112,62 @@ fn the_diagram_is_the_crate_graph() {
     }
 }
 
-/// Every package by name with the names of what it needs to build: a workspace
-/// member's normal dependencies from its manifest (Cargo.lock would add its
-/// dev-dependencies), any other package's from Cargo.lock.
-fn lock_graph() -> BTreeMap<String, Vec<String>> {
-    let lock = read_toml(&root().join("Cargo.lock"));
+/// Every package by name with the names of what it needs to build on this machine:
+/// `cargo metadata`'s resolved graph for the host platform, normal and build edges
+/// only (Cargo.lock alone would add dependencies under cfgs no build sets, such as
+/// `cfg(bench)`, and the members' dev-dependencies).
+fn build_graph() -> BTreeMap<String, Vec<String>> {
+    let cargo = env!("CARGO");
+    let rustc = Path::new(cargo).with_file_name("rustc");
+    let rustc = if rustc.exists() {
+        rustc
+    } else {
+        PathBuf::from("rustc")
+    };
+    let version = std::process::Command::new(&rustc)
+        .arg("-vV")
+        .output()
+        .expect("rustc -vV runs");
+    let version = String::from_utf8_lossy(&version.stdout);
+    let host = version
+        .lines()
+        .find_map(|l| l.strip_prefix("host: "))
+        .expect("rustc -vV names the host");
+    let out = std::process::Command::new(cargo)
+        .args(["metadata", "--format-version", "1", "--offline", "--locked"])
+        .args(["--filter-platform", host])
+        .current_dir(root())
+        .output()
+        .expect("cargo metadata runs");
+    assert!(
+        out.status.success(),
+        "cargo metadata: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let meta: serde_json::Value = serde_json::from_slice(&out.stdout).expect("metadata JSON");
+    let names: BTreeMap<&str, &str> = meta["packages"]
+        .as_array()
+        .expect("packages")
+        .iter()
+        .map(|p| {
+            (
+                p["id"].as_str().expect("id"),
+                p["name"].as_str().expect("name"),
+            )
+        })
+        .collect();
     let mut graph: BTreeMap<String, Vec<String>> = BTreeMap::new();
-    for p in lock["package"].as_array().expect("packages") {
-        let name = p["name"].as_str().expect("name").to_string();
-        let deps: Vec<String> = p
-            .get("dependencies")
-            .and_then(|d| d.as_array())
-            .map(|d| {
-                d.iter()
-                    .filter_map(|x| x.as_str())
-                    // "name" or "name version" where several versions are locked
-                    .map(|x| x.split(' ').next().unwrap_or(x).to_string())
-                    .collect()
-            })
-            .unwrap_or_default();
+    for node in meta["resolve"]["nodes"].as_array().expect("resolve nodes") {
+        let name = names[node["id"].as_str().expect("node id")].to_string();
+        let deps = node["deps"].as_array().expect("deps").iter().filter(|d| {
+            d["dep_kinds"]
+                .as_array()
+                .expect("dep kinds")
+                .iter()
+                .any(|k| k["kind"].is_null() || k["kind"] == "build")
+        });
+        let deps = deps.map(|d| names[d["pkg"].as_str().expect("pkg")].to_string());
         graph.entry(name).or_default().extend(deps);
-    }
-    for (name, deps) in member_dependencies() {
-        graph.insert(name, deps.into_iter().collect());
     }
     graph
 }
@@ -154,7 +187,7 @@ fn reachable(graph: &BTreeMap<String, Vec<String>>, from: &str) -> BTreeSet<Stri
 
 #[test]
 fn the_materials_and_the_fit_need_no_gpu_and_no_command_line() {
-    let graph = lock_graph();
+    let graph = build_graph();
     for krate in ["meso-materials", "meso-fit"] {
         let all = reachable(&graph, krate);
         assert!(

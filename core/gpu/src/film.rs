@@ -187,6 +187,11 @@ impl DeviceFilm {
         );
     }
 
+    /// The device the film lives on.
+    pub(super) fn context(&self) -> &GpuContext {
+        &self.ctx
+    }
+
     pub fn width(&self) -> u32 {
         self.width
     }

@@ -24,8 +24,9 @@ use meso_materials::spmm::PrepareRequest;
 use meso_render::environment::EnvironmentSampler;
 use meso_render::film::{LayeredFilm, material_bit};
 use meso_render::geometry::SceneBvh;
-use meso_render::layers::{Before, Layers, MANY_LIGHTS};
+use meso_render::layers::{Layers, MANY_LIGHTS};
 use meso_render::light_selection::{LightSampling, LightSelection};
+use meso_render::progressive::{Edited, Progressive, ProgressiveFilm};
 use meso_render::reach::EditedTexels;
 use meso_render::scene::{Light, Material, RenderSettings, Scene};
 use meso_render::{
@@ -120,6 +121,24 @@ fn device_size_problem(ctx: &GpuContext, width: u32, height: u32, layers: usize)
             ctx.adapter_name()
         )
     })
+}
+
+impl ProgressiveFilm for DeviceFilm {
+    fn width(&self) -> u32 {
+        DeviceFilm::width(self)
+    }
+    fn height(&self) -> u32 {
+        DeviceFilm::height(self)
+    }
+    fn resize_problem(&self, width: u32, height: u32) -> Result<(), EditError> {
+        match device_size_problem(self.context(), width, height, self.layers()) {
+            Some(p) => Err(EditError::Size(p)),
+            None => Ok(()),
+        }
+    }
+    fn resize(&mut self, width: u32, height: u32) {
+        DeviceFilm::resize(self, width, height);
+    }
 }
 
 const ENVIRONMENT_WORDS: &str =
@@ -349,10 +368,9 @@ struct Resources {
 /// The `spmm` mode on a wgpu device.
 pub struct GpuSpmmMode {
     ctx: GpuContext,
-    scene: Scene,
-    bvh: SceneBvh,
-    film: DeviceFilm,
-    layers: Layers,
+    /// Scene, BVH, camera, device film and layers, counters, moving flag,
+    /// preparation.
+    core: Progressive<DeviceFilm>,
     kernel: Kernel,
     res: Resources,
     scene_data: SceneData,
@@ -360,11 +378,6 @@ pub struct GpuSpmmMode {
     env_sampler: Option<EnvironmentSampler>,
     /// The `env` words (`environment::words`).
     env_words: Vec<u32>,
-    samples_per_frame: u32,
-    next_sample: u64,
-    frames: u32,
-    moving: bool,
-    preparation: PreparationReport,
     /// Traversals that overflowed the stack or the step bound (should stay zero).
     overflows: [u64; 2],
     /// Set once the device fails: the mode renders nothing more.
@@ -486,20 +499,12 @@ impl GpuSpmmMode {
         prepare.report("device", 1.0)?;
         Ok(Self {
             ctx,
-            scene,
-            bvh,
-            film,
-            layers,
+            core: Progressive::new(scene, bvh, film, layers, report),
             kernel,
             res,
             scene_data,
             env_sampler,
             env_words,
-            samples_per_frame: 1,
-            next_sample: 0,
-            frames: 0,
-            moving: false,
-            preparation: report,
             overflows: [0; 2],
             failure: None,
             all_clusters,
@@ -519,7 +524,7 @@ impl GpuSpmmMode {
             environment: self.res.env.size(),
             merl_tables: d.merl_tables,
             btf_tables: d.btf_tables,
-            film: self.film.bytes(),
+            film: self.core.film.bytes(),
         }
     }
 
@@ -531,12 +536,12 @@ impl GpuSpmmMode {
 
     /// The film's layers (one per emitter, or a bounded film's).
     pub fn film_layers(&self) -> usize {
-        self.film.layers()
+        self.core.film.layers()
     }
 
     fn params(&self, sample: u64) -> Params {
-        let cam = &self.scene.camera;
-        let (w, h) = (self.film.width(), self.film.height());
+        let cam = &self.core.scene.camera;
+        let (w, h) = (self.core.film.width(), self.core.film.height());
         let forward = (cam.look_at - cam.position).normalize();
         let right = forward.cross(cam.up).normalize();
         let up = right.cross(forward);
@@ -546,23 +551,24 @@ impl GpuSpmmMode {
         Params {
             width: w,
             height: h,
-            layers: self.film.layers() as u32,
-            seed: self.scene.render.seed as u32,
+            layers: self.core.film.layers() as u32,
+            seed: self.core.scene.render.seed as u32,
             sample_lo: sample as u32,
             sample_hi: (sample >> 32) as u32,
-            max_depth: self.scene.render.max_specular_depth,
-            moving: u32::from(self.moving),
-            lights: self.scene.lights.len() as u32,
+            max_depth: self.core.scene.render.max_specular_depth,
+            moving: u32::from(self.core.moving),
+            lights: self.core.scene.lights.len() as u32,
             light_table: self.scene_data.light_table,
             material_table: self.scene_data.material_table,
-            background: environment::escape(&self.scene),
+            background: environment::escape(&self.core.scene),
             ambient_radius: self
+                .core
                 .scene
                 .ambient
                 .map_or(-1.0, |a| a.radius.min(3.0e38) as f32),
-            materials: self.scene.materials.len() as u32,
-            stochastic: u32::from(LightSampling::Auto.stochastic(self.scene.lights.len())),
-            light_samples: self.scene.render.light_samples,
+            materials: self.core.scene.materials.len() as u32,
+            stochastic: u32::from(LightSampling::Auto.stochastic(self.core.scene.lights.len())),
+            light_samples: self.core.scene.render.light_samples,
             cam_origin: v4(cam.position, 0.0),
             cam_forward: v4(forward, half_w),
             cam_right: v4(right, half_h),
@@ -575,13 +581,13 @@ impl GpuSpmmMode {
     /// frame's counters (no image). A failed device adds nothing more.
     fn render_samples(&mut self, first: u64, count: u32) -> Result<Counters, GpuError> {
         let ctx = &self.ctx;
-        let active = self.layers.active(&self.scene);
-        let (w, h) = (self.film.width(), self.film.height());
+        let active = self.core.layers.active(&self.core.scene);
+        let (w, h) = (self.core.film.width(), self.core.film.height());
         let mut enc = kernel::encoder(ctx);
         enc.clear_buffer(&self.res.counters, 0, None);
         ctx.queue.submit([enc.finish()]);
         // The film's parameters (the active layers) are the same for every sample.
-        self.film.set_params(&active, false, &[]);
+        self.core.film.set_params(&active, false, &[]);
         for i in 0..u64::from(count) {
             // Written before the submission that reads them (the queue keeps order).
             ctx.queue.write_buffer(
@@ -591,9 +597,9 @@ impl GpuSpmmMode {
             );
             let mut enc = kernel::encoder(ctx);
             self.kernel.record(&mut enc, &self.res.bind, w * h);
-            self.film.record_accumulate(&mut enc);
+            self.core.film.record_accumulate(&mut enc);
             if i + 1 == u64::from(count) {
-                self.film.record_min_samples(&mut enc);
+                self.core.film.record_min_samples(&mut enc);
             }
             ctx.queue.submit([enc.finish()]);
         }
@@ -602,11 +608,11 @@ impl GpuSpmmMode {
             kernel::encoder(ctx),
             &[
                 (&self.res.counters, COUNTERS as u64 * 4),
-                (self.film.stats(), 8),
+                (self.core.film.stats(), 8),
             ],
         )?;
         let counters: &[u32] = bytemuck::cast_slice(&bytes[0]);
-        self.film.refresh(bytemuck::cast_slice(&bytes[1]));
+        self.core.film.refresh(bytemuck::cast_slice(&bytes[1]));
         self.overflows[0] += u64::from(counters[0]);
         self.overflows[1] += u64::from(counters[1]);
         Ok(Counters {
@@ -637,9 +643,9 @@ impl GpuSpmmMode {
         if self.failure.is_some() {
             return None;
         }
-        Some(self.film.resolve(
-            &self.layers.active(&self.scene),
-            &self.layers.weights(&self.scene),
+        Some(self.core.film.resolve(
+            &self.core.layers.active(&self.core.scene),
+            &self.core.layers.weights(&self.core.scene),
         ))
     }
 
@@ -656,16 +662,15 @@ impl GpuSpmmMode {
     }
 
     fn restart_all(&mut self) -> Invalidation {
-        self.film.reset();
-        self.frames = 0;
-        self.next_sample = 0;
+        self.core.film.reset();
+        self.core.restart_counters();
         Invalidation::All
     }
 
     /// The data words (materials, lights) of the scene as it is, or why they would
     /// not fit in one buffer of the device.
     fn rebuild_data(&self) -> Result<SceneData, EditError> {
-        let data = SceneData::build(&self.scene, &self.layers, self.all_clusters);
+        let data = SceneData::build(&self.core.scene, &self.core.layers, self.all_clusters);
         match words_size_problem(&self.ctx, MATERIAL_WORDS_NAME, data.words.words.len()) {
             Some(p) => Err(EditError::Size(p)),
             None => Ok(data),
@@ -689,10 +694,10 @@ impl GpuSpmmMode {
         self.res = Resources::upload(
             &self.ctx,
             &self.kernel,
-            &self.bvh,
-            &self.scene,
+            &self.core.bvh,
+            &self.core.scene,
             (&self.scene_data, &self.env_words),
-            &self.film,
+            &self.core.film,
         );
     }
 
@@ -701,12 +706,13 @@ impl GpuSpmmMode {
     fn reupload_environment(&mut self, new_map: bool) {
         if new_map {
             self.env_sampler = self
+                .core
                 .scene
                 .environment
                 .as_ref()
                 .and_then(|e| EnvironmentSampler::new(&e.map));
         }
-        self.env_words = environment::words(&self.scene, self.env_sampler.as_ref());
+        self.env_words = environment::words(&self.core.scene, self.env_sampler.as_ref());
         self.rebind();
     }
 
@@ -714,9 +720,9 @@ impl GpuSpmmMode {
     /// other buffer kept), else grown at the end of the data words; true if the data
     /// buffer must be uploaded again (`rebind`).
     fn write_lights(&mut self) -> bool {
-        let table = light_table(&self.scene, &self.layers);
+        let table = light_table(&self.core.scene, &self.core.layers);
         let at = self.scene_data.light_table as usize;
-        let n = self.scene.lights.len();
+        let n = self.core.scene.lights.len();
         let grow = n > self.scene_data.light_capacity;
         if grow {
             let capacity = light_capacity(n);
@@ -812,7 +818,7 @@ impl RenderMode for GpuSpmmMode {
     }
 
     fn scene(&self) -> &Scene {
-        &self.scene
+        &self.core.scene
     }
 
     fn render(
@@ -825,23 +831,24 @@ impl RenderMode for GpuSpmmMode {
             return None;
         }
         let start = Instant::now();
-        let dropped_before = self.film.dropped();
+        let dropped_before = self.core.film.dropped();
         if self.failure.is_some() {
             return Some(FrameStats::default());
         }
-        let counters = match self.render_samples(self.next_sample, self.samples_per_frame) {
+        let counters = match self.render_samples(self.core.next_sample, self.core.samples_per_frame)
+        {
             Ok(c) => c,
             Err(e) => {
                 self.failure = Some(e);
                 Counters::default()
             }
         };
-        self.next_sample += u64::from(self.samples_per_frame);
-        self.frames += 1;
+        self.core.next_sample += u64::from(self.core.samples_per_frame);
+        self.core.frames += 1;
         Some(FrameStats {
             counters,
             seconds: start.elapsed().as_secs_f64(),
-            dropped: self.film.dropped() - dropped_before,
+            dropped: self.core.film.dropped() - dropped_before,
         })
     }
 
@@ -849,7 +856,7 @@ impl RenderMode for GpuSpmmMode {
     /// (its film is gone with it: `failure` says why).
     fn image(&self) -> Image {
         self.device_image().and_then(|d| d.read().ok()).map_or_else(
-            || Image::new(self.film.width(), self.film.height()),
+            || Image::new(self.core.film.width(), self.core.film.height()),
             |img| (*img).clone(),
         )
     }
@@ -860,18 +867,18 @@ impl RenderMode for GpuSpmmMode {
 
     fn progress(&self) -> Progress {
         Progress {
-            frames: self.frames,
-            min_samples: self.film.min_samples(),
-            dropped: self.film.dropped(),
-            width: self.film.width(),
-            height: self.film.height(),
-            film_bytes: self.film.bytes(),
-            shows_every_pixel: self.film.min_samples() > 0,
+            frames: self.core.frames,
+            min_samples: self.core.film.min_samples(),
+            dropped: self.core.film.dropped(),
+            width: self.core.film.width(),
+            height: self.core.film.height(),
+            film_bytes: self.core.film.bytes(),
+            shows_every_pixel: self.core.film.min_samples() > 0,
         }
     }
 
     fn set_samples_per_frame(&mut self, samples: u32) {
-        self.samples_per_frame = samples.max(1);
+        self.core.samples_per_frame = samples.max(1);
     }
 
     fn diagnostics(&self) -> Diagnostics {
@@ -889,7 +896,7 @@ impl RenderMode for GpuSpmmMode {
             ("film", b.film),
         ];
         Diagnostics(vec![
-            Diagnostic::Preparation(self.preparation.clone()),
+            Diagnostic::Preparation(self.core.preparation.clone()),
             Diagnostic::DeviceMemory(memory),
             Diagnostic::Adapter(self.ctx.adapter_name()),
             Diagnostic::TraversalOverflows(self.overflows[0] + self.overflows[1]),
@@ -908,7 +915,10 @@ impl RenderMode for GpuSpmmMode {
         // The film's fewest samples as the edit left them (one small read-back).
         if result.is_ok()
             && self.failure.is_none()
-            && let Err(e) = self.film.recount(&self.layers.active(&self.scene))
+            && let Err(e) = self
+                .core
+                .film
+                .recount(&self.core.layers.active(&self.core.scene))
         {
             self.failure = Some(e);
         }
@@ -918,25 +928,22 @@ impl RenderMode for GpuSpmmMode {
 
 impl GpuSpmmMode {
     fn apply_edit(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
-        if let SceneEdit::Resize { width, height } = edit
-            && let Some(p) = device_size_problem(&self.ctx, width, height, self.film.layers())
-        {
-            return Err(EditError::Size(p));
-        }
         let env_words = match &edit {
             SceneEdit::Environment(e) => {
-                environment::word_count(e.as_ref(), &self.scene.background)
+                environment::word_count(e.as_ref(), &self.core.scene.background)
             }
-            SceneEdit::Background(b) => environment::word_count(self.scene.environment.as_ref(), b),
+            SceneEdit::Background(b) => {
+                environment::word_count(self.core.scene.environment.as_ref(), b)
+            }
             _ => 0,
         };
         if let Some(p) = words_size_problem(&self.ctx, ENVIRONMENT_WORDS, env_words) {
             return Err(EditError::Size(p));
         }
         if let SceneEdit::AddLight(_) = edit {
-            let (w, h) = (self.film.width(), self.film.height());
-            let layers = meso_render::layers::FIRST_LIGHT + self.scene.lights.len() + 1;
-            let layers = if self.scene.lights.len() < MANY_LIGHTS {
+            let (w, h) = (self.core.film.width(), self.core.film.height());
+            let layers = meso_render::layers::FIRST_LIGHT + self.core.scene.lights.len() + 1;
+            let layers = if self.core.scene.lights.len() < MANY_LIGHTS {
                 layers
             } else {
                 meso_render::layers::SHARED_LIGHTS + 1
@@ -945,104 +952,86 @@ impl GpuSpmmMode {
                 return Err(EditError::Size(p));
             }
         }
-        let before = Before::of(&self.scene, &edit);
-        let material_before = match &edit {
-            SceneEdit::Material { index, .. } => self.scene.materials.get(*index).cloned(),
-            _ => None,
-        };
-        let meshes_before = matches!(edit, SceneEdit::Meshes(_)).then(|| self.scene.meshes.clone());
-        let layer_count = self.film.layers();
-        edit.apply_to(&mut self.scene)?;
-        if let Some(invalidation) = self
-            .layers
-            .apply(&mut self.film, &before, &edit, &self.scene)
-        {
-            let grown = matches!(
-                edit,
-                SceneEdit::Light { .. } | SceneEdit::AddLight(_) | SceneEdit::RemoveLight(_)
-            ) && self.write_lights();
-            match &edit {
-                // A new map, rotation or sampling changes the tables; a strength
-                // edit (nothing invalidated) only re-weights the layer.
-                SceneEdit::Environment(_) if invalidation != Invalidation::Nothing => {
-                    self.reupload_environment(true);
+        let meshes_before =
+            matches!(edit, SceneEdit::Meshes(_)).then(|| self.core.scene.meshes.clone());
+        let layer_count = self.core.film.layers();
+        Ok(match self.core.apply(&edit)? {
+            Edited::Emitters(invalidation) => {
+                let grown = matches!(
+                    edit,
+                    SceneEdit::Light { .. } | SceneEdit::AddLight(_) | SceneEdit::RemoveLight(_)
+                ) && self.write_lights();
+                match &edit {
+                    // A new map, rotation or sampling changes the tables; a strength
+                    // edit (nothing invalidated) only re-weights the layer.
+                    SceneEdit::Environment(_) if invalidation != Invalidation::Nothing => {
+                        self.reupload_environment(true);
+                    }
+                    SceneEdit::Background(_) => self.reupload_environment(false),
+                    _ if self.core.film.layers() != layer_count || grown => {
+                        // A light added or removed: the device's frame buffer follows,
+                        // or the light table outgrew its room.
+                        self.rebind();
+                    }
+                    _ => {}
                 }
-                SceneEdit::Background(_) => self.reupload_environment(false),
-                _ if self.film.layers() != layer_count || grown => {
-                    // A light added or removed: the device's frame buffer follows, or
-                    // the light table outgrew its room.
-                    self.rebind();
-                }
-                _ => {}
+                invalidation
             }
-            return Ok(invalidation);
-        }
-        Ok(match edit {
-            SceneEdit::Camera(_) | SceneEdit::LightSamples(_) => self.restart_all(),
-            SceneEdit::Resize { width, height } => {
-                self.film.resize(width, height);
+            Edited::Camera | Edited::LightSamples => self.restart_all(),
+            Edited::Resized => {
                 self.rebind();
                 self.restart_all()
             }
-            SceneEdit::Meshes(_) => {
+            Edited::Meshes => {
                 // New UVs or material assignments may reach other clusters.
-                if reachable_clusters(&self.scene) != self.scene_data.reach && !self.all_clusters {
+                if reachable_clusters(&self.core.scene) != self.scene_data.reach
+                    && !self.all_clusters
+                {
                     match self.rebuild_data() {
                         Ok(data) => self.scene_data = data,
                         Err(e) => {
                             if let Some(meshes) = meshes_before {
-                                self.scene.meshes = meshes;
+                                self.core.scene.meshes = meshes;
                             }
                             return Err(e);
                         }
                     }
                 }
-                self.bvh.update(&self.scene.meshes);
+                self.core.bvh.update(&self.core.scene.meshes);
                 self.rebind();
                 self.restart_all()
             }
-            SceneEdit::Material { index, .. } => {
+            Edited::Material { index, before } => {
                 // The re-upload is checked against the device's limit first; the
                 // material stays as it was if it would not fit.
                 match self.rebuild_data() {
                     Ok(data) => self.scene_data = data,
                     Err(e) => {
-                        if let Some(material) = material_before {
-                            self.scene.materials[index] = material;
-                        }
+                        self.core.scene.materials[index] = before;
                         return Err(e);
                     }
                 }
                 self.rebind();
-                let after = &self.scene.materials[index];
+                let after = &self.core.scene.materials[index];
                 let bit = material_bit(index);
-                let restarted = match material_before.and_then(|b| EditedTexels::between(&b, after))
-                {
-                    Some(texels) => self
-                        .film
-                        .reset_where(|mask, b| mask & bit != 0 && texels.reaches(b)),
-                    None => self.film.reset_where(|mask, _| mask & bit != 0),
+                let film = &mut self.core.film;
+                let restarted = match EditedTexels::between(&before, after) {
+                    Some(texels) => {
+                        film.reset_where(|mask, b| mask & bit != 0 && texels.reaches(b))
+                    }
+                    None => film.reset_where(|mask, _| mask & bit != 0),
                 };
                 self.restarted(restarted)
             }
-            SceneEdit::Moving(moving) if moving == self.moving => Invalidation::Nothing,
-            SceneEdit::Moving(moving) => {
-                self.moving = moving;
-                match self.moving_mask() {
-                    // No material shades differently while moving: every sample stands.
-                    0 => Invalidation::Nothing,
-                    residual => {
-                        let restarted = self.film.reset_where(|mask, _| mask & residual != 0);
-                        self.restarted(restarted)
-                    }
+            Edited::Moving => match self.moving_mask() {
+                // No material shades differently while moving: every sample stands.
+                0 => Invalidation::Nothing,
+                residual => {
+                    let restarted = self.core.film.reset_where(|mask, _| mask & residual != 0);
+                    self.restarted(restarted)
                 }
-            }
-            SceneEdit::Light { .. }
-            | SceneEdit::AddLight(_)
-            | SceneEdit::RemoveLight(_)
-            | SceneEdit::Ambient(_)
-            | SceneEdit::Environment(_)
-            | SceneEdit::Background(_) => unreachable!("emitter edits are the layers' to handle"),
+            },
+            Edited::Nothing => Invalidation::Nothing,
         })
     }
 }

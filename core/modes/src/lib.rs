@@ -13,7 +13,7 @@ use crate::biscale::BiscaleMode;
 #[cfg(feature = "gpu")]
 use meso_gpu::{GpuContext, GpuSpmmMode};
 use meso_render::scene::Scene;
-use meso_render::{Device, ModeError, ModeKind, Prepare, RenderMode};
+use meso_render::{Device, ModeError, ModeKind, Prepare, RenderMode, Unsupported};
 
 use crate::trace::SpmmMode;
 
@@ -24,25 +24,69 @@ use crate::trace::SpmmMode;
 /// instead of `sqrt(1/k + 1/N)` (zero at k = N).
 pub const REFERENCE_SEED_XOR: u64 = 0x5245_4645_5245_4e43; // "REFERENC"
 
+/// One mode on one device: what it cannot render and how it is made. The registry
+/// is the list of these (`MODES`); nothing else matches on modes.
+pub struct ModeEntry {
+    pub kind: ModeKind,
+    pub device: Device,
+    /// What the mode cannot render in a scene, each part by name.
+    pub supports: fn(&Scene) -> Result<(), Unsupported>,
+    /// Prepares the mode (GPU modes on the device `GpuDevice` says).
+    pub create: fn(GpuDevice, Scene, u32, u32, Prepare) -> Result<Box<dyn RenderMode>, ModeError>,
+}
+
+/// Every mode this build has.
+pub const MODES: &[ModeEntry] = &[
+    ModeEntry {
+        kind: ModeKind::Spmm,
+        device: Device::Cpu,
+        supports: SpmmMode::supports,
+        create: |_, scene, width, height, prepare| {
+            Ok(Box::new(SpmmMode::prepare(scene, width, height, prepare)?))
+        },
+    },
+    #[cfg(feature = "gpu")]
+    ModeEntry {
+        kind: ModeKind::Spmm,
+        device: Device::Gpu,
+        supports: GpuSpmmMode::supports,
+        create: create_gpu_spmm,
+    },
+    ModeEntry {
+        kind: ModeKind::Biscale,
+        device: Device::Cpu,
+        supports: BiscaleMode::supports,
+        create: |_, scene, width, height, prepare| {
+            Ok(Box::new(BiscaleMode::new(scene, width, height, prepare)?))
+        },
+    },
+    ModeEntry {
+        kind: ModeKind::Adaptive,
+        device: Device::Cpu,
+        supports: AdaptiveMode::supports,
+        create: |_, scene, width, height, prepare| {
+            Ok(Box::new(AdaptiveMode::prepare(
+                scene, width, height, prepare,
+            )?))
+        },
+    },
+];
+
+/// The registry's entry for `kind` on `device`, if this build has it.
+pub fn entry(kind: ModeKind, device: Device) -> Option<&'static ModeEntry> {
+    MODES.iter().find(|e| e.kind == kind && e.device == device)
+}
+
 /// True if the mode exists in this build on that device.
 pub fn is_built(kind: ModeKind, device: Device) -> bool {
-    match device {
-        Device::Cpu => true,
-        Device::Gpu => cfg!(feature = "gpu") && kind == ModeKind::Spmm,
-    }
+    entry(kind, device).is_some()
 }
 
 /// `Ok` if the mode exists and can render everything in `scene`; otherwise what stops
 /// it (not built, or the materials and lights it cannot render, each by name).
 pub fn supports(kind: ModeKind, device: Device, scene: &Scene) -> Result<(), ModeError> {
-    match (kind, device) {
-        (ModeKind::Spmm, Device::Cpu) => Ok(SpmmMode::supports(scene)?),
-        #[cfg(feature = "gpu")]
-        (ModeKind::Spmm, Device::Gpu) => Ok(GpuSpmmMode::supports(scene)?),
-        (ModeKind::Biscale, Device::Cpu) => Ok(BiscaleMode::supports(scene)?),
-        (ModeKind::Adaptive, Device::Cpu) => Ok(AdaptiveMode::supports(scene)?),
-        _ => Err(ModeError::NotBuilt { mode: kind, device }),
-    }
+    let entry = entry(kind, device).ok_or(ModeError::NotBuilt { mode: kind, device })?;
+    Ok((entry.supports)(scene)?)
 }
 
 /// Makes the mode for `scene` at `width` x `height`; a long preparation reports its
@@ -81,36 +125,30 @@ pub fn create_on(
     height: u32,
     prepare: Prepare,
 ) -> Result<Box<dyn RenderMode>, ModeError> {
-    match (kind, device) {
-        (ModeKind::Spmm, Device::Cpu) => {
-            Ok(Box::new(SpmmMode::prepare(scene, width, height, prepare)?))
-        }
-        #[cfg(feature = "gpu")]
-        (ModeKind::Spmm, Device::Gpu) => {
-            // The scene is checked before a device is looked for, so a scene at fault
-            // is named whether or not this machine has an adapter.
-            GpuSpmmMode::supports(&scene)?;
-            let own = || GpuContext::new().map_err(|e| ModeError::NoDevice(e.to_string()));
-            let ctx = match gpu {
-                GpuDevice::Shared(ctx) => ctx.clone(),
-                GpuDevice::Own => own()?,
-                GpuDevice::OwnBecause(why) => own()?.own_because(why),
-            };
-            Ok(Box::new(GpuSpmmMode::prepare(
-                ctx, scene, width, height, prepare,
-            )?))
-        }
-        (ModeKind::Biscale, Device::Cpu) => {
-            Ok(Box::new(BiscaleMode::new(scene, width, height, prepare)?))
-        }
-        (ModeKind::Adaptive, Device::Cpu) => Ok(Box::new(AdaptiveMode::prepare(
-            scene, width, height, prepare,
-        )?)),
-        _ => {
-            let _ = gpu;
-            Err(ModeError::NotBuilt { mode: kind, device })
-        }
-    }
+    let entry = entry(kind, device).ok_or(ModeError::NotBuilt { mode: kind, device })?;
+    (entry.create)(gpu, scene, width, height, prepare)
+}
+
+#[cfg(feature = "gpu")]
+fn create_gpu_spmm(
+    gpu: GpuDevice,
+    scene: Scene,
+    width: u32,
+    height: u32,
+    prepare: Prepare,
+) -> Result<Box<dyn RenderMode>, ModeError> {
+    // The scene is checked before a device is looked for, so a scene at fault is
+    // named whether or not this machine has an adapter.
+    GpuSpmmMode::supports(&scene)?;
+    let own = || GpuContext::new().map_err(|e| ModeError::NoDevice(e.to_string()));
+    let ctx = match gpu {
+        GpuDevice::Shared(ctx) => ctx.clone(),
+        GpuDevice::Own => own()?,
+        GpuDevice::OwnBecause(why) => own()?.own_because(why),
+    };
+    Ok(Box::new(GpuSpmmMode::prepare(
+        ctx, scene, width, height, prepare,
+    )?))
 }
 
 #[cfg(test)]

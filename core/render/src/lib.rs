@@ -15,8 +15,10 @@ pub mod light_selection;
 mod mode;
 mod mode_kind;
 pub mod preview;
+pub mod progressive;
 pub mod reach;
 pub mod scene;
+pub mod shading;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;

@@ -7,14 +7,14 @@
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
-use super::surface::Surface;
 use super::upsample::{DEPTH_SIGMA, Guide};
 use meso_render::geometry::{PinholeCamera, SceneBvh};
 use meso_render::scene::Scene;
+use meso_render::shading::Shading;
 
 #[derive(Clone, Debug)]
 pub struct GPixel {
-    pub surface: Option<Surface>,
+    pub surface: Option<Shading>,
     pub mesh: usize,
     /// Direction of the centre ray (world).
     pub dir: DVec3,
@@ -39,7 +39,7 @@ impl GBuffer {
                 let ray = camera.ray(i % width, i / width, DVec2::splat(0.5));
                 match bvh.closest_hit(ray.origin, ray.dir, 0.0, f64::INFINITY) {
                     Some(hit) => GPixel {
-                        surface: Some(Surface::at(scene, &hit, ray.dir)),
+                        surface: Some(Shading::at(scene, &hit, ray.dir)),
                         mesh: hit.mesh,
                         dir: ray.dir,
                         depth: hit.t,

@@ -14,7 +14,6 @@ pub mod mode;
 pub mod operators;
 pub mod overlay;
 pub mod preconvolved;
-pub mod surface;
 pub mod upsample;
 pub mod wavelet;
 

@@ -16,16 +16,17 @@ use super::cubemap::CubeLayout;
 use super::hemisphere::HemisphereGrid;
 use super::precompute::{Precomputed, precompute};
 use super::{BiscaleSettings, cpca::Cpca, sh::ShTransfer};
-use crate::trace::shading::{dpdu, tangent_frame};
 use meso_materials::image::Image;
 use meso_materials::rng::SampleStream;
-use meso_render::film::{material_bit, memory_limit_bytes};
-use meso_render::geometry::{PinholeCamera, SceneBvh};
-use meso_render::layers::{self, Before, ENVIRONMENT, Layers};
-use meso_render::scene::{Environment, Light, Material, RenderSettings, Scene};
+use meso_render::film::material_bit;
+use meso_render::geometry::SceneBvh;
+use meso_render::layers::{self, ENVIRONMENT};
+use meso_render::progressive::{Edited, Progressive};
+use meso_render::scene::{Environment, Light, Material, Scene};
+use meso_render::shading::{dpdu, tangent_frame};
 use meso_render::{
     Counters, Device, Diagnostic, Diagnostics, EditError, Film, FrameStats, Invalidation,
-    ModeError, ModeKind, Pass, PreparationReport, Prepare, Progress, RayCounts, RenderMode,
+    ModeError, ModeKind, Pass, Prepare, Progress, RayCounts, RenderMode,
     SceneEdit, Unrenderable, Unsupported,
 };
 
@@ -43,12 +44,9 @@ pub enum TransferSource {
 }
 
 pub struct BiscaleMode {
-    scene: Scene,
+    /// Scene, BVH, camera, film and layers, counters, moving flag, preparation.
+    core: Progressive<Film>,
     settings: BiscaleSettings,
-    bvh: SceneBvh,
-    camera: PinholeCamera,
-    film: Film,
-    layers: Layers,
     tab: Tabulation,
     tables: Vec<Option<BtfTable>>,
     pre: Arc<Precomputed>,
@@ -57,15 +55,9 @@ pub struct BiscaleMode {
     light: Vec<[f32; 3]>,
     /// Per vertex, L* laid out [channel][M].
     local: Vec<f32>,
-    samples_per_frame: u32,
-    next_sample: u64,
-    frames: u32,
-    preparation: PreparationReport,
     light_change_ms: f64,
     /// Milliseconds of the last frame (a view change re-renders every pixel).
     frame_ms: f64,
-    /// The camera is being dragged: nearest view, no residual (`BtfTable::shade`).
-    moving: bool,
 }
 
 fn name_of(scene: &Scene, index: usize) -> String {
@@ -145,23 +137,12 @@ impl BiscaleMode {
         settings: BiscaleSettings,
         prepare: Prepare,
     ) -> Result<Self, ModeError> {
-        if let Some(p) = RenderSettings::size_problem(width, height) {
-            return Err(ModeError::Size(p));
-        }
         if let Some(p) = settings.problem() {
             return Err(ModeError::Size(format!("biscale settings: {p}")));
         }
-        Self::supports(&scene)?;
-        let layers = Layers::new(&scene);
-        let film = Film::try_new(
-            width,
-            height,
-            layers.layer_count(&scene),
-            memory_limit_bytes(),
-        )?;
-        let mut report = PreparationReport::default();
-        let bvh = prepare.bvh(&scene.meshes, &mut report)?;
-        let pre = precompute(&scene.meshes, &bvh, &settings, &prepare)?;
+        let mut core = Progressive::prepare(scene, width, height, &prepare, Self::supports)?;
+        let (scene, bvh, report) = (&core.scene, &core.bvh, &mut core.preparation);
+        let pre = precompute(&scene.meshes, bvh, &settings, &prepare)?;
         if pre.stats.from_cache {
             report.record("cache", pre.stats.cache_seconds);
         } else {
@@ -182,31 +163,21 @@ impl BiscaleMode {
         }
         report.record_since("tables", start);
         let mut mode = Self {
-            camera: PinholeCamera::new(&scene.camera, width, height),
             settings,
-            bvh,
-            film,
-            layers,
             tab,
             tables,
             pre: Arc::new(pre),
             source: TransferSource::Biclustered,
             light: Vec::new(),
             local: Vec::new(),
-            samples_per_frame: 1,
-            next_sample: 0,
-            frames: 0,
-            preparation: PreparationReport::default(),
             light_change_ms: 0.0,
             frame_ms: 0.0,
-            moving: false,
-            scene,
+            core,
         };
         prepare.report("lighting", 0.0)?;
         let start = Instant::now();
         mode.relight();
-        report.record_since("lighting", start);
-        mode.preparation = report;
+        mode.core.preparation.record_since("lighting", start);
         Ok(mode)
     }
 
@@ -240,7 +211,7 @@ impl BiscaleMode {
     fn relight(&mut self) {
         let start = Instant::now();
         let cube = CubeLayout::new(self.settings.cube_n);
-        self.light = match &self.scene.environment {
+        self.light = match &self.core.scene.environment {
             Some(e) => cube.lighting(e),
             None => vec![[0.0; 3]; cube.len()],
         };
@@ -263,9 +234,8 @@ impl BiscaleMode {
     }
 
     fn restart_all(&mut self) -> Invalidation {
-        self.film.reset();
-        self.frames = 0;
-        self.next_sample = 0;
+        self.core.film.reset();
+        self.core.restart_counters();
         Invalidation::All
     }
 
@@ -278,16 +248,17 @@ impl BiscaleMode {
         index: u64,
         lstar: &mut [f32],
     ) -> (Option<(usize, DVec3)>, u64) {
-        let pixel = u64::from(y) * u64::from(self.film.width()) + u64::from(x);
-        let mut rng = SampleStream::new(&[self.scene.render.seed, index, pixel]);
-        let ray = self.camera.ray(x, y, rng.next_2d());
+        let pixel = u64::from(y) * u64::from(self.core.film.width()) + u64::from(x);
+        let mut rng = SampleStream::new(&[self.core.scene.render.seed, index, pixel]);
+        let ray = self.core.camera.ray(x, y, rng.next_2d());
         let Some(hit) = self
+            .core
             .bvh
             .closest_hit(ray.origin, ray.dir, 0.0, f64::INFINITY)
         else {
-            return (layers::escaped(&self.scene, ray.dir), 0);
+            return (layers::escaped(&self.core.scene, ray.dir), 0);
         };
-        let mesh = &self.scene.meshes[hit.mesh];
+        let mesh = &self.core.scene.meshes[hit.mesh];
         let idx = mesh.indices[hit.triangle].map(|i| i as usize);
         let w = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
         let n = (mesh.normals[idx[0]] * w[0]
@@ -317,7 +288,7 @@ impl BiscaleMode {
         }
         let rgb = match &self.tables[mesh.material] {
             Some(table) => {
-                let lookup = if self.moving {
+                let lookup = if self.core.moving {
                     ViewLookup::Nearest
                 } else {
                     ViewLookup::Pick(rng.next())
@@ -377,7 +348,7 @@ impl RenderMode for BiscaleMode {
     }
 
     fn scene(&self) -> &Scene {
-        &self.scene
+        &self.core.scene
     }
 
     fn render(
@@ -390,13 +361,13 @@ impl RenderMode for BiscaleMode {
             return None;
         }
         let start = Instant::now();
-        let first = self.next_sample;
-        let k = u64::from(self.samples_per_frame);
-        let active = self.layers.active(&self.scene);
-        let width = self.film.width();
+        let first = self.core.next_sample;
+        let k = u64::from(self.core.samples_per_frame);
+        let active = self.core.layers.active(&self.core.scene);
+        let width = self.core.film.width();
         let stride = 3 * self.tab.local.len();
-        let dropped_before = self.film.dropped();
-        let mut film = std::mem::replace(&mut self.film, Film::new(0, 0, 0));
+        let dropped_before = self.core.film.dropped();
+        let mut film = std::mem::replace(&mut self.core.film, Film::new(0, 0, 0));
         let rows = film.par_rows(|row| {
             let mut lstar = vec![0.0f32; stride];
             let mut shaded = 0u64;
@@ -423,33 +394,36 @@ impl RenderMode for BiscaleMode {
                 },
             }
         });
-        self.film = film;
-        self.next_sample += k;
-        self.frames += 1;
+        self.core.film = film;
+        self.core.next_sample += k;
+        self.core.frames += 1;
         self.frame_ms = start.elapsed().as_secs_f64() * 1e3;
         Some(FrameStats {
             counters: rows.into_iter().fold(Counters::default(), |a, c| a + c),
             seconds: start.elapsed().as_secs_f64(),
-            dropped: self.film.dropped() - dropped_before,
+            dropped: self.core.film.dropped() - dropped_before,
         })
     }
 
     fn image(&self) -> Image {
-        self.film.resolve(&self.layers.weights(&self.scene))
+        self.core
+            .film
+            .resolve(&self.core.layers.weights(&self.core.scene))
     }
 
     fn progress(&self) -> Progress {
-        self.film
-            .progress(self.frames, &self.layers.active(&self.scene))
+        self.core
+            .film
+            .progress(self.core.frames, &self.core.layers.active(&self.core.scene))
     }
 
     fn set_samples_per_frame(&mut self, samples: u32) {
-        self.samples_per_frame = samples.max(1);
+        self.core.samples_per_frame = samples.max(1);
     }
 
     fn diagnostics(&self) -> Diagnostics {
         Diagnostics(vec![
-            Diagnostic::Preparation(self.preparation.clone()),
+            Diagnostic::Preparation(self.core.preparation.clone()),
             Diagnostic::Summary(self.summary()),
         ])
     }
@@ -465,7 +439,7 @@ impl RenderMode for BiscaleMode {
         };
         match &edit {
             SceneEdit::Material { index, material } => {
-                if let Some(part) = Self::unrenderable(&self.scene, *index, material) {
+                if let Some(part) = Self::unrenderable(&self.core.scene, *index, material) {
                     return refuse(vec![part]);
                 }
             }
@@ -485,53 +459,32 @@ impl RenderMode for BiscaleMode {
                     Light::Area { .. } => "area",
                 };
                 return refuse(vec![Unrenderable::Light {
-                    index: self.scene.lights.len(),
+                    index: self.core.scene.lights.len(),
                     kind,
                 }]);
             }
             SceneEdit::Ambient(Some(_)) => return refuse(vec![Unrenderable::Ambient]),
             SceneEdit::Environment(None) => return refuse(vec![Unrenderable::NoEnvironment]),
-            SceneEdit::Resize { width, height } => {
-                Film::check(
-                    *width,
-                    *height,
-                    self.film.layers(),
-                    memory_limit_bytes() + self.film.bytes(),
-                )?;
-            }
             _ => {}
         }
-        let before = Before::of(&self.scene, &edit);
-        let old_env: Option<Environment> = self.scene.environment.clone();
-        edit.apply_to(&mut self.scene)?;
-        if let Some(invalidation) = self
-            .layers
-            .apply(&mut self.film, &before, &edit, &self.scene)
-        {
-            if let (SceneEdit::Environment(Some(e)), Some(old)) = (&edit, &old_env)
-                && !old.same_but_strength(e)
-            {
-                // A light change: a new lighting vector, a new L*; T is unchanged.
-                self.relight();
+        let old_env: Option<Environment> = self.core.scene.environment.clone();
+        Ok(match self.core.apply(&edit)? {
+            Edited::Emitters(invalidation) => {
+                if let (SceneEdit::Environment(Some(e)), Some(old)) = (&edit, &old_env)
+                    && !old.same_but_strength(e)
+                {
+                    // A light change: a new lighting vector, a new L*; T is unchanged.
+                    self.relight();
+                }
+                invalidation
             }
-            return Ok(invalidation);
-        }
-        Ok(match edit {
-            SceneEdit::Camera(camera) => {
-                self.camera = PinholeCamera::new(&camera, self.film.width(), self.film.height());
-                self.restart_all()
-            }
-            SceneEdit::Resize { width, height } => {
-                self.camera = PinholeCamera::new(&self.scene.camera, width, height);
-                self.film.resize(width, height);
-                self.restart_all()
-            }
-            SceneEdit::Meshes(_) => {
+            Edited::Camera | Edited::Resized => self.restart_all(),
+            Edited::Meshes => {
                 // New geometry: new visibility, so the precomputation runs again.
-                self.bvh = SceneBvh::build(&self.scene.meshes);
+                self.core.bvh = SceneBvh::build(&self.core.scene.meshes);
                 let pre = precompute(
-                    &self.scene.meshes,
-                    &self.bvh,
+                    &self.core.scene.meshes,
+                    &self.core.bvh,
                     &self.settings,
                     &Prepare::quietly(),
                 )
@@ -546,18 +499,14 @@ impl RenderMode for BiscaleMode {
                 self.relight();
                 self.restart_all()
             }
-            SceneEdit::Material { index, .. } => {
-                self.tables[index] = self.tab.table(&self.scene.materials[index]);
-                Invalidation::Pixels(self.film.reset_touching(material_bit(index)))
+            Edited::Material { index, .. } => {
+                self.tables[index] = self.tab.table(&self.core.scene.materials[index]);
+                Invalidation::Pixels(self.core.film.reset_touching(material_bit(index)))
             }
-            SceneEdit::Moving(moving) if moving == self.moving => Invalidation::Nothing,
-            SceneEdit::Moving(moving) => {
-                // Samples shaded the fast way and the full way must not mix.
-                self.moving = moving;
-                self.restart_all()
-            }
+            // Samples shaded the fast way and the full way must not mix.
+            Edited::Moving => self.restart_all(),
             // No area lights here: light samples change nothing.
-            _ => Invalidation::Nothing,
+            Edited::Nothing | Edited::LightSamples => Invalidation::Nothing,
         })
     }
 }

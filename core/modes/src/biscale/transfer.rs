@@ -13,9 +13,9 @@ use rayon::prelude::*;
 
 use super::cubemap::CubeLayout;
 use super::hemisphere::HemisphereGrid;
-use crate::trace::shading::{dpdu, tangent_frame};
 use meso_render::geometry::SceneBvh;
 use meso_render::scene::TriangleMesh;
+use meso_render::shading::{dpdu, tangent_frame};
 use meso_render::{Cancelled, Prepare};
 
 /// Offset of visibility rays along the normal, relative to the vertex's magnitude (the

@@ -8,10 +8,10 @@
 
 use glam::DVec3;
 
-use super::shading::{Shading, power_heuristic};
 use super::{Path, SpmmMode};
 use meso_render::environment::rotate_y;
 use meso_render::layers::ENVIRONMENT;
+use meso_render::shading::{Shading, power_heuristic};
 
 impl SpmmMode {
     /// Both environment samples of one shading point. Always draws four numbers, so
@@ -25,41 +25,42 @@ impl SpmmMode {
         path: &mut Path,
     ) {
         let (u_map, u_material) = (path.rng.next_2d(), path.rng.next_2d());
-        let (Some(env), Some(sampler)) = (&self.scene.environment, &self.env_sampler) else {
+        let (Some(env), Some(sampler)) = (&self.core.scene.environment, &self.env_sampler) else {
             return;
         };
+        let material = self.shaded(s);
         // Strategy 1: the map.
         let e = sampler.sample(&env.map, u_map);
         let wi = rotate_y(e.dir, env.rotate_y_deg);
         if wi.dot(s.n) > 0.0 {
             path.counts.environment += 1;
-            if !self.bvh.occluded(lift, wi, 0.0, f64::INFINITY) {
+            if !self.core.bvh.occluded(lift, wi, 0.0, f64::INFINITY) {
                 let weight = if env.mis {
-                    power_heuristic(e.pdf, self.material_pdf(s, wi, wo))
+                    power_heuristic(e.pdf, material.pdf(s, wi, wo))
                 } else {
                     1.0
                 };
                 path.out[ENVIRONMENT] +=
-                    throughput * self.response(s, wi, wo) * e.radiance * (weight / e.pdf);
+                    throughput * material.response(s, wi, wo) * e.radiance * (weight / e.pdf);
             }
         }
         if !env.mis {
             return;
         }
         // Strategy 2: the material.
-        let Some((wi, pdf)) = self.material_sample(s, wo, u_material) else {
+        let Some((wi, pdf)) = material.sample(s, wo, u_material) else {
             return;
         };
         if wi.dot(s.n) <= 0.0 {
             return;
         }
         path.counts.environment += 1;
-        if self.bvh.occluded(lift, wi, 0.0, f64::INFINITY) {
+        if self.core.bvh.occluded(lift, wi, 0.0, f64::INFINITY) {
             return;
         }
         let map_pdf = sampler.pdf(rotate_y(wi, -env.rotate_y_deg));
         let weight = power_heuristic(pdf, map_pdf);
         path.out[ENVIRONMENT] +=
-            throughput * self.response(s, wi, wo) * env.radiance_unit(wi) * (weight / pdf);
+            throughput * material.response(s, wi, wo) * env.radiance_unit(wi) * (weight / pdf);
     }
 }

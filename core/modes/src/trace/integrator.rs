@@ -8,19 +8,20 @@ use std::time::Instant;
 
 use glam::DVec3;
 
-use super::shading::{PackSampling, Shader, shading_at};
 use meso_materials::image::Image;
 use meso_materials::rng::SampleStream;
 use meso_render::environment::EnvironmentSampler;
-use meso_render::film::{EMPTY_UV_BOX, UvBox, extend_uv_box, material_bit, memory_limit_bytes};
+use meso_render::film::{EMPTY_UV_BOX, UvBox, extend_uv_box, material_bit};
 use meso_render::geometry::{PinholeCamera, SceneBvh};
-use meso_render::layers::{self, Before, Layers, LightTarget};
+use meso_render::layers::{self, Layers, LightTarget};
 use meso_render::light_selection::{LightSampling, LightSelection};
+use meso_render::progressive::{Edited, Progressive};
 use meso_render::reach::EditedTexels;
-use meso_render::scene::{Material, RenderSettings, Scene};
+use meso_render::scene::{Material, Scene};
+use meso_render::shading::{PackSampling, ShadedMaterial, Shaders, Shading};
 use meso_render::{
     Counters, Device, Diagnostic, Diagnostics, EditError, Film, FrameStats, Invalidation,
-    MaterialBytes, ModeError, ModeKind, Pass, PreparationReport, Prepare, Progress, RayCounts,
+    MaterialBytes, ModeError, ModeKind, Pass, Prepare, Progress, RayCounts,
     RenderMode, SceneEdit, Unrenderable, Unsupported,
 };
 
@@ -30,27 +31,18 @@ const EPSILON_REL: f64 = 1e-5;
 
 /// The `spmm` mode on the CPU.
 pub struct SpmmMode {
-    pub(super) scene: Scene,
-    pub(super) bvh: SceneBvh,
-    pub(super) camera: PinholeCamera,
-    pub(super) shaders: Vec<Shader>,
+    /// Scene, BVH, camera, film and layers, counters, moving flag, preparation.
+    pub(super) core: Progressive<Film>,
+    /// The materials as shaded here, with how packs are sampled.
+    shaders: Shaders,
     /// The environment map's importance sampler (`None`: no environment, or black).
     pub(super) env_sampler: Option<EnvironmentSampler>,
-    pub(super) film: Film,
-    layers: Layers,
     /// Per light, the film layer its samples go to and their factor.
     pub(super) light_targets: Vec<LightTarget>,
     light_sampling: LightSampling,
-    pub(super) pack_sampling: PackSampling,
     /// The light selection while lights are chosen stochastically
     /// (`light_selection.rs`); `None` on the exact per-light path.
     pub(super) light_selection: Option<LightSelection>,
-    samples_per_frame: u32,
-    /// Index of the next sample (frame-major); random numbers derive from it.
-    next_sample: u64,
-    frames: u32,
-    pub(super) moving: bool,
-    preparation: PreparationReport,
     /// Pixels a material edit restarted, traced alone by the next `render_frame` so
     /// the edit shows after a few hundred samples rather than a whole frame (a brush
     /// stroke): the first part of the next frame, done early.
@@ -132,34 +124,21 @@ impl SpmmMode {
         height: u32,
         prepare: Prepare,
     ) -> Result<Self, ModeError> {
-        if let Some(p) = RenderSettings::size_problem(width, height) {
-            return Err(ModeError::Size(p));
-        }
-        Self::supports(&scene)?;
-        let layers = Layers::new(&scene);
-        // Refused before the BVH or the film takes any memory.
-        let film = Film::try_new(
-            width,
-            height,
-            layers.layer_count(&scene),
-            memory_limit_bytes(),
-        )?;
-        let mut report = PreparationReport::default();
-        let bvh = prepare.bvh(&scene.meshes, &mut report)?;
+        let mut core = Progressive::prepare(scene, width, height, &prepare, Self::supports)?;
         let start = Instant::now();
-        let camera = PinholeCamera::new(&scene.camera, width, height);
-        let shaders: Vec<Shader> = scene.materials.iter().map(Shader::new).collect();
+        let (scene, report) = (&core.scene, &mut core.preparation);
+        let shaders = Shaders::new(&scene.materials);
         // What a pixel's centre ray sees is prepared now (packs, and the residual tables
         // of the clusters under those rays; MERL sampling tables), so the first frame
         // does not stall on it; anything else is prepared when a ray first reaches it (a
         // mirror's reflection, a jittered ray at a silhouette) and never if none does.
-        let seen = surfaces_seen(&bvh, &scene, &camera, (width, height));
+        let seen = surfaces_seen(&core.bvh, scene, &core.camera, (width, height));
         let total = seen.len().max(1) as f32;
         for (i, (material, uv)) in seen.iter().enumerate() {
             if i % 4096 == 0 {
                 prepare.report("materials", i as f32 / total)?;
             }
-            shaders[*material].make_resident_at(&scene.materials[*material], *uv);
+            shaders.make_resident_at(&scene.materials, *material, *uv);
         }
         report.record_since("materials", start);
         prepare.report("environment", 0.0)?;
@@ -171,25 +150,15 @@ impl SpmmMode {
         report.record_since("environment", start);
         prepare.report("environment", 1.0)?;
         Ok(Self {
-            bvh,
-            camera,
             shaders,
             env_sampler,
-            film,
-            light_targets: layers.light_targets(&scene),
-            light_selection: selection(LightSampling::Auto, &scene.lights),
+            light_targets: core.layers.light_targets(&core.scene),
+            light_selection: selection(LightSampling::Auto, &core.scene.lights),
             light_sampling: LightSampling::Auto,
-            pack_sampling: PackSampling::default(),
-            layers,
-            samples_per_frame: 1,
-            next_sample: 0,
-            frames: 0,
-            moving: false,
-            preparation: report,
             catch_up: Vec::new(),
             done_early: Vec::new(),
             restarted_first: true,
-            scene,
+            core,
         })
     }
 
@@ -201,13 +170,11 @@ impl SpmmMode {
     /// Prepares every material now, reached or not (what rendering held before
     /// preparation on demand; tests compare the two).
     pub fn prepare_every_material(&self) {
-        for (shader, material) in self.shaders.iter().zip(&self.scene.materials) {
-            shader.make_all_resident(material);
-        }
+        self.shaders.make_all_resident(&self.core.scene.materials);
     }
 
     pub fn bvh(&self) -> &SceneBvh {
-        &self.bvh
+        &self.core.bvh
     }
 
     /// Whether the frame after a material edit traces only the pixels it restarted
@@ -239,12 +206,12 @@ impl SpmmMode {
     fn render_pixels(&mut self, pixels: &[u32]) -> FrameStats {
         use rayon::prelude::*;
         let start = Instant::now();
-        let first = self.next_sample;
-        let k = u64::from(self.samples_per_frame);
-        let layers = self.film.layers();
-        let active = self.layers.active(&self.scene);
-        let width = self.film.width();
-        let dropped_before = self.film.dropped();
+        let first = self.core.next_sample;
+        let k = u64::from(self.core.samples_per_frame);
+        let layers = self.core.film.layers();
+        let active = self.core.layers.active(&self.core.scene);
+        let width = self.core.film.width();
+        let dropped_before = self.core.film.dropped();
         let mut totals = Counters::default();
         for index in first..first + k {
             let samples: Vec<(Vec<DVec3>, u64, UvBox, RayCounts, u64)> = pixels
@@ -266,7 +233,9 @@ impl SpmmMode {
                 })
                 .collect();
             for (&p, (out, mask, reached, counts, shading_points)) in pixels.iter().zip(samples) {
-                self.film.add_pixel_sample(p, &active, &out, mask, &reached);
+                self.core
+                    .film
+                    .add_pixel_sample(p, &active, &out, mask, &reached);
                 totals = totals
                     + Counters {
                         samples: 1,
@@ -275,7 +244,7 @@ impl SpmmMode {
                     };
             }
         }
-        let n = self.film.width() as usize * self.film.height() as usize;
+        let n = self.core.film.width() as usize * self.core.film.height() as usize;
         if self.done_early.len() != n {
             self.done_early = vec![false; n];
         }
@@ -285,7 +254,7 @@ impl SpmmMode {
         FrameStats {
             counters: totals,
             seconds: start.elapsed().as_secs_f64(),
-            dropped: self.film.dropped() - dropped_before,
+            dropped: self.core.film.dropped() - dropped_before,
         }
     }
 
@@ -294,7 +263,9 @@ impl SpmmMode {
     /// call that completes it skips them and the samples are an uninterrupted frame's.
     fn render_tiles(&mut self, mut stop: Option<&mut dyn FnMut() -> bool>) -> FrameStats {
         // Half the image or more: the whole frame costs little more.
-        if self.catch_up.len() * 2 > self.film.width() as usize * self.film.height() as usize {
+        if self.catch_up.len() * 2
+            > self.core.film.width() as usize * self.core.film.height() as usize
+        {
             self.drop_catch_up();
         }
         let pixels = std::mem::take(&mut self.catch_up);
@@ -302,18 +273,18 @@ impl SpmmMode {
             return self.render_pixels(&pixels);
         }
         let start = Instant::now();
-        let first = self.next_sample;
-        let k = u64::from(self.samples_per_frame);
-        let layers = self.film.layers();
-        let active = self.layers.active(&self.scene);
-        let (width, height) = (self.film.width(), self.film.height());
+        let first = self.core.next_sample;
+        let k = u64::from(self.core.samples_per_frame);
+        let layers = self.core.film.layers();
+        let active = self.core.layers.active(&self.core.scene);
+        let (width, height) = (self.core.film.width(), self.core.film.height());
         let tile_rows = match stop {
             Some(_) => (TILE_PIXELS / width.max(1)).max(1),
             None => height.max(1),
         };
-        let dropped_before = self.film.dropped();
+        let dropped_before = self.core.film.dropped();
         // The film is moved out while rows borrow it mutably and `self` immutably.
-        let mut film = std::mem::replace(&mut self.film, Film::new(0, 0, 0));
+        let mut film = std::mem::replace(&mut self.core.film, Film::new(0, 0, 0));
         let mut totals = Counters::default();
         let mut y = 0;
         while y < height {
@@ -360,7 +331,7 @@ impl SpmmMode {
                 break;
             }
         }
-        self.film = film;
+        self.core.film = film;
         if y < height {
             let n = width as usize * height as usize;
             if self.done_early.len() != n {
@@ -369,29 +340,29 @@ impl SpmmMode {
             self.done_early[..y as usize * width as usize].fill(true);
         } else {
             self.done_early.clear();
-            self.next_sample += k;
-            self.frames += 1;
+            self.core.next_sample += k;
+            self.core.frames += 1;
         }
         FrameStats {
             counters: totals,
             seconds: start.elapsed().as_secs_f64(),
-            dropped: self.film.dropped() - dropped_before,
+            dropped: self.core.film.dropped() - dropped_before,
         }
     }
 
     /// The weight of each film layer: the current emissions.
     pub fn layer_weights(&self) -> Vec<DVec3> {
-        self.layers.weights(&self.scene)
+        self.core.layers.weights(&self.core.scene)
     }
 
     /// The film (its layers and bytes).
     pub fn film(&self) -> &Film {
-        &self.film
+        &self.core.film
     }
 
     /// Which layers lights own (`None`: one per light).
     pub fn light_layers(&self) -> &Layers {
-        &self.layers
+        &self.core.layers
     }
 
     /// How lights are sampled; a change restarts every sample.
@@ -403,27 +374,33 @@ impl SpmmMode {
 
     /// How directions are drawn at SPMM packs; a change restarts every sample.
     pub fn set_pack_sampling(&mut self, sampling: PackSampling) {
-        self.pack_sampling = sampling;
+        self.shaders.set_pack_sampling(sampling);
         self.restart_all();
+    }
+
+    /// The material at `s` as shaded now (the moving flag chooses a pack's settings).
+    pub(super) fn shaded(&self, s: &Shading) -> ShadedMaterial<'_> {
+        self.shaders
+            .material(&self.core.scene, s.material, self.core.moving)
     }
 
     /// The per-light state read by a frame, after a light edit.
     fn refresh_lights(&mut self) {
-        self.light_targets = self.layers.light_targets(&self.scene);
-        self.light_selection = selection(self.light_sampling, &self.scene.lights);
+        self.light_targets = self.core.layers.light_targets(&self.core.scene);
+        self.light_selection = selection(self.light_sampling, &self.core.scene.lights);
     }
 
     /// One sample of pixel (x, y) with sample index `index`, per layer for unit
     /// emission, the materials it shaded and the rays it traced. Replayable: a bad
     /// pixel can be re-rendered alone.
     pub fn sample(&self, x: u32, y: u32, index: u64) -> (Vec<DVec3>, u64, RayCounts) {
-        let mut out = vec![DVec3::ZERO; self.film.layers()];
+        let mut out = vec![DVec3::ZERO; self.core.film.layers()];
         let mut mask = 0;
         let mut counts = RayCounts::default();
         let mut shading_points = 0;
         let mut reached = EMPTY_UV_BOX;
         self.sample_into(
-            (x, y, self.film.width()),
+            (x, y, self.core.film.width()),
             index,
             &mut out,
             (&mut mask, &mut reached),
@@ -445,9 +422,9 @@ impl SpmmMode {
         shading_points: &mut u64,
     ) {
         let pixel = u64::from(y) * u64::from(width) + u64::from(x);
-        let render = &self.scene.render;
+        let render = &self.core.scene.render;
         let mut rng = SampleStream::for_sample(render.sampler, render.seed, index, pixel);
-        let ray = self.camera.ray(x, y, rng.next_2d());
+        let ray = self.core.camera.ray(x, y, rng.next_2d());
         counts.primary += 1;
         let mut path = Path {
             out,
@@ -462,27 +439,27 @@ impl SpmmMode {
 
     /// Follows the ray and adds `throughput` times what it finds to the layers.
     fn trace(&self, origin: DVec3, dir: DVec3, depth: u32, throughput: DVec3, path: &mut Path) {
-        let Some(hit) = self.bvh.closest_hit(origin, dir, 0.0, f64::INFINITY) else {
-            if let Some((layer, radiance)) = layers::escaped(&self.scene, dir) {
+        let Some(hit) = self.core.bvh.closest_hit(origin, dir, 0.0, f64::INFINITY) else {
+            if let Some((layer, radiance)) = layers::escaped(&self.core.scene, dir) {
                 path.out[layer] += throughput * radiance;
             }
             return;
         };
-        let s = self.shading(&hit, dir);
+        let s = Shading::at(&self.core.scene, &hit, dir);
         *path.mask |= material_bit(s.material);
-        if matches!(self.scene.materials[s.material], Material::Spmm { .. }) {
+        if matches!(self.core.scene.materials[s.material], Material::Spmm { .. }) {
             extend_uv_box(path.reached, s.uv);
         }
         let wo = -dir;
         // Secondary rays start just off the surface; light geometry uses the true point.
         let lift = s.p + s.n * (EPSILON_REL * s.p.abs().max_element().max(1.0));
-        if let Material::Mirror { reflectance } = &self.scene.materials[s.material] {
-            if depth >= self.scene.render.max_specular_depth {
+        if let Some(reflectance) = self.shaded(&s).specular() {
+            if depth >= self.core.scene.render.max_specular_depth {
                 return;
             }
             path.counts.specular += 1;
             let r = dir - 2.0 * dir.dot(s.n) * s.n;
-            self.trace(lift, r, depth + 1, throughput * *reflectance, path);
+            self.trace(lift, r, depth + 1, throughput * reflectance, path);
             return;
         }
         *path.shading_points += 1;
@@ -493,11 +470,9 @@ impl SpmmMode {
 
     /// The materials whose evaluation changes with the moving flag.
     fn moving_mask(&self) -> u64 {
-        self.shaders
-            .iter()
-            .enumerate()
-            .filter(|(_, s)| s.changes_when_moving())
-            .fold(0, |m, (i, _)| m | material_bit(i))
+        (0..self.core.scene.materials.len())
+            .filter(|&i| self.shaders.changes_when_moving(i))
+            .fold(0, |m, i| m | material_bit(i))
     }
 
     /// Forgets every sample and starts the sample indices again, so the image from
@@ -505,9 +480,8 @@ impl SpmmMode {
     fn restart_all(&mut self) -> Invalidation {
         self.catch_up.clear();
         self.done_early.clear();
-        self.film.reset();
-        self.frames = 0;
-        self.next_sample = 0;
+        self.core.film.reset();
+        self.core.restart_counters();
         Invalidation::All
     }
 }
@@ -522,36 +496,37 @@ impl RenderMode for SpmmMode {
     }
 
     fn scene(&self) -> &Scene {
-        &self.scene
+        &self.core.scene
     }
 
     fn render(&mut self, pass: Pass, stop: Option<&mut dyn FnMut() -> bool>) -> Option<FrameStats> {
         match pass {
             Pass::Frame => Some(self.render_tiles(stop)),
             Pass::Preview { stride } => {
-                let untouched = self.next_sample == 0
+                let untouched = self.core.next_sample == 0
                     && self.catch_up.is_empty()
                     && !self.done_early.contains(&true);
                 if stride <= 1 || !untouched {
                     return None;
                 }
-                let (w, h) = (self.film.width(), self.film.height());
+                let (w, h) = (self.core.film.width(), self.core.film.height());
                 Some(self.render_pixels(&meso_render::preview::grid_pixels(w, h, stride)))
             }
         }
     }
 
     fn image(&self) -> Image {
-        self.film.resolve(&self.layer_weights())
+        self.core.film.resolve(&self.layer_weights())
     }
 
     fn progress(&self) -> Progress {
-        self.film
-            .progress(self.frames, &self.layers.active(&self.scene))
+        self.core
+            .film
+            .progress(self.core.frames, &self.core.layers.active(&self.core.scene))
     }
 
     fn set_samples_per_frame(&mut self, samples: u32) {
-        self.samples_per_frame = samples.max(1);
+        self.core.samples_per_frame = samples.max(1);
     }
 
     fn guides(&self, pass: Pass) -> Option<meso_render::Guides> {
@@ -559,7 +534,7 @@ impl RenderMode for SpmmMode {
         Some(match pass {
             Pass::Frame => self.compute_guides(),
             Pass::Preview { stride } => {
-                let (w, h) = (self.film.width(), self.film.height());
+                let (w, h) = (self.core.film.width(), self.core.film.height());
                 let grid = preview::grid_pixels(w, h, stride);
                 self.guides_of(&grid, preview::grid_size(w, h, stride))
             }
@@ -567,22 +542,16 @@ impl RenderMode for SpmmMode {
     }
 
     fn diagnostics(&self) -> Diagnostics {
-        let sum = |f: fn(&Shader, &Material) -> usize| {
-            let each = self.shaders.iter().zip(&self.scene.materials);
-            each.map(|(s, m)| f(s, m)).sum::<usize>() as u64
-        };
+        let (resident, full) = self.shaders.bytes(&self.core.scene.materials);
         Diagnostics(vec![
-            Diagnostic::Preparation(self.preparation.clone()),
-            Diagnostic::MaterialBytes(MaterialBytes {
-                resident: sum(Shader::resident_bytes),
-                full: sum(Shader::full_bytes),
-            }),
+            Diagnostic::Preparation(self.core.preparation.clone()),
+            Diagnostic::MaterialBytes(MaterialBytes { resident, full }),
         ])
     }
 
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
         if let SceneEdit::Material { index, material } = &edit
-            && let Some(part) = Self::unrenderable(&self.scene, *index, material)
+            && let Some(part) = Self::unrenderable(&self.core.scene, *index, material)
         {
             return Err(Unsupported {
                 mode: ModeKind::Spmm,
@@ -591,69 +560,41 @@ impl RenderMode for SpmmMode {
             }
             .into());
         }
-        if let SceneEdit::Resize { width, height } = edit {
-            // The current film is freed first, so it counts as available.
-            Film::check(
-                width,
-                height,
-                self.film.layers(),
-                memory_limit_bytes() + self.film.bytes(),
-            )?;
-        }
-        let before = Before::of(&self.scene, &edit);
-        let material_before = match &edit {
-            SceneEdit::Material { index, .. } => self.scene.materials.get(*index).cloned(),
-            _ => None,
-        };
-        edit.apply_to(&mut self.scene)?;
-        if let Some(invalidation) = self
-            .layers
-            .apply(&mut self.film, &before, &edit, &self.scene)
-        {
-            if invalidation != Invalidation::Nothing {
-                // A restarted layer must get this frame's samples everywhere (at
-                // worst a pixel done early takes its sample twice).
-                self.done_early.clear();
+        Ok(match self.core.apply(&edit)? {
+            Edited::Emitters(invalidation) => {
+                if invalidation != Invalidation::Nothing {
+                    // A restarted layer must get this frame's samples everywhere (at
+                    // worst a pixel done early takes its sample twice).
+                    self.done_early.clear();
+                }
+                if let SceneEdit::Environment(Some(e)) = &edit
+                    && invalidation != Invalidation::Nothing
+                {
+                    self.env_sampler = EnvironmentSampler::new(&e.map);
+                }
+                if matches!(
+                    edit,
+                    SceneEdit::Light { .. } | SceneEdit::AddLight(_) | SceneEdit::RemoveLight(_)
+                ) {
+                    self.refresh_lights();
+                }
+                invalidation
             }
-            if let SceneEdit::Environment(Some(e)) = &edit
-                && invalidation != Invalidation::Nothing
-            {
-                self.env_sampler = EnvironmentSampler::new(&e.map);
-            }
-            if matches!(
-                edit,
-                SceneEdit::Light { .. } | SceneEdit::AddLight(_) | SceneEdit::RemoveLight(_)
-            ) {
-                self.refresh_lights();
-            }
-            return Ok(invalidation);
-        }
-        Ok(match edit {
-            SceneEdit::Camera(camera) => {
-                self.camera = PinholeCamera::new(&camera, self.film.width(), self.film.height());
+            Edited::Camera | Edited::Resized => self.restart_all(),
+            Edited::Meshes => {
+                self.core.bvh.update(&self.core.scene.meshes);
                 self.restart_all()
             }
-            SceneEdit::Resize { width, height } => {
-                self.camera = PinholeCamera::new(&self.scene.camera, width, height);
-                self.film.resize(width, height);
-                self.restart_all()
-            }
-            SceneEdit::Meshes(_) => {
-                self.bvh.update(&self.scene.meshes);
-                self.restart_all()
-            }
-            SceneEdit::Material { index, .. } => {
-                let after = &self.scene.materials[index];
-                self.shaders[index] = match &material_before {
-                    Some(before) => self.shaders[index].after_edit(before, after),
-                    None => Shader::new(after),
-                };
+            Edited::Material { index, before } => {
+                let after = &self.core.scene.materials[index];
+                self.shaders.edited(index, Some(&before), after);
                 // Only pixels whose shading reached a changed texel restart; the next
                 // frame traces them first.
                 let bit = material_bit(index);
-                let pixels = match material_before.and_then(|b| EditedTexels::between(&b, after)) {
-                    Some(texels) => self.film.reset_reaching_pixels(bit, |b| texels.reaches(b)),
-                    None => self.film.reset_reaching_pixels(bit, |_| true),
+                let film = &mut self.core.film;
+                let pixels = match EditedTexels::between(&before, after) {
+                    Some(texels) => film.reset_reaching_pixels(bit, |b| texels.reaches(b)),
+                    None => film.reset_reaching_pixels(bit, |_| true),
                 };
                 let n = pixels.len();
                 if self.restarted_first {
@@ -663,27 +604,18 @@ impl RenderMode for SpmmMode {
                 }
                 Invalidation::Pixels(n)
             }
-            SceneEdit::Moving(moving) if moving == self.moving => Invalidation::Nothing,
-            SceneEdit::Moving(moving) => {
-                self.moving = moving;
-                match self.moving_mask() {
-                    // No material shades differently while moving: every sample stands.
-                    0 => Invalidation::Nothing,
-                    mask => {
-                        self.done_early.clear();
-                        // Samples with and without the later components must not mix.
-                        Invalidation::Pixels(self.film.reset_touching(mask))
-                    }
+            Edited::Moving => match self.moving_mask() {
+                // No material shades differently while moving: every sample stands.
+                0 => Invalidation::Nothing,
+                mask => {
+                    self.done_early.clear();
+                    // Samples with and without the later components must not mix.
+                    Invalidation::Pixels(self.core.film.reset_touching(mask))
                 }
-            }
+            },
+            Edited::Nothing => Invalidation::Nothing,
             // Another estimator of the light: its sequence starts again with it.
-            SceneEdit::LightSamples(_) => self.restart_all(),
-            SceneEdit::Light { .. }
-            | SceneEdit::AddLight(_)
-            | SceneEdit::RemoveLight(_)
-            | SceneEdit::Ambient(_)
-            | SceneEdit::Environment(_)
-            | SceneEdit::Background(_) => unreachable!("emitter edits are the layers' to handle"),
+            Edited::LightSamples => self.restart_all(),
         })
     }
 }
@@ -704,7 +636,7 @@ fn surfaces_seen(
                 let ray = camera.ray(x, y, glam::DVec2::splat(0.5));
                 bvh.closest_hit(ray.origin, ray.dir, 0.0, f64::INFINITY)
                     .map(|hit| {
-                        let s = shading_at(scene, &hit, ray.dir);
+                        let s = Shading::at(scene, &hit, ray.dir);
                         (s.material, s.uv)
                     })
             })

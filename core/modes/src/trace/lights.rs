@@ -9,16 +9,14 @@
 //! combined by MIS (power heuristic) on the per-light path; the many-light path keeps
 //! light samples alone.
 
-use std::f64::consts::PI;
-
 use glam::DVec3;
 
-use super::shading::{Shader, Shading, power_heuristic};
 use super::{Path, SpmmMode};
 use meso_render::geometry::hit_parallelogram;
 use meso_render::layers::AMBIENT;
 use meso_render::light_selection::{CANDIDATES, LIGHT_SAMPLES, LightSelection};
-use meso_render::scene::{Light, Material};
+use meso_render::scene::Light;
+use meso_render::shading::{Shading, power_heuristic};
 
 /// A point on a light seen from a shading point, unshadowed.
 #[derive(Clone, Copy, Default)]
@@ -59,14 +57,14 @@ impl SpmmMode {
             self.sample_chosen_lights(selection, s, wo, lift, throughput, path);
             return;
         }
-        let n = self.scene.render.light_samples;
-        for (k, light) in self.scene.lights.iter().enumerate() {
+        let n = self.core.scene.render.light_samples;
+        for (k, light) in self.core.scene.lights.iter().enumerate() {
             // Both kinds draw the same numbers, so the dimension layout does not depend
             // on which kinds the scene has.
             let points = path.rng.next_2d_set(n);
             // Light samples of an area light meet a material sample by MIS where the
-            // material's lobe can be narrower than the light (`area_light_mis`).
-            let mis = matches!(light, Light::Area { .. }) && self.area_light_mis(s);
+            // material's lobe can be narrower than the light (`ShadedMaterial::mis_with_area_lights`).
+            let mis = matches!(light, Light::Area { .. }) && self.shaded(s).mis_with_area_lights();
             let directions = mis.then(|| path.rng.next_2d_set(n));
             // A point light is one exact sample; an area light's `n` share its weight
             // (times one for one sample, which keeps that image's bits).
@@ -104,7 +102,7 @@ impl SpmmMode {
         throughput: DVec3,
         path: &mut Path,
     ) {
-        let (q, geometry) = match self.scene.lights[k] {
+        let (q, geometry) = match self.core.scene.lights[k] {
             Light::Point { position, .. } => (position, None),
             Light::Area {
                 corner,
@@ -137,28 +135,24 @@ impl SpmmMode {
         }
         path.counts.shadow += 1;
         if !self
+            .core
             .bvh
             .occluded(lift, wi, 0.0, (q - lift).length() * (1.0 - 1e-6))
         {
             let target = self.light_targets[k];
             // Solid-angle pdf of this point: 1 / falloff.
             let weight = if mis {
-                power_heuristic(1.0 / falloff, self.material_pdf(s, wi, wo))
+                power_heuristic(1.0 / falloff, self.shaded(s).pdf(s, wi, wo))
             } else {
                 1.0
             };
             // The factor is exactly one outside a bounded film's shared layer, so
             // the per-light path keeps its bits.
-            path.out[target.layer] +=
-                throughput * self.response(s, wi, wo) * (falloff * weight) * target.factor;
+            path.out[target.layer] += throughput
+                * self.shaded(s).response(s, wi, wo)
+                * (falloff * weight)
+                * target.factor;
         }
-    }
-
-    /// True where area lights are sampled by MIS of light and material samples: MERL
-    /// tables, whose measured lobes can be far narrower than a light. Analytic BRDFs
-    /// and SPMM packs keep the light samples alone (and their images' bits).
-    fn area_light_mis(&self, s: &Shading) -> bool {
-        matches!(self.scene.materials[s.material], Material::Merl { .. })
     }
 
     /// The material's strategy for area light `k`: a direction drawn from the BRDF,
@@ -181,11 +175,11 @@ impl SpmmMode {
             edge_u,
             edge_v,
             ..
-        } = self.scene.lights[k]
+        } = self.core.scene.lights[k]
         else {
             return;
         };
-        let Some((wi, pdf)) = self.material_sample(s, wo, u) else {
+        let Some((wi, pdf)) = self.shaded(s).sample(s, wo, u) else {
             return;
         };
         if wi.dot(s.n) <= 0.0 || pdf <= 0.0 {
@@ -195,13 +189,17 @@ impl SpmmMode {
             return;
         };
         path.counts.shadow += 1;
-        if self.bvh.occluded(lift, wi, 0.0, distance * (1.0 - 1e-6)) {
+        if self
+            .core
+            .bvh
+            .occluded(lift, wi, 0.0, distance * (1.0 - 1e-6))
+        {
             return;
         }
         let weight = power_heuristic(pdf, 1.0 / falloff);
         let target = self.light_targets[k];
         path.out[target.layer] +=
-            throughput * self.response(s, wi, wo) * (weight / pdf) * target.factor;
+            throughput * self.shaded(s).response(s, wi, wo) * (weight / pdf) * target.factor;
     }
 
     /// `LIGHT_SAMPLES` lights, each kept from `CANDIDATES` drawn by power by
@@ -221,7 +219,7 @@ impl SpmmMode {
         path: &mut Path,
     ) {
         // `light_samples` times the selections, each weighted by its share.
-        let selections = LIGHT_SAMPLES * self.scene.render.light_samples as usize;
+        let selections = LIGHT_SAMPLES * self.core.scene.render.light_samples as usize;
         for _ in 0..selections {
             // Per candidate: light, point, to, r^2, falloff, pmf, weight target / p_src.
             let mut candidates = [Candidate::default(); CANDIDATES];
@@ -289,6 +287,7 @@ impl SpmmMode {
             };
             path.counts.shadow += 1;
             if self
+                .core
                 .bvh
                 .occluded(lift, lp.wi, 0.0, (lp.q - lift).length() * (1.0 - 1e-6))
             {
@@ -296,8 +295,10 @@ impl SpmmMode {
             }
             let t = self.light_targets[lp.light];
             let weight = total / (CANDIDATES as f64 * target * selections as f64);
-            path.out[t.layer] +=
-                throughput * self.response(s, lp.wi, wo) * (lp.falloff * weight) * t.factor;
+            path.out[t.layer] += throughput
+                * self.shaded(s).response(s, lp.wi, wo)
+                * (lp.falloff * weight)
+                * t.factor;
         }
     }
 
@@ -312,28 +313,16 @@ impl SpmmMode {
         path: &mut Path,
     ) {
         let u = path.rng.next_2d();
-        let Some(ambient) = &self.scene.ambient else {
+        let Some(ambient) = &self.core.scene.ambient else {
             return;
         };
-        let shader = &self.shaders[s.material];
-        let (wi, weight) = match shader {
-            // 1 / pdf, written as the cosine case always was (pi / cos) to keep its bits.
-            Shader::Scene => {
-                let (local, _) = shader.hemisphere_sample(u);
-                if local.z <= 0.0 {
-                    return;
-                }
-                (s.to_world(local), PI / local.z)
-            }
-            // A pack draws from its texel's bases (and a defensive share).
-            Shader::Spmm { .. } | Shader::Table => match self.material_sample(s, wo, u) {
-                Some((wi, pdf)) if wi.dot(s.n) > 0.0 => (wi, 1.0 / pdf),
-                _ => return,
-            },
+        // Cosine-distributed, or drawn from a pack's texel (and a defensive share).
+        let Some((wi, weight)) = self.shaded(s).ambient_sample(s, wo, u) else {
+            return;
         };
         path.counts.ambient += 1;
-        if !self.bvh.occluded(lift, wi, 0.0, ambient.radius) {
-            path.out[AMBIENT] += throughput * self.response(s, wi, wo) * weight;
+        if !self.core.bvh.occluded(lift, wi, 0.0, ambient.radius) {
+            path.out[AMBIENT] += throughput * self.shaded(s).response(s, wi, wo) * weight;
         }
     }
 }

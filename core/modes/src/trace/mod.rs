@@ -1,18 +1,18 @@
 //! The `spmm` render mode on the CPU: progressive ray tracing of SPMM packs, analytic
 //! BRDFs, MERL tables and mirrors (Silva & Santos 2013, section 4) under point and area lights,
 //! ambient occlusion and environment lighting. One file per concept: the integrator
-//! (the mode itself), shading, light sampling, environment sampling.
+//! (the mode itself), light sampling, environment sampling, the denoiser's guides;
+//! materials are shaded by the shading core (`meso_render::shading`).
 
 mod environment;
 mod guides;
 mod integrator;
 
 mod lights;
-pub(crate) mod shading;
 
 use integrator::Path;
 pub use integrator::SpmmMode;
-pub use shading::PackSampling;
+pub use meso_render::shading::PackSampling;
 
 #[cfg(test)]
 mod btf_tests;

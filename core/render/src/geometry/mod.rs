@@ -46,3 +46,23 @@ pub fn hit_parallelogram(
     // cos_l |N| / t^2 with cos_l = facing / |N|.
     Some((t, facing / (t * t)))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_ray_meets_the_front_of_a_unit_square_above_with_its_solid_angle_density() {
+        // Square 1 m above the origin, facing down; straight up: distance 1 and
+        // cos_l A / r^2 = 1.
+        let (corner, eu, ev) = (DVec3::new(-0.5, 1.0, -0.5), DVec3::X, DVec3::Z);
+        let (t, f) = hit_parallelogram(DVec3::ZERO, DVec3::Y, corner, eu, ev).expect("hit");
+        assert!(
+            (t - 1.0).abs() < 1e-12 && (f - 1.0).abs() < 1e-12,
+            "{t} {f}"
+        );
+        // From above it is its back: no hit; beside it: no hit.
+        assert!(hit_parallelogram(DVec3::new(0.0, 2.0, 0.0), -DVec3::Y, corner, eu, ev).is_none());
+        assert!(hit_parallelogram(DVec3::new(2.0, 0.0, 0.0), DVec3::Y, corner, eu, ev).is_none());
+    }
+}

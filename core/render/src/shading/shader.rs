@@ -1,39 +1,19 @@
-//! Shading in the spmm mode: the surface frame at a hit (interpolated normal, tangent
-//! along +u as the SPMM convention needs), each material's response to light (albedo
-//! f cos_i for analytic BRDFs, tint f cos_i for MERL tables (nearest cell, as the
-//! reference reader looks them up), the BTF for SPMM packs, with the residual cut to
-//! `MOVING_NPCA` components while the camera moves, and the interpolated table for
-//! `btf` materials), and the
-//! sampling that suits each material.
+//! What a material needs prepared at render time: nothing for analytic BRDFs, MERL
+//! tables and mirrors (their sampling tables are built on first use and shared), the
+//! BTF for `btf` materials, and for SPMM packs the prepared evaluation data, made the
+//! first time a ray shades the pack and reused across edits that keep its residual.
 
 use std::f64::consts::PI;
-
 use std::sync::{Arc, OnceLock};
 
 use glam::{DVec2, DVec3};
 
-use super::SpmmMode;
+use crate::scene::Material;
 use meso_materials::brdf::warp;
 use meso_materials::spmm::{
     EvalSettings, MOVING_NPCA, PrepareRequest, PreparedSpmm, SpmmMaterial, TexelFilter,
     defensive_pdf, defensive_sample,
 };
-use meso_render::geometry::Hit;
-use meso_render::scene::{Material, Scene};
-
-/// How the spmm mode draws directions over the hemisphere at SPMM packs (ambient
-/// occlusion, environment and material samples in MIS). Both are unbiased; they
-/// differ in noise.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum PackSampling {
-    /// From the texel's basis functions plus a defensive share
-    /// (`PreparedSpmm::sample_texel`).
-    #[default]
-    Bases,
-    /// The defensive half-cosine, half-uniform mixture alone: the sampling before
-    /// the bases were drawn from.
-    Defensive,
-}
 
 /// What shading a material needs at render time.
 pub(super) enum Shader {
@@ -230,164 +210,11 @@ impl Shader {
     }
 }
 
-/// A surface point ready to shade.
-pub(crate) struct Shading {
-    pub p: DVec3,
-    /// Shading frame: tangent, bitangent, normal (facing the incoming ray).
-    pub t: DVec3,
-    pub b: DVec3,
-    pub n: DVec3,
-    pub uv: DVec2,
-    pub material: usize,
-}
-
-impl Shading {
-    pub fn to_local(&self, w: DVec3) -> DVec3 {
-        DVec3::new(w.dot(self.t), w.dot(self.b), w.dot(self.n))
-    }
-    pub fn to_world(&self, l: DVec3) -> DVec3 {
-        self.t * l.x + self.b * l.y + self.n * l.z
-    }
-}
-
-/// A triangle's dp/du from its edges `e1`, `e2` and their UV differences `d1`, `d2`
-/// (zero where the UVs are degenerate). Shared with the biscale mode's vertex frames.
-pub(crate) fn dpdu(e1: DVec3, e2: DVec3, d1: DVec2, d2: DVec2) -> DVec3 {
-    let det = d1.x * d2.y - d2.x * d1.y;
-    if det.abs() > 1e-20 {
-        (e1 * d2.y - e2 * d1.y) / det
-    } else {
-        DVec3::ZERO
-    }
-}
-
-/// Tangent (along increasing u: `dpdu` made orthogonal to `n`; any perpendicular where
-/// it vanishes) and bitangent n x t: the SPMM convention of the shading frame.
-pub(crate) fn tangent_frame(n: DVec3, dpdu: DVec3) -> (DVec3, DVec3) {
-    let t = (dpdu - n * n.dot(dpdu))
-        .try_normalize()
-        .unwrap_or_else(|| warp::orthonormal_basis(n).0);
-    (t, n.cross(t))
-}
-
-/// The shading frame at `hit` for a ray along `dir`: interpolated normal turned to
-/// the viewer, tangent along +u. Every mode that shades the scene's surfaces uses it,
-/// so they converge to the same image.
-pub(crate) fn shading_at(scene: &Scene, hit: &Hit, dir: DVec3) -> Shading {
-    let mesh = &scene.meshes[hit.mesh];
-    let [i0, i1, i2] = mesh.indices[hit.triangle].map(|i| i as usize);
-    let w0 = 1.0 - hit.b1 - hit.b2;
-    let (p0, p1, p2) = (mesh.positions[i0], mesh.positions[i1], mesh.positions[i2]);
-    let p = p0 * w0 + p1 * hit.b1 + p2 * hit.b2;
-    let mut ng = (p1 - p0).cross(p2 - p0).normalize_or(DVec3::Y);
-    if ng.dot(dir) > 0.0 {
-        ng = -ng;
-    }
-    let mut n = (mesh.normals[i0] * w0 + mesh.normals[i1] * hit.b1 + mesh.normals[i2] * hit.b2)
-        .normalize_or(ng);
-    // Normals facing away from the viewer are flipped to the side the ray came from.
-    if n.dot(ng) < 0.0 {
-        n = -n;
-    }
-    let (uv0, uv1, uv2) = (mesh.uvs[i0], mesh.uvs[i1], mesh.uvs[i2]);
-    let uv = uv0 * w0 + uv1 * hit.b1 + uv2 * hit.b2;
-    let (t, b) = tangent_frame(n, dpdu(p1 - p0, p2 - p0, uv1 - uv0, uv2 - uv0));
-    Shading {
-        p,
-        t,
-        b,
-        n,
-        uv,
-        material: mesh.material,
-    }
-}
-
-impl SpmmMode {
-    pub(super) fn shading(&self, hit: &Hit, dir: DVec3) -> Shading {
-        shading_at(&self.scene, hit, dir)
-    }
-
-    /// The material's response to light from `wi` seen from `wo`, cosine included:
-    /// albedo f cos_i for BRDFs, tint f cos_i for MERL tables, the BTF for SPMM packs
-    /// and `btf` materials (world-space unit vectors).
-    pub(super) fn response(&self, s: &Shading, wi: DVec3, wo: DVec3) -> DVec3 {
-        let (li, lo) = (s.to_local(wi), s.to_local(wo));
-        match (&self.scene.materials[s.material], &self.shaders[s.material]) {
-            (Material::Brdf { brdf, albedo }, _) => *albedo * (brdf.eval(li, lo) * li.z.max(0.0)),
-            (Material::Merl { brdf, tint }, _) => *tint * brdf.eval(li, lo) * li.z.max(0.0),
-            (Material::Spmm { .. }, shader @ Shader::Spmm { still, moving, .. }) => {
-                shader.prepared().map_or(DVec3::ZERO, |p| {
-                    p.eval_uv(s.uv, li, lo, if self.moving { moving } else { still })
-                })
-            }
-            (Material::Btf { table, uv_scale }, _) => table.eval_uv(s.uv, *uv_scale, li, lo),
-            // `supports` refused every other material before the mode was made.
-            _ => DVec3::ZERO,
-        }
-    }
-}
-
 /// A pack's settings while the camera moves: the residual's mean and at most
 /// `MOVING_NPCA` components (docs/rendering.md, "The moving camera").
 fn moving_settings(still: EvalSettings) -> EvalSettings {
     EvalSettings {
         max_npca: still.max_npca.min(MOVING_NPCA),
         ..still
-    }
-}
-
-/// The power heuristic's weight of a strategy with pdf `a` against one with pdf `b`.
-pub(super) fn power_heuristic(a: f64, b: f64) -> f64 {
-    let (a2, b2) = (a * a, b * b);
-    if a2 + b2 > 0.0 { a2 / (a2 + b2) } else { 0.0 }
-}
-
-impl SpmmMode {
-    /// The material's sampling pdf of world direction `wi` (0 where it never samples).
-    pub(super) fn material_pdf(&self, s: &Shading, wi: DVec3, wo: DVec3) -> f64 {
-        let (li, lo) = (s.to_local(wi), s.to_local(wo));
-        match (&self.scene.materials[s.material], &self.shaders[s.material]) {
-            (Material::Brdf { brdf, .. }, _) => brdf.pdf(lo, li),
-            (Material::Merl { brdf, .. }, _) => brdf.pdf(lo, li),
-            (_, shader @ Shader::Spmm { still, .. })
-                if self.pack_sampling == PackSampling::Bases =>
-            {
-                shader
-                    .prepared()
-                    .map_or(0.0, |p| p.pdf_uv(s.uv, still.uv_scale, li, lo))
-            }
-            (_, Shader::Spmm { .. } | Shader::Table) => defensive_pdf(li),
-            _ => 0.0,
-        }
-    }
-
-    /// A direction drawn from the material for `wo`, with its pdf.
-    pub(super) fn material_sample(
-        &self,
-        s: &Shading,
-        wo: DVec3,
-        u: glam::DVec2,
-    ) -> Option<(DVec3, f64)> {
-        match (&self.scene.materials[s.material], &self.shaders[s.material]) {
-            (Material::Brdf { brdf, .. }, _) => brdf
-                .sample(s.to_local(wo), u)
-                .map(|b| (s.to_world(b.wi), b.pdf)),
-            (Material::Merl { brdf, .. }, _) => brdf
-                .sample(s.to_local(wo), u)
-                .map(|b| (s.to_world(b.wi), b.pdf)),
-            (_, shader @ Shader::Spmm { still, .. })
-                if self.pack_sampling == PackSampling::Bases =>
-            {
-                shader
-                    .prepared()?
-                    .sample_uv(s.uv, still.uv_scale, s.to_local(wo), u)
-                    .map(|(local, pdf)| (s.to_world(local), pdf))
-            }
-            (_, shader @ (Shader::Spmm { .. } | Shader::Table)) => {
-                let (local, pdf) = shader.hemisphere_sample(u);
-                Some((s.to_world(local), pdf))
-            }
-            _ => None,
-        }
     }
 }

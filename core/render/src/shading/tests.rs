@@ -1,0 +1,212 @@
+//! The shading core against independent estimates: for every material kind, the
+//! directions it draws carry the pdf it reports for them, and the response integrated
+//! with its own sampler equals the same integral over uniform directions (a sampler
+//! whose pdf lies would bias the first and not the second).
+
+use std::f64::consts::PI;
+use std::sync::Arc;
+
+use glam::{DVec2, DVec3};
+
+use super::*;
+use crate::scene::test_scenes::tabulated_btf;
+use meso_materials::brdf::{AnalyticBrdf, BrdfModel, warp};
+use meso_materials::rng::SampleStream;
+use meso_materials::spmm::testing::sample_material;
+
+fn scene_of(materials: Vec<Material>) -> Scene {
+    let mut scene = crate::scene::test_scenes::edit_test_scene();
+    scene.materials = materials;
+    scene
+}
+
+fn glossy() -> AnalyticBrdf {
+    AnalyticBrdf::new(BrdfModel::CookTorrance, &[("roughness", 0.3)]).expect("valid")
+}
+
+/// One of each material kind with a finite response.
+fn every_kind() -> Vec<(&'static str, Material)> {
+    let albedo = DVec3::new(0.7, 0.5, 0.3);
+    vec![
+        (
+            "lambertian",
+            Material::Brdf {
+                brdf: AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
+                albedo,
+            },
+        ),
+        (
+            "cook_torrance",
+            Material::Brdf {
+                brdf: glossy(),
+                albedo,
+            },
+        ),
+        (
+            "merl",
+            Material::Merl {
+                brdf: Arc::new(meso_materials::merl::tabulate(&glossy(), albedo).expect("table")),
+                tint: DVec3::ONE,
+            },
+        ),
+        (
+            "spmm",
+            Material::Spmm {
+                material: Arc::new(sample_material(4, 4, 2, Some(2))),
+                uv_scale: DVec2::ONE,
+                residual: true,
+                npca: 2,
+            },
+        ),
+        ("btf", tabulated_btf(&glossy(), albedo, DVec2::ONE)),
+    ]
+}
+
+const VIEW: DVec3 = DVec3::new(0.42, -0.18, 0.889);
+const UV: DVec2 = DVec2::new(0.37, 0.61);
+
+/// The luminance-like sum of a response, for comparing integrals.
+fn sum(v: DVec3) -> f64 {
+    v.x + v.y + v.z
+}
+
+#[test]
+fn every_drawn_direction_carries_the_pdf_the_material_reports_for_it() {
+    for sampling in [PackSampling::Bases, PackSampling::Defensive] {
+        for (name, material) in every_kind() {
+            let scene = scene_of(vec![material]);
+            let mut shaders = Shaders::new(&scene.materials);
+            shaders.set_pack_sampling(sampling);
+            let m = shaders.material(&scene, 0, false);
+            let lo = VIEW.normalize();
+            let rng = SampleStream::new(&[7, 0x5AD]);
+            let mut drawn = 0;
+            for i in 0..2_000u64 {
+                let u = DVec2::new(rng.at(2 * i), rng.at(2 * i + 1));
+                let Some((li, pdf)) = m.sample_local(UV, lo, u) else {
+                    continue;
+                };
+                drawn += 1;
+                let reported = m.pdf_local(UV, li, lo);
+                assert!(
+                    (pdf - reported).abs() <= 1e-6 * pdf.max(1.0),
+                    "{name} ({sampling:?}): drew {li} with pdf {pdf}, reports {reported}"
+                );
+            }
+            assert!(drawn > 1_000, "{name}: only {drawn} of 2000 draws");
+        }
+    }
+}
+
+#[test]
+fn each_sampler_integrates_the_response_like_uniform_directions() {
+    let n = 200_000u64;
+    for (name, material) in every_kind() {
+        let scene = scene_of(vec![material]);
+        let shaders = Shaders::new(&scene.materials);
+        let m = shaders.material(&scene, 0, false);
+        let lo = VIEW.normalize();
+        let rng = SampleStream::new(&[11, 0x1A7]);
+        let (mut own, mut uniform) = (0.0, 0.0);
+        for i in 0..n {
+            let u = DVec2::new(rng.at(4 * i), rng.at(4 * i + 1));
+            if let Some((li, pdf)) = m.sample_local(UV, lo, u) {
+                own += sum(m.response_local(UV, li, lo)) / pdf;
+            }
+            let u = DVec2::new(rng.at(4 * i + 2), rng.at(4 * i + 3));
+            let li = warp::spherical(u.x, 2.0 * PI * u.y);
+            uniform += sum(m.response_local(UV, li, lo)) * 2.0 * PI;
+        }
+        let (own, uniform) = (own / n as f64, uniform / n as f64);
+        assert!(uniform > 0.05, "{name}: integral {uniform}");
+        assert!(
+            (own - uniform).abs() <= 0.03 * uniform,
+            "{name}: own sampler {own}, uniform directions {uniform}"
+        );
+    }
+}
+
+#[test]
+fn ambient_directions_weigh_the_response_by_their_inverse_pdf() {
+    // E[weight x response] over the ambient samples is the response's integral over
+    // the hemisphere, whichever strategy the material uses.
+    let n = 200_000u64;
+    let frame = Shading {
+        p: DVec3::ZERO,
+        t: DVec3::X,
+        b: DVec3::Z.cross(DVec3::X),
+        n: DVec3::Z,
+        uv: UV,
+        material: 0,
+    };
+    for (name, material) in every_kind() {
+        let scene = scene_of(vec![material]);
+        let shaders = Shaders::new(&scene.materials);
+        let m = shaders.material(&scene, 0, false);
+        let wo = VIEW.normalize();
+        let rng = SampleStream::new(&[13, 0xA3B]);
+        let (mut ambient, mut uniform) = (0.0, 0.0);
+        for i in 0..n {
+            let u = DVec2::new(rng.at(4 * i), rng.at(4 * i + 1));
+            if let Some((wi, weight)) = m.ambient_sample(&frame, wo, u) {
+                assert!(
+                    wi.z > 0.0,
+                    "{name}: ambient direction {wi} below the surface"
+                );
+                ambient += sum(m.response(&frame, wi, wo)) * weight;
+            }
+            let u = DVec2::new(rng.at(4 * i + 2), rng.at(4 * i + 3));
+            let wi = warp::spherical(u.x, 2.0 * PI * u.y);
+            uniform += sum(m.response(&frame, wi, wo)) * 2.0 * PI;
+        }
+        let (ambient, uniform) = (ambient / n as f64, uniform / n as f64);
+        assert!(
+            (ambient - uniform).abs() <= 0.03 * uniform,
+            "{name}: ambient {ambient}, uniform {uniform}"
+        );
+    }
+}
+
+#[test]
+fn a_mirror_is_a_delta_lobe_the_caller_follows() {
+    let reflectance = DVec3::new(0.9, 0.8, 0.7);
+    let scene = scene_of(vec![Material::Mirror { reflectance }]);
+    let shaders = Shaders::new(&scene.materials);
+    let m = shaders.material(&scene, 0, false);
+    let lo = VIEW.normalize();
+    let mirrored = DVec3::new(-lo.x, -lo.y, lo.z);
+    assert_eq!(m.specular(), Some(reflectance));
+    assert_eq!(m.response_local(UV, mirrored, lo), DVec3::ZERO);
+    assert_eq!(m.sample_local(UV, lo, DVec2::splat(0.5)), None);
+    assert_eq!(m.uniform_albedo(), Some(reflectance));
+    for (name, material) in every_kind() {
+        let scene = scene_of(vec![material]);
+        let shaders = Shaders::new(&scene.materials);
+        assert_eq!(
+            shaders.material(&scene, 0, false).specular(),
+            None,
+            "{name}"
+        );
+    }
+}
+
+#[test]
+fn a_lambertian_reflects_its_albedo_and_is_reciprocal() {
+    let albedo = DVec3::new(0.7, 0.5, 0.3);
+    let scene = scene_of(vec![Material::Brdf {
+        brdf: AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
+        albedo,
+    }]);
+    let shaders = Shaders::new(&scene.materials);
+    let m = shaders.material(&scene, 0, false);
+    let (a, b) = (DVec3::new(0.3, 0.1, 0.95).normalize(), VIEW.normalize());
+    // albedo / pi x cos_i, and f itself symmetric.
+    let want = albedo / PI * a.z;
+    assert!((m.response_local(UV, a, b) - want).abs().max_element() < 1e-12);
+    let (fa, fb) = (
+        m.response_local(UV, a, b) / a.z,
+        m.response_local(UV, b, a) / b.z,
+    );
+    assert!((fa - fb).abs().max_element() < 1e-12, "{fa} {fb}");
+    assert_eq!(m.uniform_albedo(), Some(albedo));
+}

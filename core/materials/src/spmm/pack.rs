@@ -7,15 +7,15 @@
 //! byte-identical, and goes through `atomic::write_atomic`.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use glam::DVec3;
 use safetensors::{Dtype, SafeTensors};
 
 use super::material::{Cluster, Residual, SparseWeights, SpmmError, SpmmMaterial};
-use crate::atomic::{AtomicWriteError, write_bytes_atomic};
+use crate::atomic::write_bytes_atomic;
 use crate::brdf::{AnalyticBrdf, BasisFunction, BrdfError, BrdfModel};
-use crate::container::{self, Tensor, dtype_name};
+use crate::container::{self, ContainerError, FileError, Tensor, dtype_name};
 
 pub const FORMAT: &str = "meso-spmm";
 pub const VERSION: &str = "1";
@@ -117,39 +117,14 @@ fn dequantize_i8(codes: &[u8], exponents: &[u8], run: usize) -> Result<Vec<f32>,
 }
 
 /// A pack that cannot be read or written: the file and what is wrong with it.
-#[derive(Debug, thiserror::Error)]
-#[error("`{}`: {kind}", path.display())]
-pub struct PackError {
-    pub path: PathBuf,
-    pub kind: PackErrorKind,
-}
+pub type PackError = FileError<PackErrorKind>;
 
+/// What is wrong with a pack: what every container file can have wrong
+/// (`ContainerError`), or what only a pack can.
 #[derive(Debug, thiserror::Error)]
 pub enum PackErrorKind {
-    #[error("cannot read: {0}")]
-    Io(#[from] std::io::Error),
-    #[error("file is {0} bytes, more than the {MAX_FILE_BYTES} a pack may have")]
-    TooLarge(u64),
-    #[error("not a valid safetensors container: {0}")]
-    Container(String),
-    #[error("metadata `{key}`: {problem}")]
-    Metadata { key: &'static str, problem: String },
-    #[error("tensor `{0}` is missing")]
-    MissingTensor(&'static str),
-    #[error("tensor `{0}` is not part of format version 1")]
-    UnknownTensor(String),
-    #[error("tensor `{name}` has dtype {found}, expected {expected}")]
-    Dtype {
-        name: &'static str,
-        found: String,
-        expected: &'static str,
-    },
-    #[error("tensor `{name}` has shape {found:?}, expected {expected:?}")]
-    Shape {
-        name: &'static str,
-        found: Vec<usize>,
-        expected: Vec<usize>,
-    },
+    #[error(transparent)]
+    Container(#[from] ContainerError),
     #[error(
         "tensor `basis_model`[{index}] = {value}: model ids are 0..=6 (lambertian .. ashikhmin_shirley)"
     )]
@@ -175,9 +150,11 @@ pub enum PackErrorKind {
     ClusterOffsets(String),
     #[error("{0}")]
     Material(#[from] SpmmError),
-    #[error("cannot write: {0}")]
-    Write(#[from] AtomicWriteError),
 }
+
+/// How a pack's size limit and unknown tensors are named in `ContainerError`.
+const FILE_NOUN: &str = "a pack";
+const FORMAT_NOUN: &str = "format";
 
 /// The model id stored in `basis_model`: the index in `BrdfModel::ALL`.
 pub fn model_id(model: BrdfModel) -> u8 {
@@ -189,15 +166,9 @@ pub fn model_id(model: BrdfModel) -> u8 {
 
 /// Reads and validates a pack file.
 pub fn read_pack(path: &Path) -> Result<SpmmMaterial, PackError> {
-    let at = |kind| PackError {
-        path: path.to_path_buf(),
-        kind,
-    };
-    let len = std::fs::metadata(path).map_err(|e| at(e.into()))?.len();
-    if len > MAX_FILE_BYTES {
-        return Err(at(PackErrorKind::TooLarge(len)));
-    }
-    let bytes = std::fs::read(path).map_err(|e| at(e.into()))?;
+    let at = |kind: PackErrorKind| PackError::at(path, kind);
+    let bytes = container::read_limited(path, MAX_FILE_BYTES, FILE_NOUN)
+        .map_err(|e| at(e.into()))?;
     decode_pack(&bytes).map_err(at)
 }
 
@@ -207,10 +178,8 @@ pub fn write_pack(
     material: &SpmmMaterial,
     precision: ResidualPrecision,
 ) -> Result<(), PackError> {
-    write_bytes_atomic(path, &encode_pack(material, precision)).map_err(|e| PackError {
-        path: path.to_path_buf(),
-        kind: e.into(),
-    })
+    write_bytes_atomic(path, &encode_pack(material, precision))
+        .map_err(|e| PackError::at(path, ContainerError::from(e)))
 }
 
 fn le_bytes<T: Copy, const N: usize>(values: &[T], to: impl Fn(T) -> [u8; N]) -> Vec<u8> {
@@ -478,18 +447,19 @@ impl<'a> Reader<'a> {
         let t = self
             .st
             .tensor(name)
-            .map_err(|_| PackErrorKind::MissingTensor(name))?;
+            .map_err(|_| ContainerError::MissingTensor(name))?;
         if !dtypes.contains(&t.dtype()) {
             let expected = match dtypes {
                 [one] => dtype_name(*one),
                 [_, _] => "F16 or F32",
                 _ => "F16, F32 or I8",
             };
-            return Err(PackErrorKind::Dtype {
+            return Err(ContainerError::Dtype {
                 name,
                 found: format!("{:?}", t.dtype()),
                 expected,
-            });
+            }
+            .into());
         }
         let shape = t.shape().to_vec();
         let matches = shape.len() == expected.len()
@@ -498,11 +468,13 @@ impl<'a> Reader<'a> {
                 .zip(expected)
                 .all(|(s, e)| e.is_none_or(|e| e == *s));
         if !matches {
-            return Err(PackErrorKind::Shape {
+            let expected: Vec<usize> = expected.iter().map(|e| e.unwrap_or(0)).collect();
+            return Err(ContainerError::Shape {
                 name,
                 found: shape,
-                expected: expected.iter().map(|e| e.unwrap_or(0)).collect(),
-            });
+                expected: format!("{expected:?}"),
+            }
+            .into());
         }
         Ok((t.dtype(), shape, t.data()))
     }
@@ -543,19 +515,19 @@ fn meta_usize(
     key: &'static str,
     max: usize,
 ) -> Result<usize, PackErrorKind> {
-    let raw = meta.get(key).ok_or(PackErrorKind::Metadata {
-        key,
-        problem: "missing".into(),
-    })?;
-    let v: usize = raw.parse().map_err(|_| PackErrorKind::Metadata {
+    let raw = meta
+        .get(key)
+        .ok_or_else(|| ContainerError::missing_metadata(key))?;
+    let v: usize = raw.parse().map_err(|_| ContainerError::Metadata {
         key,
         problem: format!("`{raw}` is not a count"),
     })?;
     if v > max {
-        return Err(PackErrorKind::Metadata {
+        return Err(ContainerError::Metadata {
             key,
             problem: format!("{v} exceeds the limit {max}"),
-        });
+        }
+        .into());
     }
     Ok(v)
 }
@@ -568,10 +540,9 @@ pub fn decode_pack(bytes: &[u8]) -> Result<SpmmMaterial, PackErrorKind> {
         metadata: meta,
     } = opened;
     let text = |key: &'static str| {
-        meta.get(key).cloned().ok_or(PackErrorKind::Metadata {
-            key,
-            problem: "missing".into(),
-        })
+        meta.get(key)
+            .cloned()
+            .ok_or_else(|| ContainerError::missing_metadata(key))
     };
     let name = text("name")?;
     let provenance = text("provenance")?;
@@ -579,10 +550,11 @@ pub fn decode_pack(bytes: &[u8]) -> Result<SpmmMaterial, PackErrorKind> {
         "true" => true,
         "false" => false,
         other => {
-            return Err(PackErrorKind::Metadata {
+            return Err(ContainerError::Metadata {
                 key: "edited",
                 problem: format!("`{other}`, expected true or false"),
-            });
+            }
+            .into());
         }
     };
     let width = meta_usize(&meta, "width", 16384)?;
@@ -591,7 +563,12 @@ pub fn decode_pack(bytes: &[u8]) -> Result<SpmmMaterial, PackErrorKind> {
     let npca = meta_usize(&meta, "npca", 4096)?;
     for name in st.names() {
         if !KNOWN_TENSORS.contains(&name) {
-            return Err(PackErrorKind::UnknownTensor(name.to_string()));
+            return Err(ContainerError::UnknownTensor {
+                name: name.to_string(),
+                format: FORMAT_NOUN,
+                version: VERSION,
+            }
+            .into());
         }
     }
 
@@ -722,10 +699,11 @@ pub fn decode_pack(bytes: &[u8]) -> Result<SpmmMaterial, PackErrorKind> {
         })
     } else {
         if npca != 0 {
-            return Err(PackErrorKind::Metadata {
+            return Err(ContainerError::Metadata {
                 key: "npca",
                 problem: format!("{npca} but the pack has no residual tensors"),
-            });
+            }
+            .into());
         }
         None
     };
@@ -753,10 +731,11 @@ pub fn decode_pack(bytes: &[u8]) -> Result<SpmmMaterial, PackErrorKind> {
             material.mark_clusters_edited(clusters);
         }
         (false, Some(_)) => {
-            return Err(PackErrorKind::Metadata {
+            return Err(ContainerError::Metadata {
                 key: "edited_clusters",
                 problem: "present in a pack whose `edited` is false".into(),
-            });
+            }
+            .into());
         }
     }
     Ok(material)
@@ -844,7 +823,9 @@ fn read_components(
                 r.view("residual_component_exponents", &[Dtype::I8], &shape(&[l]))?;
             dequantize_i8(data, exponents, v * 3)
         }
-        (Dtype::I8, false) => Err(PackErrorKind::MissingTensor("residual_component_exponents")),
+        (Dtype::I8, false) => {
+            Err(ContainerError::MissingTensor("residual_component_exponents").into())
+        }
         (_, true) => Err(PackErrorKind::Quantized(
             "tensor `residual_component_exponents` is present but `residual_components` \
              is not I8"
@@ -863,10 +844,11 @@ fn edited_cluster_list(list: &str, clusters: usize) -> Result<Vec<usize>, PackEr
     list.split(',')
         .map(|item| match item.parse::<usize>() {
             Ok(c) if c < clusters => Ok(c),
-            _ => Err(PackErrorKind::Metadata {
+            _ => Err(ContainerError::Metadata {
                 key: "edited_clusters",
                 problem: format!("`{item}` is not a cluster index below {clusters}"),
-            }),
+            }
+            .into()),
         })
         .collect()
 }
@@ -888,11 +870,10 @@ pub fn residual_precision(bytes: &[u8]) -> ResidualPrecision {
 
 /// Bytes taken by each tensor of a pack, and by the header, for `meso pack info`.
 pub fn tensor_sizes(bytes: &[u8]) -> Result<Vec<(String, usize)>, PackErrorKind> {
-    let (header_len, _) =
-        SafeTensors::read_metadata(bytes).map_err(|e| PackErrorKind::Container(e.to_string()))?;
+    let invalid = |e: safetensors::SafeTensorError| ContainerError::Invalid(e.to_string());
+    let (header_len, _) = SafeTensors::read_metadata(bytes).map_err(invalid)?;
     let mut sizes: Vec<(String, usize)> = vec![("(header)".into(), 8 + header_len)];
-    let st =
-        SafeTensors::deserialize(bytes).map_err(|e| PackErrorKind::Container(e.to_string()))?;
+    let st = SafeTensors::deserialize(bytes).map_err(invalid)?;
     let mut tensors: Vec<(String, usize)> = st
         .tensors()
         .into_iter()
@@ -901,15 +882,4 @@ pub fn tensor_sizes(bytes: &[u8]) -> Result<Vec<(String, usize)>, PackErrorKind>
     tensors.sort();
     sizes.extend(tensors);
     Ok(sizes)
-}
-
-impl From<container::OpenError> for PackErrorKind {
-    fn from(e: container::OpenError) -> Self {
-        match e {
-            container::OpenError::Container(m) => PackErrorKind::Container(m),
-            container::OpenError::Metadata { key, problem } => {
-                PackErrorKind::Metadata { key, problem }
-            }
-        }
-    }
 }

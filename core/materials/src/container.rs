@@ -184,7 +184,11 @@ impl<K> FileError<K> {
 
 /// The bytes of a container file, refused before reading when larger than `limit`
 /// (a lying size cannot make it allocate); `file` names such a file in the refusal.
-pub fn read_limited(path: &Path, limit: u64, file: &'static str) -> Result<Vec<u8>, ContainerError> {
+pub fn read_limited(
+    path: &Path,
+    limit: u64,
+    file: &'static str,
+) -> Result<Vec<u8>, ContainerError> {
     let bytes = std::fs::metadata(path)?.len();
     if bytes > limit {
         return Err(ContainerError::TooLarge { bytes, limit, file });
@@ -209,7 +213,11 @@ impl Opened<'_> {
 }
 
 /// Parses `bytes` and checks `format` and `version`.
-pub fn open<'a>(bytes: &'a [u8], format: &str, version: &str) -> Result<Opened<'a>, ContainerError> {
+pub fn open<'a>(
+    bytes: &'a [u8],
+    format: &str,
+    version: &str,
+) -> Result<Opened<'a>, ContainerError> {
     let (_, header) =
         SafeTensors::read_metadata(bytes).map_err(|e| ContainerError::Invalid(e.to_string()))?;
     let tensors =
@@ -281,7 +289,9 @@ mod tests {
         // Sparse: the size is refused before anything is read.
         file.set_len(pack::MAX_FILE_BYTES + 1).expect("sparse file");
         assert_eq!(
-            pack::read_pack(&pack_path).expect_err("too large").to_string(),
+            pack::read_pack(&pack_path)
+                .expect_err("too large")
+                .to_string(),
             format!(
                 "`{}`: file is 2147483649 bytes, more than the 2147483648 a pack may have",
                 pack_path.display()
@@ -289,16 +299,22 @@ mod tests {
         );
         let btf_path = dir.path().join("big.btf");
         let file = std::fs::File::create(&btf_path).expect("create");
-        file.set_len(btf::file::MAX_FILE_BYTES + 1).expect("sparse file");
+        file.set_len(btf::file::MAX_FILE_BYTES + 1)
+            .expect("sparse file");
         assert_eq!(
-            btf::file::read_btf(&btf_path).expect_err("too large").to_string(),
+            btf::file::read_btf(&btf_path)
+                .expect_err("too large")
+                .to_string(),
             format!(
                 "`{}`: file is 8589934593 bytes, more than the 8589934592 a .btf may have",
                 btf_path.display()
             )
         );
 
-        let good = pack::encode_pack(&sample_material(2, 2, 1, None), pack::ResidualPrecision::F32);
+        let good = pack::encode_pack(
+            &sample_material(2, 2, 1, None),
+            pack::ResidualPrecision::F32,
+        );
         assert_eq!(
             pack::decode_pack(&with_extra_tensor(&good))
                 .expect_err("unknown tensor")
@@ -306,8 +322,16 @@ mod tests {
             "tensor `extra` is not part of format version 1"
         );
         let dirs = btf::directions::rings(&[(0.0, 1)]);
-        let b = Btf::new("t".into(), "".into(), 1, 1, dirs.clone(), dirs, vec![0.5; 3])
-            .expect("valid");
+        let b = Btf::new(
+            "t".into(),
+            "".into(),
+            1,
+            1,
+            dirs.clone(),
+            dirs,
+            vec![0.5; 3],
+        )
+        .expect("valid");
         let good = btf::file::encode_btf(&b, btf::file::BtfPrecision::F32).expect("encode");
         assert_eq!(
             btf::file::decode_btf(&with_extra_tensor(&good))

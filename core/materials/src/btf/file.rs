@@ -57,8 +57,8 @@ const FORMAT_NOUN: &str = ".btf format";
 /// Reads and validates a `.btf` file.
 pub fn read_btf(path: &Path) -> Result<Btf, BtfFileError> {
     let at = |kind: BtfFileErrorKind| BtfFileError::at(path, kind);
-    let bytes = container::read_limited(path, MAX_FILE_BYTES, FILE_NOUN)
-        .map_err(|e| at(e.into()))?;
+    let bytes =
+        container::read_limited(path, MAX_FILE_BYTES, FILE_NOUN).map_err(|e| at(e.into()))?;
     decode_btf(&bytes).map_err(at)
 }
 

@@ -73,7 +73,7 @@ pub(crate) struct TexelClusters {
     pub members: Vec<Vec<usize>>,
 }
 
-/// 1. Texel clusters from their apparent BRDFs at the feature pairs (RGB).
+/// Stage 1, texel clusters from their apparent BRDFs at the feature pairs (RGB).
 pub(crate) fn cluster_texels(
     btf: &Btf,
     feature_pairs: &[usize],
@@ -113,7 +113,7 @@ pub(crate) fn cluster_texels(
     }
 }
 
-/// 2. Representatives (sub-cluster means) and their fitted bases: per cluster a
+/// Stage 2, representatives (sub-cluster means) and their fitted bases: per cluster a
 /// dictionary within the lobe bound, without near duplicates, never empty.
 pub(crate) fn fit_dictionaries(
     btf: &Btf,
@@ -281,7 +281,7 @@ pub(crate) fn hemisphere_peaks(clusters: &[Cluster]) -> Vec<f64> {
         .collect()
 }
 
-/// 3. Sparse weights per texel against its cluster's dictionary, every pair, each
+/// Stage 3, sparse weights per texel against its cluster's dictionary, every pair, each
 /// basis's weight capped by `caps`.
 pub(crate) fn fit_weights(
     btf: &Btf,
@@ -340,7 +340,7 @@ pub(crate) fn fit_weights(
     Ok(weights.into_iter().map(Option::unwrap_or_default).collect())
 }
 
-/// 4. Residual per cluster: mean + PCA over all pairs of what the weights leave.
+/// Stage 4, the residual per cluster: mean + PCA over all pairs of what the weights leave.
 pub(crate) fn fit_residuals(
     btf: &Btf,
     members: &[Vec<usize>],

@@ -5,14 +5,14 @@
 //! `Btf::new`); writing emits a deterministic header and goes through `write_atomic`.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use glam::DVec3;
 use safetensors::{Dtype, SafeTensors};
 
 use super::{Btf, BtfError};
-use crate::atomic::{AtomicWriteError, write_bytes_atomic};
-use crate::container::{self, Tensor};
+use crate::atomic::write_bytes_atomic;
+use crate::container::{self, ContainerError, FileError, Tensor};
 
 pub const FORMAT: &str = "meso-btf";
 pub const VERSION: &str = "1";
@@ -29,39 +29,15 @@ pub enum BtfPrecision {
     F32,
 }
 
-#[derive(Debug, thiserror::Error)]
-#[error("`{}`: {kind}", path.display())]
-pub struct BtfFileError {
-    pub path: PathBuf,
-    pub kind: BtfFileErrorKind,
-}
+/// A `.btf` that cannot be read or written: the file and what is wrong with it.
+pub type BtfFileError = FileError<BtfFileErrorKind>;
 
+/// What is wrong with a `.btf`: what every container file can have wrong
+/// (`ContainerError`), or what only a `.btf` can.
 #[derive(Debug, thiserror::Error)]
 pub enum BtfFileErrorKind {
-    #[error("cannot read: {0}")]
-    Io(#[from] std::io::Error),
-    #[error("file is {0} bytes, more than the {MAX_FILE_BYTES} a .btf may have")]
-    TooLarge(u64),
-    #[error("not a valid safetensors container: {0}")]
-    Container(String),
-    #[error("metadata `{key}`: {problem}")]
-    Metadata { key: &'static str, problem: String },
-    #[error("tensor `{0}` is missing")]
-    MissingTensor(&'static str),
-    #[error("tensor `{0}` is not part of .btf format version 1")]
-    UnknownTensor(String),
-    #[error("tensor `{name}` has dtype {found}, expected {expected}")]
-    Dtype {
-        name: &'static str,
-        found: String,
-        expected: &'static str,
-    },
-    #[error("tensor `{name}` has shape {found:?}, expected {expected}")]
-    Shape {
-        name: &'static str,
-        found: Vec<usize>,
-        expected: String,
-    },
+    #[error(transparent)]
+    Container(#[from] ContainerError),
     #[error(
         "values {precision:?} cannot hold reflectance[{index}] = {value} (F16 holds magnitudes up to 65504)"
     )]
@@ -72,32 +48,25 @@ pub enum BtfFileErrorKind {
     },
     #[error("tensor {0}")]
     Btf(#[from] BtfError),
-    #[error("cannot write: {0}")]
-    Write(#[from] AtomicWriteError),
 }
+
+/// How a `.btf`'s size limit and unknown tensors are named in `ContainerError`.
+const FILE_NOUN: &str = "a .btf";
+const FORMAT_NOUN: &str = ".btf format";
 
 /// Reads and validates a `.btf` file.
 pub fn read_btf(path: &Path) -> Result<Btf, BtfFileError> {
-    let at = |kind| BtfFileError {
-        path: path.to_path_buf(),
-        kind,
-    };
-    let len = std::fs::metadata(path).map_err(|e| at(e.into()))?.len();
-    if len > MAX_FILE_BYTES {
-        return Err(at(BtfFileErrorKind::TooLarge(len)));
-    }
-    let bytes = std::fs::read(path).map_err(|e| at(e.into()))?;
+    let at = |kind: BtfFileErrorKind| BtfFileError::at(path, kind);
+    let bytes =
+        container::read_limited(path, MAX_FILE_BYTES, FILE_NOUN).map_err(|e| at(e.into()))?;
     decode_btf(&bytes).map_err(at)
 }
 
 /// Writes a `.btf` atomically; F16 is refused when a value exceeds its range.
 pub fn write_btf(path: &Path, btf: &Btf, precision: BtfPrecision) -> Result<(), BtfFileError> {
-    let at = |kind| BtfFileError {
-        path: path.to_path_buf(),
-        kind,
-    };
+    let at = |kind: BtfFileErrorKind| BtfFileError::at(path, kind);
     let bytes = encode_btf(btf, precision).map_err(at)?;
-    write_bytes_atomic(path, &bytes).map_err(|e| at(e.into()))
+    write_bytes_atomic(path, &bytes).map_err(|e| at(ContainerError::from(e).into()))
 }
 
 /// The precision to store `btf` in: F16 when every value fits, else F32.
@@ -168,36 +137,36 @@ fn meta_count(
     meta: &std::collections::HashMap<String, String>,
     key: &'static str,
 ) -> Result<u32, BtfFileErrorKind> {
-    let raw = meta.get(key).ok_or(BtfFileErrorKind::Metadata {
-        key,
-        problem: "missing".into(),
-    })?;
-    let v: u32 = raw.parse().map_err(|_| BtfFileErrorKind::Metadata {
+    let raw = meta
+        .get(key)
+        .ok_or_else(|| ContainerError::missing_metadata(key))?;
+    let v: u32 = raw.parse().map_err(|_| ContainerError::Metadata {
         key,
         problem: format!("`{raw}` is not a count"),
     })?;
     if !(1..=super::MAX_SIDE).contains(&v) {
-        return Err(BtfFileErrorKind::Metadata {
+        return Err(ContainerError::Metadata {
             key,
             problem: format!("{v} is outside 1..={}", super::MAX_SIDE),
-        });
+        }
+        .into());
     }
     Ok(v)
 }
 
-fn directions(st: &SafeTensors, name: &'static str) -> Result<Vec<DVec3>, BtfFileErrorKind> {
+fn directions(st: &SafeTensors, name: &'static str) -> Result<Vec<DVec3>, ContainerError> {
     let t = st
         .tensor(name)
-        .map_err(|_| BtfFileErrorKind::MissingTensor(name))?;
+        .map_err(|_| ContainerError::MissingTensor(name))?;
     if t.dtype() != Dtype::F64 {
-        return Err(BtfFileErrorKind::Dtype {
+        return Err(ContainerError::Dtype {
             name,
             found: format!("{:?}", t.dtype()),
             expected: "F64",
         });
     }
     if t.shape().len() != 2 || t.shape()[1] != 3 {
-        return Err(BtfFileErrorKind::Shape {
+        return Err(ContainerError::Shape {
             name,
             found: t.shape().to_vec(),
             expected: "[N, 3]".into(),
@@ -219,10 +188,9 @@ pub fn decode_btf(bytes: &[u8]) -> Result<Btf, BtfFileErrorKind> {
         metadata: meta,
     } = container::open(bytes, FORMAT, VERSION)?;
     let text = |key: &'static str| {
-        meta.get(key).cloned().ok_or(BtfFileErrorKind::Metadata {
-            key,
-            problem: "missing".into(),
-        })
+        meta.get(key)
+            .cloned()
+            .ok_or_else(|| ContainerError::missing_metadata(key))
     };
     let name = text("name")?;
     let provenance = text("provenance")?;
@@ -230,14 +198,19 @@ pub fn decode_btf(bytes: &[u8]) -> Result<Btf, BtfFileErrorKind> {
     let height = meta_count(&meta, "height")?;
     for n in st.names() {
         if !["light_dirs", "view_dirs", "reflectance"].contains(&n) {
-            return Err(BtfFileErrorKind::UnknownTensor(n.to_string()));
+            return Err(ContainerError::UnknownTensor {
+                name: n.to_string(),
+                format: FORMAT_NOUN,
+                version: VERSION,
+            }
+            .into());
         }
     }
     let light_dirs = directions(&st, "light_dirs")?;
     let view_dirs = directions(&st, "view_dirs")?;
     let t = st
         .tensor("reflectance")
-        .map_err(|_| BtfFileErrorKind::MissingTensor("reflectance"))?;
+        .map_err(|_| ContainerError::MissingTensor("reflectance"))?;
     let expected = [
         height as usize,
         width as usize,
@@ -246,11 +219,12 @@ pub fn decode_btf(bytes: &[u8]) -> Result<Btf, BtfFileErrorKind> {
         3,
     ];
     if t.shape() != expected {
-        return Err(BtfFileErrorKind::Shape {
+        return Err(ContainerError::Shape {
             name: "reflectance",
             found: t.shape().to_vec(),
             expected: format!("{expected:?} (height, width, lights, views, rgb)"),
-        });
+        }
+        .into());
     }
     let data: Vec<f32> = match t.dtype() {
         Dtype::F16 => t
@@ -264,27 +238,17 @@ pub fn decode_btf(bytes: &[u8]) -> Result<Btf, BtfFileErrorKind> {
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect(),
         other => {
-            return Err(BtfFileErrorKind::Dtype {
+            return Err(ContainerError::Dtype {
                 name: "reflectance",
                 found: format!("{other:?}"),
                 expected: "F16 or F32",
-            });
+            }
+            .into());
         }
     };
     Ok(Btf::new(
         name, provenance, width, height, light_dirs, view_dirs, data,
     )?)
-}
-
-impl From<container::OpenError> for BtfFileErrorKind {
-    fn from(e: container::OpenError) -> Self {
-        match e {
-            container::OpenError::Container(m) => BtfFileErrorKind::Container(m),
-            container::OpenError::Metadata { key, problem } => {
-                BtfFileErrorKind::Metadata { key, problem }
-            }
-        }
-    }
 }
 
 #[cfg(test)]

@@ -166,8 +166,8 @@ pub fn decode(
     vertices: usize,
 ) -> Result<(TransferMatrix, Biclustering), String> {
     let opened = container::open(bytes, FORMAT, VERSION).map_err(|e| match e {
-        container::OpenError::Container(m) => format!("not a readable container: {m}"),
-        container::OpenError::Metadata { key, problem } => format!("metadata `{key}`: {problem}"),
+        container::ContainerError::Invalid(m) => format!("not a readable container: {m}"),
+        other => other.to_string(),
     })?;
     let text = |k: &'static str| {
         opened

@@ -195,22 +195,7 @@ pub fn load_manifest(path: &Path) -> Result<Manifest, ManifestError> {
 
 /// Checks a manifest's `text` as if read from `path`.
 pub fn parse_manifest(path: &Path, text: String) -> Result<Manifest, ManifestError> {
-    let parsed: ManifestFile = toml::from_str(&text).map_err(|e| {
-        let line = e.span().and_then(|s| line_of(&text, &s));
-        // toml names the key of an unknown or missing field in its message but not of
-        // a wrong type: take it from the offending line (`key = value`).
-        let key = line
-            .and_then(|l| text.lines().nth(l - 1))
-            .and_then(|l| l.split_once('='))
-            .map(|(k, _)| k.trim().to_string())
-            .filter(|k| !k.is_empty() && !k.starts_with('['));
-        ManifestError {
-            file: path.to_path_buf(),
-            line,
-            key,
-            message: e.message().trim().to_string(),
-        }
-    })?;
+    let parsed = parse_toml(path, &text)?;
     let ctx = Ctx {
         file: path,
         text: &text,
@@ -224,38 +209,8 @@ pub fn parse_manifest(path: &Path, text: String) -> Result<Manifest, ManifestErr
     }
     let folder = path.parent().unwrap_or(Path::new("."));
     let goldens = folder.join(parsed.goldens.get_ref());
-
-    let mut scenes = BTreeMap::new();
-    for (name, s) in &parsed.scenes {
-        if let Some(p) = check_key(name.get_ref()) {
-            return ctx.err(&name.span(), format!("scenes.{}", name.get_ref()), p);
-        }
-        let s = s.get_ref();
-        scenes.insert(
-            name.get_ref().clone(),
-            SceneRef {
-                path: folder.join(s.path.get_ref()),
-                replace: s.replace.as_ref().map(|r| r.get_ref().clone()),
-                path_line: ctx.line(&s.path.span()),
-                replace_line: s.replace.as_ref().and_then(|r| ctx.line(&r.span())),
-            },
-        );
-    }
-    let mut materials = BTreeMap::new();
-    for (name, m) in parsed.materials {
-        let key = format!("materials.{}", name.get_ref());
-        if let Some(p) = check_key(name.get_ref()) {
-            return ctx.err(&name.span(), key, p);
-        }
-        if name.get_ref() == NO_SUBSTITUTION {
-            return ctx.err(
-                &name.span(),
-                key,
-                format!("`{NO_SUBSTITUTION}` is reserved: it names a scene's own material in `materials = [...]`"),
-            );
-        }
-        materials.insert(name.into_inner(), m);
-    }
+    let scenes = read_scenes(&ctx, &parsed.scenes, folder)?;
+    let materials = read_materials(&ctx, parsed.materials)?;
 
     let defaults = Settings::read(
         &ctx,
@@ -264,182 +219,15 @@ pub fn parse_manifest(path: &Path, text: String) -> Result<Manifest, ManifestErr
         None,
         &(0..0),
     )?;
-    let mut cases: Vec<Case> = Vec::new();
-    let mut origin_of: BTreeMap<String, String> = BTreeMap::new();
-    let mut push = |case: Case, span: &Range<usize>| -> Result<(), ManifestError> {
-        if let Some(first) = origin_of.get(&case.name) {
-            return ctx.err(
-                span,
-                case.origin.clone(),
-                format!(
-                    "case `{}` is also made by {first}: case names must be unique",
-                    case.name
-                ),
-            );
-        }
-        origin_of.insert(case.name.clone(), case.origin.clone());
-        cases.push(case);
-        Ok(())
-    };
-
+    let mut cases = Cases::default();
     for (i, m) in parsed.matrices.iter().enumerate() {
-        let span = m.span();
-        let m = m.get_ref();
-        let table = format!("matrix[{i}]");
-        let key = |k: &str| format!("{table}.{k}");
-        let settings = Settings::read(&ctx, &table, &m.as_fields(), Some(&defaults), &span)?;
-        let scene_names = names(&ctx, &m.scenes, &key("scenes"), |n| {
-            known(n, scenes.keys(), "scene")
-        })?;
-        let no_sub = [NO_SUBSTITUTION.to_string()];
-        let material_names: Vec<String> = match &m.materials {
-            Some(list) => names(&ctx, list, &key("materials"), |n| {
-                if n == NO_SUBSTITUTION {
-                    None
-                } else {
-                    known(n, materials.keys(), "material")
-                }
-            })?,
-            None => no_sub.to_vec(),
-        };
-        let modes = names(&ctx, &m.modes, &key("modes"), |n| {
-            ModeKind::from_name(n)
-                .is_none()
-                .then(|| format!("`{n}`: modes are spmm, biscale, adaptive"))
-        })?;
-        let devices = match &m.devices {
-            Some(list) => names(&ctx, list, &key("devices"), |n| {
-                Device::from_name(n)
-                    .is_none()
-                    .then(|| format!("`{n}`: devices are cpu, gpu"))
-            })?,
-            None => vec!["cpu".to_string()],
-        };
-        for scene_name in &scene_names {
-            for material in &material_names {
-                let substitution = (material != NO_SUBSTITUTION).then(|| material.clone());
-                let replace = scenes[scene_name].replace.clone();
-                if substitution.is_some() && replace.is_none() {
-                    return ctx.err(
-                        &m.materials.as_ref().map_or(span.clone(), |l| l.span()),
-                        key("materials"),
-                        format!(
-                            "scene `{scene_name}` has no `replace` (the material substitutions replace), so `{material}` cannot be substituted in it"
-                        ),
-                    );
-                }
-                for mode in &modes {
-                    for device in &devices {
-                        let mode = ModeKind::from_name(mode).expect("checked above");
-                        let device = Device::from_name(device).expect("checked above");
-                        let case = Case {
-                            name: case_name(scene_name, substitution.as_deref(), mode, device),
-                            scene: scene_name.clone(),
-                            material: substitution.clone(),
-                            replace: substitution.as_ref().and(replace.clone()),
-                            mode,
-                            device,
-                            width: settings.width,
-                            height: settings.height,
-                            frames: settings.frames,
-                            seed: settings.seed,
-                            tolerance: settings.tolerance,
-                            origin: format!("{table} (line {})", ctx.line(&span).unwrap_or(0)),
-                        };
-                        push(case, &span)?;
-                    }
-                }
-            }
-        }
+        expand_matrix(&ctx, i, m, &defaults, &scenes, &materials, &mut cases)?;
     }
-
     for (i, c) in parsed.cases.iter().enumerate() {
-        let span = c.span();
-        let c = c.get_ref();
-        let table = format!("case[{i}]");
-        let key = |k: &str| format!("{table}.{k}");
-        let settings = Settings::read(&ctx, &table, &c.as_fields(), Some(&defaults), &span)?;
-        let scene_name = c.scene.get_ref();
-        if let Some(p) = known(scene_name, scenes.keys(), "scene") {
-            return ctx.err(&c.scene.span(), key("scene"), p);
-        }
-        let material = match &c.material {
-            Some(m) if m.get_ref() != NO_SUBSTITUTION => {
-                if let Some(p) = known(m.get_ref(), materials.keys(), "material") {
-                    return ctx.err(&m.span(), key("material"), p);
-                }
-                Some(m.get_ref().clone())
-            }
-            _ => None,
-        };
-        let replace = match (&material, &c.replace) {
-            (None, Some(r)) => {
-                return ctx.err(
-                    &r.span(),
-                    key("replace"),
-                    "a case without `material` replaces nothing",
-                );
-            }
-            (Some(_), Some(r)) => Some(r.get_ref().clone()),
-            (Some(m), None) => match &scenes[scene_name].replace {
-                Some(r) => Some(r.clone()),
-                None => {
-                    return ctx.err(
-                        &span,
-                        key("replace"),
-                        format!(
-                            "scene `{scene_name}` has no `replace`, so say which of its materials `{m}` replaces"
-                        ),
-                    );
-                }
-            },
-            (None, None) => None,
-        };
-        let Some(mode) = ModeKind::from_name(c.mode.get_ref()) else {
-            return ctx.err(
-                &c.mode.span(),
-                key("mode"),
-                format!("`{}`: modes are spmm, biscale, adaptive", c.mode.get_ref()),
-            );
-        };
-        let device = match &c.device {
-            None => Device::Cpu,
-            Some(d) => match Device::from_name(d.get_ref()) {
-                Some(d) => d,
-                None => {
-                    return ctx.err(
-                        &d.span(),
-                        key("device"),
-                        format!("`{}`: devices are cpu, gpu", d.get_ref()),
-                    );
-                }
-            },
-        };
-        let name = match &c.name {
-            Some(n) => {
-                if let Some(p) = check_case_name(n.get_ref()) {
-                    return ctx.err(&n.span(), key("name"), p);
-                }
-                n.get_ref().clone()
-            }
-            None => case_name(scene_name, material.as_deref(), mode, device),
-        };
-        let case = Case {
-            name,
-            scene: scene_name.clone(),
-            material,
-            replace,
-            mode,
-            device,
-            width: settings.width,
-            height: settings.height,
-            frames: settings.frames,
-            seed: settings.seed,
-            tolerance: settings.tolerance,
-            origin: format!("{table} (line {})", ctx.line(&span).unwrap_or(0)),
-        };
-        push(case, &span)?;
+        let case = single_case(&ctx, i, c, &defaults, &scenes, &materials)?;
+        cases.push(&ctx, case, &c.span())?;
     }
+    let cases = cases.cases;
     if cases.is_empty() {
         return Err(ManifestError {
             file: path.to_path_buf(),
@@ -457,6 +245,278 @@ pub fn parse_manifest(path: &Path, text: String) -> Result<Manifest, ManifestErr
         digest,
         text,
         materials,
+    })
+}
+
+/// The TOML as written; a syntax or type error names its line and, where it can, the key.
+fn parse_toml(path: &Path, text: &str) -> Result<ManifestFile, ManifestError> {
+    toml::from_str(text).map_err(|e| {
+        let line = e.span().and_then(|s| line_of(text, &s));
+        // toml names the key of an unknown or missing field in its message but not of
+        // a wrong type: take it from the offending line (`key = value`).
+        let key = line
+            .and_then(|l| text.lines().nth(l - 1))
+            .and_then(|l| l.split_once('='))
+            .map(|(k, _)| k.trim().to_string())
+            .filter(|k| !k.is_empty() && !k.starts_with('['));
+        ManifestError {
+            file: path.to_path_buf(),
+            line,
+            key,
+            message: e.message().trim().to_string(),
+        }
+    })
+}
+
+/// `[scenes]`: each name checked, its paths resolved against the manifest's `folder`.
+fn read_scenes(
+    ctx: &Ctx,
+    parsed: &BTreeMap<Spanned<String>, Spanned<SceneFile>>,
+    folder: &Path,
+) -> Result<BTreeMap<String, SceneRef>, ManifestError> {
+    let mut scenes = BTreeMap::new();
+    for (name, s) in parsed {
+        if let Some(p) = check_key(name.get_ref()) {
+            return ctx.err(&name.span(), format!("scenes.{}", name.get_ref()), p);
+        }
+        let s = s.get_ref();
+        scenes.insert(
+            name.get_ref().clone(),
+            SceneRef {
+                path: folder.join(s.path.get_ref()),
+                replace: s.replace.as_ref().map(|r| r.get_ref().clone()),
+                path_line: ctx.line(&s.path.span()),
+                replace_line: s.replace.as_ref().and_then(|r| ctx.line(&r.span())),
+            },
+        );
+    }
+    Ok(scenes)
+}
+
+/// `[materials]`: the substitutions by name (checked when a case uses them).
+fn read_materials(
+    ctx: &Ctx,
+    parsed: BTreeMap<Spanned<String>, MaterialTable>,
+) -> Result<BTreeMap<String, MaterialTable>, ManifestError> {
+    let mut materials = BTreeMap::new();
+    for (name, m) in parsed {
+        let key = format!("materials.{}", name.get_ref());
+        if let Some(p) = check_key(name.get_ref()) {
+            return ctx.err(&name.span(), key, p);
+        }
+        if name.get_ref() == NO_SUBSTITUTION {
+            return ctx.err(
+                &name.span(),
+                key,
+                format!("`{NO_SUBSTITUTION}` is reserved: it names a scene's own material in `materials = [...]`"),
+            );
+        }
+        materials.insert(name.into_inner(), m);
+    }
+    Ok(materials)
+}
+
+/// The cases so far, in manifest order, and which table made each name: names must
+/// be unique.
+#[derive(Default)]
+struct Cases {
+    cases: Vec<Case>,
+    origin_of: BTreeMap<String, String>,
+}
+
+impl Cases {
+    fn push(&mut self, ctx: &Ctx, case: Case, span: &Range<usize>) -> Result<(), ManifestError> {
+        if let Some(first) = self.origin_of.get(&case.name) {
+            return ctx.err(
+                span,
+                case.origin.clone(),
+                format!(
+                    "case `{}` is also made by {first}: case names must be unique",
+                    case.name
+                ),
+            );
+        }
+        self.origin_of
+            .insert(case.name.clone(), case.origin.clone());
+        self.cases.push(case);
+        Ok(())
+    }
+}
+
+/// `[[matrix]]` number `i`: its scenes x material substitutions x modes x devices, each
+/// case pushed to `out` as it is made.
+fn expand_matrix(
+    ctx: &Ctx,
+    i: usize,
+    m: &Spanned<MatrixFile>,
+    defaults: &Settings,
+    scenes: &BTreeMap<String, SceneRef>,
+    materials: &BTreeMap<String, MaterialTable>,
+    out: &mut Cases,
+) -> Result<(), ManifestError> {
+    let span = m.span();
+    let m = m.get_ref();
+    let table = format!("matrix[{i}]");
+    let key = |k: &str| format!("{table}.{k}");
+    let settings = Settings::read(ctx, &table, &m.as_fields(), Some(defaults), &span)?;
+    let scene_names = names(ctx, &m.scenes, &key("scenes"), |n| {
+        known(n, scenes.keys(), "scene")
+    })?;
+    let no_sub = [NO_SUBSTITUTION.to_string()];
+    let material_names: Vec<String> = match &m.materials {
+        Some(list) => names(ctx, list, &key("materials"), |n| {
+            if n == NO_SUBSTITUTION {
+                None
+            } else {
+                known(n, materials.keys(), "material")
+            }
+        })?,
+        None => no_sub.to_vec(),
+    };
+    let modes = names(ctx, &m.modes, &key("modes"), |n| {
+        ModeKind::from_name(n)
+            .is_none()
+            .then(|| format!("`{n}`: modes are spmm, biscale, adaptive"))
+    })?;
+    let devices = match &m.devices {
+        Some(list) => names(ctx, list, &key("devices"), |n| {
+            Device::from_name(n)
+                .is_none()
+                .then(|| format!("`{n}`: devices are cpu, gpu"))
+        })?,
+        None => vec!["cpu".to_string()],
+    };
+    for scene_name in &scene_names {
+        for material in &material_names {
+            let substitution = (material != NO_SUBSTITUTION).then(|| material.clone());
+            let replace = scenes[scene_name].replace.clone();
+            if substitution.is_some() && replace.is_none() {
+                return ctx.err(
+                    &m.materials.as_ref().map_or(span.clone(), |l| l.span()),
+                    key("materials"),
+                    format!(
+                        "scene `{scene_name}` has no `replace` (the material substitutions replace), so `{material}` cannot be substituted in it"
+                    ),
+                );
+            }
+            for mode in &modes {
+                for device in &devices {
+                    let mode = ModeKind::from_name(mode).expect("checked above");
+                    let device = Device::from_name(device).expect("checked above");
+                    let case = Case {
+                        name: case_name(scene_name, substitution.as_deref(), mode, device),
+                        scene: scene_name.clone(),
+                        material: substitution.clone(),
+                        replace: substitution.as_ref().and(replace.clone()),
+                        mode,
+                        device,
+                        width: settings.width,
+                        height: settings.height,
+                        frames: settings.frames,
+                        seed: settings.seed,
+                        tolerance: settings.tolerance,
+                        origin: format!("{table} (line {})", ctx.line(&span).unwrap_or(0)),
+                    };
+                    out.push(ctx, case, &span)?;
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// `[[case]]` number `i`, checked.
+fn single_case(
+    ctx: &Ctx,
+    i: usize,
+    c: &Spanned<CaseFile>,
+    defaults: &Settings,
+    scenes: &BTreeMap<String, SceneRef>,
+    materials: &BTreeMap<String, MaterialTable>,
+) -> Result<Case, ManifestError> {
+    let span = c.span();
+    let c = c.get_ref();
+    let table = format!("case[{i}]");
+    let key = |k: &str| format!("{table}.{k}");
+    let settings = Settings::read(ctx, &table, &c.as_fields(), Some(defaults), &span)?;
+    let scene_name = c.scene.get_ref();
+    if let Some(p) = known(scene_name, scenes.keys(), "scene") {
+        return ctx.err(&c.scene.span(), key("scene"), p);
+    }
+    let material = match &c.material {
+        Some(m) if m.get_ref() != NO_SUBSTITUTION => {
+            if let Some(p) = known(m.get_ref(), materials.keys(), "material") {
+                return ctx.err(&m.span(), key("material"), p);
+            }
+            Some(m.get_ref().clone())
+        }
+        _ => None,
+    };
+    let replace = match (&material, &c.replace) {
+        (None, Some(r)) => {
+            return ctx.err(
+                &r.span(),
+                key("replace"),
+                "a case without `material` replaces nothing",
+            );
+        }
+        (Some(_), Some(r)) => Some(r.get_ref().clone()),
+        (Some(m), None) => match &scenes[scene_name].replace {
+            Some(r) => Some(r.clone()),
+            None => {
+                return ctx.err(
+                    &span,
+                    key("replace"),
+                    format!(
+                        "scene `{scene_name}` has no `replace`, so say which of its materials `{m}` replaces"
+                    ),
+                );
+            }
+        },
+        (None, None) => None,
+    };
+    let Some(mode) = ModeKind::from_name(c.mode.get_ref()) else {
+        return ctx.err(
+            &c.mode.span(),
+            key("mode"),
+            format!("`{}`: modes are spmm, biscale, adaptive", c.mode.get_ref()),
+        );
+    };
+    let device = match &c.device {
+        None => Device::Cpu,
+        Some(d) => match Device::from_name(d.get_ref()) {
+            Some(d) => d,
+            None => {
+                return ctx.err(
+                    &d.span(),
+                    key("device"),
+                    format!("`{}`: devices are cpu, gpu", d.get_ref()),
+                );
+            }
+        },
+    };
+    let name = match &c.name {
+        Some(n) => {
+            if let Some(p) = check_case_name(n.get_ref()) {
+                return ctx.err(&n.span(), key("name"), p);
+            }
+            n.get_ref().clone()
+        }
+        None => case_name(scene_name, material.as_deref(), mode, device),
+    };
+    Ok(Case {
+        name,
+        scene: scene_name.clone(),
+        material,
+        replace,
+        mode,
+        device,
+        width: settings.width,
+        height: settings.height,
+        frames: settings.frames,
+        seed: settings.seed,
+        tolerance: settings.tolerance,
+        origin: format!("{table} (line {})", ctx.line(&span).unwrap_or(0)),
     })
 }
 

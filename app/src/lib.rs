@@ -6,19 +6,30 @@
 //! benchmarks and tests drive it headless.
 
 pub mod brdf_editor;
+pub mod canvas;
+pub mod chrome;
+pub mod compare;
+pub mod dictionary;
 pub mod disabled;
 pub mod document;
 pub mod explorer;
 pub mod jobs;
 pub mod library;
+pub mod library_window;
+pub mod loader;
 pub mod lobe_plot;
 pub mod material_panel;
 pub mod mode_maker;
+pub mod mode_switch;
 pub mod reference;
+pub mod render_link;
 pub mod render_worker;
 pub mod scene_materials;
 pub mod scene_panel;
+pub mod settings;
 pub mod sphere_preview;
+pub mod status_bar;
 pub mod studio;
 pub mod viewport;
+#[cfg(feature = "gpu")]
 pub mod window_device;

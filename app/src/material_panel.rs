@@ -13,13 +13,13 @@ use std::sync::Arc;
 
 use egui::{Color32, ColorImage, TextureHandle, TextureOptions, Ui};
 use glam::DVec3;
-use meso_materials::brdf::{AnalyticBrdf, BasisFunction, BrdfModel, LobePoint};
+use meso_materials::brdf::LobePoint;
 use meso_materials::spmm::{Falloff, SpmmMaterial, TexelMask, WeightTarget};
 use meso_render::SceneEdit;
 use meso_render::geometry::{Brush, BrushUnits};
 use meso_render::scene::Material;
 
-use crate::brdf_editor::brdf_editor;
+use crate::dictionary::Dictionary;
 use crate::document::Document;
 use crate::lobe_plot::{self, Extra, Scale};
 
@@ -41,12 +41,10 @@ pub struct MaterialPanel {
     /// The texel map texture and the (material, cluster, selection shown) it shows.
     map: Option<(TextureHandle, *const SpmmMaterial, usize, bool)>,
     pub paint: PaintState,
-    /// A basis removal waiting for confirmation: (cluster, basis).
-    confirm_remove: Option<(usize, usize)>,
+    /// The chosen cluster's dictionary editor.
+    dictionary: Dictionary,
     /// Clusters whose fitted residual the designer chose to keep after editing.
     residual_kept: Vec<usize>,
-    /// Why the last removal was refused (the cluster's only basis).
-    remove_error: Option<String>,
 }
 
 impl Default for MaterialPanel {
@@ -57,9 +55,8 @@ impl Default for MaterialPanel {
             theta_i_deg: 40.0,
             map: None,
             paint: PaintState::default(),
-            confirm_remove: None,
+            dictionary: Dictionary::default(),
             residual_kept: Vec::new(),
-            remove_error: None,
         }
     }
 }
@@ -166,6 +163,59 @@ fn with_pack(slot: &Material, material: SpmmMaterial) -> Material {
             npca: *npca,
         },
         other => other.clone(),
+    }
+}
+
+/// A weight scale for all of cluster `c`'s texels, shown as the cluster's mean weight
+/// (colour picker and exact RGB entry).
+fn mean_weight(
+    ui: &mut Ui,
+    m: &Arc<SpmmMaterial>,
+    c: usize,
+    slot: &Material,
+    index: usize,
+    edits: &mut Vec<SceneEdit>,
+) {
+    ui.separator();
+    ui.strong(format!("Cluster {c}: mean weight"));
+    let mean = m.cluster_mean_weight(c);
+    let mut rgb = mean.map(|v| v as f32);
+    let mut changed = false;
+    ui.horizontal(|ui| {
+        let mut shown = rgb.map(|v| v.clamp(0.0, 1.0));
+        if egui::widgets::color_picker::color_edit_button_rgb(ui, &mut shown).changed() {
+            rgb = shown;
+            changed = true;
+        }
+        for (k, name) in ["R", "G", "B"].into_iter().enumerate() {
+            ui.add_enabled_ui(mean[k] > 0.0, |ui| {
+                let label = ui.label(name);
+                changed |= ui
+                    .add(
+                        egui::DragValue::new(&mut rgb[k])
+                            .range(0.0..=f32::MAX)
+                            .clamp_existing_to_range(false)
+                            .speed(0.002),
+                    )
+                    .labelled_by(label.id)
+                    .changed();
+            });
+        }
+    });
+    if changed {
+        let scale = [0, 1, 2].map(|k| {
+            if mean[k] > 0.0 {
+                f64::from(rgb[k]) / mean[k]
+            } else {
+                1.0
+            }
+        });
+        if let Ok(e) = m.with_cluster_weight_scale(c, scale) {
+            edits.push(SceneEdit::Material {
+                index,
+                material: with_pack(slot, e),
+            });
+        }
     }
 }
 
@@ -324,52 +374,29 @@ impl MaterialPanel {
         });
 
         let c = self.cluster;
-        ui.separator();
-        ui.strong(format!("Cluster {c}: mean weight"));
-        let mean = m.cluster_mean_weight(c);
-        let mut rgb = mean.map(|v| v as f32);
-        let mut changed = false;
-        ui.horizontal(|ui| {
-            let mut shown = rgb.map(|v| v.clamp(0.0, 1.0));
-            if egui::widgets::color_picker::color_edit_button_rgb(ui, &mut shown).changed() {
-                rgb = shown;
-                changed = true;
-            }
-            for (k, name) in ["R", "G", "B"].into_iter().enumerate() {
-                ui.add_enabled_ui(mean[k] > 0.0, |ui| {
-                    let label = ui.label(name);
-                    changed |= ui
-                        .add(
-                            egui::DragValue::new(&mut rgb[k])
-                                .range(0.0..=f32::MAX)
-                                .clamp_existing_to_range(false)
-                                .speed(0.002),
-                        )
-                        .labelled_by(label.id)
-                        .changed();
-                });
-            }
-        });
-        if changed {
-            let scale = [0, 1, 2].map(|k| {
-                if mean[k] > 0.0 {
-                    f64::from(rgb[k]) / mean[k]
-                } else {
-                    1.0
-                }
-            });
-            if let Ok(e) = m.with_cluster_weight_scale(c, scale) {
-                edits.push(SceneEdit::Material {
-                    index,
-                    material: with_pack(slot, e),
-                });
-            }
-        }
-
+        mean_weight(ui, &m, c, slot, index, &mut edits);
         self.basis_rows(ui, &m, slot, index, &mut edits);
         self.residual_notice(ui, &m, slot, index, &mut edits);
         self.paint_ui(ui, &m, slot, index, &mut edits);
 
+        self.lobe(ui, &m, c);
+        let (pending, removed) = self.dictionary.show(ui, &m, c);
+        if removed {
+            self.paint.basis = None;
+        }
+        if let Some(e) = pending {
+            edits.push(SceneEdit::Material {
+                index,
+                material: with_pack(slot, e),
+            });
+        }
+
+        edits
+    }
+
+    /// The chosen texel's lobe (else the cluster's first texel's) in the plane of
+    /// incidence: all bases summed, and each basis.
+    fn lobe(&mut self, ui: &mut Ui, m: &Arc<SpmmMaterial>, c: usize) {
         ui.separator();
         let texel = self
             .texel
@@ -382,7 +409,7 @@ impl MaterialPanel {
                 t / m.width() as usize
             ));
             ui.add(egui::Slider::new(&mut self.theta_i_deg, 0.0..=89.0).text("incidence (deg)"));
-            let (sum, parts) = texel_lobes(&m, t, self.theta_i_deg.to_radians());
+            let (sum, parts) = texel_lobes(m, t, self.theta_i_deg.to_radians());
             let extra: Vec<Extra<'_>> = parts
                 .iter()
                 .enumerate()
@@ -401,63 +428,6 @@ impl MaterialPanel {
             );
             ui.weak("blue: all bases summed (luminance of the weights, BTF incl. cos); thin: each basis");
         }
-        ui.separator();
-        ui.strong(format!("Cluster {c}: dictionary"));
-        let mut pending = None;
-        for (j, basis) in m.clusters()[c].bases.iter().enumerate() {
-            let (edited, action) = basis_editor(ui, c, j, basis);
-            if let Some(b) = edited
-                && let Ok(e) = m.with_basis(c, j, b)
-            {
-                pending = Some(e);
-            }
-            match action {
-                Some(DictionaryAction::Duplicate) => {
-                    pending = m.with_basis_duplicated(c, j).ok().map(|(e, _)| e);
-                }
-                Some(DictionaryAction::Remove) => self.confirm_remove = Some((c, j)),
-                None => {}
-            }
-        }
-        if let Some((rc, rj)) = self.confirm_remove {
-            ui.horizontal_wrapped(|ui| {
-                ui.colored_label(
-                    ui.visuals().warn_fg_color,
-                    format!("Remove basis {rj} of cluster {rc} and all its weights?"),
-                );
-                if ui.button("Remove").clicked() {
-                    match m.with_basis_removed(rc, rj) {
-                        Ok(e) => pending = Some(e),
-                        Err(e) => self.remove_error = Some(e.to_string()),
-                    }
-                    self.paint.basis = None;
-                    self.confirm_remove = None;
-                }
-                if ui.button("Cancel").clicked() {
-                    self.confirm_remove = None;
-                }
-            });
-        }
-        if let Some(e) = &self.remove_error {
-            ui.colored_label(ui.visuals().error_fg_color, e);
-        }
-        if ui
-            .button("Add basis")
-            .on_hover_text("a Lambertian basis along the macro normal with no weight yet: paint it in (brush: Add) or edit it above")
-            .clicked()
-        {
-            let b = BasisFunction::new(AnalyticBrdf::with_defaults(BrdfModel::Lambertian), DVec3::Z)
-                .expect("+z is a unit normal");
-            pending = m.with_basis_added(c, b).ok().map(|(e, _)| e);
-        }
-        if let Some(e) = pending {
-            edits.push(SceneEdit::Material {
-                index,
-                material: with_pack(slot, e),
-            });
-        }
-
-        edits
     }
 
     /// One row per basis of the chosen cluster: its mean weight as a colour and exact
@@ -824,173 +794,6 @@ impl MaterialPanel {
     }
 }
 
-/// A dictionary edit asked for from a basis's editor.
-enum DictionaryAction {
-    Duplicate,
-    Remove,
-}
-
-/// The editor of one basis function; returns the edited basis when it changed, and
-/// a duplicate or remove request.
-fn basis_editor(
-    ui: &mut Ui,
-    cluster: usize,
-    j: usize,
-    basis: &BasisFunction,
-) -> (Option<BasisFunction>, Option<DictionaryAction>) {
-    let mut action = None;
-    let mut brdf = *basis.brdf();
-    let n = basis.normal();
-    let mut theta = n.z.clamp(-1.0, 1.0).acos().to_degrees();
-    let mut phi = n.y.atan2(n.x).to_degrees().rem_euclid(360.0);
-    let mut changed = false;
-    let mut normal_changed = false;
-    egui::CollapsingHeader::new(format!("basis {j} · {}", brdf.model().name()))
-        .id_salt(("basis", cluster, j))
-        .default_open(j == 0)
-        .show(ui, |ui| {
-            changed |= brdf_editor(ui, (cluster, j), &mut brdf);
-            ui.horizontal(|ui| {
-                normal_changed |= hemisphere(ui, &mut theta, &mut phi);
-                ui.vertical(|ui| {
-                    normal_changed |= ui
-                        .add(
-                            egui::Slider::new(&mut theta, 0.0..=MAX_TILT_DEG)
-                                .clamping(egui::SliderClamping::Edits)
-                                .text("normal θ (deg)"),
-                        )
-                        .changed();
-                    normal_changed |= ui
-                        .add(
-                            egui::Slider::new(&mut phi, 0.0..=360.0)
-                                .clamping(egui::SliderClamping::Edits)
-                                .text("normal φ (deg)"),
-                        )
-                        .changed();
-                });
-            });
-            ui.horizontal(|ui| {
-                if ui
-                    .button(format!("Duplicate basis {j}"))
-                    .on_hover_text("append a copy with no weights: edit one, keep the other")
-                    .clicked()
-                {
-                    action = Some(DictionaryAction::Duplicate);
-                }
-                if ui.button(format!("Remove basis {j}…")).clicked() {
-                    action = Some(DictionaryAction::Remove);
-                }
-            });
-        });
-    if !(changed || normal_changed) {
-        return (None, action);
-    }
-    // The normal is rebuilt from the angles only when they moved, so a parameter edit
-    // keeps it bit for bit.
-    let normal = if normal_changed {
-        let (t, p) = (theta.to_radians(), phi.to_radians());
-        DVec3::new(t.sin() * p.cos(), t.sin() * p.sin(), t.cos())
-    } else {
-        n
-    };
-    (BasisFunction::new(brdf, normal).ok(), action)
-}
-
-/// Largest tilt of a basis normal the editor offers (the spec needs z > 0).
-const MAX_TILT_DEG: f64 = 85.0;
-
-/// Where a normal at (theta, phi) degrees sits on the hemisphere disk of radius 1
-/// (orthographic view from above: x = sin theta cos phi, y = sin theta sin phi).
-pub fn disk_position(theta_deg: f64, phi_deg: f64) -> (f64, f64) {
-    let (t, p) = (theta_deg.to_radians(), phi_deg.to_radians());
-    (t.sin() * p.cos(), t.sin() * p.sin())
-}
-
-/// The normal under a disk position, its tilt limited to `MAX_TILT_DEG`.
-pub fn normal_at_disk(x: f64, y: f64) -> (f64, f64) {
-    let r = x.hypot(y).min(MAX_TILT_DEG.to_radians().sin());
-    let theta = r.asin().to_degrees();
-    let phi = if r > 0.0 {
-        y.atan2(x).to_degrees().rem_euclid(360.0)
-    } else {
-        0.0
-    };
-    (theta, phi)
-}
-
-/// A small draggable hemisphere seen from above: the dot is the normal; drag it to
-/// tilt (the rim is grazing, the centre the macro normal; +x to the right is the
-/// tangent, +y up the bitangent).
-fn hemisphere(ui: &mut Ui, theta: &mut f64, phi: &mut f64) -> bool {
-    let size = 64.0;
-    let (rect, response) = ui.allocate_exact_size(egui::vec2(size, size), egui::Sense::drag());
-    let c = rect.center();
-    let r = size * 0.5 - 3.0;
-    let painter = ui.painter();
-    let weak = ui.visuals().weak_text_color();
-    painter.circle_stroke(c, r, egui::Stroke::new(1.0, weak));
-    painter.circle_stroke(
-        c,
-        r * MAX_TILT_DEG.to_radians().sin() as f32 * 0.5,
-        egui::Stroke::new(0.5, weak.gamma_multiply(0.5)),
-    );
-    painter.line_segment(
-        [c - egui::vec2(r, 0.0), c + egui::vec2(r, 0.0)],
-        egui::Stroke::new(0.5, weak),
-    );
-    painter.line_segment(
-        [c - egui::vec2(0.0, r), c + egui::vec2(0.0, r)],
-        egui::Stroke::new(0.5, weak),
-    );
-    let mut changed = false;
-    if let Some(p) = response.interact_pointer_pos()
-        && response.dragged()
-    {
-        let d = (p - c) / r;
-        let (t, f) = normal_at_disk(f64::from(d.x), f64::from(-d.y));
-        *theta = t;
-        *phi = f;
-        changed = true;
-    }
-    let (x, y) = disk_position(*theta, *phi);
-    let dot = c + egui::vec2(x as f32, -(y as f32)) * r;
-    painter.circle_filled(dot, 4.0, Color32::from_rgb(90, 170, 255));
-    response.on_hover_text("drag to tilt the basis normal (centre: along the macro normal)");
-    changed
-}
-
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn disk_positions_and_normals_are_inverse_and_the_tilt_is_limited() {
-        for (t, p) in [(0.0, 0.0), (30.0, 45.0), (60.0, 300.0), (85.0, 180.0)] {
-            let (x, y) = disk_position(t, p);
-            let (t2, p2) = normal_at_disk(x, y);
-            assert!((t - t2).abs() < 1e-9, "{t} {t2}");
-            if t > 0.0 {
-                assert!((p - p2).abs() < 1e-9, "{p} {p2}");
-            }
-        }
-        // Beyond the rim: clamped to the largest tilt, direction kept.
-        let (t, p) = normal_at_disk(0.0, -3.0);
-        assert!((t - MAX_TILT_DEG).abs() < 1e-9 && (p - 270.0).abs() < 1e-9);
-    }
-
-    #[test]
-    fn the_texel_lobe_is_the_sum_of_its_bases() {
-        let m = meso_materials::spmm::pack::read_pack(std::path::Path::new(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../materials/leather.spmm"
-        )))
-        .expect("the shipped leather pack");
-        let (sum, parts) = texel_lobes(&m, 0, 0.6);
-        assert_eq!(parts.len(), m.texel_weights(0).count());
-        for (k, p) in sum.iter().enumerate() {
-            let s: f64 = parts.iter().map(|b| b[k].value).sum();
-            assert!((p.value - s).abs() <= 1e-12 * s.abs().max(1e-12));
-        }
-        assert!(sum.iter().any(|p| p.value > 0.0));
-    }
-}
+#[path = "material_panel_tests.rs"]
+mod tests;

@@ -7,6 +7,7 @@
 
 use std::sync::Arc;
 
+#[cfg(feature = "gpu")]
 use meso_gpu::GpuContext;
 use meso_modes::GpuDevice;
 use meso_render::scene::Scene;
@@ -35,12 +36,14 @@ pub trait ModeMaker: Send + Sync {
 /// why the window's was not shared when `unshared` holds a reason.
 #[derive(Clone, Debug, Default)]
 pub struct CoreModes {
+    #[cfg(feature = "gpu")]
     gpu: Option<GpuContext>,
     unshared: Option<String>,
 }
 
 impl CoreModes {
     /// The registry with every GPU mode on `gpu` (cloned: one device for all).
+    #[cfg(feature = "gpu")]
     pub fn on_device(gpu: GpuContext) -> Self {
         Self {
             gpu: Some(gpu),
@@ -52,12 +55,14 @@ impl CoreModes {
     /// device could not be shared (`why`, shown in the status bar).
     pub fn unshared(why: impl Into<String>) -> Self {
         Self {
+            #[cfg(feature = "gpu")]
             gpu: None,
             unshared: Some(why.into()),
         }
     }
 
     /// The device GPU modes are made on, if one was given.
+    #[cfg(feature = "gpu")]
     pub fn gpu(&self) -> Option<&GpuContext> {
         self.gpu.as_ref()
     }
@@ -77,11 +82,12 @@ impl ModeMaker for CoreModes {
         height: u32,
         prepare: Prepare,
     ) -> Result<Box<dyn RenderMode>, ModeError> {
-        let gpu = match (&self.gpu, &self.unshared) {
-            (Some(ctx), _) => GpuDevice::Shared(ctx),
-            (None, Some(why)) => GpuDevice::OwnBecause(why),
-            (None, None) => GpuDevice::Own,
+        let gpu = match self.unshared.as_deref() {
+            Some(why) => GpuDevice::OwnBecause(why),
+            None => GpuDevice::Own,
         };
+        #[cfg(feature = "gpu")]
+        let gpu = self.gpu.as_ref().map_or(gpu, GpuDevice::Shared);
         meso_modes::create_on(gpu, kind, device, scene, width, height, prepare)
     }
 }

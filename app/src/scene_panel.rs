@@ -10,7 +10,7 @@ use std::sync::Arc;
 
 use egui::Ui;
 use glam::{DVec2, DVec3};
-use meso_render::scene::{Ambient, Background, Environment, Light, Material};
+use meso_render::scene::{Ambient, Background, Environment, Light, Material, Scene};
 use meso_render::{Device, ModeKind, SceneEdit};
 
 use crate::disabled::Disabled;
@@ -234,21 +234,37 @@ fn environment_ui(ui: &mut Ui, doc: &Document, state: &PanelState<'_>, out: &mut
     }
 }
 
-pub fn show(ui: &mut Ui, doc: &Document, state: &PanelState<'_>) -> Vec<Request> {
-    let mut out = Vec::new();
-    let scene = &doc.scene;
-    ui.heading("Scene");
-    ui.label(
-        doc.scene_path
-            .as_ref()
-            .and_then(|p| p.file_name())
-            .map_or("(built-in)".into(), |n| n.to_string_lossy()),
-    );
-    if ui.button("Open scene…").clicked() {
-        out.push(Request::OpenSceneDialog);
+/// The background: the environment, or a colour (or the scene file's own map).
+fn background_ui(ui: &mut Ui, scene: &Scene, out: &mut Vec<Request>) {
+    ui.separator();
+    let mut from_env = matches!(scene.background, Background::FromEnvironment);
+    if ui
+        .checkbox(&mut from_env, "background shows the environment")
+        .changed()
+    {
+        out.push(Request::Edit(SceneEdit::Background(if from_env {
+            Background::FromEnvironment
+        } else {
+            Background::Color(DVec3::new(0.02, 0.02, 0.025))
+        })));
     }
-    mode_ui(ui, state, &mut out);
+    match &scene.background {
+        Background::Color(c) => {
+            let mut c = *c;
+            if emission_editor(ui, "background", &mut c) {
+                out.push(Request::Edit(SceneEdit::Background(Background::Color(c))));
+            }
+        }
+        Background::Environment(_) => {
+            ui.label("background: its own map (from the scene file)");
+        }
+        Background::FromEnvironment => {}
+    }
+}
 
+/// The edited pack's object: its mesh (one of the bundled ones) and UV tiling.
+fn object_ui(ui: &mut Ui, doc: &Document, out: &mut Vec<Request>) {
+    let scene = &doc.scene;
     if let Some(pack) = &doc.pack
         && let Material::Spmm {
             material,
@@ -302,6 +318,59 @@ pub fn show(ui: &mut Ui, doc: &Document, state: &PanelState<'_>) -> Vec<Request>
             }));
         }
     }
+}
+
+/// The ambient occlusion term: on/off, radius, radiance.
+fn ambient_ui(ui: &mut Ui, doc: &Document, state: &PanelState<'_>, out: &mut Vec<Request>) {
+    let scene = &doc.scene;
+    ui.separator();
+    ui.heading("Ambient occlusion");
+    if state.disabled.ambient {
+        ui.label(format!("disabled in {}", state.mode.0.name()));
+    }
+    let mut on = scene.ambient.is_some();
+    let mut a = scene.ambient.unwrap_or(Ambient {
+        radiance: DVec3::splat(0.25),
+        radius: 0.5,
+    });
+    let mut changed = ui.checkbox(&mut on, "AO on").changed();
+    ui.add_enabled_ui(on, |ui| {
+        let mut r = if a.radius.is_finite() { a.radius } else { 1e3 };
+        if ui
+            .add(
+                egui::Slider::new(&mut r, 0.01..=1e3)
+                    .clamping(egui::SliderClamping::Edits)
+                    .logarithmic(true)
+                    .text("radius (m)"),
+            )
+            .changed()
+        {
+            a.radius = r;
+            changed = true;
+        }
+        changed |= emission_editor(ui, "radiance", &mut a.radiance);
+    });
+    if changed {
+        out.push(Request::Edit(SceneEdit::Ambient(on.then_some(a))));
+    }
+}
+
+pub fn show(ui: &mut Ui, doc: &Document, state: &PanelState<'_>) -> Vec<Request> {
+    let mut out = Vec::new();
+    let scene = &doc.scene;
+    ui.heading("Scene");
+    ui.label(
+        doc.scene_path
+            .as_ref()
+            .and_then(|p| p.file_name())
+            .map_or("(built-in)".into(), |n| n.to_string_lossy()),
+    );
+    if ui.button("Open scene…").clicked() {
+        out.push(Request::OpenSceneDialog);
+    }
+    mode_ui(ui, state, &mut out);
+
+    object_ui(ui, doc, &mut out);
 
     ui.separator();
     ui.heading("Lights");
@@ -399,64 +468,12 @@ pub fn show(ui: &mut Ui, doc: &Document, state: &PanelState<'_>) -> Vec<Request>
         out.push(Request::Edit(SceneEdit::LightSamples(n)));
     }
 
-    ui.separator();
-    ui.heading("Ambient occlusion");
-    if state.disabled.ambient {
-        ui.label(format!("disabled in {}", state.mode.0.name()));
-    }
-    let mut on = scene.ambient.is_some();
-    let mut a = scene.ambient.unwrap_or(Ambient {
-        radiance: DVec3::splat(0.25),
-        radius: 0.5,
-    });
-    let mut changed = ui.checkbox(&mut on, "AO on").changed();
-    ui.add_enabled_ui(on, |ui| {
-        let mut r = if a.radius.is_finite() { a.radius } else { 1e3 };
-        if ui
-            .add(
-                egui::Slider::new(&mut r, 0.01..=1e3)
-                    .clamping(egui::SliderClamping::Edits)
-                    .logarithmic(true)
-                    .text("radius (m)"),
-            )
-            .changed()
-        {
-            a.radius = r;
-            changed = true;
-        }
-        changed |= emission_editor(ui, "radiance", &mut a.radiance);
-    });
-    if changed {
-        out.push(Request::Edit(SceneEdit::Ambient(on.then_some(a))));
-    }
+    ambient_ui(ui, doc, state, &mut out);
 
     ui.separator();
     environment_ui(ui, doc, state, &mut out);
 
-    ui.separator();
-    let mut from_env = matches!(scene.background, Background::FromEnvironment);
-    if ui
-        .checkbox(&mut from_env, "background shows the environment")
-        .changed()
-    {
-        out.push(Request::Edit(SceneEdit::Background(if from_env {
-            Background::FromEnvironment
-        } else {
-            Background::Color(DVec3::new(0.02, 0.02, 0.025))
-        })));
-    }
-    match &scene.background {
-        Background::Color(c) => {
-            let mut c = *c;
-            if emission_editor(ui, "background", &mut c) {
-                out.push(Request::Edit(SceneEdit::Background(Background::Color(c))));
-            }
-        }
-        Background::Environment(_) => {
-            ui.label("background: its own map (from the scene file)");
-        }
-        Background::FromEnvironment => {}
-    }
+    background_ui(ui, &doc.scene, &mut out);
     ui.separator();
     out.extend(
         scene_materials::show(ui, doc, state.target_material)

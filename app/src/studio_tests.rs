@@ -713,7 +713,7 @@ fn opening_the_shipped_scenes_edits_nothing() {
 fn two_points_on_the_pack(h: &Harness<'_, Studio>, gap: u32) -> ((u32, u32), (u32, u32)) {
     let doc = h.state().doc.as_ref().expect("doc");
     let index = doc.pack.as_ref().expect("pack").material;
-    let (w, hgt) = h.state().full_size;
+    let (w, hgt) = h.state().full_size();
     let bvh = SceneBvh::build(&doc.scene.meshes);
     let on = |x: u32, y: u32| {
         pick(
@@ -757,7 +757,7 @@ fn a_real_drag_on_the_viewport_paints_only_the_brushed_texels_and_undoes_in_one_
     // Showing the brush settings can resize the viewport: wait for the new size.
     rested_frame(&mut h, 2);
     let rect = h.state().viewport.rect.expect("the viewport was shown");
-    let (w, hgt) = h.state().full_size;
+    let (w, hgt) = h.state().full_size();
     let (a, b) = two_points_on_the_pack(&h, 12);
     let to_pos = |(x, y): (u32, u32)| {
         rect.min
@@ -1147,7 +1147,7 @@ fn docs_screenshots() {
     }
     rested_frame(&mut h, spp);
     let rect = h.state().viewport.rect.expect("the viewport was shown");
-    let (w, hgt) = h.state().full_size;
+    let (w, hgt) = h.state().full_size();
     let (a, b) = two_points_on_the_pack(&h, 40);
     let to_pos = |(x, y): (u32, u32)| {
         rect.min

@@ -11,10 +11,13 @@
 
 use std::sync::Arc;
 
+#[cfg(feature = "gpu")]
 use eframe::egui_wgpu::RenderState;
+#[cfg(feature = "gpu")]
 use eframe::wgpu;
 use egui::{ColorImage, Sense, TextureHandle, TextureId, TextureOptions, Ui, Vec2};
 use glam::DVec3;
+#[cfg(feature = "gpu")]
 use meso_gpu::{DisplayTexture, GpuContext};
 use meso_materials::image::{Image, to_srgb8};
 use meso_render::scene::Camera;
@@ -97,7 +100,12 @@ pub struct CompareLabels {
     pub reference: String,
 }
 
+/// Without the `gpu` feature no frame is on a device: none is ever made.
+#[cfg(not(feature = "gpu"))]
+enum WindowTexture {}
+
 /// The window's wgpu renderer and the texture frames on its device are shown in.
+#[cfg(feature = "gpu")]
 struct WindowTexture {
     render_state: RenderState,
     texture: DisplayTexture,
@@ -105,6 +113,7 @@ struct WindowTexture {
     id: Option<(TextureId, u64)>,
 }
 
+#[cfg(feature = "gpu")]
 impl WindowTexture {
     /// The texture's id in the window's renderer, registered again when the texture
     /// was made anew (a new size).
@@ -172,6 +181,28 @@ impl Default for Viewport {
     }
 }
 
+/// The window's texture showing `frame`'s estimate after `exposure`, encoded on the
+/// device, if the estimate is on the window's device.
+#[cfg(feature = "gpu")]
+fn device_texture(
+    window: Option<&mut WindowTexture>,
+    frame: &Frame,
+    exposure: f64,
+) -> Option<TextureId> {
+    let (d, w) = frame.estimate.on_device().zip(window)?;
+    w.texture.show(d, exposure).then(|| w.id())
+}
+
+/// Without the `gpu` feature every frame is on the host.
+#[cfg(not(feature = "gpu"))]
+fn device_texture(
+    window: Option<&mut WindowTexture>,
+    _frame: &Frame,
+    _exposure: f64,
+) -> Option<TextureId> {
+    window.map(|w| match *w {})
+}
+
 /// Makes or refreshes `texture` from `img` after `exposure`.
 fn upload(ui: &Ui, texture: &mut Option<TextureHandle>, name: &str, img: &Image, exposure: f64) {
     let rgb: Vec<u8> = to_srgb8(img, exposure).into_iter().flatten().collect();
@@ -185,6 +216,7 @@ fn upload(ui: &Ui, texture: &mut Option<TextureHandle>, name: &str, img: &Image,
 impl Viewport {
     /// The window is drawn by `render_state`'s renderer on the device of `shared`,
     /// which GPU modes share: their frames are shown from there.
+    #[cfg(feature = "gpu")]
     pub fn set_window(&mut self, render_state: RenderState, shared: &GpuContext) {
         self.window = Some(WindowTexture {
             texture: DisplayTexture::new(shared),
@@ -227,6 +259,55 @@ impl Viewport {
         self.shown = Some((frame, None));
     }
 
+    /// Makes the textures the image and the reference are painted from again when
+    /// the frame, the exposure, the overlay or the view (`compare`) changed.
+    fn refresh_textures(&mut self, ui: &Ui, exposure: f64, compare: bool) {
+        // The compare view measures the estimate, so it shows the estimate; otherwise
+        // the first frames come through the denoiser (`Frame::shown`).
+        let key = Some((exposure, compare));
+        if let Some((frame, made_with)) = &mut self.shown
+            && (self.texture.is_none()
+                || *made_with != key
+                || self.uploaded_overlay != self.overlay)
+        {
+            // A debug overlay is a colour map: shown as it is, without exposure.
+            let overlay = self
+                .overlay
+                .and_then(|name| frame.overlays.iter().find(|o| o.0 == name));
+            // The estimate itself (not a denoised blend), shown on the window's device
+            // when it is there.
+            let estimate_itself = overlay.is_none() && (compare || frame.shown.is_none());
+            let on_device = estimate_itself
+                .then(|| device_texture(self.window.as_mut(), frame, exposure))
+                .flatten();
+            self.painted = if let Some(id) = on_device {
+                Some((id, true))
+            } else {
+                match overlay {
+                    Some((_, img)) => upload(ui, &mut self.texture, "viewport", img, 0.0),
+                    None => {
+                        let image = if compare {
+                            frame.image()
+                        } else {
+                            frame.shown_image()
+                        };
+                        upload(ui, &mut self.texture, "viewport", &image, exposure);
+                    }
+                }
+                self.texture.as_ref().map(|t| (t.id(), false))
+            };
+            *made_with = key;
+            self.uploaded_overlay = self.overlay;
+        }
+        if compare
+            && let Some((img, made_with)) = &mut self.reference
+            && (self.reference_texture.is_none() || *made_with != exposure)
+        {
+            upload(ui, &mut self.reference_texture, "reference", img, exposure);
+            *made_with = exposure;
+        }
+    }
+
     /// Shows the frame (and, with `compare`, the reference right of the divider).
     pub fn show(
         &mut self,
@@ -245,52 +326,7 @@ impl Viewport {
             ),
             ..Default::default()
         };
-        // The compare view measures the estimate, so it shows the estimate; otherwise
-        // the first frames come through the denoiser (`Frame::shown`).
-        let key = Some((exposure, compare.is_some()));
-        if let Some((frame, made_with)) = &mut self.shown
-            && (self.texture.is_none()
-                || *made_with != key
-                || self.uploaded_overlay != self.overlay)
-        {
-            // A debug overlay is a colour map: shown as it is, without exposure.
-            let overlay = self
-                .overlay
-                .and_then(|name| frame.overlays.iter().find(|o| o.0 == name));
-            // The estimate itself (not a denoised blend), shown on the window's device
-            // when it is there.
-            let estimate_itself = overlay.is_none() && (compare.is_some() || frame.shown.is_none());
-            let on_device = estimate_itself
-                .then(|| frame.estimate.on_device())
-                .flatten()
-                .zip(self.window.as_mut())
-                .and_then(|(d, w)| w.texture.show(d, exposure).then_some(w));
-            self.painted = if let Some(w) = on_device {
-                Some((w.id(), true))
-            } else {
-                match overlay {
-                    Some((_, img)) => upload(ui, &mut self.texture, "viewport", img, 0.0),
-                    None => {
-                        let image = if compare.is_some() {
-                            frame.image()
-                        } else {
-                            frame.shown_image()
-                        };
-                        upload(ui, &mut self.texture, "viewport", &image, exposure);
-                    }
-                }
-                self.texture.as_ref().map(|t| (t.id(), false))
-            };
-            *made_with = key;
-            self.uploaded_overlay = self.overlay;
-        }
-        if compare.is_some()
-            && let Some((img, made_with)) = &mut self.reference
-            && (self.reference_texture.is_none() || *made_with != exposure)
-        {
-            upload(ui, &mut self.reference_texture, "reference", img, exposure);
-            *made_with = exposure;
-        }
+        self.refresh_textures(ui, exposure, compare.is_some());
         let (rect, response) = ui.allocate_exact_size(size, Sense::click_and_drag());
         self.rect = Some(rect);
         ui.painter()

@@ -32,8 +32,13 @@ pub struct ModeEntry {
     /// What the mode cannot render in a scene, each part by name.
     pub supports: fn(&Scene) -> Result<(), Unsupported>,
     /// Prepares the mode (GPU modes on the device `GpuDevice` says).
-    pub create: fn(GpuDevice, Scene, u32, u32, Prepare) -> Result<Box<dyn RenderMode>, ModeError>,
+    pub create: CreateMode,
 }
+
+/// How a registry entry makes its mode: the device for GPU modes, the scene, the
+/// film's width and height, the preparation's progress and cancel.
+pub type CreateMode =
+    fn(GpuDevice, Scene, u32, u32, Prepare) -> Result<Box<dyn RenderMode>, ModeError>;
 
 /// Every mode this build has.
 pub const MODES: &[ModeEntry] = &[

@@ -31,8 +31,8 @@ use meso_render::scene::{Light, Material, Scene};
 use meso_render::shading::{ShadedMaterial, Shaders, Shading, power_heuristic as power};
 use meso_render::{
     Counters, Device, Diagnostic, Diagnostics, EditError, Film, FrameStats, Invalidation,
-    ModeError, ModeKind, Pass, Prepare, Progress, RayCounts, RenderMode,
-    SceneEdit, Unrenderable, Unsupported,
+    ModeError, ModeKind, Pass, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
+    Unsupported,
 };
 
 /// Offset of secondary ray origins along the normal, relative to the hit point's

@@ -26,8 +26,8 @@ use meso_render::scene::{Environment, Light, Material, Scene};
 use meso_render::shading::{dpdu, tangent_frame};
 use meso_render::{
     Counters, Device, Diagnostic, Diagnostics, EditError, Film, FrameStats, Invalidation,
-    ModeError, ModeKind, Pass, Prepare, Progress, RayCounts, RenderMode,
-    SceneEdit, Unrenderable, Unsupported,
+    ModeError, ModeKind, Pass, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
+    Unsupported,
 };
 
 /// Which representation of the transfer gives L* (the report compares them).

@@ -21,8 +21,8 @@ use meso_render::scene::{Material, Scene};
 use meso_render::shading::{PackSampling, ShadedMaterial, Shaders, Shading};
 use meso_render::{
     Counters, Device, Diagnostic, Diagnostics, EditError, Film, FrameStats, Invalidation,
-    MaterialBytes, ModeError, ModeKind, Pass, Prepare, Progress, RayCounts,
-    RenderMode, SceneEdit, Unrenderable, Unsupported,
+    MaterialBytes, ModeError, ModeKind, Pass, Prepare, Progress, RayCounts, RenderMode, SceneEdit,
+    Unrenderable, Unsupported,
 };
 
 /// Offset of secondary ray origins along the normal, relative to the hit point's

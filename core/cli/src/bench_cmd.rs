@@ -261,23 +261,7 @@ fn rays(args: &RaysArgs) -> Result<(), CliError> {
     if args.threads == Some(0) {
         return Err(CliError::bad_input(anyhow!("--threads must be at least 1")));
     }
-    let placement = Placement {
-        scale: 1.0,
-        rotation: DMat3::IDENTITY,
-        translate: DVec3::ZERO,
-    };
-    let mesh = load_obj(&args.mesh, &placement, 0).map_err(CliError::bad_input)?;
-    let (lo, hi) = mesh.positions.iter().fold(
-        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
-        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
-    );
-    let (centre, diagonal) = ((lo + hi) * 0.5, (hi - lo).length());
-    if diagonal.is_nan() || diagonal <= 0.0 {
-        return Err(CliError::bad_input(anyhow!(
-            "`{}`: the mesh has no extent",
-            args.mesh.display()
-        )));
-    }
+    let (mesh, centre, diagonal) = load_mesh(&args.mesh)?;
     let mut pool = rayon::ThreadPoolBuilder::new();
     if let Some(n) = args.threads {
         pool = pool.num_threads(n);
@@ -338,11 +322,6 @@ fn rays(args: &RaysArgs) -> Result<(), CliError> {
             ),
         )
     });
-    let ((coherent_mrays, coherent_hits), (incoherent_mrays, incoherent_hits)) =
-        (coherent_runs[0], incoherent_runs[0]);
-    let baseline = args
-        .baseline
-        .then(|| (coherent_runs[1], incoherent_runs[1]));
     // Embree's runs, and on how many rays its hits agree with the tracer's.
     let embree_runs = embree.as_ref().map(|e| {
         let last = coherent_runs.len() - 1;
@@ -353,50 +332,130 @@ fn rays(args: &RaysArgs) -> Result<(), CliError> {
             )
         })
     });
-    let build_ms = bvh.build_time().as_secs_f64() * 1e3;
-    let threads = pool.current_num_threads();
-    let fraction = |hits: usize| hits as f64 / n as f64;
+    let measured = Measured {
+        triangles,
+        rays_per_kind: n,
+        threads: pool.current_num_threads(),
+        build_ms: bvh.build_time().as_secs_f64() * 1e3,
+        coherent: coherent_runs[0],
+        incoherent: incoherent_runs[0],
+        baseline: args
+            .baseline
+            .then(|| (coherent_runs[1], incoherent_runs[1])),
+        embree: embree.as_ref().zip(embree_runs),
+    };
     if args.json {
-        let mut report = json!({
-            "mesh": args.mesh.display().to_string(),
-            "triangles": triangles,
-            "size": args.size,
-            "rays_per_kind": n,
-            "threads": threads,
-            "build_ms": build_ms,
-            "coherent_mrays": coherent_mrays,
-            "incoherent_mrays": incoherent_mrays,
-            "coherent_hit_fraction": fraction(coherent_hits),
-            "incoherent_hit_fraction": fraction(incoherent_hits),
-        });
-        if let Some(((c, c_hits), (i, i_hits))) = baseline {
-            report["baseline_coherent_mrays"] = json!(c);
-            report["baseline_incoherent_mrays"] = json!(i);
-            report["baseline_coherent_hit_fraction"] = json!(fraction(c_hits));
-            report["baseline_incoherent_hit_fraction"] = json!(fraction(i_hits));
-        }
-        if let (Some(e), Some(((c, c_agree), (i, i_agree)))) = (&embree, embree_runs) {
-            report["embree_version"] = json!(e.version);
-            report["embree_build_ms"] = json!(e.build_ms);
-            for (kind, (mrays, hits), agree, ours) in [
-                ("coherent", c, c_agree, coherent_mrays),
-                ("incoherent", i, i_agree, incoherent_mrays),
-            ] {
-                report[format!("embree_{kind}_mrays")] = json!(mrays);
-                report[format!("embree_{kind}_hit_fraction")] = json!(fraction(hits));
-                report[format!("embree_{kind}_agreement")] = json!(agree);
-                report[format!("{kind}_over_embree")] = json!(ours / mrays);
-            }
-        }
-        return crate::print_json(&report);
+        return crate::print_json(&rays_json(args, &measured));
     }
+    print_rays(args, &measured);
+    Ok(())
+}
+
+/// The mesh of `path` as it is in the file, with its bounding box's centre and
+/// diagonal (what the rays are placed by); a mesh without extent is refused.
+fn load_mesh(path: &std::path::Path) -> Result<(TriangleMesh, DVec3, f64), CliError> {
+    let placement = Placement {
+        scale: 1.0,
+        rotation: DMat3::IDENTITY,
+        translate: DVec3::ZERO,
+    };
+    let mesh = load_obj(path, &placement, 0).map_err(CliError::bad_input)?;
+    let (lo, hi) = mesh.positions.iter().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+    );
+    let (centre, diagonal) = ((lo + hi) * 0.5, (hi - lo).length());
+    if diagonal.is_nan() || diagonal <= 0.0 {
+        return Err(CliError::bad_input(anyhow!(
+            "`{}`: the mesh has no extent",
+            path.display()
+        )));
+    }
+    Ok((mesh, centre, diagonal))
+}
+
+/// One tracer's result on one kind of rays: (Mrays/s, rays that hit).
+type Run = (f64, usize);
+
+/// An Embree run and the fraction of the rays on which its hits agree with the tracer's.
+type Agreed = (Run, f64);
+
+/// What `bench rays` measured, for its report.
+struct Measured<'a> {
+    triangles: usize,
+    rays_per_kind: usize,
+    threads: usize,
+    build_ms: f64,
+    /// The tracer's own runs.
+    coherent: Run,
+    incoherent: Run,
+    /// obvhs's traversal (`--baseline`): coherent, incoherent.
+    baseline: Option<(Run, Run)>,
+    /// Embree (`--embree`) and its runs with their agreement with the tracer's hits:
+    /// coherent, incoherent.
+    embree: Option<(&'a Embree, (Agreed, Agreed))>,
+}
+
+impl Measured<'_> {
+    /// The fraction of one kind's rays that `hits` is.
+    fn fraction(&self, hits: usize) -> f64 {
+        hits as f64 / self.rays_per_kind as f64
+    }
+}
+
+/// The `--json` report of `bench rays`.
+fn rays_json(args: &RaysArgs, m: &Measured) -> serde_json::Value {
+    let ((coherent_mrays, coherent_hits), (incoherent_mrays, incoherent_hits)) =
+        (m.coherent, m.incoherent);
+    let fraction = |hits: usize| m.fraction(hits);
+    let mut report = json!({
+        "mesh": args.mesh.display().to_string(),
+        "triangles": m.triangles,
+        "size": args.size,
+        "rays_per_kind": m.rays_per_kind,
+        "threads": m.threads,
+        "build_ms": m.build_ms,
+        "coherent_mrays": coherent_mrays,
+        "incoherent_mrays": incoherent_mrays,
+        "coherent_hit_fraction": fraction(coherent_hits),
+        "incoherent_hit_fraction": fraction(incoherent_hits),
+    });
+    if let Some(((c, c_hits), (i, i_hits))) = m.baseline {
+        report["baseline_coherent_mrays"] = json!(c);
+        report["baseline_incoherent_mrays"] = json!(i);
+        report["baseline_coherent_hit_fraction"] = json!(fraction(c_hits));
+        report["baseline_incoherent_hit_fraction"] = json!(fraction(i_hits));
+    }
+    if let Some((e, ((c, c_agree), (i, i_agree)))) = m.embree {
+        report["embree_version"] = json!(e.version);
+        report["embree_build_ms"] = json!(e.build_ms);
+        for (kind, (mrays, hits), agree, ours) in [
+            ("coherent", c, c_agree, coherent_mrays),
+            ("incoherent", i, i_agree, incoherent_mrays),
+        ] {
+            report[format!("embree_{kind}_mrays")] = json!(mrays);
+            report[format!("embree_{kind}_hit_fraction")] = json!(fraction(hits));
+            report[format!("embree_{kind}_agreement")] = json!(agree);
+            report[format!("{kind}_over_embree")] = json!(ours / mrays);
+        }
+    }
+    report
+}
+
+/// The text report of `bench rays`: the tracer, then obvhs's traversal and Embree
+/// where asked, with the tracer's speed-up over each.
+fn print_rays(args: &RaysArgs, m: &Measured) {
+    let ((coherent_mrays, coherent_hits), (incoherent_mrays, incoherent_hits)) =
+        (m.coherent, m.incoherent);
+    let fraction = |hits: usize| m.fraction(hits);
+    let (triangles, build_ms, n, threads) = (m.triangles, m.build_ms, m.rays_per_kind, m.threads);
     println!(
         "{}: {triangles} triangles, BVH built in {build_ms:.1} ms; {n} rays per kind on {threads} threads: coherent {coherent_mrays:.2} Mrays/s ({:.0}% hit), incoherent {incoherent_mrays:.2} Mrays/s ({:.0}% hit)",
         args.mesh.display(),
         100.0 * fraction(coherent_hits),
         100.0 * fraction(incoherent_hits),
     );
-    if let Some(((c, c_hits), (i, i_hits))) = baseline {
+    if let Some(((c, c_hits), (i, i_hits))) = m.baseline {
         println!(
             "baseline (obvhs traversal): coherent {c:.2} Mrays/s ({:.0}% hit), incoherent {i:.2} Mrays/s ({:.0}% hit); speed-up {:.2}x coherent, {:.2}x incoherent",
             100.0 * fraction(c_hits),
@@ -405,7 +464,7 @@ fn rays(args: &RaysArgs) -> Result<(), CliError> {
             incoherent_mrays / i,
         );
     }
-    if let (Some(e), Some((((c, _), c_agree), ((i, _), i_agree)))) = (&embree, embree_runs) {
+    if let Some((e, (((c, _), c_agree), ((i, _), i_agree)))) = m.embree {
         println!(
             "Embree {} (built in {:.1} ms): coherent {c:.2} Mrays/s, incoherent {i:.2} Mrays/s; the tracer / Embree: {:.2}x coherent, {:.2}x incoherent; hits agree on {:.4}% and {:.4}% of the rays",
             e.version,
@@ -416,5 +475,4 @@ fn rays(args: &RaysArgs) -> Result<(), CliError> {
             100.0 * i_agree,
         );
     }
-    Ok(())
 }

@@ -23,8 +23,8 @@ use glam::DVec2;
 use meso_materials::spmm::{Falloff, TexelMask, WeightTarget};
 use meso_modes::trace::SpmmMode;
 use meso_render::geometry::brush::{self, Brush, BrushUnits};
-use meso_render::geometry::pick;
-use meso_render::scene::{Material, load_scene};
+use meso_render::geometry::{SceneBvh, pick};
+use meso_render::scene::{Material, Scene, load_scene};
 use meso_render::{Invalidation, RenderMode, SceneEdit};
 use serde_json::json;
 
@@ -84,19 +84,10 @@ pub fn run(args: &StrokeArgs) -> Result<(), CliError> {
         whole.render_frame();
     }
     // Pixels of the middle rows that see the material: where the stroke walks.
+    let sees = |&(x, y): &(u32, u32)| sees_material(&scene, mode.bvh(), n, index, (x, y));
     let on: Vec<(u32, u32)> = (n / 2..n)
         .flat_map(|y| (0..n).map(move |x| (x, y)))
-        .filter(|&(x, y)| {
-            pick(
-                &scene,
-                mode.bvh(),
-                n,
-                n,
-                f64::from(x) + 0.5,
-                f64::from(y) + 0.5,
-            )
-            .is_some_and(|p| p.material == index)
-        })
+        .filter(sees)
         .collect();
     let row = on.first().map(|p| p.1).ok_or_else(|| {
         CliError::bad_input(anyhow!(
@@ -106,51 +97,14 @@ pub fn run(args: &StrokeArgs) -> Result<(), CliError> {
     let xs: Vec<u32> = on.iter().filter(|p| p.1 == row).map(|p| p.0).collect();
     let shaded = (0..n)
         .flat_map(|y| (0..n).map(move |x| (x, y)))
-        .filter(|&(x, y)| {
-            pick(
-                &scene,
-                mode.bvh(),
-                n,
-                n,
-                f64::from(x) + 0.5,
-                f64::from(y) + 0.5,
-            )
-            .is_some_and(|p| p.material == index)
-        })
+        .filter(sees)
         .count();
-    let brush = Brush {
-        radius: 2.0,
-        units: BrushUnits::Texels,
-        strength: 1.0,
-        falloff: Falloff::Constant,
-    };
-    let mut mask = TexelMask::empty(original.width(), original.height());
-    let (mut dab_ms, mut edit_ms, mut apply_ms, mut frame_ms, mut total_ms) =
-        (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    let (mut whole_apply_ms, mut whole_frame_ms, mut whole_total_ms) =
-        (Vec::new(), Vec::new(), Vec::new());
-    let mut restarted = Vec::new();
-    let mut last = DVec2::new(f64::from(xs[0]) + 0.5, f64::from(row) + 0.5);
-    for k in 0..args.strokes {
-        let x = xs[(k * 3) % xs.len()];
-        let p = DVec2::new(f64::from(x) + 0.5, f64::from(row) + 0.5);
-        let t0 = Instant::now();
-        brush::stroke(
-            &scene,
-            mode.bvh(),
-            (n, n),
-            last,
-            p,
-            &brush,
-            index,
-            &mut mask,
-        );
-        last = p;
-        let t1 = Instant::now();
+    // The pack edit of the whole stroke so far, as the studio makes it.
+    let edit_within = |mask: &TexelMask| -> Result<SceneEdit, CliError> {
         let edited = original
-            .with_weight_scale(&WeightTarget::default().within(&mask), [1.3, 1.1, 0.8])
+            .with_weight_scale(&WeightTarget::default().within(mask), [1.3, 1.1, 0.8])
             .map_err(CliError::failure)?;
-        let edit = SceneEdit::Material {
+        Ok(SceneEdit::Material {
             index,
             material: Material::Spmm {
                 material: Arc::new(edited),
@@ -158,7 +112,69 @@ pub fn run(args: &StrokeArgs) -> Result<(), CliError> {
                 residual,
                 npca,
             },
-        };
+        })
+    };
+    let mut mask = TexelMask::empty(original.width(), original.height());
+    let times = time_strokes(
+        args,
+        (&scene, index),
+        (&mut mode, &mut whole),
+        (&xs, row),
+        &mut mask,
+        edit_within,
+    )?;
+    report(args, (original.width(), original.height()), &times, shaded)
+}
+
+/// Whether the centre of pixel (x, y) of the `n` x `n` image sees material `index`.
+fn sees_material(scene: &Scene, bvh: &SceneBvh, n: u32, index: usize, (x, y): (u32, u32)) -> bool {
+    pick(scene, bvh, n, n, f64::from(x) + 0.5, f64::from(y) + 0.5)
+        .is_some_and(|p| p.material == index)
+}
+
+/// Per stroke step, each part's time in milliseconds on the mode that traces only the
+/// restarted pixels and on the one that traces a whole frame, and the pixels restarted.
+#[derive(Default)]
+struct StepTimes {
+    dab_ms: Vec<f64>,
+    edit_ms: Vec<f64>,
+    apply_ms: Vec<f64>,
+    frame_ms: Vec<f64>,
+    total_ms: Vec<f64>,
+    whole_apply_ms: Vec<f64>,
+    whole_frame_ms: Vec<f64>,
+    whole_total_ms: Vec<f64>,
+    restarted: Vec<usize>,
+}
+
+/// Walks the stroke along row `row` of `xs` (every third pixel, wrapping), timing each
+/// step from the dab to the finished image on both modes, interleaved so both see the
+/// same load within a step.
+fn time_strokes(
+    args: &StrokeArgs,
+    (scene, index): (&Scene, usize),
+    (mode, whole): (&mut SpmmMode, &mut SpmmMode),
+    (xs, row): (&[u32], u32),
+    mask: &mut TexelMask,
+    edit_within: impl Fn(&TexelMask) -> Result<SceneEdit, CliError>,
+) -> Result<StepTimes, CliError> {
+    let n = args.size;
+    let brush = Brush {
+        radius: 2.0,
+        units: BrushUnits::Texels,
+        strength: 1.0,
+        falloff: Falloff::Constant,
+    };
+    let mut times = StepTimes::default();
+    let mut last = DVec2::new(f64::from(xs[0]) + 0.5, f64::from(row) + 0.5);
+    for k in 0..args.strokes {
+        let x = xs[(k * 3) % xs.len()];
+        let p = DVec2::new(f64::from(x) + 0.5, f64::from(row) + 0.5);
+        let t0 = Instant::now();
+        brush::stroke(scene, mode.bvh(), (n, n), last, p, &brush, index, mask);
+        last = p;
+        let t1 = Instant::now();
+        let edit = edit_within(mask)?;
         let t2 = Instant::now();
         let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
         // The previous behaviour on the same step, then the current one: both see
@@ -169,41 +185,53 @@ pub fn run(args: &StrokeArgs) -> Result<(), CliError> {
         whole.render_frame();
         let _image = whole.image();
         let w5 = Instant::now();
-        whole_apply_ms.push(ms(w3, w4));
-        whole_frame_ms.push(ms(w4, w5));
-        whole_total_ms.push(ms(t0, t2) + ms(w3, w5));
+        times.whole_apply_ms.push(ms(w3, w4));
+        times.whole_frame_ms.push(ms(w4, w5));
+        times.whole_total_ms.push(ms(t0, t2) + ms(w3, w5));
         let t3a = Instant::now();
         let inv = mode.apply(edit).map_err(CliError::failure)?;
         let t3 = Instant::now();
         mode.render_frame();
         let _image = mode.image();
         let t4 = Instant::now();
-        dab_ms.push(ms(t0, t1));
-        edit_ms.push(ms(t1, t2));
-        apply_ms.push(ms(t3a, t3));
-        frame_ms.push(ms(t3, t4));
-        total_ms.push(ms(t0, t2) + ms(t3a, t4));
-        restarted.push(match inv {
+        times.dab_ms.push(ms(t0, t1));
+        times.edit_ms.push(ms(t1, t2));
+        times.apply_ms.push(ms(t3a, t3));
+        times.frame_ms.push(ms(t3, t4));
+        times.total_ms.push(ms(t0, t2) + ms(t3a, t4));
+        times.restarted.push(match inv {
             Invalidation::Pixels(p) => p,
             Invalidation::All => (n * n) as usize,
             _ => 0,
         });
     }
+    Ok(times)
+}
+
+/// Prints the medians and maxima per part (JSON with `--json`): `(width, height)` is
+/// the pack's size in texels, `shaded` the pixels that see the material.
+fn report(
+    args: &StrokeArgs,
+    (width, height): (u32, u32),
+    times: &StepTimes,
+    shaded: usize,
+) -> Result<(), CliError> {
+    let n = args.size;
     let threads = rayon::current_num_threads();
-    let (dab, edit) = (stats(dab_ms), stats(edit_ms));
+    let (dab, edit) = (stats(times.dab_ms.clone()), stats(times.edit_ms.clone()));
     let parts = [
         ("dab", dab),
         ("pack edit", edit),
-        ("apply", stats(apply_ms)),
-        ("frame + image", stats(frame_ms)),
-        ("stroke to frame", stats(total_ms)),
+        ("apply", stats(times.apply_ms.clone())),
+        ("frame + image", stats(times.frame_ms.clone())),
+        ("stroke to frame", stats(times.total_ms.clone())),
     ];
     let whole_parts = [
         ("dab", dab),
         ("pack edit", edit),
-        ("apply", stats(whole_apply_ms)),
-        ("frame + image", stats(whole_frame_ms)),
-        ("stroke to frame", stats(whole_total_ms)),
+        ("apply", stats(times.whole_apply_ms.clone())),
+        ("frame + image", stats(times.whole_frame_ms.clone())),
+        ("stroke to frame", stats(times.whole_total_ms.clone())),
     ];
     let json_parts = |parts: &[(&str, (f64, f64))]| {
         parts
@@ -212,7 +240,7 @@ pub fn run(args: &StrokeArgs) -> Result<(), CliError> {
             .collect::<Vec<_>>()
     };
     let restarted_median = {
-        let mut r = restarted.clone();
+        let mut r = times.restarted.clone();
         r.sort_unstable();
         r[r.len() / 2]
     };
@@ -222,7 +250,7 @@ pub fn run(args: &StrokeArgs) -> Result<(), CliError> {
             "size": n,
             "threads": threads,
             "strokes": args.strokes,
-            "texels": original.width() * original.height(),
+            "texels": width * height,
             "ms": json_parts(&parts),
             "whole_frame_ms": json_parts(&whole_parts),
             "restarted_pixels_median": restarted_median,
@@ -233,8 +261,8 @@ pub fn run(args: &StrokeArgs) -> Result<(), CliError> {
         "{}: {n}x{n}, {threads} threads, {} stroke steps, pack {}x{} texels",
         args.scene.display(),
         args.strokes,
-        original.width(),
-        original.height()
+        width,
+        height
     );
     println!("  the frame after each edit traces only the restarted pixels:");
     for (name, (med, max)) in parts {

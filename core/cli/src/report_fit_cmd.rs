@@ -15,10 +15,12 @@ use meso_materials::atomic::write_bytes_atomic;
 use meso_materials::btf::file::read_btf;
 use meso_materials::btf::table::BtfTable;
 use meso_materials::image::{write_exr, write_image};
+use meso_materials::spmm::SpmmMaterial;
 use meso_materials::spmm::pack::read_pack;
 use meso_render::scene::{RenderSettings, load_scene};
 use meso_reports::fidelity::{
-    ImageErrors, RenderRequest, image_errors, render_all, side_by_side, table_errors, tabulate_pack,
+    ImageErrors, RenderRequest, TableErrors, image_errors, render_all, side_by_side, table_errors,
+    tabulate_pack,
 };
 use serde_json::json;
 
@@ -72,51 +74,9 @@ fn stem(path: &Path) -> String {
 }
 
 pub fn run(args: &FitReportArgs) -> Result<(), CliError> {
-    if let Some(p) = RenderSettings::size_problem(args.width, args.height) {
-        return Err(CliError::bad_input(anyhow!("--width/--height: {p}")));
-    }
-    if args.frames == 0 {
-        return Err(CliError::bad_input(anyhow!("--frames must be at least 1")));
-    }
-    if !(args.diff_gain.is_finite() && args.diff_gain > 0.0 && args.exposure.is_finite()) {
-        return Err(CliError::bad_input(anyhow!(
-            "--diff-gain must be positive and --exposure finite"
-        )));
-    }
-    let scenes = if args.scene.is_empty() {
-        default_scenes()
-    } else {
-        args.scene.clone()
-    };
-    let mut names: Vec<String> = scenes.iter().map(|s| stem(s)).collect();
-    names.sort();
-    names.dedup();
-    if names.len() != scenes.len() {
-        return Err(CliError::bad_input(anyhow!(
-            "--scene: two scenes share a file name; their images would overwrite each other"
-        )));
-    }
+    let scenes = checked_scenes(args)?;
     let started = Instant::now();
-    let btf = read_btf(&args.btf).map_err(CliError::bad_input)?;
-    let pack = read_pack(&args.pack).map_err(CliError::bad_input)?;
-    let pack_bytes = std::fs::metadata(&args.pack)
-        .failure_ctx(|| format!("reading `{}`", args.pack.display()))?
-        .len();
-    let table = table_errors(&btf, &pack)
-        .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", args.pack.display())))?;
-    let shaded = Arc::new(
-        BtfTable::new(&btf)
-            .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", args.btf.display())))?,
-    );
-    // The pack at the BTF's pairs, shown as a BTF: the third render's material.
-    let tabulated = tabulate_pack(&btf, &pack)
-        .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", args.pack.display())))?;
-    let tabulated =
-        Arc::new(BtfTable::new(&tabulated).map_err(|e| {
-            CliError::failure(anyhow!("the pack tabulated at the BTF's pairs: {e}"))
-        })?);
-    drop(btf);
-    let pack = Arc::new(pack);
+    let inputs = read_inputs(args)?;
     std::fs::create_dir_all(&args.output)
         .failure_ctx(|| format!("creating `{}`", args.output.display()))?;
     let request = RenderRequest {
@@ -130,76 +90,21 @@ pub fn run(args: &FitReportArgs) -> Result<(), CliError> {
     let mut worst: Option<ImageErrors> = None;
     let mut worst_fit: Option<ImageErrors> = None;
     for path in &scenes {
-        let scene = load_scene(path).map_err(CliError::bad_input)?;
-        let name = stem(path);
-        let r = render_all(
-            &scene,
-            Arc::clone(&shaded),
-            Arc::clone(&pack),
-            Arc::clone(&tabulated),
-            &request,
-        )
-        .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", path.display())))?;
-        let e = image_errors(&r.btf, &r.pack).map_err(CliError::failure)?;
-        let fit = image_errors(&r.btf, &r.tabulated).map_err(CliError::failure)?;
-        let interpolation = image_errors(&r.tabulated, &r.pack).map_err(CliError::failure)?;
-        let files = [
-            "btf.exr",
-            "pack.exr",
-            "tabulated.exr",
-            "side_by_side.png",
-            "fit_side_by_side.png",
-        ]
-        .map(|suffix| format!("{name}_{suffix}"));
-        let [btf_exr, pack_exr, tab_exr, panels, fit_panels] = &files;
-        for (file, image) in [
-            (btf_exr, &r.btf),
-            (pack_exr, &r.pack),
-            (tab_exr, &r.tabulated),
-        ] {
-            write_exr(&out(file), image).failure_ctx(|| format!("writing `{file}`"))?;
-        }
-        for (file, (a, b)) in [
-            (panels, (&r.btf, &r.pack)),
-            (fit_panels, (&r.btf, &r.tabulated)),
-        ] {
-            write_image(
-                &out(file),
-                &side_by_side(a, b, args.diff_gain),
-                args.exposure,
-            )
-            .failure_ctx(|| format!("writing `{file}`"))?;
-        }
+        let (row, e, fit) = report_scene(args, path, &inputs, &request)?;
         worst = Some(worse(worst, e));
         worst_fit = Some(worse(worst_fit, fit));
-        rows.push(json!({
-            "scene": path.display().to_string(),
-            "btf_image": btf_exr,
-            "pack_image": pack_exr,
-            "tabulated_image": tab_exr,
-            "side_by_side": panels,
-            "fit_side_by_side": fit_panels,
-            "image_relative_rmse": e.relative_rmse,
-            "image_rmse": e.rmse,
-            "image_psnr_db": e.psnr_db,
-            "image_mssim": e.mssim,
-            "fit_image_relative_rmse": fit.relative_rmse,
-            "fit_image_rmse": fit.rmse,
-            "fit_image_mssim": fit.mssim,
-            "interpolation_image_relative_rmse": interpolation.relative_rmse,
-            "interpolation_image_rmse": interpolation.rmse,
-            "interpolation_image_mssim": interpolation.mssim,
-        }));
+        rows.push(row);
     }
     let (worst, worst_fit) = (
         worst.expect("at least one scene"),
         worst_fit.expect("at least one scene"),
     );
+    let table = &inputs.table;
     let report = json!({
         "btf": args.btf.display().to_string(),
         "pack": args.pack.display().to_string(),
-        "pack_bytes": pack_bytes,
-        "btf_resident_bytes": shaded.bytes(),
+        "pack_bytes": inputs.pack_bytes,
+        "btf_resident_bytes": inputs.shaded.bytes(),
         "width": args.width,
         "height": args.height,
         "frames": args.frames,
@@ -226,6 +131,155 @@ pub fn run(args: &FitReportArgs) -> Result<(), CliError> {
     if args.json {
         return crate::print_json(&report);
     }
+    print_summary(args, &inputs, &rows);
+    Ok(())
+}
+
+/// The scenes to render (the default ones unless `--scene` names some), after the
+/// options are checked: their file names must differ, as they name the images.
+fn checked_scenes(args: &FitReportArgs) -> Result<Vec<PathBuf>, CliError> {
+    if let Some(p) = RenderSettings::size_problem(args.width, args.height) {
+        return Err(CliError::bad_input(anyhow!("--width/--height: {p}")));
+    }
+    if args.frames == 0 {
+        return Err(CliError::bad_input(anyhow!("--frames must be at least 1")));
+    }
+    if !(args.diff_gain.is_finite() && args.diff_gain > 0.0 && args.exposure.is_finite()) {
+        return Err(CliError::bad_input(anyhow!(
+            "--diff-gain must be positive and --exposure finite"
+        )));
+    }
+    let scenes = if args.scene.is_empty() {
+        default_scenes()
+    } else {
+        args.scene.clone()
+    };
+    let mut names: Vec<String> = scenes.iter().map(|s| stem(s)).collect();
+    names.sort();
+    names.dedup();
+    if names.len() != scenes.len() {
+        return Err(CliError::bad_input(anyhow!(
+            "--scene: two scenes share a file name; their images would overwrite each other"
+        )));
+    }
+    Ok(scenes)
+}
+
+/// What every scene's renders share, read and prepared once: the pack, its file size
+/// and table-space errors, and the three materials rendered.
+struct Inputs {
+    pack: Arc<SpmmMaterial>,
+    pack_bytes: u64,
+    table: TableErrors,
+    /// The BTF as the renderer shades it: the reference render's material.
+    shaded: Arc<BtfTable>,
+    /// The pack at the BTF's pairs, shown as a BTF: the third render's material.
+    tabulated: Arc<BtfTable>,
+}
+
+/// Reads the BTF and the pack and prepares `Inputs`; the BTF itself is not kept.
+fn read_inputs(args: &FitReportArgs) -> Result<Inputs, CliError> {
+    let btf = read_btf(&args.btf).map_err(CliError::bad_input)?;
+    let pack = read_pack(&args.pack).map_err(CliError::bad_input)?;
+    let pack_bytes = std::fs::metadata(&args.pack)
+        .failure_ctx(|| format!("reading `{}`", args.pack.display()))?
+        .len();
+    let table = table_errors(&btf, &pack)
+        .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", args.pack.display())))?;
+    let shaded = Arc::new(
+        BtfTable::new(&btf)
+            .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", args.btf.display())))?,
+    );
+    // The pack at the BTF's pairs, shown as a BTF: the third render's material.
+    let tabulated = tabulate_pack(&btf, &pack)
+        .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", args.pack.display())))?;
+    let tabulated =
+        Arc::new(BtfTable::new(&tabulated).map_err(|e| {
+            CliError::failure(anyhow!("the pack tabulated at the BTF's pairs: {e}"))
+        })?);
+    drop(btf);
+    Ok(Inputs {
+        pack: Arc::new(pack),
+        pack_bytes,
+        table,
+        shaded,
+        tabulated,
+    })
+}
+
+/// Renders one scene three ways, writes its EXRs and side-by-side PNGs, and returns
+/// its report row with its image errors (BTF against pack, and the fit's part alone).
+fn report_scene(
+    args: &FitReportArgs,
+    path: &Path,
+    inputs: &Inputs,
+    request: &RenderRequest,
+) -> Result<(serde_json::Value, ImageErrors, ImageErrors), CliError> {
+    let out = |name: &str| args.output.join(name);
+    let scene = load_scene(path).map_err(CliError::bad_input)?;
+    let name = stem(path);
+    let r = render_all(
+        &scene,
+        Arc::clone(&inputs.shaded),
+        Arc::clone(&inputs.pack),
+        Arc::clone(&inputs.tabulated),
+        request,
+    )
+    .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", path.display())))?;
+    let e = image_errors(&r.btf, &r.pack).map_err(CliError::failure)?;
+    let fit = image_errors(&r.btf, &r.tabulated).map_err(CliError::failure)?;
+    let interpolation = image_errors(&r.tabulated, &r.pack).map_err(CliError::failure)?;
+    let files = [
+        "btf.exr",
+        "pack.exr",
+        "tabulated.exr",
+        "side_by_side.png",
+        "fit_side_by_side.png",
+    ]
+    .map(|suffix| format!("{name}_{suffix}"));
+    let [btf_exr, pack_exr, tab_exr, panels, fit_panels] = &files;
+    for (file, image) in [
+        (btf_exr, &r.btf),
+        (pack_exr, &r.pack),
+        (tab_exr, &r.tabulated),
+    ] {
+        write_exr(&out(file), image).failure_ctx(|| format!("writing `{file}`"))?;
+    }
+    for (file, (a, b)) in [
+        (panels, (&r.btf, &r.pack)),
+        (fit_panels, (&r.btf, &r.tabulated)),
+    ] {
+        write_image(
+            &out(file),
+            &side_by_side(a, b, args.diff_gain),
+            args.exposure,
+        )
+        .failure_ctx(|| format!("writing `{file}`"))?;
+    }
+    let row = json!({
+        "scene": path.display().to_string(),
+        "btf_image": btf_exr,
+        "pack_image": pack_exr,
+        "tabulated_image": tab_exr,
+        "side_by_side": panels,
+        "fit_side_by_side": fit_panels,
+        "image_relative_rmse": e.relative_rmse,
+        "image_rmse": e.rmse,
+        "image_psnr_db": e.psnr_db,
+        "image_mssim": e.mssim,
+        "fit_image_relative_rmse": fit.relative_rmse,
+        "fit_image_rmse": fit.rmse,
+        "fit_image_mssim": fit.mssim,
+        "interpolation_image_relative_rmse": interpolation.relative_rmse,
+        "interpolation_image_rmse": interpolation.rmse,
+        "interpolation_image_mssim": interpolation.mssim,
+    });
+    Ok((row, e, fit))
+}
+
+/// The text report: the pack, its table-space errors, then a line per scene.
+fn print_summary(args: &FitReportArgs, inputs: &Inputs, rows: &[serde_json::Value]) {
+    let (pack_bytes, table) = (inputs.pack_bytes, &inputs.table);
     println!("pack         {} ({pack_bytes} bytes)", args.pack.display());
     println!(
         "table        relative RMSE {:.2}% (grazing {:.2}%, elsewhere {:.2}%, basis sum alone {:.2}%)",
@@ -235,7 +289,7 @@ pub fn run(args: &FitReportArgs) -> Result<(), CliError> {
         100.0 * table.basis_relative_rmse
     );
     let number = |r: &serde_json::Value, k: &str| r[k].as_f64().unwrap_or(f64::NAN);
-    for r in &rows {
+    for r in rows {
         println!(
             "{:<12} relative RMSE {:.2}%  PSNR {}  MSSIM {:.4}  (fit {:.2}%, MSSIM {:.4}; interpolation {:.2}%, MSSIM {:.4})",
             stem(Path::new(r["scene"].as_str().unwrap_or("scene"))),
@@ -251,7 +305,6 @@ pub fn run(args: &FitReportArgs) -> Result<(), CliError> {
         );
     }
     println!("wrote {}", args.output.display());
-    Ok(())
 }
 
 /// The worse of two scenes' errors: largest RMSE, smallest PSNR and MSSIM.

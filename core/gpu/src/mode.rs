@@ -5,6 +5,11 @@
 //! invalidation); a frame reads back only its counters. Geometry (BVH nodes and
 //! triangles), the prepared SPMM data, BRDFs, materials and lights live on the device.
 
+mod edit;
+mod limits;
+mod resources;
+mod scene_data;
+
 use std::time::Instant;
 
 use bytemuck::{Pod, Zeroable};
@@ -19,6 +24,7 @@ use super::kernel::{self, Kernel, Slot};
 use super::reach::{Reach, reachable_clusters};
 use super::shaders;
 use super::{GpuContext, GpuError, Sharing};
+use limits::{ENVIRONMENT_WORDS, MATERIAL_WORDS_NAME, device_size_problem, words_size_problem};
 use meso_materials::image::Image;
 use meso_materials::spmm::PrepareRequest;
 use meso_render::environment::EnvironmentSampler;
@@ -34,10 +40,9 @@ use meso_render::{
     ModeError, ModeKind, Pass, PreparationReport, Prepare, Progress, RayCounts, RenderMode,
     SceneEdit, Unrenderable, Unsupported,
 };
+use resources::Resources;
+use scene_data::{LIGHT_WORDS, SceneData, light_capacity, light_table};
 
-const MATERIAL_WORDS: usize = 8;
-/// Words of one light record (`shaders/lights.wgsl`).
-const LIGHT_WORDS: usize = 24;
 /// Counter slots of `shaders/integrator.wgsl` (two traversal overflows, then rays;
 /// the last is the environment's, `shaders/environment.wgsl`).
 const COUNTERS: usize = 8;
@@ -105,264 +110,6 @@ struct Params {
     cam_forward: [f32; 4],
     cam_right: [f32; 4],
     cam_up: [f32; 4],
-}
-
-/// Why the film's sums at `width` x `height` (its largest buffer) would not fit in one
-/// buffer of the device (`None` if they fit): refused before anything is allocated.
-fn device_size_problem(ctx: &GpuContext, width: u32, height: u32, layers: usize) -> Option<String> {
-    let bytes = film::largest_buffer(width, height, layers);
-    let limits = ctx.limits();
-    let limit = limits
-        .max_buffer_size
-        .min(limits.max_storage_buffer_binding_size);
-    (bytes > limit).then(|| {
-        format!(
-            "{width} x {height} with {layers} film layers needs a {bytes}-byte buffer on the GPU; `{}` allows {limit}",
-            ctx.adapter_name()
-        )
-    })
-}
-
-impl ProgressiveFilm for DeviceFilm {
-    fn width(&self) -> u32 {
-        DeviceFilm::width(self)
-    }
-    fn height(&self) -> u32 {
-        DeviceFilm::height(self)
-    }
-    fn resize_problem(&self, width: u32, height: u32) -> Result<(), EditError> {
-        match device_size_problem(self.context(), width, height, self.layers()) {
-            Some(p) => Err(EditError::Size(p)),
-            None => Ok(()),
-        }
-    }
-    fn resize(&mut self, width: u32, height: u32) {
-        DeviceFilm::resize(self, width, height);
-    }
-}
-
-const ENVIRONMENT_WORDS: &str =
-    "the [environment] map with its sampling tables and the [background] image";
-const MATERIAL_WORDS_NAME: &str = "the materials (SPMM packs, MERL tables) and lights";
-
-/// Why `words` words of `what` would not fit in one buffer of the device (`None` if
-/// they fit).
-fn words_size_problem(ctx: &GpuContext, what: &str, words: usize) -> Option<String> {
-    let bytes = words as u64 * 4;
-    let limits = ctx.limits();
-    let limit = limits
-        .max_buffer_size
-        .min(limits.max_storage_buffer_binding_size);
-    (bytes > limit).then(|| {
-        format!(
-            "{what} need a {bytes}-byte buffer on the GPU; `{}` allows {limit}",
-            ctx.adapter_name()
-        )
-    })
-}
-
-/// The scene's materials and lights as data words, with where their tables start.
-struct SceneData {
-    words: Words,
-    material_table: u32,
-    /// The light table, last in `words`, with room for `light_capacity` lights.
-    light_table: u32,
-    light_capacity: usize,
-    /// Per material: the moving flag changes it (an SPMM residual in use with more
-    /// components than a moving camera keeps, `MOVING_NPCA`).
-    moving_changes: Vec<bool>,
-    /// Per SPMM material, the clusters uploaded (`reach::reachable_clusters`).
-    reach: Reach,
-}
-
-fn f(v: f64) -> u32 {
-    (v as f32).to_bits()
-}
-
-/// The light table of `shaders/lights.wgsl`, one record per light: kind, position or
-/// corner, edges; the film layer its samples go to and the factor they are multiplied
-/// by (`Layers::light_targets`: one, or its emission in a bounded film's shared layer);
-/// and above `MANY_LIGHTS` the CPU's selection table (`LightSelection`: alias bin,
-/// pmf, 1 / area, the resampling weight's scale, the emitting normal).
-fn light_table(scene: &Scene, layers: &Layers) -> Vec<u32> {
-    let targets = layers.light_targets(scene);
-    let selection = LightSampling::Auto
-        .stochastic(scene.lights.len())
-        .then(|| LightSelection::new(&scene.lights))
-        .flatten();
-    // The scale only matters relative to the other lights' (it cancels in the
-    // estimate): divided by the largest, so f32 holds it whatever the emissions.
-    let max_scale = selection.as_ref().map_or(1.0, |sel| {
-        sel.lights.iter().map(|l| l.w_scale).fold(0.0, f64::max)
-    });
-    let mut table = vec![0u32; scene.lights.len() * LIGHT_WORDS];
-    for (k, (light, rec)) in scene
-        .lights
-        .iter()
-        .zip(table.chunks_exact_mut(LIGHT_WORDS))
-        .enumerate()
-    {
-        let (kind, a, b, c) = match *light {
-            Light::Point { position, .. } => (0, position, DVec3::ZERO, DVec3::ZERO),
-            Light::Area {
-                corner,
-                edge_u,
-                edge_v,
-                ..
-            } => (1, corner, edge_u, edge_v),
-        };
-        rec[0] = kind;
-        for (i, v) in [a, b, c].iter().enumerate() {
-            rec[1 + 3 * i..4 + 3 * i].copy_from_slice(&[f(v.x), f(v.y), f(v.z)]);
-        }
-        rec[10] = targets[k].layer as u32;
-        let factor = targets[k].factor.min(DVec3::splat(f64::from(f32::MAX)));
-        rec[11..14].copy_from_slice(&[f(factor.x), f(factor.y), f(factor.z)]);
-        if let Some(sel) = &selection {
-            let (keep, alias) = sel.table.bins()[k];
-            let l = &sel.lights[k];
-            rec[14] = f(keep);
-            rec[15] = alias;
-            rec[16] = f(sel.table.pmf()[k]);
-            rec[17] = f(l.inv_area);
-            rec[18] = f(l.w_scale / max_scale);
-            rec[19..22].copy_from_slice(&[f(l.normal.x), f(l.normal.y), f(l.normal.z)]);
-        }
-    }
-    table
-}
-
-/// Room for the light table: at least `MANY_LIGHTS`, and a power of two above, so
-/// light edits rewrite it in place and an added light seldom re-uploads the data.
-fn light_capacity(lights: usize) -> usize {
-    lights.max(MANY_LIGHTS).next_power_of_two()
-}
-
-impl SceneData {
-    /// Every material (SPMM packs prepared as the CPU mode prepares them, only the
-    /// clusters the scene can reach unless `all_clusters`; a pack no mesh carries not
-    /// at all) and the light table (`light_table`) with room to grow, so light edits
-    /// rewrite it in place.
-    fn build(scene: &Scene, layers: &Layers, all_clusters: bool) -> Self {
-        let reach = if all_clusters {
-            scene
-                .materials
-                .iter()
-                .map(|m| match m {
-                    Material::Spmm { material, .. } => Some(vec![true; material.clusters().len()]),
-                    Material::Btf { .. } => Some(vec![true]),
-                    _ => None,
-                })
-                .collect()
-        } else {
-            reachable_clusters(scene)
-        };
-        let mut words = Words::default();
-        let mut table = Vec::with_capacity(scene.materials.len() * MATERIAL_WORDS);
-        let mut moving_changes = Vec::with_capacity(scene.materials.len());
-        let mut merl: Vec<(*const meso_materials::merl::MerlBrdf, u32)> = Vec::new();
-        for (i, m) in scene.materials.iter().enumerate() {
-            let mut rec = [0u32; MATERIAL_WORDS];
-            let mut changes_when_moving = false;
-            match m {
-                Material::Brdf { brdf, albedo } => {
-                    rec[0] = 0;
-                    rec[1] = words.push_brdf(brdf);
-                    rec[4..7].copy_from_slice(&[f(albedo.x), f(albedo.y), f(albedo.z)]);
-                }
-                Material::Spmm {
-                    material,
-                    uv_scale,
-                    residual: wanted,
-                    npca,
-                } => {
-                    let used = reach[i].clone().unwrap_or_default();
-                    if !used.contains(&true) {
-                        // No ray can shade it: nothing uploaded, a record of no kind.
-                        rec[0] = u32::MAX;
-                        table.extend_from_slice(&rec);
-                        moving_changes.push(false);
-                        continue;
-                    }
-                    let prepared = material.prepare(&PrepareRequest {
-                        used_clusters: Some(used.clone()),
-                        residual: *wanted,
-                        max_npca: *npca,
-                    });
-                    let uses_residual = *wanted && prepared.has_residual();
-                    changes_when_moving = uses_residual
-                        && prepared.prepared_npca() > meso_materials::spmm::MOVING_NPCA;
-                    rec[0] = 1;
-                    rec[1] = words.push_spmm(&prepared, *uv_scale, Some(&used));
-                    rec[2] = u32::from(uses_residual);
-                }
-                Material::Mirror { reflectance } => {
-                    rec[0] = 2;
-                    rec[4..7].copy_from_slice(&[
-                        f(reflectance.x),
-                        f(reflectance.y),
-                        f(reflectance.z),
-                    ]);
-                }
-                Material::Merl { brdf, tint } => {
-                    rec[0] = 3;
-                    // A table shared by several materials goes up once.
-                    let key = std::sync::Arc::as_ptr(brdf);
-                    rec[1] = match merl.iter().find(|(k, _)| *k == key) {
-                        Some(&(_, at)) => at,
-                        None => {
-                            let at = words.push_merl(brdf);
-                            merl.push((key, at));
-                            at
-                        }
-                    };
-                    rec[4..7].copy_from_slice(&[f(tint.x), f(tint.y), f(tint.z)]);
-                }
-                Material::Btf { table, uv_scale } => {
-                    if reach[i].as_ref().is_some_and(|r| r.contains(&true)) {
-                        rec[0] = 4;
-                        rec[1] = words.push_btf(table, *uv_scale);
-                    } else {
-                        // No mesh carries it: nothing uploaded, a record of no kind.
-                        rec[0] = u32::MAX;
-                    }
-                }
-            }
-            table.extend_from_slice(&rec);
-            moving_changes.push(changes_when_moving);
-        }
-        let before = words.words.len();
-        let material_table = words.at();
-        words.words.extend_from_slice(&table);
-        let light_table = words.at();
-        let light_capacity = light_capacity(scene.lights.len());
-        let lights = self::light_table(scene, layers);
-        words.words.extend_from_slice(&lights);
-        words
-            .words
-            .resize(light_table as usize + light_capacity * LIGHT_WORDS, 0);
-        // BRDF records sit among the SPMM data; count the tables as materials.
-        words.bytes.materials += 4 * (words.words.len() - before) as u64;
-        Self {
-            words,
-            material_table,
-            light_table,
-            light_capacity,
-            moving_changes,
-            reach,
-        }
-    }
-}
-
-/// The device side of a prepared scene.
-struct Resources {
-    geometry: GeometryBuffers,
-    data: wgpu::Buffer,
-    data_bytes: DataBytes,
-    params: wgpu::Buffer,
-    counters: wgpu::Buffer,
-    env: wgpu::Buffer,
-    bind: wgpu::BindGroup,
 }
 
 /// The `spmm` mode on a wgpu device.
@@ -747,46 +494,6 @@ impl GpuSpmmMode {
     }
 }
 
-impl Resources {
-    fn upload(
-        ctx: &GpuContext,
-        kernel: &Kernel,
-        bvh: &SceneBvh,
-        scene: &Scene,
-        (data, env_words): (&SceneData, &[u32]),
-        film: &DeviceFilm,
-    ) -> Self {
-        let geometry = GeometryBuffers::upload(ctx, bvh, &scene.meshes);
-        let data_buf = kernel::storage(ctx, "data", bytemuck::cast_slice(&data.words.words));
-        let params = kernel::uniform(ctx, "params", bytemuck::bytes_of(&Params::default()));
-        let counters = kernel::zeroed(ctx, "counters", COUNTERS as u64 * 4);
-        let env = kernel::storage(ctx, "environment", bytemuck::cast_slice(env_words));
-        let bind = kernel.bind(
-            ctx,
-            &[
-                &params,
-                &geometry.nodes,
-                &geometry.tris,
-                &geometry.shade,
-                &data_buf,
-                &film.frame,
-                &film.aux,
-                &counters,
-                &env,
-            ],
-        );
-        Self {
-            geometry,
-            data: data_buf,
-            data_bytes: data.words.bytes,
-            params,
-            counters,
-            env,
-            bind,
-        }
-    }
-}
-
 impl GpuSpmmMode {
     /// The status-bar line: the adapter, the bytes on it, traversal overflows.
     fn summary(&self) -> String {
@@ -923,115 +630,5 @@ impl RenderMode for GpuSpmmMode {
             self.failure = Some(e);
         }
         result
-    }
-}
-
-impl GpuSpmmMode {
-    fn apply_edit(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
-        let env_words = match &edit {
-            SceneEdit::Environment(e) => {
-                environment::word_count(e.as_ref(), &self.core.scene.background)
-            }
-            SceneEdit::Background(b) => {
-                environment::word_count(self.core.scene.environment.as_ref(), b)
-            }
-            _ => 0,
-        };
-        if let Some(p) = words_size_problem(&self.ctx, ENVIRONMENT_WORDS, env_words) {
-            return Err(EditError::Size(p));
-        }
-        if let SceneEdit::AddLight(_) = edit {
-            let (w, h) = (self.core.film.width(), self.core.film.height());
-            let layers = meso_render::layers::FIRST_LIGHT + self.core.scene.lights.len() + 1;
-            let layers = if self.core.scene.lights.len() < MANY_LIGHTS {
-                layers
-            } else {
-                meso_render::layers::SHARED_LIGHTS + 1
-            };
-            if let Some(p) = device_size_problem(&self.ctx, w, h, layers) {
-                return Err(EditError::Size(p));
-            }
-        }
-        let meshes_before =
-            matches!(edit, SceneEdit::Meshes(_)).then(|| self.core.scene.meshes.clone());
-        let layer_count = self.core.film.layers();
-        Ok(match self.core.apply(&edit)? {
-            Edited::Emitters(invalidation) => {
-                let grown = matches!(
-                    edit,
-                    SceneEdit::Light { .. } | SceneEdit::AddLight(_) | SceneEdit::RemoveLight(_)
-                ) && self.write_lights();
-                match &edit {
-                    // A new map, rotation or sampling changes the tables; a strength
-                    // edit (nothing invalidated) only re-weights the layer.
-                    SceneEdit::Environment(_) if invalidation != Invalidation::Nothing => {
-                        self.reupload_environment(true);
-                    }
-                    SceneEdit::Background(_) => self.reupload_environment(false),
-                    _ if self.core.film.layers() != layer_count || grown => {
-                        // A light added or removed: the device's frame buffer follows,
-                        // or the light table outgrew its room.
-                        self.rebind();
-                    }
-                    _ => {}
-                }
-                invalidation
-            }
-            Edited::Camera | Edited::LightSamples => self.restart_all(),
-            Edited::Resized => {
-                self.rebind();
-                self.restart_all()
-            }
-            Edited::Meshes => {
-                // New UVs or material assignments may reach other clusters.
-                if reachable_clusters(&self.core.scene) != self.scene_data.reach
-                    && !self.all_clusters
-                {
-                    match self.rebuild_data() {
-                        Ok(data) => self.scene_data = data,
-                        Err(e) => {
-                            if let Some(meshes) = meshes_before {
-                                self.core.scene.meshes = meshes;
-                            }
-                            return Err(e);
-                        }
-                    }
-                }
-                self.core.bvh.update(&self.core.scene.meshes);
-                self.rebind();
-                self.restart_all()
-            }
-            Edited::Material { index, before } => {
-                // The re-upload is checked against the device's limit first; the
-                // material stays as it was if it would not fit.
-                match self.rebuild_data() {
-                    Ok(data) => self.scene_data = data,
-                    Err(e) => {
-                        self.core.scene.materials[index] = before;
-                        return Err(e);
-                    }
-                }
-                self.rebind();
-                let after = &self.core.scene.materials[index];
-                let bit = material_bit(index);
-                let film = &mut self.core.film;
-                let restarted = match EditedTexels::between(&before, after) {
-                    Some(texels) => {
-                        film.reset_where(|mask, b| mask & bit != 0 && texels.reaches(b))
-                    }
-                    None => film.reset_where(|mask, _| mask & bit != 0),
-                };
-                self.restarted(restarted)
-            }
-            Edited::Moving => match self.moving_mask() {
-                // No material shades differently while moving: every sample stands.
-                0 => Invalidation::Nothing,
-                residual => {
-                    let restarted = self.core.film.reset_where(|mask, _| mask & residual != 0);
-                    self.restarted(restarted)
-                }
-            },
-            Edited::Nothing => Invalidation::Nothing,
-        })
     }
 }

@@ -21,7 +21,9 @@ fn scene_of(materials: Vec<Material>) -> Scene {
 }
 
 fn glossy() -> AnalyticBrdf {
-    AnalyticBrdf::new(BrdfModel::CookTorrance, &[("roughness", 0.3)]).expect("valid")
+    AnalyticBrdf::with_defaults(BrdfModel::CookTorrance)
+        .with_param("m", 0.3)
+        .expect("valid")
 }
 
 /// One of each material kind with a finite response.

@@ -1,0 +1,64 @@
+//! What must fit in one buffer of the device (the film's sums, the data and
+//! environment words), refused with the adapter's limit before anything is
+//! allocated; the device film as the progressive skeleton resizes it.
+
+use super::*;
+
+/// Why the film's sums at `width` x `height` (its largest buffer) would not fit in one
+/// buffer of the device (`None` if they fit): refused before anything is allocated.
+pub(super) fn device_size_problem(
+    ctx: &GpuContext,
+    width: u32,
+    height: u32,
+    layers: usize,
+) -> Option<String> {
+    let bytes = film::largest_buffer(width, height, layers);
+    let limits = ctx.limits();
+    let limit = limits
+        .max_buffer_size
+        .min(limits.max_storage_buffer_binding_size);
+    (bytes > limit).then(|| {
+        format!(
+            "{width} x {height} with {layers} film layers needs a {bytes}-byte buffer on the GPU; `{}` allows {limit}",
+            ctx.adapter_name()
+        )
+    })
+}
+
+impl ProgressiveFilm for DeviceFilm {
+    fn width(&self) -> u32 {
+        DeviceFilm::width(self)
+    }
+    fn height(&self) -> u32 {
+        DeviceFilm::height(self)
+    }
+    fn resize_problem(&self, width: u32, height: u32) -> Result<(), EditError> {
+        match device_size_problem(self.context(), width, height, self.layers()) {
+            Some(p) => Err(EditError::Size(p)),
+            None => Ok(()),
+        }
+    }
+    fn resize(&mut self, width: u32, height: u32) {
+        DeviceFilm::resize(self, width, height);
+    }
+}
+
+pub(super) const ENVIRONMENT_WORDS: &str =
+    "the [environment] map with its sampling tables and the [background] image";
+pub(super) const MATERIAL_WORDS_NAME: &str = "the materials (SPMM packs, MERL tables) and lights";
+
+/// Why `words` words of `what` would not fit in one buffer of the device (`None` if
+/// they fit).
+pub(super) fn words_size_problem(ctx: &GpuContext, what: &str, words: usize) -> Option<String> {
+    let bytes = words as u64 * 4;
+    let limits = ctx.limits();
+    let limit = limits
+        .max_buffer_size
+        .min(limits.max_storage_buffer_binding_size);
+    (bytes > limit).then(|| {
+        format!(
+            "{what} need a {bytes}-byte buffer on the GPU; `{}` allows {limit}",
+            ctx.adapter_name()
+        )
+    })
+}

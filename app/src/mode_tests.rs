@@ -484,9 +484,9 @@ fn environment_edits_are_undoable_and_reach_the_renderer() {
 #[test]
 fn a_scene_that_names_a_mode_asks_for_it_once_loaded() {
     // The default scene with `[render] mode = "biscale"`: it opens in spmm (which
-    // renders everything), then asks for biscale, which cannot render it (an area
-    // light, AO, no environment): the message says why and frames keep coming from
-    // spmm.
+    // renders everything), then asks for biscale, which cannot render it (no
+    // environment, its precomputed part): the message says why and frames keep coming
+    // from spmm.
     let dir = tempfile::tempdir().expect("temp dir");
     let default = default_scene_path();
     let folder = default

@@ -31,6 +31,10 @@ pub struct PrecomputeArgs {
     /// Local directions per side (M = res^2): 8 or 12.
     #[arg(long, default_value_t = 8)]
     local_res: u32,
+    /// At most about this many vertices added where visibility varies (receivers'
+    /// shadows); 0 keeps the scene's own vertices.
+    #[arg(long, default_value_t = meso_modes::biscale::DEFAULT_REFINE_VERTICES)]
+    refine_vertices: usize,
     /// Skip the SH and CPCA baselines.
     #[arg(long)]
     no_baselines: bool,
@@ -50,6 +54,7 @@ pub fn run(args: &PrecomputeArgs) -> Result<(), CliError> {
     let settings = BiscaleSettings {
         cube_n: args.cube_n,
         local_res: args.local_res,
+        refine_vertices: args.refine_vertices,
         ..BiscaleSettings::default()
     };
     if let Some(p) = settings.problem() {

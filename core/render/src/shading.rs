@@ -19,7 +19,7 @@ use std::f64::consts::PI;
 
 use glam::{DVec2, DVec3};
 
-use crate::scene::{Material, Scene};
+use crate::scene::{Light, Material, Scene};
 use meso_materials::spmm::defensive_pdf;
 use shader::Shader;
 
@@ -36,6 +36,48 @@ pub enum PackSampling {
     /// The defensive half-cosine, half-uniform mixture alone: the sampling before
     /// the bases were drawn from.
     Defensive,
+}
+
+/// A point on a light as a surface point at `p` sees it: the point, the unit
+/// direction to it and its falloff (`1 / r^2` for a point light; `cos_l A / r^2` for
+/// the uniform point `u` on an area light, the reciprocal of its solid-angle pdf).
+#[derive(Clone, Copy, Debug)]
+pub struct PointOnLight {
+    pub q: DVec3,
+    pub wi: DVec3,
+    pub falloff: f64,
+}
+
+/// `light` seen from `p` (with the point `u` of an area light's parallelogram);
+/// `None` behind a one-sided area light, which emits towards edge_u x edge_v.
+pub fn point_on_light(light: &Light, u: DVec2, p: DVec3) -> Option<PointOnLight> {
+    let (q, geometry) = match *light {
+        Light::Point { position, .. } => (position, None),
+        Light::Area {
+            corner,
+            edge_u,
+            edge_v,
+            ..
+        } => (
+            corner + edge_u * u.x + edge_v * u.y,
+            Some(edge_u.cross(edge_v)),
+        ),
+    };
+    let to = q - p;
+    let d2 = to.length_squared();
+    let wi = to / d2.sqrt();
+    let falloff = match geometry {
+        None => 1.0 / d2,
+        Some(cross) => {
+            let area = cross.length();
+            let cos_l = -wi.dot(cross / area);
+            if cos_l <= 0.0 {
+                return None;
+            }
+            cos_l * area / d2
+        }
+    };
+    Some(PointOnLight { q, wi, falloff })
 }
 
 /// The scene's materials as a render shades them: what each needs prepared, and how

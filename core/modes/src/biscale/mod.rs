@@ -16,6 +16,7 @@ pub mod cubemap;
 pub mod hemisphere;
 mod mode;
 pub mod precompute;
+pub mod refine;
 pub mod sh;
 #[cfg(test)]
 mod tests;
@@ -40,9 +41,19 @@ pub struct BiscaleSettings {
     pub rays_per_side: u32,
     /// Seed of the biclustering's random starting elements.
     pub seed: u64,
+    /// At most about this many vertices added where visibility varies, so receivers'
+    /// shadows have vertices to live on (`refine.rs`; 0: transfer at the scene's own
+    /// vertices only).
+    pub refine_vertices: usize,
     /// Where precomputations are cached (`None`: never read or written).
     pub cache_dir: Option<PathBuf>,
 }
+
+/// Vertices the refinement may add by default: a floor's shadow under an object
+/// (docs/rendering.md, "Receivers' shadows").
+pub const DEFAULT_REFINE_VERTICES: usize = 8_192;
+/// The most it may add (each vertex costs 6 n^2 s^2 visibility rays).
+pub const MAX_REFINE_VERTICES: usize = 1 << 20;
 
 impl Default for BiscaleSettings {
     fn default() -> Self {
@@ -52,6 +63,7 @@ impl Default for BiscaleSettings {
             view_res: 12,
             rays_per_side: 2,
             seed: 1,
+            refine_vertices: DEFAULT_REFINE_VERTICES,
             cache_dir: default_cache_dir(),
         }
     }
@@ -76,6 +88,11 @@ impl BiscaleSettings {
             Some(format!(
                 "rays per side {} is outside 1..=15",
                 self.rays_per_side
+            ))
+        } else if self.refine_vertices > MAX_REFINE_VERTICES {
+            Some(format!(
+                "refinement vertices {} is above {MAX_REFINE_VERTICES}",
+                self.refine_vertices
             ))
         } else {
             None

@@ -3,8 +3,10 @@
 //! Per frame: one jittered primary ray per pixel; at a hit, L* of the triangle's
 //! vertices interpolated barycentrically, the view direction in the spmm mode's
 //! shading frame (normal, tangent along +u), and the tabulated BTF row dotted with L*
-//! (eq. 3). Environment strength re-weights the film; turning or replacing the map is
-//! a light change (new L, new L*); the precomputation is redone only for new meshes.
+//! (eq. 3), into the environment layer; then the lights and the ambient term traced
+//! exactly through the shading core into their own layers. Environment strength
+//! re-weights the film; turning or replacing the map is a light change (new L, new
+//! L*); the precomputation is redone only for new meshes.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -19,11 +21,12 @@ use super::{BiscaleSettings, cpca::Cpca, sh::ShTransfer};
 use meso_materials::image::Image;
 use meso_materials::rng::SampleStream;
 use meso_render::film::material_bit;
+use meso_render::geometry::Hit;
 use meso_render::geometry::SceneBvh;
-use meso_render::layers::{self, ENVIRONMENT};
+use meso_render::layers::{self, AMBIENT, ENVIRONMENT, LightTarget};
 use meso_render::progressive::{Edited, Progressive};
 use meso_render::scene::{Environment, Light, Material, Scene};
-use meso_render::shading::{dpdu, tangent_frame};
+use meso_render::shading::{PointOnLight, Shaders, Shading, dpdu, point_on_light, tangent_frame};
 use meso_render::{
     Counters, Device, Diagnostic, Diagnostics, EditError, Film, FrameStats, Invalidation,
     ModeError, ModeKind, Pass, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
@@ -58,7 +61,16 @@ pub struct BiscaleMode {
     light_change_ms: f64,
     /// Milliseconds of the last frame (a view change re-renders every pixel).
     frame_ms: f64,
+    /// The materials as the shading core shades them, for the lights and the ambient
+    /// term, which are traced exactly on top of the precomputed environment.
+    shaders: Shaders,
+    /// Per light, the film layer its samples go to and their factor.
+    light_targets: Vec<LightTarget>,
 }
+
+/// Offset of secondary ray origins along the normal, relative to the hit point's
+/// magnitude (as the spmm mode's).
+const EPSILON_REL: f64 = 1e-5;
 
 fn name_of(scene: &Scene, index: usize) -> String {
     scene
@@ -82,8 +94,9 @@ fn per_vertex(rows: &[[f32; 3]], mc: usize) -> Vec<f32> {
 }
 
 impl BiscaleMode {
-    /// What the mode cannot render: mirror and MERL materials, point and area lights,
-    /// the ambient term, and a scene without an environment.
+    /// What the mode cannot render: mirror, MERL and `btf` materials (no transfer
+    /// table tabulates them) and a scene without an environment (the precomputed
+    /// part). Lights and the ambient term are traced exactly on top.
     pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
         let mut parts: Vec<Unrenderable> = scene
             .materials
@@ -91,22 +104,6 @@ impl BiscaleMode {
             .enumerate()
             .filter_map(|(i, m)| Self::unrenderable(scene, i, m))
             .collect();
-        parts.extend(
-            scene
-                .lights
-                .iter()
-                .enumerate()
-                .map(|(index, l)| Unrenderable::Light {
-                    index,
-                    kind: match l {
-                        Light::Point { .. } => "point",
-                        Light::Area { .. } => "area",
-                    },
-                }),
-        );
-        if scene.ambient.is_some() {
-            parts.push(Unrenderable::Ambient);
-        }
         if scene.environment.is_none() {
             parts.push(Unrenderable::NoEnvironment);
         }
@@ -143,6 +140,7 @@ impl BiscaleMode {
         let mut core = Progressive::prepare(scene, width, height, &prepare, Self::supports)?;
         let (scene, bvh, report) = (&core.scene, &core.bvh, &mut core.preparation);
         let pre = precompute(&scene.meshes, bvh, &settings, &prepare)?;
+        report.record("refinement", pre.stats.refine_seconds);
         if pre.stats.from_cache {
             report.record("cache", pre.stats.cache_seconds);
         } else {
@@ -172,6 +170,8 @@ impl BiscaleMode {
             local: Vec::new(),
             light_change_ms: 0.0,
             frame_ms: 0.0,
+            shaders: Shaders::new(&core.scene.materials),
+            light_targets: core.layers.light_targets(&core.scene),
             core,
         };
         prepare.report("lighting", 0.0)?;
@@ -239,24 +239,32 @@ impl BiscaleMode {
         Invalidation::All
     }
 
-    /// One sample of pixel (x, y): its environment-layer radiance (unit strength) or
-    /// what an escaping ray sees, and the material it shaded.
+    /// One sample of pixel (x, y) into `out`, per layer for unit emission: what an
+    /// escaping ray sees, or at a hit the precomputed environment and the lights and
+    /// ambient term traced exactly. Returns the material it shaded and the rays.
     fn sample(
         &self,
-        x: u32,
-        y: u32,
-        index: u64,
+        (x, y, index): (u32, u32, u64),
         lstar: &mut [f32],
-    ) -> (Option<(usize, DVec3)>, u64) {
-        let pixel = u64::from(y) * u64::from(self.core.film.width()) + u64::from(x);
+        out: &mut [DVec3],
+    ) -> (u64, RayCounts) {
+        // The camera's width: the film is out of `self` while a frame renders.
+        let pixel = u64::from(y) * u64::from(self.core.camera.width()) + u64::from(x);
         let mut rng = SampleStream::new(&[self.core.scene.render.seed, index, pixel]);
         let ray = self.core.camera.ray(x, y, rng.next_2d());
+        let mut rays = RayCounts {
+            primary: 1,
+            ..Default::default()
+        };
         let Some(hit) = self
             .core
             .bvh
             .closest_hit(ray.origin, ray.dir, 0.0, f64::INFINITY)
         else {
-            return (layers::escaped(&self.core.scene, ray.dir), 0);
+            if let Some((layer, radiance)) = layers::escaped(&self.core.scene, ray.dir) {
+                out[layer] += radiance;
+            }
+            return (0, rays);
         };
         let mesh = &self.core.scene.meshes[hit.mesh];
         let idx = mesh.indices[hit.triangle].map(|i| i as usize);
@@ -277,11 +285,17 @@ impl BiscaleMode {
         let wo = -ray.dir;
         let wo_local = DVec3::new(wo.dot(t), wo.dot(b), wo.dot(n));
         let stride = lstar.len();
+        // L* at the refined vertices around the hit (the triangle's own where it was
+        // not refined).
         let base = self.pre.frames.mesh_offsets[hit.mesh];
+        let (around, weights) = self
+            .pre
+            .refinement
+            .locate(hit.mesh, hit.triangle, hit.b1, hit.b2);
         lstar.iter_mut().for_each(|v| *v = 0.0);
-        for (i, &vi) in idx.iter().enumerate() {
+        for (&vi, &wi) in around.iter().zip(&weights) {
             let src = &self.local[(base + vi) * stride..(base + vi + 1) * stride];
-            let wi = w[i] as f32;
+            let wi = wi as f32;
             for (d, s) in lstar.iter_mut().zip(src) {
                 *d += wi * s;
             }
@@ -297,13 +311,67 @@ impl BiscaleMode {
             }
             None => [0.0; 3],
         };
-        (
-            Some((
-                ENVIRONMENT,
-                DVec3::new(rgb[0] as f64, rgb[1] as f64, rgb[2] as f64),
-            )),
-            material_bit(mesh.material),
-        )
+        out[ENVIRONMENT] += DVec3::new(rgb[0] as f64, rgb[1] as f64, rgb[2] as f64);
+        self.trace_local_lights(&hit, ray.dir, &mut rng, out, &mut rays);
+        (material_bit(mesh.material), rays)
+    }
+
+    /// The lights and the ambient term at `hit`, exactly as the spmm mode traces them
+    /// on its per-light path (one shadow ray to each point light, `light_samples` to
+    /// each area light; one ambient ray), through the shading core. Every light is
+    /// sampled, however many: unbiased, and slower than the spmm mode's selection
+    /// above `MANY_LIGHTS`.
+    fn trace_local_lights(
+        &self,
+        hit: &Hit,
+        dir: DVec3,
+        rng: &mut SampleStream,
+        out: &mut [DVec3],
+        rays: &mut RayCounts,
+    ) {
+        let scene = &self.core.scene;
+        if scene.lights.is_empty() && scene.ambient.is_none() {
+            return;
+        }
+        let s = Shading::at(scene, hit, dir);
+        let material = self.shaders.material(scene, s.material, self.core.moving);
+        let wo = -dir;
+        let lift = s.p + s.n * (EPSILON_REL * s.p.abs().max_element().max(1.0));
+        let n = scene.render.light_samples;
+        for (k, light) in scene.lights.iter().enumerate() {
+            let points = rng.next_2d_set(n);
+            let (count, share) = match light {
+                Light::Point { .. } => (1, 1.0),
+                Light::Area { .. } => (n, 1.0 / f64::from(n)),
+            };
+            for r in 0..count {
+                let Some(PointOnLight { q, wi, falloff }) =
+                    point_on_light(light, points.get(r), s.p)
+                else {
+                    continue;
+                };
+                let cos_i = wi.dot(s.n);
+                if cos_i.is_nan() || cos_i <= 0.0 {
+                    continue;
+                }
+                rays.shadow += 1;
+                let reach = (q - lift).length() * (1.0 - 1e-6);
+                if !self.core.bvh.occluded(lift, wi, 0.0, reach) {
+                    let target = self.light_targets[k];
+                    out[target.layer] +=
+                        material.response(&s, wi, wo) * (falloff * share) * target.factor;
+                }
+            }
+        }
+        let u = rng.next_2d();
+        if let Some(ambient) = &scene.ambient
+            && let Some((wi, weight)) = material.ambient_sample(&s, wo, u)
+        {
+            rays.ambient += 1;
+            if !self.core.bvh.occluded(lift, wi, 0.0, ambient.radius) {
+                out[AMBIENT] += material.response(&s, wi, wo) * weight;
+            }
+        }
     }
 }
 
@@ -323,13 +391,16 @@ impl BiscaleMode {
         } else {
             format!(
                 "precomputed in {:.1} s",
-                pre.stats.visibility_seconds
+                pre.stats.refine_seconds
+                    + pre.stats.visibility_seconds
                     + pre.stats.binning_seconds
                     + pre.stats.biclustering_seconds
             )
         };
         format!(
-            "{origin} · {} biclusters · FLOP ratio {:.3}{source} · view change {:.1} ms · light change {:.1} ms",
+            "{origin} · {} vertices ({} added) · {} biclusters · FLOP ratio {:.3}{source} · view change {:.1} ms · light change {:.1} ms",
+            pre.frames.len(),
+            pre.stats.refined_vertices,
             pre.biclusters.len(),
             pre.flop_ratio(),
             self.frame_ms,
@@ -368,31 +439,28 @@ impl RenderMode for BiscaleMode {
         let stride = 3 * self.tab.local.len();
         let dropped_before = self.core.film.dropped();
         let mut film = std::mem::replace(&mut self.core.film, Film::new(0, 0, 0));
+        let layer_count = film.layers();
         let rows = film.par_rows(|row| {
             let mut lstar = vec![0.0f32; stride];
-            let mut shaded = 0u64;
+            let mut out = vec![DVec3::ZERO; layer_count];
+            let mut counters = Counters {
+                samples: u64::from(width) * k,
+                ..Default::default()
+            };
             for x in 0..width {
                 for index in first..first + k {
-                    let (value, mask) = self.sample(x, row.y, index, &mut lstar);
-                    shaded += u64::from(mask != 0);
+                    out.iter_mut().for_each(|v| *v = DVec3::ZERO);
+                    let (mask, rays) = self.sample((x, row.y, index), &mut lstar, &mut out);
+                    counters.shading_points += u64::from(mask != 0);
+                    counters.rays = counters.rays + rays;
                     // Every active layer gets a sample (zero where this one saw nothing).
                     for &l in &active {
-                        let v = value
-                            .filter(|(at, _)| *at == l)
-                            .map_or(DVec3::ZERO, |(_, v)| v);
-                        row.add(x, l, v);
+                        row.add(x, l, out[l]);
                     }
                     row.touch(x, mask);
                 }
             }
-            Counters {
-                samples: u64::from(width) * k,
-                shading_points: shaded,
-                rays: RayCounts {
-                    primary: u64::from(width) * k,
-                    ..Default::default()
-                },
-            }
+            counters
         });
         self.core.film = film;
         self.core.next_sample += k;
@@ -443,27 +511,6 @@ impl RenderMode for BiscaleMode {
                     return refuse(vec![part]);
                 }
             }
-            SceneEdit::Light { index, light } => {
-                let kind = match light {
-                    Light::Point { .. } => "point",
-                    Light::Area { .. } => "area",
-                };
-                return refuse(vec![Unrenderable::Light {
-                    index: *index,
-                    kind,
-                }]);
-            }
-            SceneEdit::AddLight(light) => {
-                let kind = match light {
-                    Light::Point { .. } => "point",
-                    Light::Area { .. } => "area",
-                };
-                return refuse(vec![Unrenderable::Light {
-                    index: self.core.scene.lights.len(),
-                    kind,
-                }]);
-            }
-            SceneEdit::Ambient(Some(_)) => return refuse(vec![Unrenderable::Ambient]),
             SceneEdit::Environment(None) => return refuse(vec![Unrenderable::NoEnvironment]),
             _ => {}
         }
@@ -476,6 +523,7 @@ impl RenderMode for BiscaleMode {
                     // A light change: a new lighting vector, a new L*; T is unchanged.
                     self.relight();
                 }
+                self.light_targets = self.core.layers.light_targets(&self.core.scene);
                 invalidation
             }
             Edited::Camera | Edited::Resized => self.restart_all(),
@@ -499,14 +547,17 @@ impl RenderMode for BiscaleMode {
                 self.relight();
                 self.restart_all()
             }
-            Edited::Material { index, .. } => {
-                self.tables[index] = self.tab.table(&self.core.scene.materials[index]);
+            Edited::Material { index, before } => {
+                let after = &self.core.scene.materials[index];
+                self.shaders.edited(index, Some(&before), after);
+                self.tables[index] = self.tab.table(after);
                 Invalidation::Pixels(self.core.film.reset_touching(material_bit(index)))
             }
             // Samples shaded the fast way and the full way must not mix.
             Edited::Moving => self.restart_all(),
-            // No area lights here: light samples change nothing.
-            Edited::Nothing | Edited::LightSamples => Invalidation::Nothing,
+            // Another estimator of the area lights: their sequence starts again.
+            Edited::LightSamples => self.restart_all(),
+            Edited::Nothing => Invalidation::Nothing,
         })
     }
 }

@@ -12,6 +12,7 @@ use super::bicluster::{self, Biclustering, LevelMatrix};
 use super::cache;
 use super::cubemap::CubeLayout;
 use super::hemisphere::HemisphereGrid;
+use super::refine::{self, Refinement};
 use super::transfer::{self, TransferMatrix, VertexFrames};
 use meso_materials::hash::Fnv1a;
 use meso_render::geometry::SceneBvh;
@@ -21,6 +22,9 @@ use meso_render::{Cancelled, Prepare};
 /// What the precomputation produced.
 #[derive(Clone, Debug)]
 pub struct Precomputed {
+    /// Where transfer is sampled: the scene's triangles refined where visibility
+    /// varies; `frames` are its vertices'.
+    pub refinement: Refinement,
     pub frames: VertexFrames,
     pub transfer: TransferMatrix,
     pub biclusters: Biclustering,
@@ -31,6 +35,10 @@ pub struct Precomputed {
 /// Times and sizes of one precomputation (or cache load).
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct PrecomputeStats {
+    /// The refinement: its time and the vertices it added (the transfer's rows are
+    /// M per vertex, the scene's and these).
+    pub refine_seconds: f64,
+    pub refined_vertices: usize,
     pub visibility_seconds: f64,
     pub binning_seconds: f64,
     pub biclustering_seconds: f64,
@@ -80,16 +88,23 @@ pub fn cache_key(meshes: &[TriangleMesh], s: &BiscaleSettings) -> u64 {
     h.finish()
 }
 
-/// Runs (or loads) the precomputation for `meshes` with `bvh` built from them.
+/// Runs (or loads) the precomputation for `meshes` with `bvh` built from them: the
+/// refinement (always run: it is cheap and deterministic, and the cache is keyed by
+/// its result), then the transfer at the refined vertices and its biclusters.
 pub fn precompute(
     meshes: &[TriangleMesh],
     bvh: &SceneBvh,
     settings: &BiscaleSettings,
     prepare: &Prepare,
 ) -> Result<Precomputed, Cancelled> {
-    let key = cache_key(meshes, settings);
-    let frames = VertexFrames::of(meshes);
     let mut stats = PrecomputeStats::default();
+    prepare.report("refinement", 0.0)?;
+    let start = Instant::now();
+    let refinement = refine::refine(meshes, bvh, settings.refine_vertices);
+    stats.refine_seconds = start.elapsed().as_secs_f64();
+    stats.refined_vertices = refinement.added_vertices;
+    let key = cache_key(&refinement.meshes, settings);
+    let frames = VertexFrames::of(&refinement.meshes);
     let path = settings.cache_dir.as_ref().map(|d| cache::path_in(d, key));
     if let Some(path) = &path {
         stats.cache_path = Some(path.display().to_string());
@@ -100,6 +115,7 @@ pub fn precompute(
                     stats.from_cache = true;
                     stats.cache_seconds = start.elapsed().as_secs_f64();
                     return Ok(Precomputed {
+                        refinement,
                         frames,
                         transfer,
                         biclusters,
@@ -134,6 +150,7 @@ pub fn precompute(
         stats.cache_seconds = start.elapsed().as_secs_f64();
     }
     Ok(Precomputed {
+        refinement,
         frames,
         transfer: t,
         biclusters,

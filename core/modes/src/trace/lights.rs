@@ -16,7 +16,7 @@ use meso_render::geometry::hit_parallelogram;
 use meso_render::layers::AMBIENT;
 use meso_render::light_selection::{CANDIDATES, LIGHT_SAMPLES, LightSelection};
 use meso_render::scene::Light;
-use meso_render::shading::{Shading, power_heuristic};
+use meso_render::shading::{PointOnLight, Shading, point_on_light, power_heuristic};
 
 /// A point on a light seen from a shading point, unshadowed.
 #[derive(Clone, Copy, Default)]
@@ -102,32 +102,10 @@ impl SpmmMode {
         throughput: DVec3,
         path: &mut Path,
     ) {
-        let (q, geometry) = match self.core.scene.lights[k] {
-            Light::Point { position, .. } => (position, None),
-            Light::Area {
-                corner,
-                edge_u,
-                edge_v,
-                ..
-            } => (
-                corner + edge_u * u.x + edge_v * u.y,
-                Some(edge_u.cross(edge_v)),
-            ),
-        };
-        let to = q - s.p;
-        let d2 = to.length_squared();
-        let wi = to / d2.sqrt();
-        let falloff = match geometry {
-            None => 1.0 / d2,
-            Some(cross) => {
-                // One-sided: the light emits towards edge_u x edge_v.
-                let area = cross.length();
-                let cos_l = -wi.dot(cross / area);
-                if cos_l <= 0.0 {
-                    return;
-                }
-                cos_l * area / d2
-            }
+        let Some(PointOnLight { q, wi, falloff }) =
+            point_on_light(&self.core.scene.lights[k], u, s.p)
+        else {
+            return;
         };
         let cos_i = wi.dot(s.n);
         if cos_i.is_nan() || cos_i <= 0.0 {

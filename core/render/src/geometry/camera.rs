@@ -47,6 +47,11 @@ impl PinholeCamera {
         }
     }
 
+    /// The image width in pixels the camera was made for.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
     /// The ray through image position `(x + jitter.x, y + jitter.y)` in pixels, x to the
     /// right and y down from the top-left corner; jitter in [0, 1)^2 (0.5 = centre).
     pub fn ray(&self, x: u32, y: u32, jitter: DVec2) -> Ray {

@@ -484,9 +484,10 @@ fn environment_edits_are_undoable_and_reach_the_renderer() {
 #[test]
 fn a_scene_that_names_a_mode_asks_for_it_once_loaded() {
     // The default scene with `[render] mode = "biscale"`: it opens in spmm (which
-    // renders everything), then asks for biscale, which cannot render it (no
-    // environment, its precomputed part): the message says why and frames keep coming
-    // from spmm.
+    // renders everything), then asks for biscale, which needs an environment (its
+    // precomputed part): the prompt says why and offers the one action that makes the
+    // scene renderable; frames keep coming from spmm meanwhile. Turning the
+    // environment on reads the first shipped map and then switches.
     let dir = tempfile::tempdir().expect("temp dir");
     let default = default_scene_path();
     let folder = default
@@ -520,15 +521,40 @@ fn a_scene_that_names_a_mode_asks_for_it_once_loaded() {
     loaded(&mut h);
     wait_for_current_frame(&mut h);
     step_until(&mut h, "the scene's mode to be asked for", |h| {
-        h.state().mode_message().is_some()
+        h.state().mode_prompt().is_some()
     });
-    let message = h.state().mode_message().expect("a message");
+    let prompt = h.state().mode_prompt().expect("a prompt").clone();
+    assert_eq!(prompt.parts, [meso_render::Unrenderable::NoEnvironment]);
     assert!(
-        message.contains("biscale") && message.contains("without [environment]"),
-        "{message}"
+        h.query_by_label_contains("without [environment]").is_some(),
+        "the prompt says why"
     );
     assert_eq!(h.state().mode(), (ModeKind::Spmm, Device::Cpu));
     assert_eq!(next_frame_mode(&mut h), ModeKind::Spmm);
+    h.get_by_label("Turn on the environment and switch to biscale")
+        .click();
+    let deadline = Instant::now() + Duration::from_secs(600);
+    while h.state().mode() != (ModeKind::Biscale, Device::Cpu) {
+        assert!(
+            Instant::now() < deadline,
+            "biscale prepared within 600 s ({:?})",
+            h.state().mode_message()
+        );
+        h.step();
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(
+        h.state()
+            .doc
+            .as_ref()
+            .expect("doc")
+            .scene
+            .environment
+            .is_some(),
+        "the environment is on"
+    );
+    wait_for_mode_frame(&mut h, ModeKind::Biscale);
+    assert!(h.state().mode_message().is_none());
 }
 
 #[test]

@@ -179,6 +179,11 @@ impl Studio {
         self.modes.message().cloned()
     }
 
+    /// The question the mode switch asks, while it is open.
+    pub fn mode_prompt(&self) -> Option<&meso_render::Unsupported> {
+        self.modes.prompt()
+    }
+
     /// The compare view's latest numbers and the two images they come from.
     pub fn measured(&self) -> Option<&Measured> {
         self.compare.measured()
@@ -198,15 +203,6 @@ impl Studio {
     /// Reads an environment map in the background; it lights the scene when ready.
     pub fn open_environment(&mut self, path: &Path) {
         self.loader.open_environment(path);
-    }
-
-    /// Turns the environment on: the last one used, or the first shipped map.
-    fn environment_on(&mut self) {
-        match self.loader.environment_on() {
-            Ok(Some(e)) => self.edit(SceneEdit::Environment(Some(e))),
-            Ok(None) => {}
-            Err(e) => self.error = Some(e),
-        }
     }
 
     /// Installs finished loads and a prepared mode.
@@ -229,6 +225,7 @@ impl Studio {
                 if let Some(doc) = &mut self.doc {
                     doc.close_group();
                 }
+                self.switch_after_environment();
             }
             Loaded::Scene(path, loaded) => {
                 let (scene, bvh) = *loaded;

@@ -7,6 +7,7 @@
 use std::time::Instant;
 
 use egui::Ui;
+use meso_render::SceneEdit;
 use meso_render::geometry::BrushUnits;
 
 use super::Studio;
@@ -54,11 +55,39 @@ impl Studio {
                 self.modes
                     .without_lights(self.doc.as_ref(), kind, device, size);
             }
+            Action::SwitchWithEnvironment(kind, device) => {
+                self.modes.with_environment(kind, device);
+                self.environment_on();
+            }
             Action::SaveAndQuit => {
                 if self.save() {
                     self.chrome.close(ctx);
                 }
             }
+        }
+    }
+
+    /// Turns the environment on: the last one used, or the first shipped map (read in
+    /// the background; a mode switch waiting for it follows once it lights the scene).
+    pub(crate) fn environment_on(&mut self) {
+        match self.loader.environment_on() {
+            Ok(Some(e)) => {
+                self.edit(SceneEdit::Environment(Some(e)));
+                self.switch_after_environment();
+            }
+            Ok(None) => {}
+            Err(e) => {
+                self.modes.take_after_environment();
+                self.error = Some(e);
+            }
+        }
+    }
+
+    /// Asks for the mode the prompt's "turn on the environment" was for, if any.
+    pub(crate) fn switch_after_environment(&mut self) {
+        if let Some((kind, device)) = self.modes.take_after_environment() {
+            let size = self.canvas.prepare_size();
+            self.modes.request(self.doc.as_ref(), kind, device, size);
         }
     }
 

@@ -123,6 +123,8 @@ strength = 1.0
             cache_arg,
             "--cube-n",
             "8",
+            "--refine-vertices",
+            "0",
             "--json",
         ],
         "",
@@ -151,6 +153,31 @@ strength = 1.0
     assert!(v["flop_ratio"].as_f64().expect("number") <= 1.0);
     assert!(v["max_rel_error"].as_f64().expect("number") < 1e-6);
     assert!(cache.exists(), "the cache was written");
+    // The refinement adds vertices where visibility varies (the floor meets the wall),
+    // within its budget (three a split, counted as an upper bound).
+    let refined_cache = dir.path().join("refined.biscale");
+    let refined_arg = refined_cache.to_str().expect("utf-8");
+    let refined = meso(
+        &[
+            "precompute",
+            scene_arg,
+            "--mode",
+            "biscale",
+            "--cube-n",
+            "8",
+            "--refine-vertices",
+            "96",
+            "-o",
+            refined_arg,
+            "--no-baselines",
+            "--json",
+        ],
+        "",
+    );
+    assert_ok(&refined);
+    let r: serde_json::Value = serde_json::from_str(&stdout(&refined)).expect("JSON");
+    let vertices = r["vertices"].as_u64().expect("vertices");
+    assert!((9..=8 + 96).contains(&vertices), "{vertices} vertices");
     // Bad input: another mode, a scene without an environment.
     assert_bad_input(
         &meso(&["precompute", scene_arg, "--mode", "spmm"], ""),

@@ -100,11 +100,20 @@ fn render_modes_devices_and_unsupported_scenes_exit_2_naming_why() {
         args.extend_from_slice(extra);
         meso(&args, "")
     };
-    // The adaptive mode names the material it cannot shade (an SPMM pack); devices
-    // not built yet say so; unknown names are usage errors.
+    // The adaptive mode shades the SPMM pack under the environment, and names what it
+    // cannot render in the default scene (its ambient term); devices not built yet say
+    // so; unknown names are usage errors.
+    assert_ok(&render(&["--mode", "adaptive", "--frames", "2"]));
+    let default_scene = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../tests/scenes/default.toml"
+    );
     assert_bad_input(
-        &render(&["--mode", "adaptive"]),
-        &["adaptive", "material `cloth` (spmm)"],
+        &meso(
+            &["render", default_scene, "-o", out_arg, "--mode", "adaptive"],
+            "",
+        ),
+        &["adaptive", "[ambient]"],
     );
     // The biscale mode names what it cannot render: the default scene has lights and
     // AO, which it traces, but no environment, its precomputed part.

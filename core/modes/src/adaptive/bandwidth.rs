@@ -7,11 +7,12 @@
 
 use std::f64::consts::{FRAC_PI_2, PI, TAU};
 
-use glam::DVec3;
+use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
 use super::wavelet::{Pyramid, max_blocks};
 use meso_materials::image::{Image, luminance};
+use meso_materials::spmm::SpmmMaterial;
 use meso_render::environment::pixel_of;
 use meso_render::scene::{Environment, Light, Material};
 
@@ -101,6 +102,16 @@ pub struct MaterialBandwidth {
     rates: Vec<f32>,
 }
 
+/// Texture positions at which a `btf` material's lobes are analysed (its texels differ;
+/// the widest lobe of these stands for all).
+const TABLE_TEXELS: [DVec2; 5] = [
+    DVec2::new(0.5, 0.5),
+    DVec2::new(0.25, 0.25),
+    DVec2::new(0.75, 0.25),
+    DVec2::new(0.25, 0.75),
+    DVec2::new(0.75, 0.75),
+];
+
 impl MaterialBandwidth {
     /// Analyses `f(wi, wo)` (luminance, 1/sr) over `GRID`^2 fixed directions `wo`.
     pub fn analyse(f: impl Fn(DVec3, DVec3) -> f64 + Sync) -> Self {
@@ -130,8 +141,57 @@ impl MaterialBandwidth {
             Material::Merl { brdf, .. } => Some(Self::analyse(|wi, wo| {
                 brdf.eval_trilinear(wi, wo).dot(LUMINANCE)
             })),
-            _ => None,
+            Material::Spmm { material, .. } => Some(Self::of_pack(material)),
+            Material::Btf { table, .. } => Some(Self::widest(TABLE_TEXELS.iter().map(|&uv| {
+                Self::analyse(|wi, wo| table.eval_uv(uv, DVec2::ONE, wi, wo).dot(LUMINANCE))
+            }))),
+            Material::Mirror { .. } => None,
         }
+    }
+
+    /// A pack's bandwidth: per cluster, the lobe of its bases weighted by their mean
+    /// luminance weight over the cluster's texels (what a typical texel of it
+    /// reflects), and per direction the widest of the clusters'. The residual is left
+    /// out: it is tabulated on the measured directions (the Bonn layout's 15 degrees
+    /// apart), far coarser than the bases' lobes.
+    fn of_pack(pack: &SpmmMaterial) -> Self {
+        let clusters = pack.clusters();
+        let mut sums: Vec<Vec<f64>> = clusters.iter().map(|c| vec![0.0; c.bases.len()]).collect();
+        let mut texels = vec![0usize; clusters.len()];
+        for (t, &c) in pack.texel_cluster().iter().enumerate() {
+            let c = c as usize;
+            texels[c] += 1;
+            for (j, rgb) in pack.texel_weights(t) {
+                let lum = LUMINANCE.dot(DVec3::new(rgb[0].into(), rgb[1].into(), rgb[2].into()));
+                sums[c][j as usize] += lum;
+            }
+        }
+        Self::widest(clusters.iter().enumerate().map(|(c, cluster)| {
+            let n = texels[c].max(1) as f64;
+            let weights: Vec<f64> = sums[c].iter().map(|s| s / n).collect();
+            Self::analyse(|wi, wo| {
+                cluster
+                    .bases
+                    .iter()
+                    .zip(&weights)
+                    .map(|(b, w)| w * b.eval(wi, wo))
+                    .sum()
+            })
+        }))
+    }
+
+    /// Per direction, the largest rate of `each`.
+    fn widest(each: impl Iterator<Item = Self>) -> Self {
+        each.reduce(|a, b| Self {
+            rates: a
+                .rates
+                .iter()
+                .zip(&b.rates)
+                .map(|(x, y)| x.max(*y))
+                .collect(),
+        })
+        // No analysis (a pack without clusters): a constant lobe.
+        .unwrap_or_else(|| Self::analyse(|_, _| 0.0))
     }
 
     /// The rate (samples per radian) of the lobe of `fixed` around direction `at`,

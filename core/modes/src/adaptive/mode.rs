@@ -166,9 +166,10 @@ enum Unfinished {
 }
 
 impl AdaptiveMode {
-    /// What this mode cannot render: materials other than analytic BRDFs and MERL
-    /// tables (mirrors, SPMM packs), point lights (a delta's spectrum has no bound)
-    /// and the ambient term; each by name.
+    /// What this mode cannot render: mirrors, point lights (a delta's spectrum has no
+    /// bound) and the ambient term; each by name. Analytic BRDFs, MERL tables, SPMM
+    /// packs and `btf` tables are shaded by the shading core, their bandwidths from
+    /// their lobes (`MaterialBandwidth::of_material`).
     pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
         let mut parts: Vec<Unrenderable> = scene
             .materials
@@ -190,16 +191,15 @@ impl AdaptiveMode {
     }
 
     fn unrenderable_material(scene: &Scene, index: usize, m: &Material) -> Option<Unrenderable> {
-        (!matches!(m, Material::Brdf { .. } | Material::Merl { .. })).then(|| {
-            Unrenderable::Material {
-                index,
-                name: scene
-                    .material_names
-                    .get(index)
-                    .cloned()
-                    .unwrap_or_else(|| format!("#{index}")),
-                kind: m.kind_name(),
-            }
+        // Mirrors: a delta lobe, whose spectrum has no bound, and no path to follow it.
+        matches!(m, Material::Mirror { .. }).then(|| Unrenderable::Material {
+            index,
+            name: scene
+                .material_names
+                .get(index)
+                .cloned()
+                .unwrap_or_else(|| format!("#{index}")),
+            kind: m.kind_name(),
         })
     }
 

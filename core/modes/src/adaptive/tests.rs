@@ -151,6 +151,57 @@ fn the_adaptive_image_converges_to_the_brute_force_one() {
     assert!(a.rmse < 2.0 * u.rmse, "{} {}", a.rmse, u.rmse);
 }
 
+/// The MERL test scene with its panel an SPMM pack (the code-built test pack: two
+/// clusters, glossy and diffuse bases, a residual) and its floor a `btf` table.
+fn pack_test_scene() -> Scene {
+    let mut scene = merl_test_scene();
+    let floor = AnalyticBrdf::with_defaults(BrdfModel::Lambertian);
+    scene.materials = vec![
+        meso_render::scene::test_scenes::tabulated_btf(
+            &floor,
+            DVec3::splat(0.5),
+            glam::DVec2::splat(2.0),
+        ),
+        Material::Spmm {
+            material: Arc::new(meso_materials::spmm::testing::sample_material(
+                8,
+                8,
+                2,
+                Some(2),
+            )),
+            uv_scale: glam::DVec2::ONE,
+            residual: true,
+            npca: 2,
+        },
+    ];
+    scene
+}
+
+#[test]
+fn packs_and_btf_tables_converge_to_the_brute_force_too() {
+    // The shading core shades them and their bandwidths come from their lobes
+    // (`MaterialBandwidth::of_material`): the same agreement as the MERL scene's.
+    let scene = pack_test_scene();
+    AdaptiveMode::supports(&scene).expect("packs and btf tables are rendered");
+    let reference = spmm(&scene, REFERENCE_SEED_XOR, 2048);
+    let mut mode =
+        AdaptiveMode::prepare(scene.clone(), SIZE, SIZE, Prepare::quietly()).expect("adaptive");
+    let run = run_frames(&mut mode, 96, |_, _| {});
+    assert!(mode.own_samples().iter().all(|&n| n > 0));
+    let adaptive = mode.image();
+    let spp = (run.counters.samples / u64::from(SIZE * SIZE)).max(1) as u32;
+    let uniform = spmm(&scene, 0x55, spp);
+    let a = compare(&reference, &adaptive, 0.0).expect("same size");
+    let u = compare(&reference, &uniform, 0.0).expect("same size");
+    let (ma, mr) = (mean(&adaptive), mean(&reference));
+    eprintln!(
+        "packs: adaptive rmse {:.3e} ({} spp average), uniform spmm rmse {:.3e}; means {ma} vs {mr}",
+        a.rmse, spp, u.rmse
+    );
+    assert!(((ma - mr) / mr).abs().max_element() < 0.01, "{ma} {mr}");
+    assert!(a.rmse < 2.0 * u.rmse, "{} {}", a.rmse, u.rmse);
+}
+
 #[test]
 fn the_first_frame_shades_few_pixels_and_is_already_close() {
     let scene = merl_test_scene();
@@ -234,7 +285,7 @@ fn the_preconvolved_variant_stays_close_to_the_brute_force() {
 }
 
 #[test]
-fn mirrors_spmm_packs_point_lights_and_ambient_are_refused_by_name() {
+fn mirrors_point_lights_and_ambient_are_refused_by_name() {
     let mut scene = merl_test_scene();
     scene.materials.push(Material::Mirror {
         reflectance: DVec3::ONE,

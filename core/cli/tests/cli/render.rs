@@ -101,19 +101,16 @@ fn render_modes_devices_and_unsupported_scenes_exit_2_naming_why() {
         meso(&args, "")
     };
     // The adaptive mode shades the SPMM pack under the environment, and names what it
-    // cannot render in the default scene (its ambient term); devices not built yet say
-    // so; unknown names are usage errors.
+    // cannot render in the Cornell box (its mirror); devices not built yet say so;
+    // unknown names are usage errors.
     assert_ok(&render(&["--mode", "adaptive", "--frames", "2"]));
-    let default_scene = concat!(
+    let cornell = concat!(
         env!("CARGO_MANIFEST_DIR"),
-        "/../../tests/scenes/default.toml"
+        "/../../tests/scenes/cornell.toml"
     );
     assert_bad_input(
-        &meso(
-            &["render", default_scene, "-o", out_arg, "--mode", "adaptive"],
-            "",
-        ),
-        &["adaptive", "[ambient]"],
+        &meso(&["render", cornell, "-o", out_arg, "--mode", "adaptive"], ""),
+        &["adaptive", "(mirror)"],
     );
     // The biscale mode names what it cannot render: the default scene has lights and
     // AO, which it traces, but no environment, its precomputed part.

@@ -25,10 +25,12 @@ use meso_materials::image::Image;
 use meso_materials::rng::SampleStream;
 use meso_render::environment::{EnvironmentSampler, rotate_y};
 use meso_render::film::material_bit;
-use meso_render::layers::{self, ENVIRONMENT, LightTarget};
+use meso_render::layers::{self, AMBIENT, ENVIRONMENT, LightTarget};
 use meso_render::progressive::{Edited, Progressive};
 use meso_render::scene::{Light, Material, Scene};
-use meso_render::shading::{ShadedMaterial, Shaders, Shading, power_heuristic as power};
+use meso_render::shading::{
+    PointOnLight, ShadedMaterial, Shaders, Shading, point_on_light, power_heuristic as power,
+};
 use meso_render::{
     Counters, Device, Diagnostic, Diagnostics, EditError, Film, FrameStats, Invalidation,
     ModeError, ModeKind, Pass, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
@@ -166,27 +168,18 @@ enum Unfinished {
 }
 
 impl AdaptiveMode {
-    /// What this mode cannot render: mirrors, point lights (a delta's spectrum has no
-    /// bound) and the ambient term; each by name. Analytic BRDFs, MERL tables, SPMM
-    /// packs and `btf` tables are shaded by the shading core, their bandwidths from
-    /// their lobes (`MaterialBandwidth::of_material`).
+    /// What this mode cannot render: mirrors, by name. Analytic BRDFs, MERL tables,
+    /// SPMM packs and `btf` tables are shaded by the shading core, their bandwidths
+    /// from their lobes (`MaterialBandwidth::of_material`); point lights and the
+    /// ambient term are taken as the spmm mode takes them, the pass guarding their
+    /// shadows.
     pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
-        let mut parts: Vec<Unrenderable> = scene
+        let parts: Vec<Unrenderable> = scene
             .materials
             .iter()
             .enumerate()
             .filter_map(|(i, m)| Self::unrenderable_material(scene, i, m))
             .collect();
-        parts.extend(
-            scene
-                .lights
-                .iter()
-                .enumerate()
-                .filter_map(|(i, l)| Self::unrenderable_light(i, l)),
-        );
-        if scene.ambient.is_some() {
-            parts.push(Unrenderable::Ambient);
-        }
         Unsupported::check(ModeKind::Adaptive, Device::Cpu, parts)
     }
 
@@ -200,13 +193,6 @@ impl AdaptiveMode {
                 .cloned()
                 .unwrap_or_else(|| format!("#{index}")),
             kind: m.kind_name(),
-        })
-    }
-
-    fn unrenderable_light(index: usize, l: &Light) -> Option<Unrenderable> {
-        matches!(l, Light::Point { .. }).then_some(Unrenderable::Light {
-            index,
-            kind: "point",
         })
     }
 
@@ -369,11 +355,6 @@ impl AdaptiveMode {
             SceneEdit::Material { index, material } => {
                 Self::unrenderable_material(&self.core.scene, *index, material)
             }
-            SceneEdit::Light { index, light } => Self::unrenderable_light(*index, light),
-            SceneEdit::AddLight(light) => {
-                Self::unrenderable_light(self.core.scene.lights.len(), light)
-            }
-            SceneEdit::Ambient(Some(_)) => Some(Unrenderable::Ambient),
             _ => None,
         };
         Unsupported::check(ModeKind::Adaptive, Device::Cpu, part.into_iter().collect())

@@ -216,7 +216,55 @@ impl AdaptiveMode {
             }
         }
         self.sample_environment(&s, material, lo, lift, &mut rng, out, counts);
+        self.sample_point_lights_and_ambient(&s, material, (wo, lift), &mut rng, out, counts);
         material_bit(s.material)
+    }
+
+    /// Point lights (one exact shadow ray each) and the ambient term (one direction of
+    /// the shading core's ambient sampling, occluded within its radius), as the spmm
+    /// mode estimates them.
+    fn sample_point_lights_and_ambient(
+        &self,
+        s: &Shading,
+        material: ShadedMaterial<'_>,
+        (wo, lift): (DVec3, DVec3),
+        rng: &mut SampleStream,
+        out: &mut [DVec3],
+        counts: &mut RayCounts,
+    ) {
+        let scene = &self.core.scene;
+        for (k, light) in scene.lights.iter().enumerate() {
+            if !matches!(light, Light::Point { .. }) {
+                continue;
+            }
+            let Some(PointOnLight { q, wi, falloff }) = point_on_light(light, DVec2::ZERO, s.p)
+            else {
+                continue;
+            };
+            let cos_i = wi.dot(s.n);
+            if cos_i.is_nan() || cos_i <= 0.0 {
+                continue;
+            }
+            counts.shadow += 1;
+            if !self
+                .core
+                .bvh
+                .occluded(lift, wi, 0.0, (q - lift).length() * (1.0 - 1e-6))
+            {
+                let target = self.light_targets[k];
+                out[target.layer] += material.response(s, wi, wo) * falloff * target.factor;
+            }
+        }
+        let Some(ambient) = &scene.ambient else {
+            return;
+        };
+        let u = rng.next_2d();
+        if let Some((wi, weight)) = material.ambient_sample(s, wo, u) {
+            counts.ambient += 1;
+            if !self.core.bvh.occluded(lift, wi, 0.0, ambient.radius) {
+                out[AMBIENT] += material.response(s, wi, wo) * weight;
+            }
+        }
     }
 
     /// The environment's share: map and BRDF samples with MIS (the spmm mode's

@@ -340,6 +340,8 @@ impl AdaptiveMode {
             .collect();
         self.environment_paths(&at, &drawn, orders, &mut paths, &mut value);
         self.light_paths(&at, &drawn, orders, &mut paths, &mut value);
+        self.point_light_paths(&at, &mut paths, &mut value);
+        self.ambient_paths(&at, wo, &mut paths, &mut value);
         paths.variance /= n_b as f64;
         paths.variance_full /= n_b as f64;
         let mut moments = allocation::Moments::default();
@@ -519,6 +521,63 @@ impl AdaptiveMode {
     }
 }
 
+impl AdaptiveMode {
+    /// The point lights' paths: one exact direction each, always guarded (its shadow
+    /// is the only thing that can change between neighbours), with no variance (the
+    /// frames take it exactly) and no incident bandwidth of its own (a delta's
+    /// spectrum has no bound; its edges are the visibility and radiance guards').
+    fn point_light_paths(&self, at: &SurfacePoint, paths: &mut Paths, value: &mut [f64]) {
+        let s = at.s;
+        for light in &self.core.scene.lights {
+            let Light::Point { intensity, .. } = *light else {
+                continue;
+            };
+            let Some(PointOnLight { q, wi, falloff }) = point_on_light(light, DVec2::ZERO, s.p)
+            else {
+                continue;
+            };
+            let li = s.to_local(wi);
+            if li.z <= 0.0 {
+                continue;
+            }
+            let d = (q - s.p).length();
+            let seen =
+                !self
+                    .core
+                    .bvh
+                    .occluded(at.lift, wi, 0.0, (q - at.lift).length() * (1.0 - 1e-6));
+            let emitted = intensity.dot(LUMINANCE);
+            let lambda = paths.exact(li, d, emitted, falloff, seen);
+            if seen {
+                value.iter_mut().for_each(|v| *v += lambda);
+            }
+        }
+    }
+
+    /// The ambient term's paths: the frames' ambient directions at the n_b strata,
+    /// each occluded or not within the radius (the first `GUARD_RAYS` guarded), of
+    /// constant radiance.
+    fn ambient_paths(&self, at: &SurfacePoint, wo: DVec3, paths: &mut Paths, value: &mut [f64]) {
+        let Some(ambient) = &self.core.scene.ambient else {
+            return;
+        };
+        let s = at.s;
+        let radiance = ambient.radiance.dot(LUMINANCE);
+        for (k, v) in value.iter_mut().enumerate() {
+            let Some((wi, weight)) = paths.material.ambient_sample(s, wo, at.strata.at(k as u32))
+            else {
+                continue;
+            };
+            let open = !self.core.bvh.occluded(at.lift, wi, 0.0, ambient.radius);
+            let seen = (k < GUARD_RAYS as usize).then_some(open);
+            let lambda = paths.bounce(s.to_local(wi), DVec2::ZERO, 0.0, radiance, weight, seen);
+            if open {
+                *v += lambda;
+            }
+        }
+    }
+}
+
 /// The surface point one pixel's paths leave from.
 struct SurfacePoint<'a> {
     s: &'a Shading,
@@ -578,6 +637,27 @@ struct Paths<'a> {
 }
 
 impl Paths<'_> {
+    /// A path the frames take exactly (a point light): its lambda and bandwidth, and
+    /// its guard, but no share of eq. 9's variance.
+    fn exact(&mut self, li: DVec3, d_light: f64, radiance: f64, weight: f64, seen: bool) -> f64 {
+        let lo = self.lo;
+        let f = self.material.response_local(self.uv, li, lo).dot(LUMINANCE);
+        let b = Bounce {
+            cos_i: li.z,
+            cos_o: lo.z,
+            curvature: self.curvature,
+            rho: self.rates.rate_of(LobeIndex::of(li), self.at_lo),
+        };
+        let nu = operators::one_bounce(DVec2::ZERO, d_light, &b, self.depth);
+        let lambda = radiance * f * weight;
+        self.paths.push((lambda, nu));
+        self.guarded += lambda;
+        if seen {
+            self.visible += lambda;
+        }
+        lambda
+    }
+
     /// One path from a light direction `li` (local) with incident bandwidth `l_in` at
     /// distance `d_light`, bounced to the eye; returns its lambda. `seen`: whether a
     /// guard ray found it unoccluded (`None`: not a guard path).

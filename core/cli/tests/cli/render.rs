@@ -109,7 +109,10 @@ fn render_modes_devices_and_unsupported_scenes_exit_2_naming_why() {
         "/../../tests/scenes/cornell.toml"
     );
     assert_bad_input(
-        &meso(&["render", cornell, "-o", out_arg, "--mode", "adaptive"], ""),
+        &meso(
+            &["render", cornell, "-o", out_arg, "--mode", "adaptive"],
+            "",
+        ),
         &["adaptive", "(mirror)"],
     );
     // The biscale mode names what it cannot render: the default scene has lights and

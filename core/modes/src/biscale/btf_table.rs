@@ -16,6 +16,7 @@ use rayon::prelude::*;
 
 use super::hemisphere::HemisphereGrid;
 use meso_materials::brdf::AnalyticBrdf;
+use meso_materials::merl::MerlBrdf;
 use meso_materials::spmm::{MOVING_NPCA, SpmmMaterial};
 use meso_render::scene::Material;
 
@@ -30,6 +31,10 @@ pub enum BtfTable {
         albedo: [f32; 3],
     },
     Spmm(Box<SpmmTable>),
+    /// A MERL table times its tint: RGB, [view][channel][M].
+    Rgb {
+        rows: Vec<f32>,
+    },
 }
 
 pub struct SpmmTable {
@@ -91,7 +96,7 @@ impl Tabulation {
         s / (STRATA * STRATA) as f64
     }
 
-    /// `None` for materials the mode refuses (mirror, merl, btf).
+    /// `None` for materials the mode refuses (mirror, btf).
     pub fn table(&self, material: &Material) -> Option<BtfTable> {
         match material {
             Material::Brdf { brdf, albedo } => Some(self.brdf_table(brdf, *albedo)),
@@ -103,8 +108,24 @@ impl Tabulation {
             } => Some(BtfTable::Spmm(Box::new(
                 self.spmm_table(material, *uv_scale, *residual, *npca),
             ))),
-            Material::Mirror { .. } | Material::Merl { .. } | Material::Btf { .. } => None,
+            Material::Merl { brdf, tint } => Some(self.merl_table(brdf, *tint)),
+            Material::Mirror { .. } | Material::Btf { .. } => None,
         }
+    }
+
+    /// A measured table as an analytic BRDF is tabulated, per channel (its colour
+    /// varies with the directions), times its tint.
+    fn merl_table(&self, brdf: &MerlBrdf, tint: DVec3) -> BtfTable {
+        let (mc, vc) = (self.local.len(), self.views.len());
+        let rows = (0..vc * 3 * mc)
+            .into_par_iter()
+            .map(|i| {
+                let (v, ch, m) = (i / (3 * mc), (i / mc) % 3, i % mc);
+                let wo = self.views.centre(v);
+                self.cell_mean(m, |wi| brdf.eval(wi, wo)[ch] * tint[ch] * wi.z.max(0.0)) as f32
+            })
+            .collect();
+        BtfTable::Rgb { rows }
     }
 
     fn brdf_table(&self, brdf: &AnalyticBrdf, albedo: DVec3) -> BtfTable {
@@ -319,6 +340,16 @@ impl BtfTable {
                     out[c] *= albedo[c];
                 }
             }
+            BtfTable::Rgb { rows } => {
+                for (v, w) in views {
+                    if w == 0.0 {
+                        continue;
+                    }
+                    for (ch, l) in [lr, lg, lb].into_iter().enumerate() {
+                        out[ch] += w * dot(&rows[(v * 3 + ch) * mc..][..mc], l);
+                    }
+                }
+            }
             BtfTable::Spmm(t) => {
                 let vc = tab.views.len();
                 let texel = t.material.texel_at(uv, t.uv_scale);
@@ -363,7 +394,7 @@ impl BtfTable {
     /// Bytes of the tables.
     pub fn bytes(&self) -> usize {
         match self {
-            BtfTable::Brdf { rows, .. } => 4 * rows.len(),
+            BtfTable::Brdf { rows, .. } | BtfTable::Rgb { rows } => 4 * rows.len(),
             BtfTable::Spmm(t) => {
                 4 * (t.bases.iter().map(Vec::len).sum::<usize>()
                     + t.residual.iter().map(Vec::len).sum::<usize>())

@@ -94,9 +94,9 @@ fn per_vertex(rows: &[[f32; 3]], mc: usize) -> Vec<f32> {
 }
 
 impl BiscaleMode {
-    /// What the mode cannot render: mirror, MERL and `btf` materials (no transfer
-    /// table tabulates them) and a scene without an environment (the precomputed
-    /// part). Lights and the ambient term are traced exactly on top.
+    /// What the mode cannot render: mirror and `btf` materials (no transfer table
+    /// tabulates them) and a scene without an environment (the precomputed part).
+    /// Lights and the ambient term are traced exactly on top.
     pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
         let mut parts: Vec<Unrenderable> = scene
             .materials
@@ -111,14 +111,14 @@ impl BiscaleMode {
     }
 
     fn unrenderable(scene: &Scene, index: usize, m: &Material) -> Option<Unrenderable> {
-        matches!(
-            m,
-            Material::Mirror { .. } | Material::Merl { .. } | Material::Btf { .. }
-        )
-        .then(|| Unrenderable::Material {
-            index,
-            name: name_of(scene, index),
-            kind: m.kind_name(),
+        // A mirror's delta lobe has no table; a `btf` table's texels would each need
+        // their own (texels x views x cells x 3 values).
+        matches!(m, Material::Mirror { .. } | Material::Btf { .. }).then(|| {
+            Unrenderable::Material {
+                index,
+                name: name_of(scene, index),
+                kind: m.kind_name(),
+            }
         })
     }
 

@@ -100,20 +100,26 @@ fn render_modes_devices_and_unsupported_scenes_exit_2_naming_why() {
         args.extend_from_slice(extra);
         meso(&args, "")
     };
-    // The adaptive mode shades the SPMM pack under the environment, and names what it
-    // cannot render in the Cornell box (its mirror); devices not built yet say so;
-    // unknown names are usage errors.
+    // The adaptive mode renders every scene the spmm mode does: the SPMM pack under
+    // the environment, and the Cornell box (a mirror, a pack, an area light, AO);
+    // the biscale mode names what it cannot render there (the mirror, and the
+    // environment it lacks); devices not built yet say so; unknown names are usage
+    // errors.
     assert_ok(&render(&["--mode", "adaptive", "--frames", "2"]));
     let cornell = concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/../../tests/scenes/cornell.toml"
     );
+    let small = ["--width", "16", "--height", "16", "--frames", "2"];
+    let in_mode = |mode: &str| {
+        let mut args = vec!["render", cornell, "-o", out_arg, "--mode", mode];
+        args.extend_from_slice(&small);
+        meso(&args, "")
+    };
+    assert_ok(&in_mode("adaptive"));
     assert_bad_input(
-        &meso(
-            &["render", cornell, "-o", out_arg, "--mode", "adaptive"],
-            "",
-        ),
-        &["adaptive", "(mirror)"],
+        &in_mode("biscale"),
+        &["biscale", "(mirror)", "without [environment]"],
     );
     // The biscale mode names what it cannot render: the default scene has lights and
     // AO, which it traces, but no environment, its precomputed part.

@@ -33,8 +33,7 @@ use meso_render::shading::{
 };
 use meso_render::{
     Counters, Device, Diagnostic, Diagnostics, EditError, Film, FrameStats, Invalidation,
-    ModeError, ModeKind, Pass, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
-    Unsupported,
+    ModeError, ModeKind, Pass, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unsupported,
 };
 
 /// Offset of secondary ray origins along the normal, relative to the hit point's
@@ -168,32 +167,14 @@ enum Unfinished {
 }
 
 impl AdaptiveMode {
-    /// What this mode cannot render: mirrors, by name. Analytic BRDFs, MERL tables,
-    /// SPMM packs and `btf` tables are shaded by the shading core, their bandwidths
-    /// from their lobes (`MaterialBandwidth::of_material`); point lights and the
+    /// What this mode cannot render: nothing the spmm mode renders. Analytic BRDFs,
+    /// MERL tables, SPMM packs and `btf` tables are shaded by the shading core, their
+    /// bandwidths from their lobes (`MaterialBandwidth::of_material`); mirrors reflect
+    /// the ray as in the spmm mode, their pixels shaded at level 0; point lights and the
     /// ambient term are taken as the spmm mode takes them, the pass guarding their
-    /// shadows.
-    pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
-        let parts: Vec<Unrenderable> = scene
-            .materials
-            .iter()
-            .enumerate()
-            .filter_map(|(i, m)| Self::unrenderable_material(scene, i, m))
-            .collect();
-        Unsupported::check(ModeKind::Adaptive, Device::Cpu, parts)
-    }
-
-    fn unrenderable_material(scene: &Scene, index: usize, m: &Material) -> Option<Unrenderable> {
-        // Mirrors: a delta lobe, whose spectrum has no bound, and no path to follow it.
-        matches!(m, Material::Mirror { .. }).then(|| Unrenderable::Material {
-            index,
-            name: scene
-                .material_names
-                .get(index)
-                .cloned()
-                .unwrap_or_else(|| format!("#{index}")),
-            kind: m.kind_name(),
-        })
+    /// shadows. It answers like every mode, so the registry asks them alike.
+    pub fn supports(_scene: &Scene) -> Result<(), Unsupported> {
+        Ok(())
     }
 
     pub fn prepare(
@@ -348,17 +329,6 @@ impl AdaptiveMode {
             .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
             .collect()
     }
-
-    /// Refuses an edit that brings what the mode cannot render.
-    fn check_edit(&self, edit: &SceneEdit) -> Result<(), Unsupported> {
-        let part = match edit {
-            SceneEdit::Material { index, material } => {
-                Self::unrenderable_material(&self.core.scene, *index, material)
-            }
-            _ => None,
-        };
-        Unsupported::check(ModeKind::Adaptive, Device::Cpu, part.into_iter().collect())
-    }
 }
 impl RenderMode for AdaptiveMode {
     fn kind(&self) -> ModeKind {
@@ -412,7 +382,6 @@ impl RenderMode for AdaptiveMode {
     }
 
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
-        self.check_edit(&edit)?;
         Ok(match self.core.apply(&edit)? {
             Edited::Emitters(invalidation) => {
                 self.light_targets = self.core.layers.light_targets(&self.core.scene);

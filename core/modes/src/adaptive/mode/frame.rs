@@ -116,20 +116,41 @@ impl AdaptiveMode {
         // pixel's own samples are consecutive points of its sequence.
         let render = &self.core.scene.render;
         let mut rng = SampleStream::for_sample(render.sampler, render.seed ^ STREAM, index, pixel);
-        let ray = self.core.camera.ray(x, y, rng.next_2d());
+        let mut ray = self.core.camera.ray(x, y, rng.next_2d());
         counts.primary += 1;
-        let Some(hit) = self
-            .core
-            .bvh
-            .closest_hit(ray.origin, ray.dir, 0.0, f64::INFINITY)
-        else {
-            if let Some((layer, radiance)) = layers::escaped(&self.core.scene, ray.dir) {
-                out[layer] += radiance;
+        // Mirrors reflect the ray, as in the spmm mode, up to the scene's depth; what
+        // the path then gathers is scaled by their reflectances.
+        let mut through = (DVec3::ONE, 0u64);
+        let mut depth = 0;
+        let (s, material) = loop {
+            let Some(hit) = self
+                .core
+                .bvh
+                .closest_hit(ray.origin, ray.dir, 0.0, f64::INFINITY)
+            else {
+                if let Some((layer, radiance)) = layers::escaped(&self.core.scene, ray.dir) {
+                    out[layer] += radiance;
+                }
+                return scaled(out, through);
+            };
+            let s = Shading::at(&self.core.scene, &hit, ray.dir);
+            let material = self.shaders.material(&self.core.scene, s.material, false);
+            let Some(reflectance) = material.specular() else {
+                break (s, material);
+            };
+            through.1 |= material_bit(s.material);
+            if depth >= self.core.scene.render.max_specular_depth {
+                return scaled(out, through);
             }
-            return 0;
+            depth += 1;
+            counts.specular += 1;
+            through.0 *= reflectance;
+            let lift = s.p + s.n * (EPSILON_REL * s.p.abs().max_element().max(1.0));
+            ray = meso_render::geometry::Ray {
+                origin: lift,
+                dir: ray.dir - 2.0 * ray.dir.dot(s.n) * s.n,
+            };
         };
-        let s = Shading::at(&self.core.scene, &hit, ray.dir);
-        let material = self.shaders.material(&self.core.scene, s.material, false);
         let wo = -ray.dir;
         let lo = s.to_local(wo);
         let lift = s.p + s.n * (EPSILON_REL * s.p.abs().max_element().max(1.0));
@@ -217,7 +238,7 @@ impl AdaptiveMode {
         }
         self.sample_environment(&s, material, lo, lift, &mut rng, out, counts);
         self.sample_point_lights_and_ambient(&s, material, (wo, lift), &mut rng, out, counts);
-        material_bit(s.material)
+        scaled(out, (through.0, through.1 | material_bit(s.material)))
     }
 
     /// Point lights (one exact shadow ray each) and the ambient term (one direction of
@@ -515,4 +536,14 @@ impl AdaptiveMode {
             dropped: 0,
         })
     }
+}
+
+/// The sample's layers scaled by the reflectance of the mirrors its path met (left as
+/// they are on a path without mirrors, keeping their bits), and the materials it
+/// reached.
+fn scaled(out: &mut [DVec3], (reflectance, mask): (DVec3, u64)) -> u64 {
+    if reflectance != DVec3::ONE {
+        out.iter_mut().for_each(|o| *o *= reflectance);
+    }
+    mask
 }

@@ -90,6 +90,10 @@ pub const VISIBILITY_STEP: f64 = 0.1;
 /// Shadow rays per emitter and pixel of the visibility guard.
 pub const GUARD_RAYS: u32 = 4;
 
+/// The rate given to a mirror's pixels: far above any pixel's, so eq. 11 puts them at
+/// level 0 (a finite number, so the buffers stay finite).
+const MIRROR_RATE: f64 = 1e12;
+
 /// True if pixel (x, y)'s visible share differs from a 4-neighbour's by more than
 /// `VISIBILITY_STEP`.
 pub(super) fn visibility_edge(visible: &[f64], w: u32, h: u32, x: u32, y: u32) -> bool {
@@ -294,6 +298,13 @@ impl AdaptiveMode {
             visible: 1.0,
             moments: allocation::Moments::default(),
         };
+        if material.specular().is_some() {
+            // A mirror shows what it reflects, at any frequency: shaded at every pixel.
+            return PixelAnalysis {
+                nu: DVec2::new(0.0, MIRROR_RATE),
+                ..quiet
+            };
+        }
         let Some(rates) = &self.materials[s.material] else {
             return quiet;
         };

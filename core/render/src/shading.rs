@@ -19,6 +19,7 @@ use std::f64::consts::PI;
 
 use glam::{DVec2, DVec3};
 
+use crate::geometry::SceneBvh;
 use crate::scene::{Light, Material, Scene};
 use meso_materials::spmm::defensive_pdf;
 use shader::Shader;
@@ -78,6 +79,27 @@ pub fn point_on_light(light: &Light, u: DVec2, p: DVec3) -> Option<PointOnLight>
         }
     };
     Some(PointOnLight { q, wi, falloff })
+}
+
+/// A point on `light` (the point `u` of an area light) that `s` sees: its direction
+/// and falloff, once the one shadow ray from `lift` (the point lifted off the surface)
+/// through `bvh` found it unoccluded, counted in `shadow_rays`; `None` behind a
+/// one-sided light, below the surface, or shadowed.
+pub fn visible_light_point(
+    bvh: &SceneBvh,
+    light: &Light,
+    u: DVec2,
+    (s, lift): (&Shading, DVec3),
+    shadow_rays: &mut u64,
+) -> Option<(DVec3, f64)> {
+    let PointOnLight { q, wi, falloff } = point_on_light(light, u, s.p)?;
+    let cos_i = wi.dot(s.n);
+    if cos_i.is_nan() || cos_i <= 0.0 {
+        return None;
+    }
+    *shadow_rays += 1;
+    let reach = (q - lift).length() * (1.0 - 1e-6);
+    (!bvh.occluded(lift, wi, 0.0, reach)).then_some((wi, falloff))
 }
 
 /// The scene's materials as a render shades them: what each needs prepared, and how

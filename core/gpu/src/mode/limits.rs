@@ -13,13 +13,23 @@ pub(super) fn device_size_problem(
     layers: usize,
 ) -> Option<String> {
     let bytes = film::largest_buffer(width, height, layers);
+    too_large(
+        ctx,
+        bytes,
+        &format!("{width} x {height} with {layers} film layers needs"),
+    )
+}
+
+/// Why one buffer of `bytes` bytes would not fit on the device (`None` if it fits),
+/// the sentence begun by `what`.
+fn too_large(ctx: &GpuContext, bytes: u64, what: &str) -> Option<String> {
     let limits = ctx.limits();
     let limit = limits
         .max_buffer_size
         .min(limits.max_storage_buffer_binding_size);
     (bytes > limit).then(|| {
         format!(
-            "{width} x {height} with {layers} film layers needs a {bytes}-byte buffer on the GPU; `{}` allows {limit}",
+            "{what} a {bytes}-byte buffer on the GPU; `{}` allows {limit}",
             ctx.adapter_name()
         )
     })
@@ -50,15 +60,5 @@ pub(super) const MATERIAL_WORDS_NAME: &str = "the materials (SPMM packs, MERL ta
 /// Why `words` words of `what` would not fit in one buffer of the device (`None` if
 /// they fit).
 pub(super) fn words_size_problem(ctx: &GpuContext, what: &str, words: usize) -> Option<String> {
-    let bytes = words as u64 * 4;
-    let limits = ctx.limits();
-    let limit = limits
-        .max_buffer_size
-        .min(limits.max_storage_buffer_binding_size);
-    (bytes > limit).then(|| {
-        format!(
-            "{what} need a {bytes}-byte buffer on the GPU; `{}` allows {limit}",
-            ctx.adapter_name()
-        )
-    })
+    too_large(ctx, words as u64 * 4, &format!("{what} need"))
 }

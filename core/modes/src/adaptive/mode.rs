@@ -30,6 +30,7 @@ use meso_render::progressive::{Edited, Progressive};
 use meso_render::scene::{Light, Material, Scene};
 use meso_render::shading::{
     PointOnLight, ShadedMaterial, Shaders, Shading, point_on_light, power_heuristic as power,
+    visible_light_point,
 };
 use meso_render::{
     Counters, Device, Diagnostic, Diagnostics, EditError, Film, FrameStats, Invalidation,

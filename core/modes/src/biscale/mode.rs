@@ -26,7 +26,7 @@ use meso_render::geometry::SceneBvh;
 use meso_render::layers::{self, AMBIENT, ENVIRONMENT, LightTarget};
 use meso_render::progressive::{Edited, Progressive};
 use meso_render::scene::{Environment, Light, Material, Scene};
-use meso_render::shading::{PointOnLight, Shaders, Shading, dpdu, point_on_light, tangent_frame};
+use meso_render::shading::{Shaders, Shading, dpdu, tangent_frame, visible_light_point};
 use meso_render::{
     Counters, Device, Diagnostic, Diagnostics, EditError, Film, FrameStats, Invalidation,
     ModeError, ModeKind, Pass, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
@@ -345,18 +345,11 @@ impl BiscaleMode {
                 Light::Area { .. } => (n, 1.0 / f64::from(n)),
             };
             for r in 0..count {
-                let Some(PointOnLight { q, wi, falloff }) =
-                    point_on_light(light, points.get(r), s.p)
-                else {
-                    continue;
-                };
-                let cos_i = wi.dot(s.n);
-                if cos_i.is_nan() || cos_i <= 0.0 {
-                    continue;
-                }
-                rays.shadow += 1;
-                let reach = (q - lift).length() * (1.0 - 1e-6);
-                if !self.core.bvh.occluded(lift, wi, 0.0, reach) {
+                let at = (&s, lift);
+                let bvh = &self.core.bvh;
+                if let Some((wi, falloff)) =
+                    visible_light_point(bvh, light, points.get(r), at, &mut rays.shadow)
+                {
                     let target = self.light_targets[k];
                     out[target.layer] +=
                         material.response(&s, wi, wo) * (falloff * share) * target.factor;

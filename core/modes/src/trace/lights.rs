@@ -16,7 +16,7 @@ use meso_render::geometry::hit_parallelogram;
 use meso_render::layers::AMBIENT;
 use meso_render::light_selection::{CANDIDATES, LIGHT_SAMPLES, LightSelection};
 use meso_render::scene::Light;
-use meso_render::shading::{PointOnLight, Shading, point_on_light, power_heuristic};
+use meso_render::shading::{Shading, power_heuristic, visible_light_point};
 
 /// A point on a light seen from a shading point, unshadowed.
 #[derive(Clone, Copy, Default)]
@@ -102,35 +102,24 @@ impl SpmmMode {
         throughput: DVec3,
         path: &mut Path,
     ) {
-        let Some(PointOnLight { q, wi, falloff }) =
-            point_on_light(&self.core.scene.lights[k], u, s.p)
+        let light = &self.core.scene.lights[k];
+        let at = (s, lift);
+        let Some((wi, falloff)) =
+            visible_light_point(&self.core.bvh, light, u, at, &mut path.counts.shadow)
         else {
             return;
         };
-        let cos_i = wi.dot(s.n);
-        if cos_i.is_nan() || cos_i <= 0.0 {
-            return;
-        }
-        path.counts.shadow += 1;
-        if !self
-            .core
-            .bvh
-            .occluded(lift, wi, 0.0, (q - lift).length() * (1.0 - 1e-6))
-        {
-            let target = self.light_targets[k];
-            // Solid-angle pdf of this point: 1 / falloff.
-            let weight = if mis {
-                power_heuristic(1.0 / falloff, self.shaded(s).pdf(s, wi, wo))
-            } else {
-                1.0
-            };
-            // The factor is exactly one outside a bounded film's shared layer, so
-            // the per-light path keeps its bits.
-            path.out[target.layer] += throughput
-                * self.shaded(s).response(s, wi, wo)
-                * (falloff * weight)
-                * target.factor;
-        }
+        let target = self.light_targets[k];
+        // Solid-angle pdf of this point: 1 / falloff.
+        let weight = if mis {
+            power_heuristic(1.0 / falloff, self.shaded(s).pdf(s, wi, wo))
+        } else {
+            1.0
+        };
+        // The factor is exactly one outside a bounded film's shared layer, so the
+        // per-light path keeps its bits.
+        path.out[target.layer] +=
+            throughput * self.shaded(s).response(s, wi, wo) * (falloff * weight) * target.factor;
     }
 
     /// The material's strategy for area light `k`: a direction drawn from the BRDF,

@@ -258,19 +258,10 @@ impl AdaptiveMode {
             if !matches!(light, Light::Point { .. }) {
                 continue;
             }
-            let Some(PointOnLight { q, wi, falloff }) = point_on_light(light, DVec2::ZERO, s.p)
-            else {
-                continue;
-            };
-            let cos_i = wi.dot(s.n);
-            if cos_i.is_nan() || cos_i <= 0.0 {
-                continue;
-            }
-            counts.shadow += 1;
-            if !self
-                .core
-                .bvh
-                .occluded(lift, wi, 0.0, (q - lift).length() * (1.0 - 1e-6))
+            let at = (s, lift);
+            let bvh = &self.core.bvh;
+            if let Some((wi, falloff)) =
+                visible_light_point(bvh, light, DVec2::ZERO, at, &mut counts.shadow)
             {
                 let target = self.light_targets[k];
                 out[target.layer] += material.response(s, wi, wo) * falloff * target.factor;

@@ -102,8 +102,8 @@ fn render_modes_devices_and_unsupported_scenes_exit_2_naming_why() {
     };
     // The adaptive mode renders every scene the spmm mode does: the SPMM pack under
     // the environment, and the Cornell box (a mirror, a pack, an area light, AO);
-    // the biscale mode names what it cannot render there (the mirror, and the
-    // environment it lacks); devices not built yet say so; unknown names are usage
+    // the biscale mode names what it cannot render there (the environment it lacks:
+    // its precomputed part); devices not built yet say so; unknown names are usage
     // errors.
     assert_ok(&render(&["--mode", "adaptive", "--frames", "2"]));
     let cornell = concat!(
@@ -119,7 +119,7 @@ fn render_modes_devices_and_unsupported_scenes_exit_2_naming_why() {
     assert_ok(&in_mode("adaptive"));
     assert_bad_input(
         &in_mode("biscale"),
-        &["biscale", "(mirror)", "without [environment]"],
+        &["biscale", "without [environment]"],
     );
     // The biscale mode names what it cannot render: the default scene has lights and
     // AO, which it traces, but no environment, its precomputed part.

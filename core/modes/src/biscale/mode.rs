@@ -94,8 +94,9 @@ fn per_vertex(rows: &[[f32; 3]], mc: usize) -> Vec<f32> {
 }
 
 impl BiscaleMode {
-    /// What the mode cannot render: mirror and `btf` materials (no transfer table
-    /// tabulates them) and a scene without an environment (the precomputed part).
+    /// What the mode cannot render: `btf` materials (no transfer table tabulates
+    /// them) and a scene without an environment (the precomputed part). Mirrors
+    /// reflect the ray as in the spmm mode.
     /// Lights and the ambient term are traced exactly on top.
     pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
         let mut parts: Vec<Unrenderable> = scene
@@ -111,14 +112,12 @@ impl BiscaleMode {
     }
 
     fn unrenderable(scene: &Scene, index: usize, m: &Material) -> Option<Unrenderable> {
-        // A mirror's delta lobe has no table; a `btf` table's texels would each need
-        // their own (texels x views x cells x 3 values).
-        matches!(m, Material::Mirror { .. } | Material::Btf { .. }).then(|| {
-            Unrenderable::Material {
-                index,
-                name: name_of(scene, index),
-                kind: m.kind_name(),
-            }
+        // A `btf` table's texels would each need their own table (texels x views x
+        // cells x 3 values). Mirrors reflect the ray to what they show.
+        matches!(m, Material::Btf { .. }).then(|| Unrenderable::Material {
+            index,
+            name: name_of(scene, index),
+            kind: m.kind_name(),
         })
     }
 
@@ -251,20 +250,41 @@ impl BiscaleMode {
         // The camera's width: the film is out of `self` while a frame renders.
         let pixel = u64::from(y) * u64::from(self.core.camera.width()) + u64::from(x);
         let mut rng = SampleStream::new(&[self.core.scene.render.seed, index, pixel]);
-        let ray = self.core.camera.ray(x, y, rng.next_2d());
+        let mut ray = self.core.camera.ray(x, y, rng.next_2d());
         let mut rays = RayCounts {
             primary: 1,
             ..Default::default()
         };
-        let Some(hit) = self
-            .core
-            .bvh
-            .closest_hit(ray.origin, ray.dir, 0.0, f64::INFINITY)
-        else {
-            if let Some((layer, radiance)) = layers::escaped(&self.core.scene, ray.dir) {
-                out[layer] += radiance;
+        // Mirrors reflect the ray, as in the spmm mode, up to the scene's depth; what
+        // the path then gathers is scaled by their reflectances.
+        let (mut reflectance, mut mask) = (DVec3::ONE, 0u64);
+        let hit = loop {
+            let Some(hit) = self
+                .core
+                .bvh
+                .closest_hit(ray.origin, ray.dir, 0.0, f64::INFINITY)
+            else {
+                if let Some((layer, radiance)) = layers::escaped(&self.core.scene, ray.dir) {
+                    out[layer] += radiance * reflectance;
+                }
+                return (mask, rays);
+            };
+            let material = self.core.scene.meshes[hit.mesh].material;
+            let Material::Mirror { reflectance: r } = self.core.scene.materials[material] else {
+                break hit;
+            };
+            mask |= material_bit(material);
+            if rays.specular >= u64::from(self.core.scene.render.max_specular_depth) {
+                return (mask, rays);
             }
-            return (0, rays);
+            rays.specular += 1;
+            reflectance *= r;
+            let s = Shading::at(&self.core.scene, &hit, ray.dir);
+            let lift = s.p + s.n * (EPSILON_REL * s.p.abs().max_element().max(1.0));
+            ray = meso_render::geometry::Ray {
+                origin: lift,
+                dir: ray.dir - 2.0 * ray.dir.dot(s.n) * s.n,
+            };
         };
         let mesh = &self.core.scene.meshes[hit.mesh];
         let idx = mesh.indices[hit.triangle].map(|i| i as usize);
@@ -313,7 +333,11 @@ impl BiscaleMode {
         };
         out[ENVIRONMENT] += DVec3::new(rgb[0] as f64, rgb[1] as f64, rgb[2] as f64);
         self.trace_local_lights(&hit, ray.dir, &mut rng, out, &mut rays);
-        (material_bit(mesh.material), rays)
+        // `out` held nothing before this sample (the frame clears it per sample).
+        if reflectance != DVec3::ONE {
+            out.iter_mut().for_each(|o| *o *= reflectance);
+        }
+        (mask | material_bit(mesh.material), rays)
     }
 
     /// The lights and the ambient term at `hit`, exactly as the spmm mode traces them

@@ -250,22 +250,17 @@ fn what_the_mode_cannot_render_is_refused_by_name() {
     let ModeError::Unsupported(u) = &err else {
         panic!("{err:?}")
     };
-    assert_eq!(
-        u.parts,
-        [
-            Unrenderable::Material {
-                index: 1,
-                name: "chrome".into(),
-                kind: "mirror"
-            },
-            Unrenderable::NoEnvironment,
-        ]
-    );
-    assert!(
-        err.to_string().contains("material `chrome` (mirror)"),
-        "{err}"
-    );
+    assert_eq!(u.parts, [Unrenderable::NoEnvironment]);
     assert!(err.to_string().contains("without [environment]"), "{err}");
+    // A `btf` table is refused by name: each texel would need its own table.
+    let mut scene = plane_scene(map_of(4, 2, |_, _| [1.0; 3]));
+    scene.materials[0] = meso_render::scene::test_scenes::tabulated_btf(
+        &AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
+        DVec3::splat(0.5),
+        DVec2::ONE,
+    );
+    let err = BiscaleMode::supports(&scene).expect_err("refused");
+    assert!(err.to_string().contains("(btf)"), "{err}");
 }
 
 #[test]
@@ -779,4 +774,46 @@ fn a_merl_table_of_a_lambertian_renders_like_the_lambertian() {
     );
     assert!(a.min_element() > 0.05, "{a}");
     assert!(((m - a) / a).abs().max_element() < 1e-3, "{m} against {a}");
+}
+
+#[test]
+fn a_mirror_shows_what_it_reflects_as_the_spmm_mode_does() {
+    // The lights-only scene with an upright mirror beside the panel: the biscale mode
+    // follows the reflected ray as the spmm mode does, so the two agree as without it.
+    let (w, h) = (24, 24);
+    let mut scene = lights_only_scene();
+    scene.materials.push(Material::Mirror {
+        reflectance: DVec3::new(0.9, 0.85, 0.8),
+    });
+    scene.material_names.push("chrome".into());
+    scene.meshes.push(meso_render::scene::mesh::quad(
+        DVec3::new(-1.4, 0.0, 0.8),
+        DVec3::new(0.6, 0.0, -0.9),
+        DVec3::new(0.0, 0.9, 0.0),
+        2,
+    ));
+    let mut biscale =
+        BiscaleMode::prepare(scene.clone(), w, h, settings(), Prepare::quietly()).expect("mode");
+    let mut spmm = crate::trace::SpmmMode::new(scene, w, h).expect("spmm");
+    let stats = run_frames(&mut biscale, 256, |_, _| {});
+    run_frames(&mut spmm, 256, |_, _| {});
+    assert!(stats.counters.rays.specular > 0, "the mirror is seen");
+    let (a, b) = (biscale.image(), spmm.image());
+    let mean = |img: &Image| {
+        img.pixels()
+            .iter()
+            .map(|p| f64::from(p[0] + p[1] + p[2]))
+            .sum::<f64>()
+    };
+    let (ma, mb) = (mean(&a), mean(&b));
+    let relative = relative_rmse(&a, &b);
+    eprintln!(
+        "with a mirror: mean ratio {}, relative RMSE {relative}",
+        ma / mb
+    );
+    assert!(
+        (ma - mb).abs() <= 0.005 * mb,
+        "mean {ma} against spmm's {mb}"
+    );
+    assert!(relative < 0.04, "relative RMSE {relative}");
 }

@@ -117,10 +117,7 @@ fn render_modes_devices_and_unsupported_scenes_exit_2_naming_why() {
         meso(&args, "")
     };
     assert_ok(&in_mode("adaptive"));
-    assert_bad_input(
-        &in_mode("biscale"),
-        &["biscale", "without [environment]"],
-    );
+    assert_bad_input(&in_mode("biscale"), &["biscale", "without [environment]"]);
     // The biscale mode names what it cannot render: the default scene has lights and
     // AO, which it traces, but no environment, its precomputed part.
     let default = concat!(

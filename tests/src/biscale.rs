@@ -93,10 +93,14 @@ fn biscale_agrees_with_the_converged_spmm_image_and_is_lossless_on_the_bunny() {
         s.materials[0] = material.clone();
         let key = (t.cube_n, t.local_res);
         if let Entry::Vacant(slot) = modes_by_res.entry(key) {
+            // The scene's own vertices: the tolerances (and the bias they state, docs/
+            // rendering.md "Limits") are those of per-vertex transfer on the bunny; the
+            // refinement has its own test (`refinement_puts_a_receivers_shadow...`).
             let settings = BiscaleSettings {
                 cube_n: t.cube_n,
                 local_res: t.local_res,
                 cache_dir: None,
+                refine_vertices: 0,
                 ..BiscaleSettings::default()
             };
             let mode =

@@ -123,32 +123,39 @@ fn mean(img: &Image) -> DVec3 {
         / img.pixels().len() as f64
 }
 
-#[test]
-fn the_adaptive_image_converges_to_the_brute_force_one() {
-    let scene = merl_test_scene();
-    let reference = spmm(&scene, REFERENCE_SEED_XOR, 2048);
+/// Renders `scene` for 96 adaptive frames and checks it against the brute force: no
+/// bias (the image means agree within 1% per channel; the 2048-spp reference's own
+/// noise is far below that), and per pixel the error of Monte Carlo noise at a similar
+/// budget (within twice that of the same samples spent uniformly by the brute force,
+/// another seed: samples are spread by eq. 9, not uniformly). Returns the frames' run.
+fn converges_like_the_brute_force(scene: &Scene, what: &str) -> meso_render::RunStats {
+    let reference = spmm(scene, REFERENCE_SEED_XOR, 2048);
     let mut mode =
         AdaptiveMode::prepare(scene.clone(), SIZE, SIZE, Prepare::quietly()).expect("adaptive");
     let run = run_frames(&mut mode, 96, |_, _| {});
     // Every pixel has been shaded itself by now (levels drop by one every 2 frames).
-    assert!(mode.own_samples().iter().all(|&n| n > 0));
+    assert!(mode.own_samples().iter().all(|&n| n > 0), "{what}");
     let adaptive = mode.image();
-    // The same number of samples spent uniformly by the brute force, another seed.
     let spp = (run.counters.samples / u64::from(SIZE * SIZE)).max(1) as u32;
-    let uniform = spmm(&scene, 0x55, spp);
+    let uniform = spmm(scene, 0x55, spp);
     let a = compare(&reference, &adaptive, 0.0).expect("same size");
     let u = compare(&reference, &uniform, 0.0).expect("same size");
     let (ma, mr) = (mean(&adaptive), mean(&reference));
     eprintln!(
-        "adaptive rmse {:.3e} ({} spp average), uniform spmm rmse {:.3e}; means {ma} vs {mr}",
-        a.rmse, spp, u.rmse
+        "{what}: adaptive rmse {:.3e} ({spp} spp average), uniform spmm rmse {:.3e}; means {ma} vs {mr}",
+        a.rmse, u.rmse
     );
-    // No bias: the image means agree within 1% per channel (the reference's own noise
-    // at 2048 spp is far below that).
-    assert!(((ma - mr) / mr).abs().max_element() < 0.01, "{ma} {mr}");
-    // And per pixel the error is that of Monte Carlo noise at a similar budget: within
-    // twice the uniform brute force's (samples are spread by eq. 9, not uniformly).
-    assert!(a.rmse < 2.0 * u.rmse, "{} {}", a.rmse, u.rmse);
+    assert!(
+        ((ma - mr) / mr).abs().max_element() < 0.01,
+        "{what}: {ma} {mr}"
+    );
+    assert!(a.rmse < 2.0 * u.rmse, "{what}: {} {}", a.rmse, u.rmse);
+    run
+}
+
+#[test]
+fn the_adaptive_image_converges_to_the_brute_force_one() {
+    converges_like_the_brute_force(&merl_test_scene(), "MERL panel");
 }
 
 /// The MERL test scene with its panel an SPMM pack (the code-built test pack: two
@@ -183,23 +190,7 @@ fn packs_and_btf_tables_converge_to_the_brute_force_too() {
     // (`MaterialBandwidth::of_material`): the same agreement as the MERL scene's.
     let scene = pack_test_scene();
     AdaptiveMode::supports(&scene).expect("packs and btf tables are rendered");
-    let reference = spmm(&scene, REFERENCE_SEED_XOR, 2048);
-    let mut mode =
-        AdaptiveMode::prepare(scene.clone(), SIZE, SIZE, Prepare::quietly()).expect("adaptive");
-    let run = run_frames(&mut mode, 96, |_, _| {});
-    assert!(mode.own_samples().iter().all(|&n| n > 0));
-    let adaptive = mode.image();
-    let spp = (run.counters.samples / u64::from(SIZE * SIZE)).max(1) as u32;
-    let uniform = spmm(&scene, 0x55, spp);
-    let a = compare(&reference, &adaptive, 0.0).expect("same size");
-    let u = compare(&reference, &uniform, 0.0).expect("same size");
-    let (ma, mr) = (mean(&adaptive), mean(&reference));
-    eprintln!(
-        "packs: adaptive rmse {:.3e} ({} spp average), uniform spmm rmse {:.3e}; means {ma} vs {mr}",
-        a.rmse, spp, u.rmse
-    );
-    assert!(((ma - mr) / mr).abs().max_element() < 0.01, "{ma} {mr}");
-    assert!(a.rmse < 2.0 * u.rmse, "{} {}", a.rmse, u.rmse);
+    converges_like_the_brute_force(&scene, "packs and btf tables");
 }
 
 #[test]
@@ -307,23 +298,8 @@ fn point_lights_ambient_occlusion_and_mirrors_converge_to_the_brute_force() {
         2,
     ));
     AdaptiveMode::supports(&scene).expect("every material and light is rendered");
-    let reference = spmm(&scene, REFERENCE_SEED_XOR, 2048);
-    let mut mode =
-        AdaptiveMode::prepare(scene.clone(), SIZE, SIZE, Prepare::quietly()).expect("adaptive");
-    let run = run_frames(&mut mode, 96, |_, _| {});
+    let run = converges_like_the_brute_force(&scene, "point light, AO, mirror");
     assert!(run.counters.rays.specular > 0, "the mirror is seen");
-    let adaptive = mode.image();
-    let spp = (run.counters.samples / u64::from(SIZE * SIZE)).max(1) as u32;
-    let uniform = spmm(&scene, 0x55, spp);
-    let a = compare(&reference, &adaptive, 0.0).expect("same size");
-    let u = compare(&reference, &uniform, 0.0).expect("same size");
-    let (ma, mr) = (mean(&adaptive), mean(&reference));
-    eprintln!(
-        "point light, AO, mirror: adaptive rmse {:.3e} ({spp} spp), uniform {:.3e}; means {ma} vs {mr}",
-        a.rmse, u.rmse
-    );
-    assert!(((ma - mr) / mr).abs().max_element() < 0.01, "{ma} {mr}");
-    assert!(a.rmse < 2.0 * u.rmse, "{} {}", a.rmse, u.rmse);
 }
 
 #[test]

@@ -195,7 +195,7 @@ impl MeshBuilder {
             let node = b.nodes.len() as u32;
             b.roots.push(node);
             b.level.push((node, *tri));
-            // A placeholder until the triangle is final.
+            // Marked unfinished (u32::MAX) until the triangle is a leaf or split.
             b.nodes.push(Node::Leaf(u32::MAX));
         }
         b

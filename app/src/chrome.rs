@@ -45,7 +45,6 @@ pub enum Action {
     /// The prompt's "switch with these lights disabled".
     SwitchWithoutLights(ModeKind, Device),
     /// The prompt's "turn on the environment and switch".
-    SwitchWithEnvironment(ModeKind, Device),
     /// The quit prompt's "Save": save, and close the window if that worked
     /// (`Chrome::close`).
     SaveAndQuit,
@@ -368,8 +367,8 @@ fn view_menu(ui: &mut Ui, settings: &mut Settings, state: &MenuState, actions: &
     });
 }
 
-/// "Switch render mode?": the mode asked for cannot render some lights, or needs the
-/// environment; switch without them (or with the environment on), or stay.
+/// "Switch render mode?": the mode asked for cannot render some lights; switch without
+/// them, or stay.
 fn mode_prompt(ctx: &egui::Context, modes: &mut ModeSwitch, actions: &mut Vec<Action>) {
     let Some(u) = modes.prompt().cloned() else {
         return;
@@ -383,13 +382,7 @@ fn mode_prompt(ctx: &egui::Context, modes: &mut ModeSwitch, actions: &mut Vec<Ac
             parts.join(", ")
         ));
         ui.horizontal(|ui| {
-            // The one action that makes the scene renderable in that mode.
-            if crate::mode_switch::needs_environment(&u) {
-                let label = format!("Turn on the environment and switch to {}", u.mode.name());
-                if ui.button(label).clicked() {
-                    actions.push(Action::SwitchWithEnvironment(u.mode, u.device));
-                }
-            } else if ui
+            if ui
                 .button(format!(
                     "Switch with these lights disabled for {}",
                     u.mode.name()

@@ -44,19 +44,6 @@ struct Switch {
 /// `scene`), or `None` if it only concerns parts the mode renders without. A light
 /// added while a mode renders without some lights is checked: if the mode cannot
 /// render it either, it is left out too.
-/// True if the mode needs the scene's environment and otherwise renders it, or renders
-/// it without some lights: turning the environment on is the one action the prompt
-/// offers.
-pub fn needs_environment(u: &Unsupported) -> bool {
-    u.parts.contains(&Unrenderable::NoEnvironment)
-        && u.parts.iter().all(|p| {
-            matches!(
-                p,
-                Unrenderable::NoEnvironment | Unrenderable::Light { .. } | Unrenderable::Ambient
-            )
-        })
-}
-
 fn route(
     maker: &dyn ModeMaker,
     mode: (ModeKind, Device),
@@ -105,10 +92,8 @@ pub struct ModeSwitch {
     /// A mode being prepared to replace it.
     switch: Option<Switch>,
     /// A mode that cannot render some lights, or needs the environment: switch
-    /// without them (or with the environment turned on), or stay?
+    /// without them, or stay?
     prompt: Option<Unsupported>,
-    /// The mode to ask for again once the environment the prompt turned on is read.
-    after_environment: Option<(ModeKind, Device)>,
     /// The mode an opened scene asks for (`[render] mode/device`), requested once the
     /// scene is loaded into the renderer in the spmm mode.
     scene_mode: Option<(ModeKind, Device)>,
@@ -126,7 +111,6 @@ impl ModeSwitch {
             disabled: Disabled::default(),
             switch: None,
             prompt: None,
-            after_environment: None,
             scene_mode: None,
             message: None,
         }
@@ -209,24 +193,9 @@ impl ModeSwitch {
         let staying = mode_name(self.mode.0, self.mode.1);
         match self.maker.supports(kind, device, &doc.scene) {
             Ok(()) => self.start(doc, kind, device, Disabled::default(), size),
-            Err(ModeError::Unsupported(u)) if u.only_lights() || needs_environment(&u) => {
-                self.prompt = Some(u)
-            }
+            Err(ModeError::Unsupported(u)) if u.only_lights() => self.prompt = Some(u),
             Err(e) => self.message = Some(format!("{e}; staying in {staying}.")),
         }
-    }
-
-    /// The prompt's "turn on the environment and switch": the studio turns it on (now,
-    /// or once its map is read) and then asks for `kind` on `device` again
-    /// (`take_after_environment`).
-    pub fn with_environment(&mut self, kind: ModeKind, device: Device) {
-        self.prompt = None;
-        self.after_environment = Some((kind, device));
-    }
-
-    /// The mode to ask for now that the environment is on, once.
-    pub fn take_after_environment(&mut self) -> Option<(ModeKind, Device)> {
-        self.after_environment.take()
     }
 
     /// The prompt's "switch with these lights disabled": asks again (the lights may

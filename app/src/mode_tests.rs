@@ -484,10 +484,9 @@ fn environment_edits_are_undoable_and_reach_the_renderer() {
 #[test]
 fn a_scene_that_names_a_mode_asks_for_it_once_loaded() {
     // The default scene with `[render] mode = "biscale"`: it opens in spmm (which
-    // renders everything), then asks for biscale, which needs an environment (its
-    // precomputed part): the prompt says why and offers the one action that makes the
-    // scene renderable; frames keep coming from spmm meanwhile. Turning the
-    // environment on reads the first shipped map and then starts the switch.
+    // renders everything), then asks for biscale, which renders every scene (without an
+    // environment its precomputed part is dark and the lights are traced): no prompt,
+    // the switch starts in the background while spmm's frames keep coming.
     let dir = tempfile::tempdir().expect("temp dir");
     let default = default_scene_path();
     let folder = default
@@ -521,40 +520,18 @@ fn a_scene_that_names_a_mode_asks_for_it_once_loaded() {
     loaded(&mut h);
     wait_for_current_frame(&mut h);
     step_until(&mut h, "the scene's mode to be asked for", |h| {
-        h.state().mode_prompt().is_some()
-    });
-    let prompt = h.state().mode_prompt().expect("a prompt").clone();
-    assert_eq!(prompt.parts, [meso_render::Unrenderable::NoEnvironment]);
-    assert!(
-        h.query_by_label_contains("without [environment]").is_some(),
-        "the prompt says why"
-    );
-    assert_eq!(h.state().mode(), (ModeKind::Spmm, Device::Cpu));
-    assert_eq!(next_frame_mode(&mut h), ModeKind::Spmm);
-    h.get_by_label("Turn on the environment and switch to biscale")
-        .click();
-    // The first shipped map is read in the background, lights the scene, and then the
-    // biscale mode starts preparing (its frames are the shipped env scene's test's,
-    // `the_biscale_mode_renders_a_shipped_scene...`; this one stops at the switch).
-    step_until(&mut h, "the environment, then the switch", |h| {
         h.state().switching()
     });
-    assert!(
-        h.state()
-            .doc
-            .as_ref()
-            .expect("doc")
-            .scene
-            .environment
-            .is_some(),
-        "the environment is on"
-    );
     assert!(h.state().mode_prompt().is_none() && h.state().mode_message().is_none());
+    assert_eq!(h.state().mode(), (ModeKind::Spmm, Device::Cpu));
+    // Cancelled at once (the precomputation itself is the env scene's test's), so
+    // spmm stays and keeps rendering.
     h.state_mut().cancel_switch();
     step_until(&mut h, "the cancelled switch to end", |h| {
         !h.state().switching()
     });
     assert_eq!(h.state().mode(), (ModeKind::Spmm, Device::Cpu));
+    assert_eq!(next_frame_mode(&mut h), ModeKind::Spmm);
 }
 
 #[test]

@@ -225,7 +225,6 @@ impl Studio {
                 if let Some(doc) = &mut self.doc {
                     doc.close_group();
                 }
-                self.switch_after_environment();
             }
             Loaded::Scene(path, loaded) => {
                 let (scene, bvh) = *loaded;

@@ -55,10 +55,6 @@ impl Studio {
                 self.modes
                     .without_lights(self.doc.as_ref(), kind, device, size);
             }
-            Action::SwitchWithEnvironment(kind, device) => {
-                self.modes.with_environment(kind, device);
-                self.environment_on();
-            }
             Action::SaveAndQuit => {
                 if self.save() {
                     self.chrome.close(ctx);
@@ -68,26 +64,12 @@ impl Studio {
     }
 
     /// Turns the environment on: the last one used, or the first shipped map (read in
-    /// the background; a mode switch waiting for it follows once it lights the scene).
+    /// the background).
     pub(crate) fn environment_on(&mut self) {
         match self.loader.environment_on() {
-            Ok(Some(e)) => {
-                self.edit(SceneEdit::Environment(Some(e)));
-                self.switch_after_environment();
-            }
+            Ok(Some(e)) => self.edit(SceneEdit::Environment(Some(e))),
             Ok(None) => {}
-            Err(e) => {
-                self.modes.take_after_environment();
-                self.error = Some(e);
-            }
-        }
-    }
-
-    /// Asks for the mode the prompt's "turn on the environment" was for, if any.
-    pub(crate) fn switch_after_environment(&mut self) {
-        if let Some((kind, device)) = self.modes.take_after_environment() {
-            let size = self.canvas.prepare_size();
-            self.modes.request(self.doc.as_ref(), kind, device, size);
+            Err(e) => self.error = Some(e),
         }
     }
 

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 
 use anyhow::anyhow;
 use clap::Args;
-use meso_modes::biscale::{BiscaleMode, BiscaleSettings, cache};
+use meso_modes::biscale::{BiscaleSettings, cache};
 use meso_render::scene::load_scene;
 use meso_render::{ModeKind, Prepare};
 use meso_reports::biscale::precompute_report;
@@ -50,7 +50,6 @@ pub fn run(args: &PrecomputeArgs) -> Result<(), CliError> {
         )));
     }
     let scene = load_scene(&args.scene).map_err(CliError::bad_input)?;
-    BiscaleMode::supports(&scene).map_err(|e| CliError::bad_input(anyhow!(e)))?;
     let settings = BiscaleSettings {
         cube_n: args.cube_n,
         local_res: args.local_res,

@@ -221,12 +221,6 @@ pub enum Unrenderable {
         kind: &'static str,
     },
     Ambient,
-    /// The mode needs an `[environment]` and the scene has none.
-    NoEnvironment,
-    /// The mode cannot light with the scene's `[environment]`.
-    Environment,
-    /// The mode cannot show the scene's `[background]` image.
-    BackgroundImage,
 }
 
 impl std::fmt::Display for Unrenderable {
@@ -235,9 +229,6 @@ impl std::fmt::Display for Unrenderable {
             Unrenderable::Material { name, kind, .. } => write!(f, "material `{name}` ({kind})"),
             Unrenderable::Light { index, kind } => write!(f, "light[{index}] ({kind})"),
             Unrenderable::Ambient => write!(f, "the [ambient] term"),
-            Unrenderable::NoEnvironment => write!(f, "a scene without [environment]"),
-            Unrenderable::Environment => write!(f, "the [environment] lighting"),
-            Unrenderable::BackgroundImage => write!(f, "the [background] image"),
         }
     }
 }

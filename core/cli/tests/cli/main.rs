@@ -16,8 +16,13 @@ mod render;
 mod reports;
 
 fn meso(args: &[&str], stdin: &str) -> Output {
+    // Precomputations are cached in the test target's folder, not the user's.
     let mut child = Command::new(env!("CARGO_BIN_EXE_meso"))
         .args(args)
+        .env(
+            "MESO_CACHE_DIR",
+            concat!(env!("CARGO_TARGET_TMPDIR"), "/meso-cache"),
+        )
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())

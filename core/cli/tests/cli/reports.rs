@@ -178,17 +178,9 @@ strength = 1.0
     let r: serde_json::Value = serde_json::from_str(&stdout(&refined)).expect("JSON");
     let vertices = r["vertices"].as_u64().expect("vertices");
     assert!((9..=8 + 96).contains(&vertices), "{vertices} vertices");
-    // Bad input: another mode, a scene without an environment.
+    // Bad input: another mode.
     assert_bad_input(
         &meso(&["precompute", scene_arg, "--mode", "spmm"], ""),
         &["spmm", "only the biscale mode"],
-    );
-    let default = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../tests/scenes/default.toml"
-    );
-    assert_bad_input(
-        &meso(&["precompute", default, "--mode", "biscale"], ""),
-        &["biscale", "without [environment]"],
     );
 }

@@ -96,7 +96,8 @@ impl Tabulation {
         s / (STRATA * STRATA) as f64
     }
 
-    /// `None` for materials the mode refuses (mirror, btf).
+    /// `None` for materials without a table: mirrors (the ray is followed) and `btf`
+    /// materials (evaluated per pixel by the mode).
     pub fn table(&self, material: &Material) -> Option<BtfTable> {
         match material {
             Material::Brdf { brdf, albedo } => Some(self.brdf_table(brdf, *albedo)),

@@ -6,7 +6,8 @@
 //! at those cells (`btf_table.rs`); per pixel a dot product (`mode.rs`). The
 //! precomputation (`precompute.rs`) is cached on disk (`cache.rs`); the SH bi-scale
 //! and CPCA baselines (`sh.rs`, `cpca.rs`) are computed from the same matrix for the
-//! reports. CPU only; distant environment light only (no point, area or AO light).
+//! reports. The environment is the precomputed part; lights and the ambient term are
+//! traced exactly on top (`mode.rs`). CPU only.
 
 pub mod bicluster;
 pub mod btf_table;

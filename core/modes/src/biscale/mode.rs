@@ -2,8 +2,9 @@
 //! (or its cache), the BTF tables, the lighting vector and L* = T L by Algorithm 2.
 //! Per frame: one jittered primary ray per pixel; at a hit, L* of the triangle's
 //! vertices interpolated barycentrically, the view direction in the spmm mode's
-//! shading frame (normal, tangent along +u), and the tabulated BTF row dotted with L*
-//! (eq. 3), into the environment layer; then the lights and the ambient term traced
+//! shading frame (normal, tangent along +u), and the tabulated BTF row (a `btf`
+//! material's BTF at a jittered direction per cell) dotted with L* (eq. 3), into the
+//! environment layer, dark without an environment; then the lights and the ambient term traced
 //! exactly through the shading core into their own layers. Environment strength
 //! re-weights the film; turning or replacing the map is a light change (new L, new
 //! L*); the precomputation is redone only for new meshes.
@@ -29,8 +30,7 @@ use meso_render::scene::{Environment, Light, Material, Scene};
 use meso_render::shading::{Shaders, Shading, dpdu, tangent_frame, visible_light_point};
 use meso_render::{
     Counters, Device, Diagnostic, Diagnostics, EditError, Film, FrameStats, Invalidation,
-    ModeError, ModeKind, Pass, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unrenderable,
-    Unsupported,
+    ModeError, ModeKind, Pass, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unsupported,
 };
 
 /// Which representation of the transfer gives L* (the report compares them).
@@ -72,14 +72,6 @@ pub struct BiscaleMode {
 /// magnitude (as the spmm mode's).
 const EPSILON_REL: f64 = 1e-5;
 
-fn name_of(scene: &Scene, index: usize) -> String {
-    scene
-        .material_names
-        .get(index)
-        .cloned()
-        .unwrap_or_else(|| format!("#{index}"))
-}
-
 /// L* rows (j = p M + m, RGB) laid out per vertex as [channel][M], the layout a
 /// pixel interpolates.
 fn per_vertex(rows: &[[f32; 3]], mc: usize) -> Vec<f32> {
@@ -94,31 +86,15 @@ fn per_vertex(rows: &[[f32; 3]], mc: usize) -> Vec<f32> {
 }
 
 impl BiscaleMode {
-    /// What the mode cannot render: `btf` materials (no transfer table tabulates
-    /// them) and a scene without an environment (the precomputed part). Mirrors
-    /// reflect the ray as in the spmm mode.
-    /// Lights and the ambient term are traced exactly on top.
-    pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
-        let mut parts: Vec<Unrenderable> = scene
-            .materials
-            .iter()
-            .enumerate()
-            .filter_map(|(i, m)| Self::unrenderable(scene, i, m))
-            .collect();
-        if scene.environment.is_none() {
-            parts.push(Unrenderable::NoEnvironment);
-        }
-        Unsupported::check(ModeKind::Biscale, Device::Cpu, parts)
-    }
-
-    fn unrenderable(scene: &Scene, index: usize, m: &Material) -> Option<Unrenderable> {
-        // A `btf` table's texels would each need their own table (texels x views x
-        // cells x 3 values). Mirrors reflect the ray to what they show.
-        matches!(m, Material::Btf { .. }).then(|| Unrenderable::Material {
-            index,
-            name: name_of(scene, index),
-            kind: m.kind_name(),
-        })
+    /// What the mode cannot render: nothing the spmm mode renders. Analytic BRDFs,
+    /// MERL tables and SPMM packs read their tabulated tables; a `btf` material is
+    /// evaluated per pixel at a jittered direction in each local cell (a table per
+    /// texel would be texels x views x cells x 3 values); mirrors reflect the ray as in
+    /// the spmm mode. Without an environment the precomputed part is dark and the
+    /// lights and the ambient term, traced exactly, are the image. It answers like every
+    /// mode, so the registry asks them alike.
+    pub fn supports(_scene: &Scene) -> Result<(), Unsupported> {
+        Ok(())
     }
 
     /// Prepares the mode with the default settings.
@@ -329,7 +305,7 @@ impl BiscaleMode {
                 };
                 table.shade(&self.tab, uv, wo_local, lstar, lookup)
             }
-            None => [0.0; 3],
+            None => self.shade_untabulated(mesh.material, uv, wo_local, lstar, rng.next_2d()),
         };
         out[ENVIRONMENT] += DVec3::new(rgb[0] as f64, rgb[1] as f64, rgb[2] as f64);
         self.trace_local_lights(&hit, ray.dir, &mut rng, out, &mut rays);
@@ -338,6 +314,39 @@ impl BiscaleMode {
             out.iter_mut().for_each(|o| *o *= reflectance);
         }
         (mask | material_bit(mesh.material), rays)
+    }
+
+    /// Eq. 3 for a material without a table (a `btf` material): each local cell's
+    /// BTF average estimated at one direction, at offset `jitter` inside every cell
+    /// (uniform in the cell's solid angle, since the grid preserves area), dotted
+    /// with L*. Unbiased for the tabulated sum; the film averages the jitter away, and
+    /// the exact view direction is used rather than the tabulated views.
+    fn shade_untabulated(
+        &self,
+        material: usize,
+        uv: glam::DVec2,
+        wo: DVec3,
+        lstar: &[f32],
+        jitter: glam::DVec2,
+    ) -> [f32; 3] {
+        if wo.z <= 0.0 {
+            return [0.0; 3];
+        }
+        let shaded = self
+            .shaders
+            .material(&self.core.scene, material, self.core.moving);
+        let mc = self.tab.local.len();
+        let mut sum = DVec3::ZERO;
+        for m in 0..mc {
+            let f = shaded.response_local(uv, self.tab.local.at(m, jitter), wo);
+            let l = DVec3::new(
+                f64::from(lstar[m]),
+                f64::from(lstar[mc + m]),
+                f64::from(lstar[2 * mc + m]),
+            );
+            sum += f * l;
+        }
+        [sum.x as f32, sum.y as f32, sum.z as f32]
     }
 
     /// The lights and the ambient term at `hit`, exactly as the spmm mode traces them
@@ -414,8 +423,13 @@ impl BiscaleMode {
                     + pre.stats.biclustering_seconds
             )
         };
+        let dark = if self.core.scene.environment.is_none() {
+            "no environment: lights and ambient term only · "
+        } else {
+            ""
+        };
         format!(
-            "{origin} · {} vertices ({} added) · {} biclusters · FLOP ratio {:.3}{source} · view change {:.1} ms · light change {:.1} ms",
+            "{dark}{origin} · {} vertices ({} added) · {} biclusters · FLOP ratio {:.3}{source} · view change {:.1} ms · light change {:.1} ms",
             pre.frames.len(),
             pre.stats.refined_vertices,
             pre.biclusters.len(),
@@ -514,30 +528,17 @@ impl RenderMode for BiscaleMode {
     }
 
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
-        let refuse = |parts: Vec<Unrenderable>| -> Result<Invalidation, EditError> {
-            Err(Unsupported {
-                mode: ModeKind::Biscale,
-                device: Device::Cpu,
-                parts,
-            }
-            .into())
-        };
-        match &edit {
-            SceneEdit::Material { index, material } => {
-                if let Some(part) = Self::unrenderable(&self.core.scene, *index, material) {
-                    return refuse(vec![part]);
-                }
-            }
-            SceneEdit::Environment(None) => return refuse(vec![Unrenderable::NoEnvironment]),
-            _ => {}
-        }
         let old_env: Option<Environment> = self.core.scene.environment.clone();
         Ok(match self.core.apply(&edit)? {
             Edited::Emitters(invalidation) => {
-                if let (SceneEdit::Environment(Some(e)), Some(old)) = (&edit, &old_env)
-                    && !old.same_but_strength(e)
-                {
-                    // A light change: a new lighting vector, a new L*; T is unchanged.
+                let relit = match (&edit, &old_env) {
+                    (SceneEdit::Environment(Some(e)), Some(old)) => !old.same_but_strength(e),
+                    (SceneEdit::Environment(_), _) => true,
+                    _ => false,
+                };
+                if relit {
+                    // A light change (turned, replaced, on or off): a new lighting
+                    // vector, a new L*; T is unchanged.
                     self.relight();
                 }
                 self.light_targets = self.core.layers.light_targets(&self.core.scene);

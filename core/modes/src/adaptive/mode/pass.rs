@@ -90,9 +90,10 @@ pub const VISIBILITY_STEP: f64 = 0.1;
 /// Shadow rays per emitter and pixel of the visibility guard.
 pub const GUARD_RAYS: u32 = 4;
 
-/// The rate given to a mirror's pixels: far above any pixel's, so eq. 11 puts them at
-/// level 0 (a finite number, so the buffers stay finite).
-const MIRROR_RATE: f64 = 1e12;
+/// The rate given to the pixels of mirrors and of the environment seen directly: far
+/// above any pixel's, so eq. 11 puts them at level 0 (a finite number, so the buffers
+/// stay finite).
+const FULL_RATE: f64 = 1e12;
 
 /// True if pixel (x, y)'s visible share differs from a 4-neighbour's by more than
 /// `VISIBILITY_STEP`.
@@ -301,7 +302,7 @@ impl AdaptiveMode {
         if material.specular().is_some() {
             // A mirror shows what it reflects, at any frequency: shaded at every pixel.
             return PixelAnalysis {
-                nu: DVec2::new(0.0, MIRROR_RATE),
+                nu: DVec2::new(0.0, FULL_RATE),
                 ..quiet
             };
         }
@@ -372,17 +373,14 @@ impl AdaptiveMode {
         }
     }
 
-    /// A ray that leaves the scene sees the environment directly (no bounce).
+    /// A ray that leaves the scene sees the environment directly (no bounce): such a
+    /// pixel is shaded at level 0 (a sample is one ray), since up-sampling the sky from
+    /// coarse sites smeared its bright parts (the teapot's first frames stalled at the
+    /// image's edge). A constant background is up-sampled.
     fn escaped(&self, px: &GPixel) -> PixelAnalysis {
         let mut moments = allocation::Moments::default();
-        let nu = match (
-            &self.core.scene.background,
-            &self.core.scene.environment,
-            &self.env_bandwidth,
-        ) {
-            (meso_render::scene::Background::FromEnvironment, Some(e), Some(b)) => {
-                b.rate(e, px.dir)
-            }
+        let nu = match (&self.core.scene.background, &self.core.scene.environment) {
+            (meso_render::scene::Background::FromEnvironment, Some(_)) => FULL_RATE,
             _ => 0.0,
         };
         if let Some((layer, radiance)) = layers::escaped(&self.core.scene, px.dir) {

@@ -9,6 +9,7 @@
 //! scale, so equality tests are exact.
 
 use std::collections::BinaryHeap;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 
@@ -543,6 +544,13 @@ fn merge(a: &[(u32, i32)], b: impl Iterator<Item = (u32, i32)>) -> Vec<(u32, i32
     out
 }
 
+/// Rows biclustered together: a matrix with more rows is cut into bands of about this
+/// many (a fixed size, so the result does not depend on the thread count), which are
+/// biclustered in parallel. A bicluster never spans two bands, which costs a little
+/// compression; every band is still exact, so the sum is T (docs/rendering.md,
+/// "Biclustering").
+pub const BAND_ROWS: usize = 1 << 18;
+
 /// Biclusters `m` completely (Algorithm 1), seeds drawn with `seed`; progress is the
 /// fraction of the original nonzeros consumed, as stage "biclustering".
 pub fn bicluster(m: &LevelMatrix, seed: u64, prepare: &Prepare) -> Result<Vec<Found>, Cancelled> {
@@ -555,11 +563,56 @@ pub(crate) fn bicluster_checked(
     prepare: &Prepare,
     check: bool,
 ) -> Result<Vec<Found>, Cancelled> {
-    let mut search = Search::new(m);
+    let bands = m.rows.div_ceil(BAND_ROWS).max(1);
+    let size = m.rows.div_ceil(bands).max(1);
     let total = m.nonzeros().max(1);
+    let consumed = AtomicUsize::new(0);
+    let progress = |seeds: usize| {
+        let done = consumed.fetch_add(seeds, Ordering::Relaxed) + seeds;
+        prepare.report("biclustering", done.min(total) as f32 / total as f32)
+    };
+    let parts: Vec<Result<Vec<Found>, Cancelled>> = (0..bands)
+        .into_par_iter()
+        .map(|b| {
+            let (start, end) = (b * size, ((b + 1) * size).min(m.rows));
+            let band = LevelMatrix {
+                rows: end - start,
+                cols: m.cols,
+                entries: m.entries[start..end].to_vec(),
+                scale: m.scale.clone(),
+            };
+            // The first band draws as a single band always did.
+            let rng = if b == 0 {
+                SampleStream::new(&[seed])
+            } else {
+                SampleStream::new(&[seed, b as u64])
+            };
+            let mut found = bicluster_band(&band, &rng, &progress, check)?;
+            for f in &mut found {
+                f.rows.iter_mut().for_each(|j| *j += start as u32);
+            }
+            Ok(found)
+        })
+        .collect();
+    let mut found = Vec::new();
+    for part in parts {
+        found.extend(part?);
+    }
+    prepare.report("biclustering", 1.0)?;
+    Ok(found)
+}
+
+/// Algorithm 1 on one band; `progress` is told how many seeds of the first round were
+/// visited.
+fn bicluster_band(
+    m: &LevelMatrix,
+    rng: &SampleStream,
+    progress: &(dyn Fn(usize) -> Result<(), Cancelled> + Sync),
+    check: bool,
+) -> Result<Vec<Found>, Cancelled> {
+    let mut search = Search::new(m);
     // Seeds: every nonzero in a random order; residual nonzeros the subtractions
     // create are found by a sweep at the end (in another random order).
-    let rng = SampleStream::new(&[seed]);
     let mut order: Vec<(u32, u32)> = m
         .entries
         .iter()
@@ -567,17 +620,20 @@ pub(crate) fn bicluster_checked(
         .flat_map(|(j, r)| r.iter().map(move |&(k, _)| (j as u32, k)))
         .collect();
     let mut found = Vec::new();
-    let mut round = 0u64;
+    let (mut round, mut reported) = (0u64, 0usize);
     loop {
-        shuffle(&mut order, &rng, round);
+        shuffle(&mut order, rng, round);
         for (i, &(j, k)) in order.iter().enumerate() {
-            if i % 4096 == 0 {
-                let left: usize = if round == 0 { total - i.min(total) } else { 0 };
-                prepare.report("biclustering", 1.0 - left as f32 / total as f32)?;
+            if round == 0 && i - reported >= 4096 {
+                progress(i - reported)?;
+                reported = i;
             }
             if level_at(&search.rows_c[j as usize], k) != 0 {
                 found.push(search.grow(j, k, check));
             }
+        }
+        if round == 0 {
+            progress(order.len() - reported)?;
         }
         order = search
             .rows_c
@@ -590,7 +646,6 @@ pub(crate) fn bicluster_checked(
         }
         round += 1;
     }
-    prepare.report("biclustering", 1.0)?;
     Ok(found)
 }
 

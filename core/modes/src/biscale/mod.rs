@@ -6,8 +6,9 @@
 //! at those cells (`btf_table.rs`); per pixel a dot product (`mode.rs`). The
 //! precomputation (`precompute.rs`) is cached on disk (`cache.rs`); the SH bi-scale
 //! and CPCA baselines (`sh.rs`, `cpca.rs`) are computed from the same matrix for the
-//! reports. The environment is the precomputed part; lights and the ambient term are
-//! traced exactly on top (`mode.rs`). CPU only.
+//! reports. The environment is the precomputed part, but for its brightest pixels,
+//! which are traced per pixel like a light (`peaks.rs`); lights and the ambient term
+//! are traced exactly on top (`mode.rs`). CPU only.
 
 pub mod bicluster;
 pub mod btf_table;
@@ -16,6 +17,7 @@ pub mod cpca;
 pub mod cubemap;
 pub mod hemisphere;
 mod mode;
+pub mod peaks;
 pub mod precompute;
 pub mod refine;
 pub mod sh;
@@ -46,6 +48,10 @@ pub struct BiscaleSettings {
     /// shadows have vertices to live on (`refine.rs`; 0: transfer at the scene's own
     /// vertices only).
     pub refine_vertices: usize,
+    /// Share of the sphere's solid angle whose brightest environment pixels are traced
+    /// per pixel instead of carried by the transfer (`peaks.rs`; 0: the transfer
+    /// carries the whole map, as in Sun et al.). Not part of the precomputation.
+    pub traced_share: f64,
     /// Where precomputations are cached (`None`: never read or written).
     pub cache_dir: Option<PathBuf>,
 }
@@ -65,6 +71,7 @@ impl Default for BiscaleSettings {
             rays_per_side: 2,
             seed: 1,
             refine_vertices: DEFAULT_REFINE_VERTICES,
+            traced_share: peaks::DEFAULT_TRACED_SHARE,
             cache_dir: default_cache_dir(),
         }
     }
@@ -89,6 +96,11 @@ impl BiscaleSettings {
             Some(format!(
                 "rays per side {} is outside 1..=15",
                 self.rays_per_side
+            ))
+        } else if !(0.0..=1.0).contains(&self.traced_share) {
+            Some(format!(
+                "traced share {} of the sphere is outside 0..=1",
+                self.traced_share
             ))
         } else if self.refine_vertices > MAX_REFINE_VERTICES {
             Some(format!(

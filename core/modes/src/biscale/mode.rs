@@ -17,10 +17,12 @@ use glam::DVec3;
 use super::btf_table::{BtfTable, Tabulation, ViewLookup};
 use super::cubemap::CubeLayout;
 use super::hemisphere::HemisphereGrid;
+use super::peaks::EnvironmentSplit;
 use super::precompute::{Precomputed, precompute};
 use super::{BiscaleSettings, cpca::Cpca, sh::ShTransfer};
 use meso_materials::image::Image;
 use meso_materials::rng::SampleStream;
+use meso_render::environment::rotate_y;
 use meso_render::film::material_bit;
 use meso_render::geometry::Hit;
 use meso_render::geometry::SceneBvh;
@@ -54,7 +56,10 @@ pub struct BiscaleMode {
     tables: Vec<Option<BtfTable>>,
     pre: Arc<Precomputed>,
     source: TransferSource,
-    /// The cube-map lighting vector (unit strength).
+    /// The environment's brightest pixels, traced, and the rest, which the transfer
+    /// carries (`None` without an environment).
+    split: Option<EnvironmentSplit>,
+    /// The cube-map lighting vector of the split's remainder (unit strength).
     light: Vec<[f32; 3]>,
     /// Per vertex, L* laid out [channel][M].
     local: Vec<f32>,
@@ -141,6 +146,7 @@ impl BiscaleMode {
             tables,
             pre: Arc::new(pre),
             source: TransferSource::Biclustered,
+            split: None,
             light: Vec::new(),
             local: Vec::new(),
             light_change_ms: 0.0,
@@ -182,13 +188,26 @@ impl BiscaleMode {
         self.restart_all();
     }
 
-    /// The lighting vector and L* for the current environment.
+    /// The split of the current environment, the lighting vector of its remainder and
+    /// L*.
     fn relight(&mut self) {
         let start = Instant::now();
         let cube = CubeLayout::new(self.settings.cube_n);
-        self.light = match &self.core.scene.environment {
-            Some(e) => cube.lighting(e),
-            None => vec![[0.0; 3]; cube.len()],
+        let env = self.core.scene.environment.as_ref();
+        // A turn keeps the split (it is made in map space).
+        let kept = self
+            .split
+            .take()
+            .filter(|s| env.is_some_and(|e| Arc::ptr_eq(&s.source, &e.map)));
+        self.split = env.map(|e| {
+            kept.unwrap_or_else(|| EnvironmentSplit::new(&e.map, self.settings.traced_share))
+        });
+        self.light = match (env, &self.split) {
+            (Some(e), Some(split)) => cube.lighting(&Environment {
+                map: Arc::clone(&split.remainder),
+                ..e.clone()
+            }),
+            _ => vec![[0.0; 3]; cube.len()],
         };
         let rows = match &self.source {
             TransferSource::Biclustered => self.pre.biclusters.apply(&self.light),
@@ -203,6 +222,8 @@ impl BiscaleMode {
     /// Replaces the lighting vector directly (tests of the binning rule).
     #[cfg(test)]
     pub(crate) fn relight_with(&mut self, light: Vec<[f32; 3]>) {
+        // Only this lighting: nothing of the scene's map is traced.
+        self.split = None;
         self.local = per_vertex(&self.pre.biclusters.apply(&light), self.tab.local.len());
         self.light = light;
         self.restart_all();
@@ -308,7 +329,7 @@ impl BiscaleMode {
             None => self.shade_untabulated(mesh.material, uv, wo_local, lstar, rng.next_2d()),
         };
         out[ENVIRONMENT] += DVec3::new(rgb[0] as f64, rgb[1] as f64, rgb[2] as f64);
-        self.trace_local_lights(&hit, ray.dir, &mut rng, out, &mut rays);
+        self.trace_exact(&hit, ray.dir, &mut rng, out, &mut rays);
         // `out` held nothing before this sample (the frame clears it per sample).
         if reflectance != DVec3::ONE {
             out.iter_mut().for_each(|o| *o *= reflectance);
@@ -349,12 +370,13 @@ impl BiscaleMode {
         [sum.x as f32, sum.y as f32, sum.z as f32]
     }
 
-    /// The lights and the ambient term at `hit`, exactly as the spmm mode traces them
-    /// on its per-light path (one shadow ray to each point light, `light_samples` to
-    /// each area light; one ambient ray), through the shading core. Every light is
-    /// sampled, however many: unbiased, and slower than the spmm mode's selection
-    /// above `MANY_LIGHTS`.
-    fn trace_local_lights(
+    /// What is traced at `hit` rather than precomputed: the environment's brightest
+    /// pixels (one direction drawn from them, `peaks.rs`), and the lights and the
+    /// ambient term exactly as the spmm mode traces them on its per-light path (one
+    /// shadow ray to each point light, `light_samples` to each area light; one ambient
+    /// ray), through the shading core. Every light is sampled, however many: unbiased,
+    /// and slower than the spmm mode's selection above `MANY_LIGHTS`.
+    fn trace_exact(
         &self,
         hit: &Hit,
         dir: DVec3,
@@ -363,13 +385,27 @@ impl BiscaleMode {
         rays: &mut RayCounts,
     ) {
         let scene = &self.core.scene;
-        if scene.lights.is_empty() && scene.ambient.is_none() {
+        let peaks = match (&self.split, &scene.environment) {
+            (Some(split), Some(env)) => split.sampler.as_ref().map(|s| (split, s, env)),
+            _ => None,
+        };
+        if scene.lights.is_empty() && scene.ambient.is_none() && peaks.is_none() {
             return;
         }
         let s = Shading::at(scene, hit, dir);
         let material = self.shaders.material(scene, s.material, self.core.moving);
         let wo = -dir;
         let lift = s.p + s.n * (EPSILON_REL * s.p.abs().max_element().max(1.0));
+        if let Some((split, sampler, env)) = peaks {
+            let e = sampler.sample(&split.peaks, rng.next_2d());
+            let wi = rotate_y(e.dir, env.rotate_y_deg);
+            if e.pdf > 0.0 && wi.dot(s.n) > 0.0 {
+                rays.shadow += 1;
+                if !self.core.bvh.occluded(lift, wi, 0.0, f64::INFINITY) {
+                    out[ENVIRONMENT] += material.response(&s, wi, wo) * e.radiance / e.pdf;
+                }
+            }
+        }
         let n = scene.render.light_samples;
         for (k, light) in scene.lights.iter().enumerate() {
             let points = rng.next_2d_set(n);
@@ -428,8 +464,17 @@ impl BiscaleMode {
         } else {
             ""
         };
+        let traced = match &self.split {
+            Some(s) if s.traced_power > 0.0 => {
+                format!(
+                    "traced: {:.0}% of the map's power · ",
+                    100.0 * s.traced_power
+                )
+            }
+            _ => String::new(),
+        };
         format!(
-            "{dark}{origin} · {} vertices ({} added) · {} biclusters · FLOP ratio {:.3}{source} · view change {:.1} ms · light change {:.1} ms",
+            "{dark}{traced}{origin} · {} vertices ({} added) · {} biclusters · FLOP ratio {:.3}{source} · view change {:.1} ms · light change {:.1} ms",
             pre.frames.len(),
             pre.stats.refined_vertices,
             pre.biclusters.len(),

@@ -49,6 +49,22 @@ fn plane_scene(map: Arc<Image>) -> Scene {
     scene
 }
 
+/// The plane under a smooth coloured map twice: with a Lambertian of `albedo`, and
+/// with `other` (a tabulation of the same Lambertian).
+fn lambertian_plane_and(albedo: DVec3, other: Material) -> (Scene, Scene) {
+    let map = map_of(32, 16, |x, y| {
+        [0.2 + x as f32 / 32.0, 0.5, 0.2 + y as f32 / 16.0]
+    });
+    let mut analytic = plane_scene(map.clone());
+    analytic.materials[0] = Material::Brdf {
+        brdf: AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
+        albedo,
+    };
+    let mut tabulated = plane_scene(map);
+    tabulated.materials[0] = other;
+    (analytic, tabulated)
+}
+
 /// No cache, and transfer at the scene's own vertices: these tests are about the
 /// transfer and its edits on a known tessellation (the refinement's test turns it on;
 /// a centre pixel on a refined floor can sit on a T-junction, where the coarser
@@ -287,17 +303,10 @@ fn a_btf_material_renders_like_the_brdf_it_tabulates() {
     // bound 1%.
     let albedo = DVec3::new(0.7, 0.5, 0.3);
     let lambert = AnalyticBrdf::with_defaults(BrdfModel::Lambertian);
-    let map = map_of(32, 16, |x, y| {
-        [0.2 + x as f32 / 32.0, 0.5, 0.2 + y as f32 / 16.0]
-    });
-    let mut analytic = plane_scene(map.clone());
-    analytic.materials[0] = Material::Brdf {
-        brdf: lambert,
+    let (analytic, tabulated) = lambertian_plane_and(
         albedo,
-    };
-    let mut tabulated = plane_scene(map);
-    tabulated.materials[0] =
-        meso_render::scene::test_scenes::tabulated_btf(&lambert, albedo, DVec2::ONE);
+        meso_render::scene::test_scenes::tabulated_btf(&lambert, albedo, DVec2::ONE),
+    );
     BiscaleMode::supports(&tabulated).expect("btf materials are shaded");
     let a = centre_pixel(
         &mut BiscaleMode::prepare(analytic, 3, 3, settings(), Prepare::quietly()).expect("mode"),
@@ -829,16 +838,7 @@ fn a_merl_table_of_a_lambertian_renders_like_the_lambertian() {
         brdf: Arc::new(meso_materials::merl::tabulate(&lambert, albedo).expect("table")),
         tint: DVec3::ONE,
     };
-    let map = map_of(32, 16, |x, y| {
-        [0.2 + x as f32 / 32.0, 0.5, 0.2 + y as f32 / 16.0]
-    });
-    let mut analytic = plane_scene(map.clone());
-    analytic.materials[0] = Material::Brdf {
-        brdf: lambert,
-        albedo,
-    };
-    let mut measured = plane_scene(map);
-    measured.materials[0] = merl;
+    let (analytic, measured) = lambertian_plane_and(albedo, merl);
     BiscaleMode::supports(&measured).expect("MERL tables are tabulated");
     let a = centre_pixel(
         &mut BiscaleMode::prepare(analytic, 3, 3, settings(), Prepare::quietly()).expect("mode"),

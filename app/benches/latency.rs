@@ -20,8 +20,8 @@ use meso_materials::brdf::BasisFunction;
 use meso_render::denoise;
 use meso_render::scene::{Material, load_scene};
 use meso_render::{ModeKind, SceneEdit};
-use meso_studio::render_worker::{Command, Frame, RenderWorker};
 use meso_studio::studio::{Settings, Studio, default_scene_path};
+use meso_viewport::worker::{Command, Frame, RenderWorker};
 
 /// Waits for a frame `wanted` accepts.
 fn wait_until(worker: &RenderWorker, wanted: impl Fn(&Frame) -> bool) -> Frame {

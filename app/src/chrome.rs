@@ -12,9 +12,9 @@ use meso_render::{Device, ModeKind};
 
 use crate::document::Document;
 use crate::explorer::Explorer;
-use crate::mode_maker::mode_name;
 use crate::mode_switch::ModeSwitch;
 use crate::settings::Settings;
+use meso_viewport::maker::mode_name;
 
 pub const UNDO: KeyboardShortcut = KeyboardShortcut::new(Modifiers::COMMAND, Key::Z);
 pub const REDO: KeyboardShortcut =

@@ -14,9 +14,9 @@ use meso_render::{Device, ModeKind};
 
 use crate::document::Document;
 use crate::jobs::Job;
-use crate::mode_maker::mode_name;
 use crate::reference::{Reference, ReferenceRenderer};
 use crate::viewport::{CompareLabels, Viewport};
+use meso_viewport::maker::mode_name;
 
 /// Least time between two comparisons of the live image with the reference.
 const MEASURE_EVERY: Duration = Duration::from_millis(250);

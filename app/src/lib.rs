@@ -1,6 +1,6 @@
 //! Meso Studio, the desktop material editor, as a library: the window (`studio`)
-//! over the document (`document`), the render thread (`render_worker`) and the modes
-//! it runs (`mode_maker`, with the lights a mode renders without in `disabled`), the
+//! over the document (`document`), the render thread and the modes
+//! it runs (`meso_viewport`, with the lights a mode renders without in `disabled`), the
 //! viewport and the compare view's reference (`reference`), the window's wgpu device
 //! that the GPU mode shares (`window_device`), the material and scene panels (with the scene's other materials in `scene_materials` and the shared BRDF and colour editors in `brdf_editor`), background jobs (`jobs`), and the BRDF explorer. `main.rs` runs it in eframe;
 //! benchmarks and tests drive it headless.
@@ -19,11 +19,9 @@ pub mod library_window;
 pub mod loader;
 pub mod lobe_plot;
 pub mod material_panel;
-pub mod mode_maker;
 pub mod mode_switch;
 pub mod reference;
 pub mod render_link;
-pub mod render_worker;
 pub mod scene_materials;
 pub mod scene_panel;
 pub mod settings;

@@ -17,10 +17,10 @@ use meso_render::{
 use crate::disabled::Disabled;
 use crate::document::Document;
 use crate::jobs::Job;
-use crate::mode_maker::{ModeMaker, mode_name};
 use crate::render_link::RenderLink;
-use crate::render_worker::Command;
 use crate::scene_panel::Switching;
+use meso_viewport::maker::{ModeMaker, mode_name};
+use meso_viewport::worker::Command;
 
 /// A mode being prepared to replace the current one.
 struct Switch {

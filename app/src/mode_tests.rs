@@ -22,8 +22,8 @@ use meso_render::{
 
 use super::tests::{loaded, wait_for_current_frame};
 use super::*;
-use crate::mode_maker::{CoreModes, ModeMaker};
 use meso_render::RenderModeExt;
+use meso_viewport::maker::{CoreModes, ModeMaker};
 
 /// Light edits a test mode received: (mode index, light).
 type Applied = Arc<Mutex<Vec<(usize, Light)>>>;

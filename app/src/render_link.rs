@@ -8,8 +8,8 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::Instant;
 
-use crate::mode_maker::ModeMaker;
-use crate::render_worker::{Command, Frame, Notice, Rejected, RenderWorker};
+use meso_viewport::maker::ModeMaker;
+use meso_viewport::worker::{Command, Frame, Notice, Rejected, RenderWorker};
 
 /// Statistics of the newest frame, for the status bar.
 #[derive(Clone, Copy, Debug, Default)]
@@ -30,7 +30,10 @@ impl RenderLink {
     /// Starts the render thread with modes made by `maker`.
     pub fn spawn(repaint: Option<egui::Context>, maker: Arc<dyn ModeMaker>) -> Self {
         Self {
-            worker: RenderWorker::spawn_with(repaint, maker),
+            worker: RenderWorker::spawn_with(
+                repaint.map(|ctx| Arc::new(move || ctx.request_repaint()) as _),
+                maker,
+            ),
             in_flight: VecDeque::new(),
             latency: Latency::default(),
         }

@@ -13,8 +13,8 @@ use meso_render::{Device, ModeKind};
 use crate::compare::CompareView;
 use crate::document::Document;
 use crate::render_link::Latency;
-use crate::render_worker::Frame;
 use crate::settings::Settings;
+use meso_viewport::worker::Frame;
 
 /// What the status bar shows, borrowed from the studio for one frame.
 pub struct StatusBar<'a> {

@@ -26,11 +26,11 @@ use crate::library::{self, EntryKind, Library};
 use crate::library_window::LibraryWindow;
 use crate::loader::{self, Dropped, Loaded, Loader};
 use crate::material_panel::MaterialPanel;
-use crate::mode_maker::{ModeMaker, core_modes};
 use crate::mode_switch::ModeSwitch;
 use crate::render_link::RenderLink;
-use crate::render_worker::Command;
 use crate::viewport::Viewport;
+use meso_viewport::maker::{ModeMaker, core_modes};
+use meso_viewport::worker::Command;
 
 pub use crate::chrome::{EXPORT, OPEN_PACK, REDO, SAVE, SAVE_AS, UNDO};
 pub use crate::compare::Measured;
@@ -133,7 +133,7 @@ impl Studio {
 
     /// The newest frame on screen.
     #[cfg(test)]
-    pub fn frame(&self) -> Option<&crate::render_worker::Frame> {
+    pub fn frame(&self) -> Option<&meso_viewport::worker::Frame> {
         self.viewport.frame()
     }
 

@@ -12,9 +12,9 @@ use meso_render::geometry::BrushUnits;
 
 use super::Studio;
 use crate::chrome::{self, Action, MenuState};
-use crate::render_worker::Command;
 use crate::scene_panel::{self, PanelState, Request};
 use crate::status_bar::StatusBar;
+use meso_viewport::worker::Command;
 
 impl Studio {
     /// Does what a menu item, shortcut or dialog asked for.

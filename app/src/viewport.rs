@@ -22,7 +22,7 @@ use meso_gpu::{DisplayTexture, GpuContext};
 use meso_materials::image::{Image, to_srgb8};
 use meso_render::scene::Camera;
 
-use crate::render_worker::Frame;
+use meso_viewport::worker::Frame;
 
 /// Radians of orbit per point of drag.
 const ORBIT_PER_POINT: f64 = 0.008;

@@ -11,7 +11,7 @@ use eframe::egui_wgpu::{RenderState, WgpuConfiguration, WgpuSetup};
 use eframe::wgpu;
 use meso_gpu::GpuContext;
 
-use crate::mode_maker::CoreModes;
+use meso_viewport::maker::CoreModes;
 
 /// eframe's wgpu set-up with the window's device asked for with the GPU mode's limits
 /// (`GpuContext::needed_limits`) on top of what egui asks (8192-texel textures for 4k

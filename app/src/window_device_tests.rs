@@ -12,7 +12,7 @@ use meso_render::{Device, ModeKind, Prepare};
 use super::mode_tests::{next_frame_mode, small, step_until};
 use super::tests::loaded;
 use super::*;
-use crate::mode_maker::ModeMaker;
+use meso_viewport::maker::ModeMaker;
 
 /// The studio drawn by a wgpu render state made as eframe makes it with main.rs's
 /// configuration (`window_device::wgpu_configuration`), its registry sharing that

@@ -37,6 +37,8 @@ pub enum BenchCommand {
     Stroke(crate::bench_stroke::StrokeArgs),
     /// The spmm mode's frame time on the CPU and the GPU side by side.
     Frames(crate::bench_frames::FramesArgs),
+    /// Edit-to-frame time of each edit kind as the studio renders, without a window.
+    Edits(crate::bench_edits::EditsArgs),
 }
 
 #[derive(Args, Debug)]
@@ -69,6 +71,7 @@ pub fn run(command: BenchCommand) -> Result<(), CliError> {
         BenchCommand::Rays(args) => rays(&args),
         BenchCommand::Stroke(args) => crate::bench_stroke::run(&args),
         BenchCommand::Frames(args) => crate::bench_frames::run(&args),
+        BenchCommand::Edits(args) => crate::bench_edits::run(&args),
     }
 }
 

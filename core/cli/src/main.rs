@@ -3,6 +3,7 @@
 //! `--json` prints exactly one JSON object on stdout.
 
 mod bench_cmd;
+mod bench_edits;
 mod bench_frames;
 mod bench_stroke;
 mod brdf_cmd;

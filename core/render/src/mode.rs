@@ -48,8 +48,9 @@ pub trait RenderMode: Send {
     /// finishes that frame, so an edit need not wait for a whole frame and the samples
     /// are those an uninterrupted frame would take (modes that cannot stop mid-frame
     /// render it whole; without `stop` a frame is one parallel pass). `Pass::Frame`
-    /// always renders; `Pass::Preview` returns `None`, and changes nothing, when the
-    /// film has samples or the mode does not preview.
+    /// always renders; `Pass::Preview` returns `None`, and changes nothing, when a
+    /// frame is under way, when every pixel already shows (`Progress::
+    /// shows_every_pixel`), or when the mode does not preview.
     fn render(&mut self, pass: Pass, stop: Option<&mut dyn FnMut() -> bool>) -> Option<FrameStats>;
     /// What each pixel's centre ray first sees, for the viewport denoiser
     /// (`denoise`): of every pixel (`Pass::Frame`), or of the pixels a preview renders

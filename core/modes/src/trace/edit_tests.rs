@@ -643,3 +643,43 @@ fn a_preview_takes_the_frames_own_samples_of_one_pixel_per_block() {
         "no preview after a camera edit"
     );
 }
+
+/// A moved light restarts its layer in every pixel, so its next frame is previewed as
+/// a camera edit's is: the preview takes that frame's samples of one pixel per block
+/// (every layer of them, as the frame would) and the frame completes the rest, so the
+/// film equals one the same edit left to a whole frame.
+#[test]
+fn a_moved_light_is_previewed_and_the_frame_completes_it() {
+    const W: u32 = 40;
+    const STRIDE: u32 = 4;
+    let mut moved = scene().lights[0];
+    if let Light::Area { corner, .. } = &mut moved {
+        corner.x += 0.5;
+    }
+    let grid = meso_render::preview::grid_pixels(W, W, STRIDE);
+    let mut modes = [(); 2].map(|_| SpmmMode::new(scene(), W, W).expect("size"));
+    for m in &mut modes {
+        m.render_frame();
+        m.render_frame();
+        assert!(m.render_preview(STRIDE).is_none(), "a film with samples");
+        let edit = SceneEdit::Light {
+            index: 0,
+            light: moved,
+        };
+        assert_eq!(m.apply(edit), Ok(Invalidation::Layer(FIRST_LIGHT)));
+    }
+    let [whole, previewed] = &mut modes;
+    let preview = previewed
+        .render_preview(STRIDE)
+        .expect("a restarted layer previews");
+    assert_eq!(preview.counters.samples, grid.len() as u64);
+    assert!(
+        previewed.render_preview(STRIDE).is_none(),
+        "previewed twice"
+    );
+    let rest = previewed.render_frame();
+    assert_eq!(rest.counters.samples, u64::from(W * W) - grid.len() as u64);
+    whole.render_frame();
+    assert!(whole.image().pixels() == previewed.image().pixels());
+    assert!(previewed.progress().shows_every_pixel);
+}

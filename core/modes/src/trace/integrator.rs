@@ -503,9 +503,11 @@ impl RenderMode for SpmmMode {
         match pass {
             Pass::Frame => Some(self.render_tiles(stop)),
             Pass::Preview { stride } => {
-                let untouched = self.core.next_sample == 0
-                    && self.catch_up.is_empty()
-                    && !self.done_early.contains(&true);
+                // No frame under way, and every pixel short of a sample in some layer:
+                // a camera edit restarted everything, or a light moved (its layer).
+                let untouched = self.catch_up.is_empty()
+                    && !self.done_early.contains(&true)
+                    && (self.core.next_sample == 0 || self.progress().min_samples == 0);
                 if stride <= 1 || !untouched {
                     return None;
                 }

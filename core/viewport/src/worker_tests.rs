@@ -3,7 +3,12 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use meso_render::{Diagnostics, EditError, FrameStats, Invalidation, ModeError, SceneEdit};
 
 use super::*;
-use crate::mode_maker::CoreModes;
+use crate::maker::CoreModes;
+
+/// The shipped scenes.
+fn scenes_dir() -> std::path::PathBuf {
+    std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/scenes")
+}
 
 /// Core's CPU spmm mode in a test's clothes: posing as a GPU mode whose device
 /// fails on its third frame, as a lost GPU does (nothing more is added after it),
@@ -51,7 +56,7 @@ impl RenderMode for Wrapped {
     fn scene(&self) -> &Scene {
         self.inner.scene()
     }
-    /// Frames go through the gate and render whole (they do not stop).
+    /// Frames go through the gate, then render as the mode does (stopping when asked).
     fn render(&mut self, pass: Pass, stop: Option<&mut dyn FnMut() -> bool>) -> Option<FrameStats> {
         if let Pass::Preview { .. } = pass {
             return self.inner.render(pass, stop);
@@ -65,7 +70,7 @@ impl RenderMode for Wrapped {
         if self.fails_as_gpu && self.frames >= 3 {
             return Some(FrameStats::default());
         }
-        self.inner.render(pass, None)
+        self.inner.render(pass, stop)
     }
     fn guides(&self, pass: Pass) -> Option<Guides> {
         self.inner.guides(pass)
@@ -141,7 +146,7 @@ fn a_failed_gpu_falls_back_to_the_cpu_with_the_edited_scene() {
             gate: None,
         }),
     );
-    let path = crate::studio::default_scene_path().with_file_name("cornell.toml");
+    let path = scenes_dir().join("cornell.toml");
     let scene = meso_render::scene::load_scene(&path).expect("the Cornell scene");
     assert!(worker.send(Command::Load {
         version: 1,
@@ -235,26 +240,32 @@ fn gated_cornell() -> (RenderWorker, mpsc::Sender<()>, mpsc::Receiver<()>, Scene
         gate: Some(gate),
     };
     let worker = RenderWorker::spawn_with(None, Arc::new(modes));
-    let path = crate::studio::default_scene_path().with_file_name("cornell.toml");
+    let path = scenes_dir().join("cornell.toml");
     let scene = meso_render::scene::load_scene(&path).expect("the Cornell scene");
     (worker, go, starts, scene)
 }
 
 fn next_frame(worker: &RenderWorker) -> Frame {
+    frame_where(worker, |_| true)
+}
+
+/// The first frame published that `wanted` accepts (frames before it are dropped).
+fn frame_where(worker: &RenderWorker, wanted: impl Fn(&Frame) -> bool) -> Frame {
     let deadline = Instant::now() + Duration::from_secs(60);
     loop {
-        if let Some(f) = worker.take_frame() {
+        if let Some(f) = worker.take_frame().filter(&wanted) {
             return f;
         }
-        assert!(Instant::now() < deadline, "no frame");
-        std::thread::sleep(Duration::from_millis(2));
+        assert!(Instant::now() < deadline, "no such frame");
+        std::thread::sleep(Duration::from_millis(1));
     }
 }
 
 /// After a load and after a camera edit, the first frame published is a preview:
 /// the frame's own samples of one pixel per block, spread over the image, shown
-/// before the rest of the frame is rendered; the whole frame that follows is a
-/// plain render's. With yielding off there is no preview.
+/// before the rest of the frame is rendered, then shown through the denoiser on its
+/// grid; the whole frame that follows is a plain render's. With yielding off there
+/// is no preview.
 #[test]
 fn a_restart_shows_a_preview_before_the_whole_frame() {
     const SIZE: u32 = 256;
@@ -273,25 +284,30 @@ fn a_restart_shows_a_preview_before_the_whole_frame() {
                 edit: Box::new(SceneEdit::Camera(moved.camera)),
             });
         }
-        let mut first = next_frame(&worker);
+        let first = frame_where(&worker, |f| f.version == version);
         assert!(
             first.preview,
             "version {version}: the first frame is a preview"
         );
-        // Published as it is, then denoised (the whole frame waits for the test).
-        if first.shown.is_none() {
-            let denoised = next_frame(&worker);
-            assert!(denoised.preview && Arc::ptr_eq(&denoised.image(), &first.image()));
-            first = denoised;
-        }
-        assert_eq!((first.version, first.progress.min_samples), (version, 0));
+        assert_eq!(first.progress.min_samples, 0);
         let mut direct = fresh(scene);
         direct.render_preview(stride).expect("a preview");
         assert_eq!(*first.image(), preview::spread(&direct.image(), stride));
-        // Shown through the denoiser on the grid, which smooths it.
-        let denoised = denoised_preview(direct.as_ref(), &direct.image(), stride);
+        // Then shown through the denoiser on the grid (beside the render thread,
+        // while the whole frame waits for the test), which smooths it.
+        let denoised = if first.shown.is_some() {
+            first
+        } else {
+            let d = next_frame(&worker);
+            assert!(d.preview && Arc::ptr_eq(&d.image(), &first.image()));
+            d
+        };
+        let guides = direct
+            .guides(Pass::Preview { stride })
+            .expect("preview guides");
+        let expected = denoised_preview(&direct.image(), &guides, stride);
         assert!(
-            first.shown.as_deref() == denoised.as_ref(),
+            denoised.shown.as_deref() == expected.as_ref(),
             "the preview is not shown through the denoiser on its grid"
         );
         let roughness = |img: &Image| {
@@ -300,12 +316,12 @@ fn a_restart_shows_a_preview_before_the_whole_frame() {
             p.windows(2).map(|w| (w[0][1] - w[1][1]).abs()).sum::<f32>()
         };
         assert!(
-            roughness(&first.shown_image()) < 0.5 * roughness(&first.image()),
+            roughness(&denoised.shown_image()) < 0.5 * roughness(&denoised.image()),
             "the denoised preview is not smoother"
         );
         go.send(()).expect("the thread waits");
-        let whole = next_frame(&worker);
-        assert!(!whole.preview && whole.progress.min_samples == 1);
+        let whole = frame_where(&worker, |f| !f.preview);
+        assert!(whole.version == version && whole.progress.min_samples == 1);
         direct.render_frame();
         assert_eq!(whole.image().pixels(), direct.image().pixels());
     }
@@ -316,16 +332,18 @@ fn a_restart_shows_a_preview_before_the_whole_frame() {
         edit: Box::new(SceneEdit::Camera(moved.camera)),
     });
     go.send(()).expect("the thread waits");
-    let whole = next_frame(&worker);
-    assert!(!whole.preview && (whole.version, whole.progress.min_samples) == (3, 1));
+    let whole = frame_where(&worker, |f| f.version == 3);
+    assert!(!whole.preview && whole.progress.min_samples == 1);
     // A closed gate lets the thread's next frame run, so it can be joined.
     drop(go);
 }
 
-/// An emission edit while the view is still denoised shows at once through the
-/// half-resolution filter, and the next frame through the full one.
+/// An emission edit while the view is still denoised is published at once as it
+/// is, then through the denoiser's thread (the half-resolution filter, then the full
+/// one) while the render thread waits in its next frame; that frame shows the last
+/// filtered picture of its version until its own filter is done.
 #[test]
-fn an_emission_edit_shows_the_halved_filter_first_then_the_full_one() {
+fn an_emission_edit_is_shown_at_once_then_filtered_beside_the_next_frame() {
     const SIZE: u32 = 64;
     let (worker, go, starts, scene) = gated_cornell();
     assert_eq!(
@@ -337,8 +355,7 @@ fn an_emission_edit_shows_the_halved_filter_first_then_the_full_one() {
     load(&worker, &scene, SIZE);
     for spp in 1..=2 {
         go.send(()).expect("the thread waits");
-        let f = next_frame(&worker);
-        assert_eq!((f.version, f.progress.min_samples), (1, spp));
+        frame_where(&worker, |f| f.progress.min_samples == spp);
         direct.render_frame();
     }
     // The edit arrives while the thread waits in its third frame.
@@ -356,34 +373,141 @@ fn an_emission_edit_shows_the_halved_filter_first_then_the_full_one() {
     direct.apply(edit).expect("an emission edit");
     let image = direct.image();
     let guides = direct.guides(Pass::Frame).expect("guides");
-    let denoiser = Denoiser::for_samples(3);
-    let strength = denoise::viewport_strength(3);
-    // Frame 3 is published with version 1, then the edit's quick picture; frame 4
-    // waits for the test.
-    let quick = std::iter::repeat_with(|| next_frame(&worker))
-        .find(|f| f.version == 2)
-        .expect("a frame of the edit");
-    assert_eq!(quick.progress.min_samples, 3);
-    assert_eq!(*quick.image(), image);
-    let halved = denoiser
-        .apply_halved(&image, &guides.halved())
-        .expect("sizes");
-    assert_eq!(
-        *quick.shown_image(),
-        denoise::blend(&image, &halved, strength)
-    );
+    let blended = |image: &Image, samples: u32| {
+        let filtered = Denoiser::for_samples(samples)
+            .apply(image, &guides)
+            .expect("sizes");
+        denoise::blend(image, &filtered, denoise::viewport_strength(samples))
+    };
+    // The fourth frame waits for the test: the filtered picture of the third comes
+    // from the denoiser's thread meanwhile.
+    let full = blended(&image, 3);
+    let filtered = frame_where(&worker, |f| f.version == 2 && f.shown.is_some());
+    assert_eq!(*filtered.image(), image);
+    assert_eq!(filtered.progress.min_samples, 3);
+    let filtered = if *filtered.shown_image() == full {
+        filtered
+    } else {
+        let halved = Denoiser::for_samples(3)
+            .apply_halved(&image, &guides.halved())
+            .expect("sizes");
+        assert_eq!(
+            *filtered.shown_image(),
+            denoise::blend(&image, &halved, denoise::viewport_strength(3)),
+            "the first filtered picture is the halved filter's"
+        );
+        frame_where(&worker, |f| f.shown_image().as_ref() == &full)
+    };
+    assert_eq!(*filtered.image(), image);
     go.send(()).expect("the thread waits");
-    let full = next_frame(&worker);
-    assert_eq!((full.version, full.progress.min_samples), (2, 4));
     direct.render_frame();
     let image = direct.image();
-    let filtered = Denoiser::for_samples(4)
-        .apply(&image, &guides)
-        .expect("sizes");
-    let strength = denoise::viewport_strength(4);
-    assert_eq!(
-        *full.shown_image(),
-        denoise::blend(&image, &filtered, strength)
+    let next = frame_where(&worker, |f| f.progress.min_samples == 4);
+    assert_eq!(*next.image(), image);
+    let own = blended(&image, 4);
+    assert!(
+        *next.shown_image() == full || *next.shown_image() == own,
+        "the fourth frame shows the third's filtered picture or its own"
     );
+    frame_where(&worker, |f| f.shown_image().as_ref() == &own);
+    drop(go);
+}
+
+/// A filtered picture is published only with a frame of its version that may show
+/// one: one that arrives after an edit moved the document on is dropped, and a
+/// frame of a newer version never shows an older version's picture.
+#[test]
+fn a_filtered_picture_never_shows_over_another_version() {
+    let publisher = Publisher {
+        shared: Arc::new(Mutex::new(Shared {
+            frame: None,
+            rejected: Vec::new(),
+            notices: Vec::new(),
+            latest: None,
+            filtered: None,
+        })),
+        wake: None,
+    };
+    let scene = meso_render::scene::load_scene(&scenes_dir().join("cornell.toml"))
+        .expect("the Cornell scene");
+    let mut m = cpu_mode(&scene, 8);
+    m.render_frame();
+    let frame_of = |version| {
+        frame_with(
+            m.as_ref(),
+            Default::default(),
+            version,
+            Estimate::Host(Arc::new(m.image())),
+            None,
+        )
+    };
+    let take = || publisher.shared.lock().unwrap().frame.take();
+    let job = |version| Job {
+        version,
+        samples: 1,
+        stages: Vec::new(),
+    };
+    let mut picture = Image::new(8, 8);
+    picture.pixels_mut()[0] = [1.0, 2.0, 3.0];
+    publisher.frame(frame_of(1), true);
+    publisher.filtered(&job(1), picture.clone());
+    let filtered = take().expect("a frame");
+    assert_eq!(filtered.shown.as_deref(), Some(&picture));
+    assert_eq!(filtered.shown_samples, Some(1));
+    // The same version's next frame shows it until its own arrives.
+    publisher.frame(frame_of(1), true);
+    let next = take().expect("a frame");
+    assert_eq!(next.shown.as_deref(), Some(&picture));
+    assert_eq!(next.shown_samples, Some(1), "an earlier frame's picture");
+    // A frame that may not be filtered (a partial one) shows its estimate.
+    publisher.frame(frame_of(1), false);
+    assert!(take().expect("a frame").shown.is_none());
+    publisher.filtered(&job(1), picture.clone());
+    assert!(
+        take().is_none(),
+        "a picture over a frame that may not show one"
+    );
+    // A newer version: the old picture is neither attached nor published.
+    publisher.frame(frame_of(2), true);
+    assert!(take().expect("a frame").shown.is_none());
+    publisher.filtered(&job(1), picture.clone());
+    assert!(take().is_none(), "a stale picture was published");
+    publisher.filtered(&job(2), picture.clone());
+    assert_eq!(take().expect("a frame").version, 2);
+}
+
+/// While a camera edit's preview stands for the film (not every pixel has a sample
+/// yet), what the viewport gets is shown through the preview: an emission edit that
+/// stops the frame is published at once as the preview's pixels re-weighted, never
+/// as a film with unsampled pixels; the frame then completes as one the edit reached
+/// before it started.
+#[test]
+fn while_a_preview_stands_for_the_film_an_edit_is_shown_through_it() {
+    const SIZE: u32 = 256;
+    let (worker, go, starts, scene) = gated_cornell();
+    let stride = preview::stride_for(SIZE, SIZE);
+    worker.send(Command::MaxSamples(1));
+    load(&worker, &scene, SIZE);
+    assert!(frame_where(&worker, |f| f.version == 1).preview);
+    starts.recv().expect("the whole frame starts");
+    let light = scene.lights[0].with_emission(scene.lights[0].emission() * 0.5);
+    let edit = SceneEdit::Light { index: 0, light };
+    worker.send(Command::Edit {
+        version: 2,
+        edit: Box::new(edit.clone()),
+    });
+    // The frame's first tile runs, sees the edit and stops.
+    go.send(()).expect("the thread waits");
+    let shown = frame_where(&worker, |f| f.version == 2);
+    let mut direct = cpu_mode(&scene, SIZE);
+    direct.render_preview(stride).expect("a preview");
+    direct.apply(edit).expect("an emission edit");
+    assert!(shown.preview, "the edit is shown through the preview");
+    assert_eq!(*shown.image(), preview::spread(&direct.image(), stride));
+    go.send(()).expect("the thread waits");
+    let whole = frame_where(&worker, |f| !f.preview);
+    assert_eq!((whole.version, whole.progress.min_samples), (2, 1));
+    direct.render_frame();
+    assert_eq!(whole.image().pixels(), direct.image().pixels());
     drop(go);
 }

@@ -2,13 +2,17 @@
 //! apply an edit) go over a channel, each carrying the document version it brings the
 //! renderer to; the thread applies everything pending, renders one progressive frame
 //! with the scene's render mode, and publishes the image in a latest-wins slot, then
-//! asks egui to repaint. It idles once every pixel has `max_samples` samples.
+//! wakes the window (`Wake`). It idles once every pixel has `max_samples` samples.
+//! The viewport denoiser runs beside it (`filter`): a frame is published as it is at
+//! once, and again with its filtered picture when that is ready; until then a frame
+//! shows the newest filtered picture of its document version, if there is one.
 //! A mode prepared elsewhere (the studio's mode-switch job) is swapped in by
 //! `Install`; until then the previous mode keeps rendering.
 //! A GPU mode's frame stays on its device (`Estimate::Device`) unless the denoiser
 //! needs it on the host: the viewport shows it from there, and the host reads it back
 //! only when it asks for the image (saving, comparing).
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
@@ -17,11 +21,12 @@ use std::time::{Duration, Instant};
 use meso_materials::image::Image;
 use meso_render::scene::Scene;
 use meso_render::{
-    Denoiser, Device, Guides, ImageOnDevice, ModeKind, Pass, Prepare, Progress, RenderMode,
-    SceneEdit, denoise, preview,
+    Denoiser, Device, Guides, ImageOnDevice, Invalidation, ModeKind, Pass, Prepare, Progress,
+    RenderMode, SceneEdit, denoise, preview,
 };
 
-use crate::mode_maker::{ModeMaker, core_modes};
+use crate::filter::{FilterThread, Job, Stage};
+use crate::maker::{ModeMaker, core_modes};
 use meso_render::RenderModeExt;
 
 pub enum Command {
@@ -114,6 +119,10 @@ pub struct Frame {
     /// blended with its denoised version during the first frames when the denoiser is
     /// on (`None`: the estimate).
     pub shown: Option<Arc<Image>>,
+    /// Samples per pixel of the frame whose filtered picture `shown` is (a frame
+    /// shows an earlier frame's picture of its version until its own filter is done;
+    /// 0: the preview's); `None` when `shown` is not the denoiser's.
+    pub shown_samples: Option<u32>,
     /// A preview after an edit that restarted every pixel: one pixel per block has
     /// its first sample and the estimate and `shown` are those pixels spread over the
     /// image (`render::preview`), for the viewport only: not an estimate to measure.
@@ -155,12 +164,30 @@ pub struct Rejected {
     pub message: String,
 }
 
+/// What the two threads hand the window.
 struct Shared {
     frame: Option<Frame>,
     rejected: Vec<Rejected>,
     /// What the thread did on its own (fell back to the CPU), for the status line.
     notices: Vec<Notice>,
+    /// The last frame published, and whether its picture may be the denoiser's: a
+    /// filtered picture that arrives later is published with it.
+    latest: Option<(Frame, bool)>,
+    /// The newest filtered picture: frames of its version show it until their own
+    /// filter is done.
+    filtered: Option<Filtered>,
 }
+
+/// A filtered picture: of a frame of document `version` with `samples` per pixel.
+#[derive(Clone)]
+struct Filtered {
+    version: u64,
+    samples: u32,
+    picture: Arc<Image>,
+}
+
+/// Called after each published frame (the window asks for a repaint).
+pub type Wake = Arc<dyn Fn() + Send + Sync>;
 
 pub struct RenderWorker {
     commands: Option<Sender<Command>>,
@@ -169,23 +196,28 @@ pub struct RenderWorker {
 }
 
 impl RenderWorker {
-    /// Starts the thread with core's modes; `repaint` is woken after each frame.
-    pub fn spawn(repaint: Option<egui::Context>) -> Self {
-        Self::spawn_with(repaint, core_modes())
+    /// Starts the thread with core's modes; `wake` is called after each frame.
+    pub fn spawn(wake: Option<Wake>) -> Self {
+        Self::spawn_with(wake, core_modes())
     }
 
     /// Starts the thread; `Load` makes its modes with `maker`.
-    pub fn spawn_with(repaint: Option<egui::Context>, maker: Arc<dyn ModeMaker>) -> Self {
+    pub fn spawn_with(wake: Option<Wake>, maker: Arc<dyn ModeMaker>) -> Self {
         let (tx, rx) = mpsc::channel();
         let shared = Arc::new(Mutex::new(Shared {
             frame: None,
             rejected: Vec::new(),
             notices: Vec::new(),
+            latest: None,
+            filtered: None,
         }));
-        let out = Arc::clone(&shared);
+        let out = Publisher {
+            shared: Arc::clone(&shared),
+            wake,
+        };
         let thread = std::thread::Builder::new()
             .name("meso-render".into())
-            .spawn(move || run(rx, out, repaint, maker.as_ref()))
+            .spawn(move || run(rx, out, maker.as_ref()))
             .ok();
         Self {
             commands: Some(tx),
@@ -238,49 +270,208 @@ impl Drop for RenderWorker {
     }
 }
 
-/// How the viewport's denoiser runs for a frame.
-enum Filter<'a> {
-    /// `Denoiser::apply_unless`: the frame is not shown if `stop` says yes first.
-    Full(&'a mut dyn FnMut() -> bool),
-    /// `Denoiser::apply_halved`: the first picture after an edit that keeps the
-    /// samples, which the next frame replaces with the full filter's.
-    Halved,
+/// Where both threads publish: the shared slot and the wake-up.
+#[derive(Clone)]
+struct Publisher {
+    shared: Arc<Mutex<Shared>>,
+    wake: Option<Wake>,
 }
 
-/// The viewport's picture of `m`'s film after `samples` samples per pixel, with the
-/// estimate: the estimate blended with its denoised version while the blend's strength
-/// is positive and the mode gives guides (the estimate then read to the host); else
-/// the estimate alone, left on the device where the mode's film is. `guides` caches
-/// the mode's guides until a command changes the scene, the view or the mode (they
-/// trace a ray per pixel: most of the denoiser's cost). `None` when a full filter was
-/// stopped.
-fn estimate_and_shown(
-    m: &dyn RenderMode,
-    samples: u32,
-    (denoise, guides): (bool, &mut Option<Option<Guides>>),
-    filter: Filter,
-) -> Option<(Estimate, Option<Arc<Image>>)> {
-    let strength = denoise::viewport_strength(samples);
-    let g = if denoise && strength > 0.0 {
-        guides.get_or_insert_with(|| m.guides(Pass::Frame)).as_ref()
-    } else {
-        None
-    };
-    let Some(g) = g else {
-        let estimate = match m.image_on_device() {
-            Some(d) => Estimate::Device(d),
-            None => Estimate::Host(Arc::new(m.image())),
+impl Publisher {
+    /// Publishes `frame`. A frame whose picture may be the denoiser's (`filterable`)
+    /// and that has none of its own shows the newest filtered picture of its version.
+    fn frame(&self, mut frame: Frame, filterable: bool) {
+        if let Ok(mut s) = self.shared.lock() {
+            if filterable
+                && frame.shown.is_none()
+                && let Some(f) = s.filtered.as_ref().filter(|f| f.version == frame.version)
+            {
+                frame.shown = Some(Arc::clone(&f.picture));
+                frame.shown_samples = Some(f.samples);
+            }
+            s.latest = Some((frame.clone(), filterable));
+            s.frame = Some(frame);
+        }
+        self.wake();
+    }
+
+    /// Publishes the denoiser's `picture` of `job`'s frame with the last frame, if
+    /// that frame is of the job's version and may show it (else it came too late).
+    fn filtered(&self, job: &Job, picture: Image) {
+        let Ok(mut s) = self.shared.lock() else {
+            return;
         };
-        return Some((estimate, None));
+        let latest = s.latest.as_ref().filter(|l| l.0.version == job.version);
+        let Some((latest, true)) = latest else {
+            return;
+        };
+        let picture = Arc::new(picture);
+        let frame = Frame {
+            shown: Some(Arc::clone(&picture)),
+            shown_samples: Some(job.samples),
+            ..latest.clone()
+        };
+        s.filtered = Some(Filtered {
+            version: job.version,
+            samples: job.samples,
+            picture,
+        });
+        s.latest = Some((frame.clone(), true));
+        s.frame = Some(frame);
+        drop(s);
+        self.wake();
+    }
+
+    /// Forgets the filtered picture (the denoiser was turned off).
+    fn forget_filtered(&self) {
+        if let Ok(mut s) = self.shared.lock() {
+            s.filtered = None;
+            if let Some(latest) = s.latest.as_mut() {
+                latest.1 = false;
+            }
+        }
+    }
+
+    fn has_filtered(&self, version: u64) -> bool {
+        self.shared
+            .lock()
+            .is_ok_and(|s| s.filtered.as_ref().is_some_and(|f| f.version == version))
+    }
+
+    fn wake(&self) {
+        if let Some(wake) = &self.wake {
+            wake();
+        }
+    }
+}
+
+/// The denoiser's side of the render thread: whether it is on, the mode's guides for
+/// the current view (they trace a ray per pixel: cached until a command changes the
+/// scene, the view or the mode), the preview's, and the thread that filters.
+struct Denoising {
+    on: bool,
+    guides: Option<Option<Arc<Guides>>>,
+    preview_guides: Option<(u32, Option<Arc<Guides>>)>,
+    thread: FilterThread,
+}
+
+impl Denoising {
+    /// Forgets the guides (the view, the scene or the mode changed).
+    fn forget_guides(&mut self) {
+        self.guides = None;
+        self.preview_guides = None;
+    }
+
+    /// Publishes `m`'s film now, after a call that did `stats`, and queues its filters
+    /// on the denoiser's thread: the half-resolution one first while its version has
+    /// no filtered picture, then the full one. None once the blend has faded out, when
+    /// the mode gives no guides, or for a `partial` frame, which traced only the
+    /// pixels an edit restarted (filtering the whole image would cost far more than
+    /// it). The frame goes out before the guides are traced, so an edit never waits
+    /// for them to see its frame.
+    fn publish_frame(
+        &mut self,
+        m: &dyn RenderMode,
+        (stats, version, partial): (meso_render::FrameStats, u64, bool),
+        out: &Publisher,
+    ) {
+        let samples = m.progress().min_samples;
+        let strength = denoise::viewport_strength(samples);
+        if !self.on || strength <= 0.0 || partial || self.guides == Some(None) {
+            let estimate = match m.image_on_device() {
+                Some(d) => Estimate::Device(d),
+                None => Estimate::Host(Arc::new(m.image())),
+            };
+            return out.frame(frame_with(m, stats, version, estimate, None), false);
+        }
+        let image = Arc::new(m.image());
+        let quick = !out.has_filtered(version);
+        out.frame(
+            frame_with(m, stats, version, Estimate::Host(Arc::clone(&image)), None),
+            true,
+        );
+        let Some(guides) = self
+            .guides
+            .get_or_insert_with(|| m.guides(Pass::Frame).map(Arc::new))
+            .clone()
+        else {
+            return;
+        };
+        let mut stages: Vec<Stage> = Vec::new();
+        if quick {
+            let (image, guides) = (Arc::clone(&image), Arc::clone(&guides));
+            stages.push(Box::new(move |stop: &mut dyn FnMut() -> bool| {
+                if stop() {
+                    return None;
+                }
+                let d = Denoiser::for_samples(samples).apply_halved(&image, &guides.halved())?;
+                Some(denoise::blend(&image, &d, strength))
+            }));
+        }
+        stages.push(Box::new(move |stop: &mut dyn FnMut() -> bool| {
+            let d = Denoiser::for_samples(samples).apply_unless(&image, &guides, stop)?;
+            Some(denoise::blend(&image, &d, strength))
+        }));
+        self.thread.submit(Job {
+            version,
+            samples,
+            stages,
+        });
+    }
+
+    /// Publishes the preview of `m`'s film (its pixels of one per `stride` block, all
+    /// sampled, spread over the image) after a call that did `stats`: at once as it
+    /// is, then, when the denoiser is on and the mode gives the preview's guides,
+    /// through the denoiser on its grid (`denoised_preview`) on the denoiser's thread.
+    fn publish_preview(
+        &mut self,
+        m: &dyn RenderMode,
+        (stats, stride, version): (meso_render::FrameStats, u32, u64),
+        out: &Publisher,
+    ) {
+        let estimate = m.image();
+        let image = Arc::new(preview::spread(&estimate, stride));
+        let frame = Frame {
+            preview: true,
+            ..frame_with(m, stats, version, Estimate::Host(image), None)
+        };
+        if !self.on {
+            return out.frame(frame, false);
+        }
+        if self.preview_guides.as_ref().is_none_or(|g| g.0 != stride) {
+            let guides = m.guides(Pass::Preview { stride }).map(Arc::new);
+            self.preview_guides = Some((stride, guides));
+        }
+        let guides = self.preview_guides.as_ref().and_then(|g| g.1.clone());
+        out.frame(frame, guides.is_some());
+        if let Some(guides) = guides {
+            let stage = Box::new(move |stop: &mut dyn FnMut() -> bool| {
+                (!stop()).then(|| denoised_preview(&estimate, &guides, stride))?
+            }) as Stage;
+            self.thread.submit(Job {
+                version,
+                samples: 0,
+                stages: vec![stage],
+            });
+        }
+    }
+}
+
+/// The preview through the viewport denoiser at the grid's resolution: the previewed
+/// pixels (one sample each) filtered with their own `guides`, by one pass fewer per
+/// factor of two of the stride (about the full filter's footprint in image pixels),
+/// then spread.
+fn denoised_preview(estimate: &Image, guides: &Guides, stride: u32) -> Option<Image> {
+    let full = Denoiser::for_samples(1);
+    let coarse = Denoiser {
+        passes: full.passes.saturating_sub(stride.max(1).ilog2()).max(1),
+        ..full
     };
-    let image = m.image();
-    let denoiser = Denoiser::for_samples(samples);
-    let filtered = match filter {
-        Filter::Full(stop) => Some(denoiser.apply_unless(&image, g, stop)?),
-        Filter::Halved => denoiser.apply_halved(&image, &g.halved()),
-    };
-    let shown = filtered.map(|d| Arc::new(denoise::blend(&image, &d, strength)));
-    Some((Estimate::Host(Arc::new(image)), shown))
+    let grid = coarse.apply(&preview::gather(estimate, stride), guides)?;
+    Some(preview::spread(
+        &preview::scatter(estimate, &grid, stride)?,
+        stride,
+    ))
 }
 
 /// Whether `command` may change what the pixels' centre rays see first (the
@@ -305,91 +496,6 @@ fn changes_guides(command: &Command) -> bool {
     }
 }
 
-/// Publishes the preview of `m`'s film after `render_preview` did `stats`: at once as
-/// it is, then, when the denoiser is on and the mode gives the preview's guides,
-/// through the denoiser on its grid (a few milliseconds later).
-fn publish_preview(
-    m: &dyn RenderMode,
-    (stats, stride, version): (meso_render::FrameStats, u32, u64),
-    denoise: bool,
-    publish: &dyn Fn(Frame),
-) {
-    let estimate = m.image();
-    let image = Arc::new(preview::spread(&estimate, stride));
-    let frame = Frame {
-        preview: true,
-        ..frame_with(m, stats, version, Estimate::Host(image), None)
-    };
-    publish(frame.clone());
-    if let Some(denoised) = denoise
-        .then(|| denoised_preview(m, &estimate, stride))
-        .flatten()
-    {
-        publish(Frame {
-            shown: Some(Arc::new(denoised)),
-            ..frame
-        });
-    }
-}
-
-/// The preview through the viewport denoiser at the grid's resolution: the previewed
-/// pixels (one sample each) filtered with their own guides, by one pass fewer per
-/// factor of two of the stride (about the full filter's footprint in image pixels),
-/// then spread.
-fn denoised_preview(m: &dyn RenderMode, estimate: &Image, stride: u32) -> Option<Image> {
-    let guides = m.guides(Pass::Preview { stride })?;
-    let full = Denoiser::for_samples(1);
-    let coarse = Denoiser {
-        passes: full.passes.saturating_sub(stride.max(1).ilog2()).max(1),
-        ..full
-    };
-    let grid = coarse.apply(&preview::gather(estimate, stride), &guides)?;
-    Some(preview::spread(
-        &preview::scatter(estimate, &grid, stride)?,
-        stride,
-    ))
-}
-
-/// The frame to publish at once after commands changed the image without restarting
-/// it (an emission edit): the denoiser, while on, at half resolution, so the edit shows
-/// before a full filter's time.
-fn edited_frame_of(
-    m: &dyn RenderMode,
-    version: u64,
-    denoise: bool,
-    guides: &mut Option<Option<Guides>>,
-) -> Frame {
-    let samples = m.progress().min_samples;
-    // Only a full filter can be stopped; were it `None`, the estimate shows as it is.
-    let (estimate, shown) = estimate_and_shown(m, samples, (denoise, guides), Filter::Halved)
-        .unwrap_or_else(|| (Estimate::Host(Arc::new(m.image())), None));
-    frame_with(m, Default::default(), version, estimate, shown)
-}
-
-/// The frame to publish of `m`'s film now, after a call that did `stats`; `None` when
-/// `stop` said yes before the denoiser was done (a command is waiting: the frame is
-/// stale).
-fn frame_of(
-    m: &dyn RenderMode,
-    stats: meso_render::FrameStats,
-    version: u64,
-    (denoise, guides): (bool, &mut Option<Option<Guides>>),
-    stop: &mut dyn FnMut() -> bool,
-) -> Option<Frame> {
-    let progress = m.progress();
-    // A frame that traced only the pixels an edit restarted (a brush stroke step)
-    // is shown as it is: denoising the whole image would cost far more than it.
-    let pixels = u64::from(progress.width) * u64::from(progress.height);
-    let partial = stats.counters.samples > 0 && stats.counters.samples * 2 <= pixels;
-    let (estimate, shown) = estimate_and_shown(
-        m,
-        progress.min_samples,
-        (denoise && !partial, guides),
-        Filter::Full(stop),
-    )?;
-    Some(frame_with(m, stats, version, estimate, shown))
-}
-
 fn frame_with(
     m: &dyn RenderMode,
     stats: meso_render::FrameStats,
@@ -404,6 +510,7 @@ fn frame_with(
         mode: m.kind(),
         device: m.device(),
         shown,
+        shown_samples: None,
         estimate,
         preview: false,
         progress: m.progress(),
@@ -421,11 +528,12 @@ fn frame_with(
 }
 
 /// Applies one command to the render thread's mode, document version and knobs
-/// (sample limit, denoising, yielding to edits); a refusal with its version.
+/// (sample limit, denoising, yielding to edits); a refusal with its version. Sets
+/// `restarted` when an edit restarted samples.
 fn apply(
     command: Command,
     maker: &dyn ModeMaker,
-    mode: &mut Option<Box<dyn RenderMode>>,
+    (mode, restarted): (&mut Option<Box<dyn RenderMode>>, &mut bool),
     version: &mut u64,
     (max_samples, denoise, yield_to_edits): (&mut u32, &mut bool, &mut bool),
 ) -> Result<(), (u64, String)> {
@@ -455,7 +563,10 @@ fn apply(
         Command::Edit { version: v, edit } => {
             *version = v;
             match mode {
-                Some(m) => m.apply(*edit).map(|_| ()).map_err(|e| (v, e.to_string())),
+                Some(m) => m
+                    .apply(*edit)
+                    .map(|i| *restarted |= i != Invalidation::Nothing)
+                    .map_err(|e| (v, e.to_string())),
                 None => Err((v, "no scene is loaded".into())),
             }
         }
@@ -506,26 +617,28 @@ fn fall_back(
     fallback.ok()
 }
 
-fn run(
-    rx: Receiver<Command>,
-    shared: Arc<Mutex<Shared>>,
-    repaint: Option<egui::Context>,
-    maker: &dyn ModeMaker,
-) {
-    let publish = |frame: Frame| {
-        if let Ok(mut s) = shared.lock() {
-            s.frame = Some(frame);
-        }
-        if let Some(ctx) = &repaint {
-            ctx.request_repaint();
-        }
-    };
+fn run(rx: Receiver<Command>, out: Publisher, maker: &dyn ModeMaker) {
     let mut mode: Option<Box<dyn RenderMode>> = None;
     let mut version = 0;
+    // The newest version applied, read by the denoiser's thread to stop stale filters.
+    let current = Arc::new(AtomicU64::new(0));
     let mut max_samples = 4096u32;
-    let mut denoise = true;
     let mut yield_to_edits = true;
-    let mut guides: Option<Option<Guides>> = None;
+    let mut denoising = Denoising {
+        on: true,
+        guides: None,
+        preview_guides: None,
+        thread: {
+            let out = out.clone();
+            FilterThread::spawn(Arc::clone(&current), move |job, picture| {
+                out.filtered(job, picture)
+            })
+        },
+    };
+    // A preview stands for the film until a frame shows every pixel: frames stopped
+    // by edits, frames of the pixels an edit restarted and emission edits are shown
+    // through it meanwhile, so the viewport never shows a half-sampled film.
+    let mut previewing = false;
     // Commands that arrived during a frame and stopped it: applied first next time.
     let mut early: Vec<Command> = Vec::new();
     loop {
@@ -551,19 +664,35 @@ fn run(
         // Anything but a sample limit may change the image: publish a frame even if
         // the film is already converged (an emission edit re-weights it).
         let mut changed = false;
+        let mut restarted = false;
         for command in pending {
             changed |= !matches!(command, Command::MaxSamples(_) | Command::YieldToEdits(_));
             if changes_guides(&command) {
-                guides = None;
+                denoising.forget_guides();
             }
-            let knobs = (&mut max_samples, &mut denoise, &mut yield_to_edits);
-            let result = apply(command, maker, &mut mode, &mut version, knobs);
+            if matches!(command, Command::Load { .. } | Command::Install { .. }) {
+                previewing = false;
+            }
+            let was_on = denoising.on;
+            let knobs = (&mut max_samples, &mut denoising.on, &mut yield_to_edits);
+            let result = apply(
+                command,
+                maker,
+                (&mut mode, &mut restarted),
+                &mut version,
+                knobs,
+            );
+            if was_on && !denoising.on {
+                denoising.thread.cancel();
+                out.forget_filtered();
+            }
             if let Err((version, message)) = result
-                && let Ok(mut s) = shared.lock()
+                && let Ok(mut s) = out.shared.lock()
             {
                 s.rejected.push(Rejected { version, message });
             }
         }
+        current.store(version, Ordering::Release);
         let Some(m) = mode.as_mut() else { continue };
         // Once: `min_samples` reads every pixel of the film.
         let progress = m.progress();
@@ -572,47 +701,38 @@ fn run(
             continue;
         }
         if converged {
-            // The quick picture first, then the full filter's (the same without it).
-            let quick = edited_frame_of(m.as_ref(), version, denoise, &mut guides);
-            let filtered = quick.shown.is_some();
-            publish(quick);
-            if filtered
-                && let Some(f) = frame_of(
-                    m.as_ref(),
-                    Default::default(),
-                    version,
-                    (denoise, &mut guides),
-                    &mut || false,
-                )
-            {
-                publish(f);
-            }
+            denoising.publish_frame(m.as_ref(), (Default::default(), version, false), &out);
             continue;
         }
-        // No pixel has a sample (a camera edit restarted them all): a few pixels of
-        // the frame first, spread over the viewport, then the rest of the frame.
+        // No pixel shows every layer (a camera edit restarted them all, a light
+        // moved): a few pixels of the frame first, spread over the viewport, then the
+        // rest of the frame.
         let stride = preview::stride_for(progress.width, progress.height);
         let previewed = yield_to_edits
             && progress.min_samples == 0
             && match m.render_preview(stride) {
                 Some(stats) => {
-                    publish_preview(m.as_ref(), (stats, stride, version), denoise, &publish);
+                    denoising.publish_preview(m.as_ref(), (stats, stride, version), &out);
                     true
                 }
                 None => false,
             };
-        // Every pixel keeps a sample (an emission edit re-weights, a stopped frame
-        // left its rows): show the edit now, then go on with the frame. (A preview
-        // leaves unsampled pixels, so this holds as it did before it.)
+        previewing |= previewed;
+        // Show the edit now, then go on with the frame: every pixel keeps a sample
+        // (an emission edit re-weights, a stopped frame left its rows), or the
+        // preview's pixels do.
         let shows_whole = m.progress().shows_every_pixel;
-        if changed && shows_whole && yield_to_edits {
-            publish(edited_frame_of(m.as_ref(), version, denoise, &mut guides));
+        if changed && yield_to_edits && !previewed {
+            if shows_whole {
+                denoising.publish_frame(m.as_ref(), (Default::default(), version, false), &out);
+            } else if previewing && !restarted {
+                denoising.publish_preview(m.as_ref(), (Default::default(), stride, version), &out);
+            }
         }
-        let stats = if (shows_whole || previewed) && yield_to_edits {
+        let stats = if (shows_whole || previewing) && yield_to_edits {
             // A command stops the frame between tiles; it is applied at once and the
             // frame resumes after it. A film with unsampled pixels and no preview
-            // renders its frame whole, so a stream of edits still shows frames (a
-            // wheel zoom shows a preview per step).
+            // renders its frame whole, so a stream of edits still shows frames.
             m.render_frame_yielding(&mut || match rx.try_recv() {
                 Ok(c) => {
                     early.push(c);
@@ -627,36 +747,29 @@ fn run(
         if let Some(failure) = m.failure() {
             // The device failed (a GPU lost): the same scene, edits included, goes on
             // on the CPU, and the studio says why.
-            mode = fall_back(m.as_ref(), &failure.to_string(), maker, &shared);
-            guides = None;
+            mode = fall_back(m.as_ref(), &failure.to_string(), maker, &out.shared);
+            denoising.forget_guides();
+            previewing = false;
             continue;
         }
         if !early.is_empty() {
             continue;
         }
-        // A command arriving while the frame is filtered stops the filter (when edits
-        // may stop frames): the frame is stale, the command is applied at once.
-        let mut stop = || match yield_to_edits.then(|| rx.try_recv()) {
-            None => false,
-            Some(Ok(c)) => {
-                early.push(c);
-                true
-            }
-            Some(Err(mpsc::TryRecvError::Empty)) => false,
-            Some(Err(mpsc::TryRecvError::Disconnected)) => true,
-        };
-        if let Some(f) = frame_of(
-            m.as_ref(),
-            stats,
-            version,
-            (denoise, &mut guides),
-            &mut stop,
-        ) {
-            publish(f);
+        let progress = m.progress();
+        if previewing && !progress.shows_every_pixel {
+            // The pixels an edit restarted, traced first: the preview's among them.
+            denoising.publish_preview(m.as_ref(), (stats, stride, version), &out);
+            continue;
         }
+        previewing = false;
+        // A frame that traced only the pixels an edit restarted (a brush stroke step)
+        // is shown as it is.
+        let pixels = u64::from(progress.width) * u64::from(progress.height);
+        let partial = stats.counters.samples > 0 && stats.counters.samples * 2 <= pixels;
+        denoising.publish_frame(m.as_ref(), (stats, version, partial), &out);
     }
 }
 
 #[cfg(test)]
-#[path = "render_worker_tests.rs"]
+#[path = "worker_tests.rs"]
 mod tests;

@@ -1,0 +1,337 @@
+//! `meso bench edits SCENE [--size 512] [--mode M] [--device D] [--edits 40] [--json]`
+//! (docs/cli.md): edit-to-frame time of each edit kind as the studio runs the
+//! renderer, without a window. The scene is loaded into the viewport's render thread
+//! (`meso_viewport::RenderWorker`: the mode from the registry, tiles that yield to
+//! edits, the preview after a restart, the denoiser beside it, the studio's sample
+//! limit) at `size` square; then, round after round, one edit of each kind is sent at
+//! a pseudo-random point of the frame in flight (after a pause of up to twice the
+//! last frame's time) and timed until the first frame of its document version is
+//! published: what the viewport would show next. The kinds take turns, so each sees
+//! the film as edits leave it (young, denoised), as in a session. Every edit goes back
+//! and forth between two states of the scene as loaded, so nothing drifts.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::anyhow;
+use clap::Args;
+use glam::{DMat3, DVec3};
+use meso_materials::rng::SampleStream;
+use meso_materials::spmm::WeightTarget;
+use meso_render::scene::{Light, Material, Scene, load_scene};
+use meso_render::{Device, ModeKind, SceneEdit};
+use meso_viewport::{Command, Frame, RenderWorker};
+use serde_json::json;
+
+use crate::failure::{CliError, ResultExt};
+use crate::mode_args::ModeArgs;
+
+#[derive(Args, Debug)]
+pub struct EditsArgs {
+    scene: PathBuf,
+    /// Image side in pixels.
+    #[arg(long, default_value_t = 512)]
+    size: u32,
+    #[command(flatten)]
+    mode: ModeArgs,
+    /// Edits timed per kind.
+    #[arg(long, default_value_t = 40)]
+    edits: usize,
+    /// The studio's sample limit (its default): the renderer idles after it.
+    #[arg(long, default_value_t = 1024)]
+    max_samples: u32,
+    #[arg(long)]
+    json: bool,
+}
+
+/// An edit kind: its name and the edit of round `i` (one of two states), or why the
+/// scene has nothing to edit of this kind.
+struct Kind {
+    name: &'static str,
+    edit: Result<Box<dyn Fn(usize) -> SceneEdit>, String>,
+}
+
+/// The kinds, in the order they take turns.
+fn kinds(scene: &Scene) -> Vec<Kind> {
+    let pack = scene
+        .materials
+        .iter()
+        .enumerate()
+        .find_map(|(i, m)| match m {
+            Material::Spmm {
+                material,
+                uv_scale,
+                residual,
+                npca,
+            } => Some((i, Arc::clone(material), *uv_scale, *residual, *npca)),
+            _ => None,
+        });
+    let no_pack = || "the scene has no SPMM material".to_string();
+    let pack_edit = |f: &dyn Fn(usize) -> Result<meso_materials::spmm::SpmmMaterial, String>| {
+        let Some((index, _, uv_scale, residual, npca)) = pack.clone() else {
+            return Err(no_pack());
+        };
+        // Both states made up front: the timed part is the renderer's, not the edit's.
+        let states = [f(0)?, f(1)?].map(Arc::new);
+        Ok(Box::new(move |i: usize| SceneEdit::Material {
+            index,
+            material: Material::Spmm {
+                material: Arc::clone(&states[i % 2]),
+                uv_scale,
+                residual,
+                npca,
+            },
+        }) as Box<dyn Fn(usize) -> SceneEdit>)
+    };
+    let weight = pack_edit(&|i| {
+        let m = &pack.as_ref().ok_or_else(no_pack)?.1;
+        let s = if i == 0 { 1.25 } else { 0.8 };
+        m.with_weight_scale(&WeightTarget::basis(0, 0), [s; 3])
+            .map_err(|e| e.to_string())
+    });
+    let basis = pack_edit(&|i| {
+        let m = &pack.as_ref().ok_or_else(no_pack)?.1;
+        // The first basis with a parameter (a lobe's roughness or exponent).
+        let (c, j, b) = (m.clusters().iter().enumerate())
+            .flat_map(|(c, cl)| cl.bases.iter().enumerate().map(move |(j, b)| (c, j, b)))
+            .find(|(_, _, b)| !b.brdf().model().param_specs().is_empty())
+            .ok_or("no basis of the pack has a parameter")?;
+        let brdf = b.brdf();
+        let spec = &brdf.model().param_specs()[0];
+        let value = brdf.param_values()[0];
+        let moved = (value * if i == 0 { 1.1 } else { 1.0 / 1.1 }).clamp(spec.min, spec.max);
+        let changed = brdf
+            .with_param(spec.name, moved)
+            .map_err(|e| e.to_string())?;
+        let basis = meso_materials::brdf::BasisFunction::new(changed, b.normal())
+            .map_err(|e| e.to_string())?;
+        m.with_basis(c, j, basis).map_err(|e| e.to_string())
+    });
+    let light = scene.lights.first().copied();
+    let no_light = || "the scene has no light".to_string();
+    let light_colour = light.ok_or_else(no_light).map(|l| {
+        let tints = [DVec3::new(1.0, 0.8, 0.9), DVec3::new(0.9, 1.0, 0.8)];
+        Box::new(move |i: usize| SceneEdit::Light {
+            index: 0,
+            light: l.with_emission(l.emission() * tints[i % 2]),
+        }) as Box<dyn Fn(usize) -> SceneEdit>
+    });
+    let light_move = light.ok_or_else(no_light).map(|l| {
+        Box::new(move |i: usize| SceneEdit::Light {
+            index: 0,
+            light: moved_light(l, DVec3::X * 0.05 * back_and_forth(i)),
+        }) as Box<dyn Fn(usize) -> SceneEdit>
+    });
+    let camera = scene.camera;
+    let orbit = Box::new(move |i: usize| {
+        // One degree about the vertical through the point looked at, as a drag step.
+        let turn = DMat3::from_rotation_y(back_and_forth(i).to_radians());
+        let mut c = camera;
+        c.position = c.look_at + turn * (c.position - c.look_at);
+        SceneEdit::Camera(c)
+    }) as Box<dyn Fn(usize) -> SceneEdit>;
+    let environment = scene
+        .environment
+        .clone()
+        .ok_or_else(|| "the scene has no environment".to_string())
+        .map(|env| {
+            Box::new(move |i: usize| {
+                let mut e = env.clone();
+                e.rotate_y_deg += 2.0 * back_and_forth(i);
+                SceneEdit::Environment(Some(e))
+            }) as Box<dyn Fn(usize) -> SceneEdit>
+        });
+    vec![
+        Kind {
+            name: "material weight",
+            edit: weight,
+        },
+        Kind {
+            name: "basis parameter",
+            edit: basis,
+        },
+        Kind {
+            name: "light colour",
+            edit: light_colour,
+        },
+        Kind {
+            name: "light move",
+            edit: light_move,
+        },
+        Kind {
+            name: "camera",
+            edit: Ok(orbit),
+        },
+        Kind {
+            name: "environment rotation",
+            edit: environment,
+        },
+    ]
+}
+
+/// +1 in even rounds, -1 in odd ones: an edit's two states.
+fn back_and_forth(round: usize) -> f64 {
+    if round.is_multiple_of(2) { 1.0 } else { -1.0 }
+}
+
+fn moved_light(light: Light, by: DVec3) -> Light {
+    match light {
+        Light::Point {
+            position,
+            intensity,
+        } => Light::Point {
+            position: position + by,
+            intensity,
+        },
+        Light::Area {
+            corner,
+            edge_u,
+            edge_v,
+            radiance,
+        } => Light::Area {
+            corner: corner + by,
+            edge_u,
+            edge_v,
+            radiance,
+        },
+    }
+}
+
+/// Waits for a frame `wanted` accepts; an error after a minute.
+fn wait_for(
+    worker: &RenderWorker,
+    wanted: impl Fn(&Frame) -> bool,
+) -> Result<(Frame, Instant), CliError> {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        let rejected = worker.take_rejected();
+        if let Some(r) = rejected.first() {
+            return Err(CliError::bad_input(anyhow!(
+                "the renderer refused version {}: {}",
+                r.version,
+                r.message
+            )));
+        }
+        if let Some(f) = worker.take_frame().filter(&wanted) {
+            return Ok((f, Instant::now()));
+        }
+        if Instant::now() > deadline || !worker.is_running() {
+            return Err(CliError::failure(anyhow!("no frame came within a minute")));
+        }
+        std::thread::sleep(Duration::from_micros(200));
+    }
+}
+
+/// Median and 95th percentile (nearest rank) of `ms`.
+fn percentiles(mut ms: Vec<f64>) -> (f64, f64) {
+    ms.sort_by(f64::total_cmp);
+    let rank = |q: f64| ms[((q * ms.len() as f64).ceil() as usize).clamp(1, ms.len()) - 1];
+    (rank(0.5), rank(0.95))
+}
+
+pub fn run(args: &EditsArgs) -> Result<(), CliError> {
+    if !(16..=4096).contains(&args.size) || args.edits == 0 {
+        return Err(CliError::bad_input(anyhow!(
+            "--size must lie in [16, 4096] and --edits be at least 1"
+        )));
+    }
+    let scene = load_scene(&args.scene).bad_input_ctx(|| format!("`{}`", args.scene.display()))?;
+    let (kind, device) = args.mode.resolve(&scene)?;
+    let kinds = kinds(&scene);
+    let worker = RenderWorker::spawn(None);
+    worker.send(Command::MaxSamples(args.max_samples));
+    worker.send(Command::Load {
+        version: 1,
+        scene: Box::new(scene),
+        mode: kind,
+        device,
+        width: args.size,
+        height: args.size,
+    });
+    // Untimed: the mode's preparation and a few whole frames.
+    let (mut last, _) = wait_for(&worker, |f| !f.preview && f.progress.min_samples >= 4)?;
+    let mut version = 1u64;
+    let mut times: Vec<Vec<f64>> = vec![Vec::new(); kinds.len()];
+    let mut pauses = SampleStream::new(&[0xed17]);
+    for round in 0..args.edits {
+        for (k, kind) in kinds.iter().enumerate() {
+            let Ok(edit) = &kind.edit else { continue };
+            // The edit lands at a random point of the frame in flight.
+            let frame_ms = last.frame_ms.clamp(1.0, 2_000.0);
+            std::thread::sleep(Duration::from_secs_f64(
+                2.0 * frame_ms * pauses.next() / 1e3,
+            ));
+            while let Some(f) = worker.take_frame() {
+                last = f;
+            }
+            version += 1;
+            let sent = Instant::now();
+            worker.send(Command::Edit {
+                version,
+                edit: Box::new(edit(round)),
+            });
+            let (frame, at) = wait_for(&worker, |f| f.version >= version)?;
+            times[k].push((at - sent).as_secs_f64() * 1e3);
+            if frame.frame_ms > 0.0 {
+                last = frame;
+            }
+        }
+    }
+    report(args, (kind, device), &kinds, times);
+    Ok(())
+}
+
+fn report(
+    args: &EditsArgs,
+    (kind, device): (ModeKind, Device),
+    kinds: &[Kind],
+    times: Vec<Vec<f64>>,
+) {
+    let rows: Vec<_> = kinds
+        .iter()
+        .zip(times)
+        .map(|(k, t)| match &k.edit {
+            Ok(_) => {
+                let (median, p95) = percentiles(t.clone());
+                json!({"kind": k.name, "edits": t.len(), "median_ms": median, "p95_ms": p95})
+            }
+            Err(why) => json!({"kind": k.name, "edits": 0, "median_ms": null, "p95_ms": null, "skipped": why}),
+        })
+        .collect();
+    if args.json {
+        let out = json!({
+            "scene": args.scene.display().to_string(),
+            "size": args.size,
+            "mode": kind.name(),
+            "device": device.name(),
+            "kinds": rows,
+        });
+        println!("{out:#}");
+        return;
+    }
+    println!(
+        "{} at {} x {}, {} on the {}: edit to first frame of its version",
+        args.scene.display(),
+        args.size,
+        args.size,
+        kind.name(),
+        device.name()
+    );
+    println!(
+        "{:<22} {:>6} {:>11} {:>9}",
+        "kind", "edits", "median ms", "p95 ms"
+    );
+    for r in rows {
+        let name = r["kind"].as_str().unwrap_or_default();
+        match r.get("skipped").and_then(|s| s.as_str()) {
+            Some(why) => println!("{name:<22} skipped: {why}"),
+            None => println!(
+                "{name:<22} {:>6} {:>11.1} {:>9.1}",
+                r["edits"],
+                r["median_ms"].as_f64().unwrap_or(f64::NAN),
+                r["p95_ms"].as_f64().unwrap_or(f64::NAN)
+            ),
+        }
+    }
+}

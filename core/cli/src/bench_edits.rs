@@ -7,8 +7,9 @@
 //! a pseudo-random point of the frame in flight (after a pause of up to twice the
 //! last frame's time) and timed until the first frame of its document version is
 //! published: what the viewport would show next. The kinds take turns, so each sees
-//! the film as edits leave it (young, denoised), as in a session. Every edit goes back
-//! and forth between two states of the scene as loaded, so nothing drifts.
+//! the film as edits leave it (young, denoised), as in a session. Edits are made on
+//! the document as the edits before left it, as the studio's are, and each kind goes
+//! back and forth (a weight scaled by 1.25 then back), so nothing drifts.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -17,8 +18,9 @@ use std::time::{Duration, Instant};
 use anyhow::anyhow;
 use clap::Args;
 use glam::{DMat3, DVec3};
+use meso_materials::brdf::BasisFunction;
 use meso_materials::rng::SampleStream;
-use meso_materials::spmm::WeightTarget;
+use meso_materials::spmm::{SpmmError, SpmmMaterial, WeightTarget};
 use meso_render::scene::{Light, Material, Scene, load_scene};
 use meso_render::{Device, ModeKind, SceneEdit};
 use meso_viewport::{Command, Frame, RenderWorker};
@@ -45,134 +47,136 @@ pub struct EditsArgs {
     json: bool,
 }
 
-/// An edit kind: its name and the edit of round `i` (one of two states), or why the
-/// scene has nothing to edit of this kind.
+/// The edit of a kind in round `i`, made on the document as it stands (edits add up,
+/// as a session's do; each kind goes back and forth, so nothing drifts).
+type MakeEdit = Box<dyn Fn(&Scene, usize) -> Result<SceneEdit, String>>;
+
+/// An edit kind: its name and its edits, or why the scene has nothing to edit of
+/// this kind.
 struct Kind {
     name: &'static str,
-    edit: Result<Box<dyn Fn(usize) -> SceneEdit>, String>,
+    edit: Result<MakeEdit, String>,
 }
 
-/// The kinds, in the order they take turns.
-fn kinds(scene: &Scene) -> Vec<Kind> {
-    let pack = scene
-        .materials
-        .iter()
-        .enumerate()
+/// The first SPMM material's slot and its pack, as `scene` has them now.
+fn first_pack(scene: &Scene) -> Result<(usize, &Material, &SpmmMaterial), String> {
+    (scene.materials.iter().enumerate())
         .find_map(|(i, m)| match m {
-            Material::Spmm {
-                material,
-                uv_scale,
-                residual,
-                npca,
-            } => Some((i, Arc::clone(material), *uv_scale, *residual, *npca)),
+            Material::Spmm { material, .. } => Some((i, m, material.as_ref())),
             _ => None,
-        });
-    let no_pack = || "the scene has no SPMM material".to_string();
-    let pack_edit = |f: &dyn Fn(usize) -> Result<meso_materials::spmm::SpmmMaterial, String>| {
-        let Some((index, _, uv_scale, residual, npca)) = pack.clone() else {
-            return Err(no_pack());
-        };
-        // Both states made up front: the timed part is the renderer's, not the edit's.
-        let states = [f(0)?, f(1)?].map(Arc::new);
-        Ok(Box::new(move |i: usize| SceneEdit::Material {
-            index,
-            material: Material::Spmm {
-                material: Arc::clone(&states[i % 2]),
-                uv_scale,
-                residual,
-                npca,
-            },
-        }) as Box<dyn Fn(usize) -> SceneEdit>)
+        })
+        .ok_or_else(|| "the scene has no SPMM material".to_string())
+}
+
+/// The first SPMM material edited by `f`, as the material edit the studio sends.
+fn pack_edit(
+    scene: &Scene,
+    f: impl Fn(&SpmmMaterial) -> Result<SpmmMaterial, SpmmError>,
+) -> Result<SceneEdit, String> {
+    let (index, m, pack) = first_pack(scene)?;
+    let Material::Spmm {
+        uv_scale,
+        residual,
+        npca,
+        ..
+    } = m
+    else {
+        unreachable!("first_pack finds packs");
     };
-    let weight = pack_edit(&|i| {
-        let m = &pack.as_ref().ok_or_else(no_pack)?.1;
-        let s = if i == 0 { 1.25 } else { 0.8 };
-        m.with_weight_scale(&WeightTarget::basis(0, 0), [s; 3])
-            .map_err(|e| e.to_string())
+    Ok(SceneEdit::Material {
+        index,
+        material: Material::Spmm {
+            material: Arc::new(f(pack).map_err(|e| e.to_string())?),
+            uv_scale: *uv_scale,
+            residual: *residual,
+            npca: *npca,
+        },
+    })
+}
+
+/// The first light as `scene` has it now.
+fn first_light(scene: &Scene) -> Result<Light, String> {
+    (scene.lights.first().copied()).ok_or_else(|| "the scene has no light".to_string())
+}
+
+/// The kinds, in the order they take turns; a kind whose first edit cannot be made
+/// on `scene` is skipped, with the reason.
+fn kinds(scene: &Scene) -> Vec<Kind> {
+    let weight: MakeEdit = Box::new(|scene, i| {
+        // A basis's weights scaled by about 1.25, then back.
+        let s = there_and_back(1.25, i);
+        pack_edit(scene, |p| {
+            p.with_weight_scale(&WeightTarget::basis(0, 0), [s; 3])
+        })
     });
-    let basis = pack_edit(&|i| {
-        let m = &pack.as_ref().ok_or_else(no_pack)?.1;
-        // The first basis with a parameter (a lobe's roughness or exponent).
-        let (c, j, b) = (m.clusters().iter().enumerate())
+    let basis: MakeEdit = Box::new(|scene, i| {
+        // The first basis with a parameter (a lobe's roughness or exponent): 10% up,
+        // then back (about).
+        let (_, _, pack) = first_pack(scene)?;
+        let (c, j, b) = (pack.clusters().iter().enumerate())
             .flat_map(|(c, cl)| cl.bases.iter().enumerate().map(move |(j, b)| (c, j, b)))
             .find(|(_, _, b)| !b.brdf().model().param_specs().is_empty())
             .ok_or("no basis of the pack has a parameter")?;
         let brdf = b.brdf();
         let spec = &brdf.model().param_specs()[0];
-        let value = brdf.param_values()[0];
-        let moved = (value * if i == 0 { 1.1 } else { 1.0 / 1.1 }).clamp(spec.min, spec.max);
-        let changed = brdf
-            .with_param(spec.name, moved)
+        let value = brdf.param_values()[0] * there_and_back(1.1, i);
+        let changed = (brdf.with_param(spec.name, value.clamp(spec.min, spec.max)))
             .map_err(|e| e.to_string())?;
-        let basis = meso_materials::brdf::BasisFunction::new(changed, b.normal())
-            .map_err(|e| e.to_string())?;
-        m.with_basis(c, j, basis).map_err(|e| e.to_string())
+        let basis = BasisFunction::new(changed, b.normal()).map_err(|e| e.to_string())?;
+        pack_edit(scene, |p| p.with_basis(c, j, basis))
     });
-    let light = scene.lights.first().copied();
-    let no_light = || "the scene has no light".to_string();
-    let light_colour = light.ok_or_else(no_light).map(|l| {
-        let tints = [DVec3::new(1.0, 0.8, 0.9), DVec3::new(0.9, 1.0, 0.8)];
-        Box::new(move |i: usize| SceneEdit::Light {
+    let light_colour: MakeEdit = Box::new(|scene, i| {
+        let l = first_light(scene)?;
+        let tint = DVec3::new(1.0, 0.8, 0.9).powf(back_and_forth(i));
+        Ok(SceneEdit::Light {
             index: 0,
-            light: l.with_emission(l.emission() * tints[i % 2]),
-        }) as Box<dyn Fn(usize) -> SceneEdit>
+            light: l.with_emission(l.emission() * tint),
+        })
     });
-    let light_move = light.ok_or_else(no_light).map(|l| {
-        Box::new(move |i: usize| SceneEdit::Light {
+    let light_move: MakeEdit = Box::new(|scene, i| {
+        let by = DVec3::X * 0.05 * back_and_forth(i);
+        Ok(SceneEdit::Light {
             index: 0,
-            light: moved_light(l, DVec3::X * 0.05 * back_and_forth(i)),
-        }) as Box<dyn Fn(usize) -> SceneEdit>
+            light: moved_light(first_light(scene)?, by),
+        })
     });
-    let camera = scene.camera;
-    let orbit = Box::new(move |i: usize| {
+    let camera: MakeEdit = Box::new(|scene, i| {
         // One degree about the vertical through the point looked at, as a drag step.
         let turn = DMat3::from_rotation_y(back_and_forth(i).to_radians());
-        let mut c = camera;
+        let mut c = scene.camera;
         c.position = c.look_at + turn * (c.position - c.look_at);
-        SceneEdit::Camera(c)
-    }) as Box<dyn Fn(usize) -> SceneEdit>;
-    let environment = scene
-        .environment
-        .clone()
-        .ok_or_else(|| "the scene has no environment".to_string())
-        .map(|env| {
-            Box::new(move |i: usize| {
-                let mut e = env.clone();
-                e.rotate_y_deg += 2.0 * back_and_forth(i);
-                SceneEdit::Environment(Some(e))
-            }) as Box<dyn Fn(usize) -> SceneEdit>
-        });
-    vec![
-        Kind {
-            name: "material weight",
-            edit: weight,
-        },
-        Kind {
-            name: "basis parameter",
-            edit: basis,
-        },
-        Kind {
-            name: "light colour",
-            edit: light_colour,
-        },
-        Kind {
-            name: "light move",
-            edit: light_move,
-        },
-        Kind {
-            name: "camera",
-            edit: Ok(orbit),
-        },
-        Kind {
-            name: "environment rotation",
-            edit: environment,
-        },
+        Ok(SceneEdit::Camera(c))
+    });
+    let environment: MakeEdit = Box::new(|scene, i| {
+        let mut e = (scene.environment.clone()).ok_or("the scene has no environment")?;
+        e.rotate_y_deg += 2.0 * back_and_forth(i);
+        Ok(SceneEdit::Environment(Some(e)))
+    });
+    [
+        ("material weight", weight),
+        ("basis parameter", basis),
+        ("light colour", light_colour),
+        ("light move", light_move),
+        ("camera", camera),
+        ("environment rotation", environment),
     ]
+    .into_iter()
+    .map(|(name, edit)| Kind {
+        name,
+        edit: edit(scene, 0).map(|_| edit),
+    })
+    .collect()
 }
 
 /// +1 in even rounds, -1 in odd ones: an edit's two states.
 fn back_and_forth(round: usize) -> f64 {
     if round.is_multiple_of(2) { 1.0 } else { -1.0 }
+}
+
+/// A factor `f` in even rounds and about 1/f in odd ones, a little different every
+/// round (0.1%), so no edit repeats a state an analysis or cache has seen.
+fn there_and_back(f: f64, round: usize) -> f64 {
+    f.powf(back_and_forth(round)) * (1.0 + 1e-3 * (round % 7) as f64)
 }
 
 fn moved_light(light: Light, by: DVec3) -> Light {
@@ -243,12 +247,14 @@ pub fn run(args: &EditsArgs) -> Result<(), CliError> {
     worker.send(Command::MaxSamples(args.max_samples));
     worker.send(Command::Load {
         version: 1,
-        scene: Box::new(scene),
+        scene: Box::new(scene.clone()),
         mode: kind,
         device,
         width: args.size,
         height: args.size,
     });
+    // The studio's document: each edit is applied to it as the studio applies it.
+    let mut document = scene;
     // Untimed: the mode's preparation and a few whole frames.
     let (mut last, _) = wait_for(&worker, |f| !f.preview && f.progress.min_samples >= 4)?;
     let mut version = 1u64;
@@ -256,7 +262,11 @@ pub fn run(args: &EditsArgs) -> Result<(), CliError> {
     let mut pauses = SampleStream::new(&[0xed17]);
     for round in 0..args.edits {
         for (k, kind) in kinds.iter().enumerate() {
-            let Ok(edit) = &kind.edit else { continue };
+            let Ok(make) = &kind.edit else { continue };
+            let edit = make(&document, round)
+                .map_err(|e| CliError::failure(anyhow!("{} edit {round}: {e}", kind.name)))?;
+            edit.apply_to(&mut document)
+                .map_err(|e| CliError::failure(anyhow!("{} edit {round}: {e}", kind.name)))?;
             // The edit lands at a random point of the frame in flight.
             let frame_ms = last.frame_ms.clamp(1.0, 2_000.0);
             std::thread::sleep(Duration::from_secs_f64(
@@ -269,7 +279,7 @@ pub fn run(args: &EditsArgs) -> Result<(), CliError> {
             let sent = Instant::now();
             worker.send(Command::Edit {
                 version,
-                edit: Box::new(edit(round)),
+                edit: Box::new(edit),
             });
             let (frame, at) = wait_for(&worker, |f| f.version >= version)?;
             times[k].push((at - sent).as_secs_f64() * 1e3);

@@ -6,11 +6,13 @@
 //! the paper does). All rates are Nyquist rates: samples per radian or per metre.
 
 use std::f64::consts::{FRAC_PI_2, PI, TAU};
+use std::sync::{Mutex, PoisonError};
 
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
 use super::wavelet::{Pyramid, max_blocks};
+use meso_materials::brdf::BasisFunction;
 use meso_materials::image::{Image, luminance};
 use meso_materials::spmm::SpmmMaterial;
 use meso_render::environment::pixel_of;
@@ -22,6 +24,9 @@ pub const GRID: usize = 16;
 pub const LOBE_RES: usize = 128;
 /// Rec. 709 luminance.
 const LUMINANCE: DVec3 = DVec3::new(0.2126, 0.7152, 0.0722);
+
+/// Cluster lobes remembered (`MaterialBandwidth::of_cluster`): 256 KB each.
+const CLUSTER_CACHE: usize = 64;
 
 /// The cell of the fixed-direction grid holding local direction `w` (upper hemisphere).
 fn grid_cell(w: DVec3) -> usize {
@@ -169,15 +174,37 @@ impl MaterialBandwidth {
         Self::widest(clusters.iter().enumerate().map(|(c, cluster)| {
             let n = texels[c].max(1) as f64;
             let weights: Vec<f64> = sums[c].iter().map(|s| s / n).collect();
-            Self::analyse(|wi, wo| {
-                cluster
-                    .bases
-                    .iter()
-                    .zip(&weights)
-                    .map(|(b, w)| w * b.eval(wi, wo))
-                    .sum()
-            })
+            Self::of_cluster(&cluster.bases, &weights)
         }))
+    }
+
+    /// One cluster's lobe (its bases with these mean weights), remembered for the
+    /// last `CLUSTER_CACHE` clusters analysed in this process: an edit of one
+    /// cluster of a pack analyses that cluster again, not the others.
+    fn of_cluster(bases: &[BasisFunction], weights: &[f64]) -> Self {
+        type Entry = (Vec<BasisFunction>, Vec<f64>, MaterialBandwidth);
+        static CACHE: Mutex<Vec<Entry>> = Mutex::new(Vec::new());
+        let lock = || CACHE.lock().unwrap_or_else(PoisonError::into_inner);
+        let found = lock()
+            .iter()
+            .find(|(b, w, _)| b == bases && w == weights)
+            .map(|e| e.2.clone());
+        if let Some(bandwidth) = found {
+            return bandwidth;
+        }
+        let bandwidth = Self::analyse(|wi, wo| {
+            bases
+                .iter()
+                .zip(weights)
+                .map(|(b, w)| w * b.eval(wi, wo))
+                .sum()
+        });
+        let mut cache = lock();
+        if cache.len() >= CLUSTER_CACHE {
+            cache.remove(0);
+        }
+        cache.push((bases.to_vec(), weights.to_vec(), bandwidth.clone()));
+        bandwidth
     }
 
     /// Per direction, the largest rate of `each`.

@@ -10,6 +10,7 @@
 //! integral the spmm mode computes.
 
 use std::sync::Arc;
+use std::thread::JoinHandle;
 use std::time::Instant;
 
 use glam::{DVec2, DVec3};
@@ -128,6 +129,9 @@ pub struct AdaptiveMode {
     prefiltered: Option<Prefiltered>,
     light_bandwidth: Vec<Option<LightBandwidth>>,
     materials: Vec<Option<Arc<MaterialBandwidth>>>,
+    /// Edited materials whose bandwidth is being analysed on a thread of its own (a
+    /// second or more for a pack), by material index: taken up by the next frame.
+    analysing: Vec<(usize, JoinHandle<Option<Arc<MaterialBandwidth>>>)>,
     /// The materials as the shading core shades them.
     shaders: Shaders,
     light_targets: Vec<LightTarget>,
@@ -215,6 +219,7 @@ impl AdaptiveMode {
             prefiltered: None,
             light_bandwidth: Vec::new(),
             materials,
+            analysing: Vec::new(),
             shaders: Shaders::new(&core.scene.materials),
             light_targets: core.layers.light_targets(&core.scene),
             options: AdaptiveOptions {
@@ -305,6 +310,13 @@ impl AdaptiveMode {
     }
     /// Forgets every sample and the bandwidth buffer.
     fn restart_all(&mut self) -> Invalidation {
+        self.buffers = None;
+        self.restart_samples()
+    }
+
+    /// Forgets every sample but keeps the bandwidth pass's buffers (the view and the
+    /// lighting they were made for are unchanged).
+    fn restart_samples(&mut self) -> Invalidation {
         self.core.film.reset();
         self.core.restart_counters();
         self.own.iter_mut().for_each(|c| *c = 0);
@@ -312,11 +324,42 @@ impl AdaptiveMode {
         self.moments
             .iter_mut()
             .for_each(|m| *m = Moments::default());
-        self.buffers = None;
         self.plan = None;
         self.unfinished = None;
         self.preview = None;
         Invalidation::All
+    }
+
+    /// Takes up the bandwidths of edited materials analysed since the last call. A
+    /// material whose lobes became markedly sharper (its mean peak rate up by more
+    /// than a quarter) restarts the pass, so its detail is not up-sampled from sites
+    /// placed for the softer one; otherwise the buffers stand until the next pass.
+    fn take_analyses(&mut self) {
+        let mut sharper = false;
+        for (index, thread) in std::mem::take(&mut self.analysing) {
+            if !thread.is_finished() {
+                self.analysing.push((index, thread));
+                continue;
+            }
+            match thread.join() {
+                Ok(bandwidth) => {
+                    let peak =
+                        |b: &Option<Arc<MaterialBandwidth>>| b.as_ref().map(|b| b.mean_peak());
+                    sharper |= match (peak(&self.materials[index]), peak(&bandwidth)) {
+                        (Some(old), Some(new)) => new > 1.25 * old,
+                        (old, new) => old.is_some() != new.is_some(),
+                    };
+                    self.materials[index] = bandwidth;
+                }
+                // The thread died: analyse here.
+                Err(_) => {
+                    self.materials[index] = material_bandwidth(&self.core.scene.materials[index]);
+                }
+            }
+        }
+        if sharper && self.buffers.is_some() {
+            self.restart_all();
+        }
     }
 
     /// The pixels' own means, before up-sampling.
@@ -346,7 +389,12 @@ impl RenderMode for AdaptiveMode {
 
     fn render(&mut self, pass: Pass, stop: Option<&mut dyn FnMut() -> bool>) -> Option<FrameStats> {
         match pass {
-            Pass::Frame => Some(self.render_tiles(stop)),
+            Pass::Frame => {
+                // A pass that starts before an analysis is done uses the lobes before
+                // the edit; a markedly sharper result restarts it when it arrives.
+                self.take_analyses();
+                Some(self.render_tiles(stop))
+            }
             Pass::Preview { stride } => self.render_preview_pass(stride),
         }
     }
@@ -412,10 +460,25 @@ impl RenderMode for AdaptiveMode {
                 self.restart_all()
             }
             Edited::Material { index, before } => {
-                let after = &self.core.scene.materials[index];
-                self.materials[index] = material_bandwidth(after);
-                self.shaders.edited(index, Some(&before), after);
-                self.restart_all()
+                let after = self.core.scene.materials[index].clone();
+                self.shaders.edited(index, Some(&before), &after);
+                // The material's bandwidth only steers where samples go: the analysis
+                // (over a second for a pack) runs on a thread of its own, and the frames
+                // go on with the pass's buffers meanwhile (`take_analyses`). The film
+                // restarts: every sample shaded the old material or was up-sampled
+                // from samples that did.
+                let analysis = std::thread::Builder::new()
+                    .name("meso-bandwidth".into())
+                    .spawn(move || material_bandwidth(&after));
+                self.analysing.retain(|(i, _)| *i != index);
+                match analysis {
+                    Ok(thread) => self.analysing.push((index, thread)),
+                    Err(_) => {
+                        let m = &self.core.scene.materials[index];
+                        self.materials[index] = material_bandwidth(m);
+                    }
+                }
+                self.restart_samples()
             }
             // The mode shades the same still or moving (its frames are already cheap)
             // and picks its own light samples per pixel.

@@ -99,6 +99,18 @@ impl Tabulation {
     /// `None` for materials without a table: mirrors (the ray is followed) and `btf`
     /// materials (evaluated per pixel by the mode).
     pub fn table(&self, material: &Material) -> Option<BtfTable> {
+        self.table_reusing(None, material)
+    }
+
+    /// `table` of an edited material, taking from `before` (the table of the
+    /// material before the edit) what the edit left as it was: an SPMM cluster's
+    /// basis rows when its bases are unchanged, the residual's when the residual and
+    /// its use are. A weight edit so costs no tabulation, a basis edit one cluster's.
+    pub fn table_reusing(
+        &self,
+        before: Option<&BtfTable>,
+        material: &Material,
+    ) -> Option<BtfTable> {
         match material {
             Material::Brdf { brdf, albedo } => Some(self.brdf_table(brdf, *albedo)),
             Material::Spmm {
@@ -106,9 +118,18 @@ impl Tabulation {
                 uv_scale,
                 residual,
                 npca,
-            } => Some(BtfTable::Spmm(Box::new(
-                self.spmm_table(material, *uv_scale, *residual, *npca),
-            ))),
+            } => {
+                let before = match before {
+                    Some(BtfTable::Spmm(t)) => Some(t.as_ref()),
+                    _ => None,
+                };
+                Some(BtfTable::Spmm(Box::new(self.spmm_table(
+                    material,
+                    *uv_scale,
+                    (*residual, *npca),
+                    before,
+                ))))
+            }
             Material::Merl { brdf, tint } => Some(self.merl_table(brdf, *tint)),
             Material::Mirror { .. } | Material::Btf { .. } => None,
         }
@@ -148,24 +169,45 @@ impl Tabulation {
         &self,
         material: &Arc<SpmmMaterial>,
         uv_scale: DVec2,
-        use_residual: bool,
-        npca: usize,
+        (use_residual, npca): (bool, usize),
+        before: Option<&SpmmTable>,
     ) -> SpmmTable {
         let (mc, vc) = (self.local.len(), self.views.len());
-        let bases = material
-            .clusters()
-            .par_iter()
-            .map(|cluster| {
-                let mut out = Vec::with_capacity(cluster.bases.len() * vc * mc);
-                for basis in &cluster.bases {
-                    for v in 0..vc {
-                        let wo = self.views.centre(v);
-                        for m in 0..mc {
-                            out.push(self.cell_mean(m, |wi| basis.eval(wi, wo)) as f32);
-                        }
-                    }
-                }
-                out
+        let kept_bases = |c: usize| {
+            let old = before?;
+            let same = old.material.clusters().get(c)?.bases == material.clusters()[c].bases;
+            same.then(|| old.bases[c].clone())
+        };
+        let kept_residual = before.and_then(|old| {
+            let (a, b) = (old.material.residual(), material.residual());
+            let same = match (a, b) {
+                (Some(a), Some(b)) => std::ptr::eq(a, b) || a == b,
+                (None, None) => true,
+                _ => false,
+            };
+            let uses = use_residual && material.residual_tables().is_some();
+            let k = material
+                .residual()
+                .filter(|_| uses)
+                .map_or(0, |r| r.npca.min(npca));
+            let used = old.k == k && old.residual.is_empty() != uses;
+            (same && used && old.material.clusters().len() == material.clusters().len())
+                .then(|| (old.residual.clone(), old.k))
+        });
+        // Per cluster, in parallel over its (basis, view) rows: an edit re-tabulates
+        // one cluster, which must not run on one core.
+        let bases: Vec<Vec<f32>> = (material.clusters().iter().enumerate())
+            .map(|(c, cluster)| {
+                kept_bases(c).unwrap_or_else(|| {
+                    let b = &cluster.bases;
+                    (0..b.len() * vc)
+                        .into_par_iter()
+                        .flat_map_iter(|i| {
+                            let (basis, wo) = (&b[i / vc], self.views.centre(i % vc));
+                            (0..mc).map(move |m| self.cell_mean(m, |wi| basis.eval(wi, wo)) as f32)
+                        })
+                        .collect()
+                })
             })
             .collect();
         let (residual, k) = match (
@@ -173,6 +215,7 @@ impl Tabulation {
             material.residual(),
             material.residual_tables(),
         ) {
+            _ if kept_residual.is_some() => kept_residual.unwrap_or_default(),
             (true, Some(r), Some((lights, views))) => {
                 let k = r.npca.min(npca);
                 let (nl, nv) = (r.light_dirs.len(), r.view_dirs.len());
@@ -407,7 +450,7 @@ impl BtfTable {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use meso_materials::brdf::BrdfModel;
+    use meso_materials::brdf::{BasisFunction, BrdfModel};
     use meso_materials::rng::SampleStream;
     use meso_materials::spmm::testing::sample_material;
 
@@ -424,7 +467,12 @@ mod tests {
         let material = Arc::new(sample_material(8, 8, 3, Some(4)));
         let brdf = AnalyticBrdf::with_defaults(BrdfModel::CookTorrance);
         let tables = [
-            BtfTable::Spmm(Box::new(tab.spmm_table(&material, DVec2::ONE, true, 4))),
+            BtfTable::Spmm(Box::new(tab.spmm_table(
+                &material,
+                DVec2::ONE,
+                (true, 4),
+                None,
+            ))),
             tab.brdf_table(&brdf, DVec3::new(0.8, 0.5, 0.3)),
         ];
         for k in 0..500u64 {
@@ -444,6 +492,54 @@ mod tests {
                     assert_eq!(got, portable.map(f32::to_bits), "{wo} {uv} {lookup:?}");
                 }
             }
+        }
+    }
+
+    /// A table made from the table before an edit equals one made afresh, bit for
+    /// bit: after a weight edit (nothing tabulated again), a basis edit (its cluster
+    /// again), the residual turned off and on, and fewer PCA terms.
+    #[test]
+    fn a_table_reusing_the_one_before_an_edit_equals_a_fresh_one() {
+        let tab = Tabulation {
+            local: HemisphereGrid::new(4),
+            views: HemisphereGrid::new(4),
+        };
+        let material = Arc::new(sample_material(8, 8, 3, Some(4)));
+        let weighted = material
+            .with_weight_scale(&meso_materials::spmm::WeightTarget::basis(1, 0), [1.5; 3])
+            .expect("a weight edit");
+        let b = &material.clusters()[1].bases[0];
+        let changed = b
+            .brdf()
+            .with_param(b.brdf().model().param_specs()[0].name, 0.3);
+        let rebased = match changed {
+            Ok(brdf) => material
+                .with_basis(1, 0, BasisFunction::new(brdf, b.normal()).expect("normal"))
+                .expect("a basis edit"),
+            Err(_) => material
+                .with_basis(
+                    1,
+                    0,
+                    BasisFunction::new(*b.brdf(), DVec3::new(0.2, 0.0, 1.0).normalize())
+                        .expect("normal"),
+                )
+                .expect("a basis edit"),
+        };
+        let bits = |t: &SpmmTable| {
+            let all = t.bases.iter().chain(&t.residual).flatten();
+            (all.map(|v| v.to_bits()).collect::<Vec<_>>(), t.k)
+        };
+        let before = tab.spmm_table(&material, DVec2::ONE, (true, 4), None);
+        for (edited, residual) in [
+            (weighted.clone(), (true, 4)),
+            (rebased, (true, 4)),
+            (weighted.clone(), (false, 4)),
+            (weighted, (true, 2)),
+        ] {
+            let edited = Arc::new(edited);
+            let reused = tab.spmm_table(&edited, DVec2::ONE, residual, Some(&before));
+            let fresh = tab.spmm_table(&edited, DVec2::ONE, residual, None);
+            assert!(bits(&reused) == bits(&fresh), "{residual:?}");
         }
     }
 

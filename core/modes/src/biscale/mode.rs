@@ -23,7 +23,7 @@ use super::{BiscaleSettings, cpca::Cpca, sh::ShTransfer};
 use meso_materials::image::Image;
 use meso_materials::rng::SampleStream;
 use meso_render::environment::rotate_y;
-use meso_render::film::material_bit;
+use meso_render::film::{EMPTY_UV_BOX, material_bit};
 use meso_render::geometry::Hit;
 use meso_render::geometry::SceneBvh;
 use meso_render::layers::{self, AMBIENT, ENVIRONMENT, LightTarget};
@@ -71,7 +71,13 @@ pub struct BiscaleMode {
     shaders: Shaders,
     /// Per light, the film layer its samples go to and their factor.
     light_targets: Vec<LightTarget>,
+    /// Per pixel, whether the frame under way has its samples already (a preview's
+    /// pixels, the rows of a frame an edit stopped); empty between frames.
+    done_early: Vec<bool>,
 }
+
+/// Pixels of a frame rendered between two questions to its `stop` (rows of them).
+const TILE_PIXELS: u32 = 16_384;
 
 /// Offset of secondary ray origins along the normal, relative to the hit point's
 /// magnitude (as the spmm mode's).
@@ -153,6 +159,7 @@ impl BiscaleMode {
             frame_ms: 0.0,
             shaders: Shaders::new(&core.scene.materials),
             light_targets: core.layers.light_targets(&core.scene),
+            done_early: Vec::new(),
             core,
         };
         prepare.report("lighting", 0.0)?;
@@ -229,7 +236,132 @@ impl BiscaleMode {
         self.restart_all();
     }
 
+    /// The next frame's samples of `pixels` only, marked done for the frame under way
+    /// (a preview: the frame then completes the other pixels).
+    fn render_pixels(&mut self, pixels: &[u32]) -> FrameStats {
+        use rayon::prelude::*;
+        let start = Instant::now();
+        let first = self.core.next_sample;
+        let k = u64::from(self.core.samples_per_frame);
+        let active = self.core.layers.active(&self.core.scene);
+        let (width, layers) = (self.core.film.width(), self.core.film.layers());
+        let dropped_before = self.core.film.dropped();
+        let lstar_len = 3 * self.tab.local.len();
+        let mut totals = Counters::default();
+        for index in first..first + k {
+            let samples: Vec<(Vec<DVec3>, u64, RayCounts)> = pixels
+                .par_iter()
+                .map_init(
+                    || vec![0.0f32; lstar_len],
+                    |lstar, &p| {
+                        let mut out = vec![DVec3::ZERO; layers];
+                        let (mask, rays) =
+                            self.sample((p % width, p / width, index), lstar, &mut out);
+                        (out, mask, rays)
+                    },
+                )
+                .collect();
+            for (&p, (out, mask, rays)) in pixels.iter().zip(samples) {
+                (self.core.film).add_pixel_sample(p, &active, &out, mask, &EMPTY_UV_BOX);
+                totals = totals
+                    + Counters {
+                        samples: 1,
+                        shading_points: u64::from(mask != 0),
+                        rays,
+                    };
+            }
+        }
+        let n = width as usize * self.core.film.height() as usize;
+        if self.done_early.len() != n {
+            self.done_early = vec![false; n];
+        }
+        for &p in pixels {
+            self.done_early[p as usize] = true;
+        }
+        FrameStats {
+            counters: totals,
+            seconds: start.elapsed().as_secs_f64(),
+            dropped: self.core.film.dropped() - dropped_before,
+        }
+    }
+
+    /// One frame, or the rest of one: in a single pass, or in tiles of rows asking
+    /// `stop` between them. A stopped frame marks its finished rows done, so the call
+    /// that completes it skips them and the samples are an uninterrupted frame's.
+    fn render_tiles(&mut self, mut stop: Option<&mut dyn FnMut() -> bool>) -> FrameStats {
+        let start = Instant::now();
+        let first = self.core.next_sample;
+        let k = u64::from(self.core.samples_per_frame);
+        let active = self.core.layers.active(&self.core.scene);
+        let (width, height) = (self.core.film.width(), self.core.film.height());
+        let tile_rows = match stop {
+            Some(_) => (TILE_PIXELS / width.max(1)).max(1),
+            None => height.max(1),
+        };
+        let lstar_len = 3 * self.tab.local.len();
+        let dropped_before = self.core.film.dropped();
+        let mut film = std::mem::replace(&mut self.core.film, Film::new(0, 0, 0));
+        let layer_count = film.layers();
+        let mut totals = Counters::default();
+        // Rows a stopped call finished are skipped without asking `stop` again, so
+        // every call that is not stopped at once advances the frame.
+        let mut y = (self.done_early.chunks(width.max(1) as usize))
+            .take_while(|row| row.iter().all(|&d| d))
+            .count() as u32;
+        while y < height {
+            let rows = y..(y + tile_rows).min(height);
+            y = rows.end;
+            let tile = film.par_rows_in(rows, |row| {
+                let mut lstar = vec![0.0f32; lstar_len];
+                let mut out = vec![DVec3::ZERO; layer_count];
+                let mut counters = Counters::default();
+                for x in 0..width {
+                    let pixel = row.y as usize * width as usize + x as usize;
+                    if self.done_early.get(pixel).copied().unwrap_or(false) {
+                        continue;
+                    }
+                    counters.samples += k;
+                    for index in first..first + k {
+                        out.iter_mut().for_each(|v| *v = DVec3::ZERO);
+                        let (mask, rays) = self.sample((x, row.y, index), &mut lstar, &mut out);
+                        counters.shading_points += u64::from(mask != 0);
+                        counters.rays = counters.rays + rays;
+                        // Every active layer gets a sample (zero where this one saw nothing).
+                        for &l in &active {
+                            row.add(x, l, out[l]);
+                        }
+                        row.touch(x, mask);
+                    }
+                }
+                counters
+            });
+            totals = tile.into_iter().fold(totals, |a, c| a + c);
+            if y < height && stop.as_mut().is_some_and(|s| s()) {
+                break;
+            }
+        }
+        self.core.film = film;
+        if y < height {
+            let n = width as usize * height as usize;
+            if self.done_early.len() != n {
+                self.done_early = vec![false; n];
+            }
+            self.done_early[..y as usize * width as usize].fill(true);
+        } else {
+            self.done_early.clear();
+            self.core.next_sample += k;
+            self.core.frames += 1;
+            self.frame_ms = start.elapsed().as_secs_f64() * 1e3;
+        }
+        FrameStats {
+            counters: totals,
+            seconds: start.elapsed().as_secs_f64(),
+            dropped: self.core.film.dropped() - dropped_before,
+        }
+    }
+
     fn restart_all(&mut self) -> Invalidation {
+        self.done_early.clear();
         self.core.film.reset();
         self.core.restart_counters();
         Invalidation::All
@@ -498,55 +630,21 @@ impl RenderMode for BiscaleMode {
         &self.core.scene
     }
 
-    fn render(
-        &mut self,
-        pass: Pass,
-        _stop: Option<&mut dyn FnMut() -> bool>,
-    ) -> Option<FrameStats> {
-        // No preview, and a frame is one pass over the rows (it does not stop).
-        if pass != Pass::Frame {
-            return None;
-        }
-        let start = Instant::now();
-        let first = self.core.next_sample;
-        let k = u64::from(self.core.samples_per_frame);
-        let active = self.core.layers.active(&self.core.scene);
-        let width = self.core.film.width();
-        let stride = 3 * self.tab.local.len();
-        let dropped_before = self.core.film.dropped();
-        let mut film = std::mem::replace(&mut self.core.film, Film::new(0, 0, 0));
-        let layer_count = film.layers();
-        let rows = film.par_rows(|row| {
-            let mut lstar = vec![0.0f32; stride];
-            let mut out = vec![DVec3::ZERO; layer_count];
-            let mut counters = Counters {
-                samples: u64::from(width) * k,
-                ..Default::default()
-            };
-            for x in 0..width {
-                for index in first..first + k {
-                    out.iter_mut().for_each(|v| *v = DVec3::ZERO);
-                    let (mask, rays) = self.sample((x, row.y, index), &mut lstar, &mut out);
-                    counters.shading_points += u64::from(mask != 0);
-                    counters.rays = counters.rays + rays;
-                    // Every active layer gets a sample (zero where this one saw nothing).
-                    for &l in &active {
-                        row.add(x, l, out[l]);
-                    }
-                    row.touch(x, mask);
+    fn render(&mut self, pass: Pass, stop: Option<&mut dyn FnMut() -> bool>) -> Option<FrameStats> {
+        match pass {
+            Pass::Frame => Some(self.render_tiles(stop)),
+            Pass::Preview { stride } => {
+                // No frame under way, and every pixel short of a sample in some layer
+                // (a camera edit, a moved light, an edited material seen everywhere).
+                let untouched =
+                    !self.done_early.contains(&true) && self.progress().min_samples == 0;
+                if stride <= 1 || !untouched {
+                    return None;
                 }
+                let (w, h) = (self.core.film.width(), self.core.film.height());
+                Some(self.render_pixels(&meso_render::preview::grid_pixels(w, h, stride)))
             }
-            counters
-        });
-        self.core.film = film;
-        self.core.next_sample += k;
-        self.core.frames += 1;
-        self.frame_ms = start.elapsed().as_secs_f64() * 1e3;
-        Some(FrameStats {
-            counters: rows.into_iter().fold(Counters::default(), |a, c| a + c),
-            seconds: start.elapsed().as_secs_f64(),
-            dropped: self.core.film.dropped() - dropped_before,
-        })
+        }
     }
 
     fn image(&self) -> Image {
@@ -587,6 +685,10 @@ impl RenderMode for BiscaleMode {
                     self.relight();
                 }
                 self.light_targets = self.core.layers.light_targets(&self.core.scene);
+                if invalidation != Invalidation::Nothing {
+                    // A restarted layer must get this frame's samples everywhere.
+                    self.done_early.clear();
+                }
                 invalidation
             }
             Edited::Camera | Edited::Resized => self.restart_all(),
@@ -613,7 +715,9 @@ impl RenderMode for BiscaleMode {
             Edited::Material { index, before } => {
                 let after = &self.core.scene.materials[index];
                 self.shaders.edited(index, Some(&before), after);
-                self.tables[index] = self.tab.table(after);
+                self.tables[index] = self.tab.table_reusing(self.tables[index].as_ref(), after);
+                // Restarted pixels must get this frame's samples.
+                self.done_early.clear();
                 Invalidation::Pixels(self.core.film.reset_touching(material_bit(index)))
             }
             // Samples shaded the fast way and the full way must not mix.

@@ -893,3 +893,65 @@ fn a_mirror_shows_what_it_reflects_as_the_spmm_mode_does() {
     );
     assert!(relative < 0.04, "relative RMSE {relative}");
 }
+
+/// Frames that stop between tiles, and a preview of one pixel per block after a
+/// restart (a camera edit, a moved light), leave exactly the film of whole frames:
+/// the preview and the stopped rows are the frame's own samples, which the call that
+/// completes the frame skips.
+#[test]
+fn a_preview_and_stopped_frames_leave_the_image_of_whole_frames() {
+    const W: u32 = 160;
+    const STRIDE: u32 = 4;
+    let scene = lights_only_scene();
+    let mut modes = [(); 2].map(|_| {
+        BiscaleMode::prepare(scene.clone(), W, W, settings(), Prepare::quietly()).expect("mode")
+    });
+    let mut camera = scene.camera;
+    camera.position += DVec3::new(0.2, 0.1, 0.0);
+    let mut moved = scene.lights[0];
+    if let Light::Area { corner, .. } = &mut moved {
+        corner.x += 0.3;
+    }
+    let grid = meso_render::preview::grid_pixels(W, W, STRIDE);
+    let edits = [
+        SceneEdit::Camera(camera),
+        SceneEdit::Light {
+            index: 0,
+            light: moved,
+        },
+    ];
+    for edit in edits {
+        for m in &mut modes {
+            m.render_frame();
+            m.apply(edit.clone()).expect("an edit");
+            assert_eq!(m.progress().min_samples, 0, "{edit:?} restarts every pixel");
+        }
+        let [whole, yielding] = &mut modes;
+        let frames = yielding.progress().frames;
+        let preview = yielding.render_preview(STRIDE).expect("a preview");
+        assert_eq!(preview.counters.samples, grid.len() as u64);
+        assert!(yielding.render_preview(STRIDE).is_none(), "previewed twice");
+        // Stopped after its first tile, then after every other.
+        let mut stops = 0;
+        let first = yielding.render_frame_yielding(&mut || {
+            stops += 1;
+            true
+        });
+        assert!(first.counters.samples < u64::from(W * W) - grid.len() as u64);
+        assert_eq!(
+            yielding.progress().frames,
+            frames,
+            "the frame is unfinished"
+        );
+        // Each call that is stopped at once still renders one more tile.
+        let tiles = (0..W).take_while(|_| {
+            yielding.render_frame_yielding(&mut || true);
+            yielding.progress().frames == frames
+        });
+        assert!(tiles.count() < W as usize, "the frame never completes");
+        whole.render_frame();
+        assert_eq!(stops, 1);
+        assert!(whole.image().pixels() == yielding.image().pixels());
+        assert!(yielding.progress().shows_every_pixel);
+    }
+}

@@ -286,7 +286,11 @@ impl SpmmMode {
         // The film is moved out while rows borrow it mutably and `self` immutably.
         let mut film = std::mem::replace(&mut self.core.film, Film::new(0, 0, 0));
         let mut totals = Counters::default();
-        let mut y = 0;
+        // Rows a stopped call finished are skipped without asking `stop` again, so
+        // every call that is not stopped at once advances the frame.
+        let mut y = (self.done_early.chunks(width.max(1) as usize))
+            .take_while(|row| row.iter().all(|&d| d))
+            .count() as u32;
         while y < height {
             let rows = y..(y + tile_rows).min(height);
             y = rows.end;

@@ -74,3 +74,57 @@ fn mip_reduces_blocks_of_odd_images_by_min_and_max() {
     let max = mip(&v, 3, 3, 1, f64::max);
     assert_eq!(max[1], vec![5.0, 9.0, 6.0, 5.0]);
 }
+
+/// A material edit restarts the samples but keeps the bandwidth pass: the next frame
+/// shades at once with the pass's buffers while the edited material's lobes are
+/// analysed on a thread of their own; the analysis is taken up by a frame when done,
+/// and after the next pass the mode renders exactly as one made with the edited
+/// scene.
+#[test]
+fn a_material_edit_keeps_the_pass_and_analyses_the_material_beside_the_frames() {
+    let scene = meso_render::scene::test_scenes::edit_test_scene();
+    let (index, pack) = (scene.materials.iter().enumerate())
+        .find_map(|(i, m)| match m {
+            Material::Spmm { material, .. } => Some((i, material.clone())),
+            _ => None,
+        })
+        .expect("the edit scene has a pack");
+    let mut mode = AdaptiveMode::prepare(scene.clone(), 24, 24, Prepare::quietly()).expect("mode");
+    mode.render_frame();
+    let sigma = |m: &AdaptiveMode| m.buffers.as_ref().map(|b| b.sigma.clone());
+    let before = sigma(&mode).expect("the pass ran");
+    let mut edited = scene.materials[index].clone();
+    if let Material::Spmm { material, .. } = &mut edited {
+        *material = Arc::new(
+            pack.with_weight_scale(&meso_materials::spmm::WeightTarget::basis(0, 0), [2.0; 3])
+                .expect("a weight edit"),
+        );
+    }
+    let edit = SceneEdit::Material {
+        index,
+        material: edited,
+    };
+    assert_eq!(mode.apply(edit.clone()), Ok(Invalidation::All));
+    assert_eq!(mode.progress().min_samples, 0, "the samples restart");
+    assert_eq!(mode.analysing.len(), 1, "analysed beside the frames");
+    assert_eq!(sigma(&mode), Some(before), "the pass is kept");
+    mode.render_frame();
+    assert_eq!(mode.progress().frames, 1, "a frame");
+    // The analysis is taken up by a frame once done; the next pass uses it.
+    for _ in 0..1000 {
+        if mode.analysing.is_empty() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+        mode.render_frame();
+    }
+    assert!(mode.analysing.is_empty(), "the analysis was not taken up");
+    let camera = mode.scene().camera;
+    mode.apply(SceneEdit::Camera(camera)).expect("camera edit");
+    mode.render_frame();
+    let mut fresh =
+        AdaptiveMode::prepare(mode.scene().clone(), 24, 24, Prepare::quietly()).expect("mode");
+    fresh.render_frame();
+    assert_eq!(mode.materials[index], fresh.materials[index]);
+    assert!(mode.image().pixels() == fresh.image().pixels());
+}

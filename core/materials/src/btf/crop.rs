@@ -100,6 +100,27 @@ impl TexelRect {
     }
 }
 
+/// The texels of `rect` of `btf` as a BTF of their own (same directions and name).
+pub fn crop(btf: &super::Btf, rect: TexelRect) -> Result<super::Btf, CropError> {
+    rect.check_inside(btf.width(), btf.height())?;
+    let mut data = Vec::with_capacity(rect.texels() * btf.pairs() * 3);
+    for y in rect.y..rect.y + rect.height {
+        for x in rect.x..rect.x + rect.width {
+            data.extend_from_slice(btf.texel((y * btf.width() + x) as usize));
+        }
+    }
+    Ok(super::Btf::new(
+        btf.name().to_string(),
+        format!("{} (texels {rect})", btf.provenance()),
+        rect.width,
+        rect.height,
+        btf.light_dirs().to_vec(),
+        btf.view_dirs().to_vec(),
+        data,
+    )
+    .expect("a crop of a valid BTF is valid"))
+}
+
 /// Checks that `texels` texels of `pairs` direction pairs fit in an import.
 pub fn check_budget(texels: u64, pairs: u64) -> Result<(), CropError> {
     let values = texels.saturating_mul(pairs).saturating_mul(3);
@@ -136,6 +157,20 @@ mod tests {
         // No overflow at the edge of u32.
         let far = TexelRect::parse("4294967295,0,2,1").expect("parses");
         assert!(far.check_inside(u32::MAX, 1).is_err());
+    }
+
+    #[test]
+    fn a_crop_keeps_the_rectangles_texels() {
+        let dirs = crate::btf::directions::rings(&[(0.0, 1), (45.0, 3)]);
+        let data = (0..4 * 3 * 16 * 3).map(|i| i as f32).collect();
+        let b = super::super::Btf::new("b".into(), "p".into(), 4, 3, dirs.clone(), dirs, data)
+            .expect("valid");
+        let c = crop(&b, TexelRect::parse("1,1,2,2").expect("rect")).expect("inside");
+        assert_eq!((c.width(), c.height()), (2, 2));
+        assert_eq!(c.texel(0), b.texel(5));
+        assert_eq!(c.texel(3), b.texel(10));
+        assert!(c.provenance().ends_with("(texels 1,1,2,2)"));
+        assert!(crop(&b, TexelRect::parse("3,0,2,1").expect("rect")).is_err());
     }
 
     #[test]

@@ -140,7 +140,7 @@ fn jpeg_reader(bytes: &[u8]) -> ImageReader<std::io::Cursor<&[u8]>> {
     let mut limits = Limits::default();
     limits.max_image_width = Some(MAX_SIDE);
     limits.max_image_height = Some(MAX_SIDE);
-    limits.max_alloc = Some(1 << 30);
+    limits.max_alloc = Some(512 << 20);
     reader.limits(limits);
     reader
 }
@@ -271,9 +271,11 @@ pub fn read_zip<R: Read + Seek>(
     let order: Vec<&Listed> = slot.iter().map(|s| &listed[s.expect("complete")]).collect();
     // The first image's size fixes the grid; check the crop and the budget before
     // allocating the BTF.
+    // It is decoded whole, so a size only its header claims is refused by the decoder.
     let first = order[0];
     let (w, h) = jpeg_reader(&entry_bytes(&mut zip, first)?)
-        .into_dimensions()
+        .decode()
+        .map(|img| (img.width(), img.height()))
         .map_err(|e| ZipImportErrorKind::Jpeg {
             entry: first.name.clone(),
             problem: e.to_string(),

@@ -565,12 +565,12 @@ impl<R: Read + Seek> Ubo2014<R> {
     pub fn open(mut source: R) -> Result<Self, UboErrorKind> {
         let len = source.seek(SeekFrom::End(0))?;
         source.seek(SeekFrom::Start(0))?;
-        let mut head = [0u8; 10];
-        let n = source.read(&mut head)?;
+        let mut head = Vec::with_capacity(10);
+        (&mut source).take(10).read_to_end(&mut head)?;
         source.seek(SeekFrom::Start(0))?;
-        let Some((signature, kind)) = identify(&head[..n]) else {
+        let Some((signature, kind)) = identify(&head) else {
             return Err(UboErrorKind::Signature {
-                found: String::from_utf8_lossy(&head[..n]).into_owned(),
+                found: String::from_utf8_lossy(&head).into_owned(),
             });
         };
         match kind {

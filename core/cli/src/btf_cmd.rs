@@ -59,7 +59,7 @@ pub enum BtfCommand {
         #[arg(long)]
         json: bool,
     },
-    /// Summary of a .btf file (validated on load).
+    /// Summary of a .btf file (validated on load), or of a UBO2014 file's header.
     Info {
         file: PathBuf,
         #[arg(long)]
@@ -314,7 +314,53 @@ fn export_cmd(path: &Path, output: &Path, as_json: bool) -> Result<(), CliError>
     Ok(())
 }
 
+/// `meso btf info` of a UBO2014 file: its header and factors, without expanding it.
+fn ubo2014_info(path: &Path, as_json: bool) -> Result<(), CliError> {
+    let f = ubo2014::Ubo2014::open_path(path).map_err(CliError::bad_input)?;
+    let h = f.header();
+    let deg = |a: &[[f32; 2]]| -> Vec<[f64; 2]> {
+        a.iter()
+            .map(|d| {
+                let (t, p) = directions::to_angles_deg(directions::from_angles_deg(
+                    f64::from(d[0]).to_degrees(),
+                    f64::from(d[1]).to_degrees(),
+                ));
+                [t, p]
+            })
+            .collect()
+    };
+    let (nl, nv) = (h.light_angles.len(), h.view_angles.len());
+    let max_texels = crop::MAX_IMPORT_VALUES / (3 * (nl * nv) as u64);
+    if as_json {
+        return crate::print_json(&json!({
+            "file": path.display().to_string(),
+            "signature": h.signature,
+            "width": h.width, "height": h.height,
+            "light_dirs_deg": deg(&h.light_angles), "view_dirs_deg": deg(&h.view_angles),
+            "color_model": h.color_model, "cosine_flag": h.cosine_flag,
+            "components": f.components(),
+            "measurement_setup": h.measurement_setup,
+            "max_import_texels": max_texels,
+        }));
+    }
+    println!("{}: UBO2014 BTF ({})", path.display(), h.signature);
+    println!("setup        {}", h.measurement_setup);
+    println!("texels       {} x {}", h.width, h.height);
+    println!("directions   {nl} light x {nv} view");
+    println!(
+        "factors      components per factorisation {:?}, colour model {}, cosine flag {}",
+        f.components(),
+        h.color_model,
+        u8::from(h.cosine_flag)
+    );
+    println!("import       at most {max_texels} texels at once (--texels X,Y,W,H)");
+    Ok(())
+}
+
 fn info(path: &Path, as_json: bool) -> Result<(), CliError> {
+    if !path.is_dir() && detect(path).ok() == Some(Source::Ubo2014) {
+        return ubo2014_info(path, as_json);
+    }
     let b = load(path)?;
     let angles = |d: &[DVec3]| -> Vec<[f64; 2]> {
         d.iter()

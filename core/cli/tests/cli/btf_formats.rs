@@ -199,6 +199,20 @@ fn a_ubo2014_table_too_large_to_import_is_cropped_and_fitted_on_151_directions()
         ),
         &["--texels", "X,Y,WIDTH,HEIGHT"],
     );
+    // `info` reads the header only and says how much fits.
+    let o = meso(&["btf", "info", s(&big), "--json"], "");
+    assert_ok(&o);
+    let v = json(&o);
+    assert_eq!(
+        (v["width"].as_u64(), v["height"].as_u64()),
+        (Some(200), Some(157))
+    );
+    assert_eq!(v["signature"], "!DFMF08FCR");
+    assert_eq!(v["components"], serde_json::json!([1, 1, 1]));
+    assert_eq!(v["max_import_texels"].as_u64(), Some(31394));
+    let d = &v["light_dirs_deg"][1 + 6 + 12 + 12 + 12 + 18 + 2];
+    assert!((d[0].as_f64().expect("theta") - 52.5).abs() < 1e-4, "{d}");
+    assert!((d[1].as_f64().expect("phi") - 47.5).abs() < 1e-4, "{d}");
     let o = meso(
         &[
             "btf",

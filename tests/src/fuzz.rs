@@ -1,6 +1,6 @@
 //! Every reader survives hostile input: mutated scene files (structure-aware: numbers,
-//! keys, tables and lines of the shipped scenes), OBJ text, EXR, `.spmm`, `.btf` and
-//! MERL bytes. The property for each case: the reader returns a value or an error
+//! keys, tables and lines of the shipped scenes), OBJ text, EXR, `.spmm`, `.btf`,
+//! Bonn's UBO2014 files and UBO2003 zips, and MERL bytes. The property for each case: the reader returns a value or an error
 //! whose message is one line; it never panics, never takes longer than a bound, and a
 //! size claimed by a header is checked before anything that large is allocated (an
 //! allocation failure would abort the test process, so it cannot pass unnoticed).
@@ -489,6 +489,51 @@ fn fuzz_btf_files() {
     );
 }
 
+/// Bonn's UBO2014 files: the reference fixtures (DFMF in half floats and f32 with
+/// two colour models, FMF with dynamic-range reduction, and Meso's own export).
+#[test]
+fn fuzz_ubo2014_files() {
+    let seeds: Vec<Vec<u8>> = [
+        "dfmf_rgb.btf",
+        "dfmf_logyuv.btf",
+        "fmf_drr.btf",
+        "meso_export.btf",
+    ]
+    .iter()
+    .map(|p| std::fs::read(root().join("reference/ubo").join(p)).expect("fixture"))
+    .collect();
+    fuzz(
+        "ubo2014",
+        &seeds,
+        |s, rng| mutate_bytes(s, rng),
+        |input| {
+            check("ubo2014", &format!("({} bytes)", input.len()), || {
+                meso_materials::btf::ubo2014::decode(input)
+            })
+        },
+    );
+}
+
+fn read_ubo2003(input: &[u8]) -> Result<meso_materials::btf::Btf, impl std::fmt::Display> {
+    meso_materials::btf::ubo2003::read_zip(std::io::Cursor::new(input), "fuzz", "fuzz", None)
+}
+
+/// UBO2003 zips: the reference fixture (deflated 8x6 JPEGs in a folder, and a readme).
+#[test]
+fn fuzz_ubo2003_zips() {
+    let seeds = vec![std::fs::read(root().join("reference/ubo/ubo2003.zip")).expect("fixture")];
+    fuzz(
+        "ubo2003",
+        &seeds,
+        |s, rng| mutate_bytes(s, rng),
+        |input| {
+            check("ubo2003", &format!("({} bytes)", input.len()), || {
+                read_ubo2003(input)
+            })
+        },
+    );
+}
+
 /// MERL tables are 35 MB each: fewer cases (a fiftieth), mutated where the claims
 /// are (the header) and anywhere in the table.
 #[test]
@@ -546,7 +591,9 @@ fn the_corpus_of_past_failures_is_handled() {
         translate: DVec3::ZERO,
     };
     let mut seen = 0;
-    for reader in ["scene", "obj", "exr", "spmm", "btf", "merl"] {
+    for reader in [
+        "scene", "obj", "exr", "spmm", "btf", "ubo2014", "ubo2003", "merl",
+    ] {
         let Ok(dir) = std::fs::read_dir(root().join("fuzz_corpus").join(reader)) else {
             continue;
         };
@@ -565,6 +612,10 @@ fn the_corpus_of_past_failures_is_handled() {
                 "btf" => check(reader, &name, || {
                     meso_materials::btf::file::decode_btf(&bytes)
                 }),
+                "ubo2014" => check(reader, &name, || {
+                    meso_materials::btf::ubo2014::decode(&bytes)
+                }),
+                "ubo2003" => check(reader, &name, || read_ubo2003(&bytes)),
                 _ => check(reader, &name, || {
                     meso_materials::merl::MerlBrdf::from_bytes(&bytes)
                 }),

@@ -1,14 +1,17 @@
-//! `meso btf synth|import|info|slice`: make BTFs by ray tracing a mesostructure
-//! recipe, import measured image sets, summarise a `.btf`, and render one direction
-//! pair of a BTF (optionally beside an SPMM pack's fit) as an image.
+//! `meso btf synth|import|export|info|slice`: make BTFs by ray tracing a mesostructure
+//! recipe, import measured BTFs (image folders, Bonn's UBO2003 zips and UBO2014
+//! files), export a `.btf` in Bonn's DFMF format, summarise a `.btf`, and render one
+//! direction pair of a BTF (optionally beside an SPMM pack's fit) as an image.
 
+use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::anyhow;
-use clap::Subcommand;
+use clap::{Subcommand, ValueEnum};
 use glam::DVec3;
-use meso_materials::btf::{self, Btf, directions, file, synth};
+use meso_materials::btf::crop::{self, TexelRect};
+use meso_materials::btf::{self, Btf, directions, file, synth, ubo2003, ubo2014};
 use meso_materials::image::Image;
 use meso_materials::spmm::pack;
 use serde_json::json;
@@ -29,20 +32,34 @@ pub enum BtfCommand {
         #[arg(long)]
         json: bool,
     },
-    /// Build a BTF from a folder of images listed in directions.csv or directions.toml.
+    /// Build a BTF from a folder of images listed in directions.csv or directions.toml,
+    /// a UBO2003/ATRIUM zip of JPEGs, or a UBO2014 file (told apart by content).
     Import {
-        dir: PathBuf,
+        path: PathBuf,
         #[arg(short = 'o', long)]
         output: PathBuf,
-        /// The BTF's name (default: the folder's name).
+        /// The BTF's name (default: the folder's or file's name).
         #[arg(long)]
         name: Option<String>,
+        /// Keep only these texels: X,Y,WIDTH,HEIGHT, row 0 the top row.
+        #[arg(long, value_name = "X,Y,W,H")]
+        texels: Option<String>,
         #[arg(long)]
         f32: bool,
         #[arg(long)]
         json: bool,
     },
-    /// Summary of a .btf file (validated on load).
+    /// Write a .btf in another format (ubo2014: Bonn's DFMF, `!DFMF08FCR`).
+    Export {
+        file: PathBuf,
+        #[arg(long, value_enum)]
+        format: ExportFormat,
+        #[arg(short = 'o', long)]
+        output: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Summary of a .btf file (validated on load), or of a UBO2014 file's header.
     Info {
         file: PathBuf,
         #[arg(long)]
@@ -72,6 +89,13 @@ pub enum BtfCommand {
     },
 }
 
+/// Formats `meso btf export` writes.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum ExportFormat {
+    /// Bonn's UBO2014 DFMF layout, as btflib and btf_extractor read it.
+    Ubo2014,
+}
+
 pub fn run(command: BtfCommand) -> Result<(), CliError> {
     match command {
         BtfCommand::Synth {
@@ -81,12 +105,19 @@ pub fn run(command: BtfCommand) -> Result<(), CliError> {
             json,
         } => synth_cmd(&recipe, &output, f32, json),
         BtfCommand::Import {
-            dir,
+            path,
             output,
             name,
+            texels,
             f32,
             json,
-        } => import_cmd(&dir, &output, name, f32, json),
+        } => import_cmd(&path, &output, name, texels.as_deref(), f32, json),
+        BtfCommand::Export {
+            file,
+            format: ExportFormat::Ubo2014,
+            output,
+            json,
+        } => export_cmd(&file, &output, json),
         BtfCommand::Info { file, json } => info(&file, json),
         BtfCommand::Slice {
             file,
@@ -163,30 +194,88 @@ fn synth_cmd(recipe: &Path, output: &Path, force_f32: bool, as_json: bool) -> Re
     Ok(())
 }
 
+/// What `meso btf import` was given.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Source {
+    Folder,
+    Zip,
+    Ubo2014,
+}
+
+/// Tells the source apart by what it is, not by its name: a folder, a zip archive
+/// (local-file or end-of-directory signature), or a Bonn signature.
+fn detect(path: &Path) -> Result<Source, CliError> {
+    if path.is_dir() {
+        return Ok(Source::Folder);
+    }
+    let mut head = Vec::with_capacity(10);
+    std::fs::File::open(path)
+        .and_then(|f| f.take(10).read_to_end(&mut head))
+        .map_err(|e| CliError::bad_input(anyhow!("`{}`: cannot read: {e}", path.display())))?;
+    if head.starts_with(b"PK\x03\x04") || head.starts_with(b"PK\x05\x06") {
+        Ok(Source::Zip)
+    } else if ubo2014::identify(&head).is_some() {
+        Ok(Source::Ubo2014)
+    } else {
+        Err(CliError::bad_input(anyhow!(
+            "`{}`: not a folder of images, a zip archive (UBO2003/ATRIUM) or a UBO2014 file (`!DFMF08FCR`, `!FMF12FCER`, ...): it starts with {:?}",
+            path.display(),
+            String::from_utf8_lossy(&head)
+        )))
+    }
+}
+
 fn import_cmd(
-    dir: &Path,
+    path: &Path,
     output: &Path,
     name: Option<String>,
+    texels: Option<&str>,
     force_f32: bool,
     as_json: bool,
 ) -> Result<(), CliError> {
+    let source = detect(path)?;
     let name = name.unwrap_or_else(|| {
-        dir.file_name()
-            .map(|n| n.to_string_lossy().into_owned())
+        let n = if source == Source::Folder {
+            path.file_name()
+        } else {
+            path.file_stem()
+        };
+        n.map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_else(|| "imported".into())
     });
-    let b = btf::import::import_dir(dir, &name).map_err(CliError::bad_input)?;
+    let rect = texels
+        .map(TexelRect::parse)
+        .transpose()
+        .map_err(|e| CliError::bad_input(anyhow!("--texels: {e}")))?;
+    let b = match source {
+        Source::Folder => {
+            let b = btf::import::import_dir(path, &name).map_err(CliError::bad_input)?;
+            match rect {
+                Some(r) => crop::crop(&b, r)
+                    .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", path.display())))?,
+                None => b,
+            }
+        }
+        Source::Zip => ubo2003::import_zip(path, &name, rect).map_err(CliError::bad_input)?,
+        Source::Ubo2014 => ubo2014::import_path(path, &name, rect).map_err(CliError::bad_input)?,
+    };
     let bytes = write(output, &b, force_f32)?;
+    let format = match source {
+        Source::Folder => "folder",
+        Source::Zip => "ubo2003",
+        Source::Ubo2014 => "ubo2014",
+    };
     if as_json {
         return crate::print_json(&json!({
             "output": output.display().to_string(),
+            "source": format,
             "width": b.width(), "height": b.height(),
             "lights": b.light_dirs().len(), "views": b.view_dirs().len(),
             "bytes": bytes,
         }));
     }
     println!(
-        "wrote {} ({}x{} texels, {} x {} directions)",
+        "wrote {} ({}x{} texels, {} x {} directions, from a {format} source)",
         output.display(),
         b.width(),
         b.height(),
@@ -196,7 +285,82 @@ fn import_cmd(
     Ok(())
 }
 
+fn export_cmd(path: &Path, output: &Path, as_json: bool) -> Result<(), CliError> {
+    let b = load(path)?;
+    ubo2014::check_writable(&b)
+        .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", path.display())))?;
+    ubo2014::write_dfmf(output, &b).map_err(CliError::failure)?;
+    let bytes = std::fs::metadata(output).map(|m| m.len()).unwrap_or(0);
+    let components = b.pairs().min(b.texels());
+    if as_json {
+        return crate::print_json(&json!({
+            "output": output.display().to_string(),
+            "format": "ubo2014",
+            "signature": "!DFMF08FCR",
+            "width": b.width(), "height": b.height(),
+            "lights": b.light_dirs().len(), "views": b.view_dirs().len(),
+            "components": components,
+            "bytes": bytes,
+        }));
+    }
+    println!(
+        "wrote {} (UBO2014 DFMF, {}x{} texels, {} x {} directions, {components} components per channel, {bytes} bytes)",
+        output.display(),
+        b.width(),
+        b.height(),
+        b.light_dirs().len(),
+        b.view_dirs().len()
+    );
+    Ok(())
+}
+
+/// `meso btf info` of a UBO2014 file: its header and factors, without expanding it.
+fn ubo2014_info(path: &Path, as_json: bool) -> Result<(), CliError> {
+    let f = ubo2014::Ubo2014::open_path(path).map_err(CliError::bad_input)?;
+    let h = f.header();
+    let deg = |a: &[[f32; 2]]| -> Vec<[f64; 2]> {
+        a.iter()
+            .map(|d| {
+                let (t, p) = directions::to_angles_deg(directions::from_angles_deg(
+                    f64::from(d[0]).to_degrees(),
+                    f64::from(d[1]).to_degrees(),
+                ));
+                [t, p]
+            })
+            .collect()
+    };
+    let (nl, nv) = (h.light_angles.len(), h.view_angles.len());
+    let max_texels = crop::MAX_IMPORT_VALUES / (3 * (nl * nv) as u64);
+    if as_json {
+        return crate::print_json(&json!({
+            "file": path.display().to_string(),
+            "signature": h.signature,
+            "width": h.width, "height": h.height,
+            "light_dirs_deg": deg(&h.light_angles), "view_dirs_deg": deg(&h.view_angles),
+            "color_model": h.color_model, "cosine_flag": h.cosine_flag,
+            "components": f.components(),
+            "measurement_setup": h.measurement_setup,
+            "max_import_texels": max_texels,
+        }));
+    }
+    println!("{}: UBO2014 BTF ({})", path.display(), h.signature);
+    println!("setup        {}", h.measurement_setup);
+    println!("texels       {} x {}", h.width, h.height);
+    println!("directions   {nl} light x {nv} view");
+    println!(
+        "factors      components per factorisation {:?}, colour model {}, cosine flag {}",
+        f.components(),
+        h.color_model,
+        u8::from(h.cosine_flag)
+    );
+    println!("import       at most {max_texels} texels at once (--texels X,Y,W,H)");
+    Ok(())
+}
+
 fn info(path: &Path, as_json: bool) -> Result<(), CliError> {
+    if !path.is_dir() && detect(path).ok() == Some(Source::Ubo2014) {
+        return ubo2014_info(path, as_json);
+    }
     let b = load(path)?;
     let angles = |d: &[DVec3]| -> Vec<[f64; 2]> {
         d.iter()

@@ -8,6 +8,7 @@ use std::process::{Command, Output, Stdio};
 mod bench;
 mod brdf;
 mod btf_fit;
+mod btf_formats;
 mod compare;
 mod merl;
 mod pack;

@@ -4,13 +4,18 @@
 //! docs/brdf.md). `synth.rs` makes BTFs by ray tracing a height-field mesostructure
 //! (Sloan et al. 2003, section 4.2), `import.rs` reads measured image sets, `file.rs`
 //! is the `.btf` container (docs/formats/btf.md), `table.rs` the BTF as the spmm mode
-//! shades it (the scene's `btf` material). Fitting them lives in `fit`.
+//! shades it (the scene's `btf` material). `ubo2003.rs` and `ubo2014.rs` read the
+//! University of Bonn's database formats (zips of JPEGs, factorised binaries) and
+//! `crop.rs` keeps an import within memory. Fitting them lives in `fit`.
 
+pub mod crop;
 pub mod directions;
 pub mod file;
 pub mod import;
 pub mod synth;
 pub mod table;
+pub mod ubo2003;
+pub mod ubo2014;
 
 use glam::DVec3;
 

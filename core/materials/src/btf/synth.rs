@@ -56,7 +56,9 @@ pub enum SynthErrorKind {
         value: String,
         rule: &'static str,
     },
-    #[error("`directions` = `{0}`: the only named layout is `bonn81` (or give `direction_rings`)")]
+    #[error(
+        "`directions` = `{0}`: the named layouts are `bonn81` and `ubo151` (or give `direction_rings`)"
+    )]
     Layout(String),
     #[error("give `directions` or `direction_rings`, not both")]
     TwoLayouts,

@@ -185,7 +185,7 @@ mod tests {
     use std::f64::consts::PI;
 
     use super::*;
-    use crate::btf::directions::{bonn81, rings};
+    use crate::btf::directions::{Layout, bonn81, rings};
     use crate::rng::SampleStream;
 
     /// A 2x1 BTF: texel 0 is Lambertian `albedo / pi * cos_i`, texel 1 is
@@ -240,8 +240,16 @@ mod tests {
     /// held the ring's value, up to 15 times too bright at 89 degrees).
     #[test]
     fn a_lambertian_btf_is_the_lambertian_brdf_over_the_whole_hemisphere() {
+        // Both of Bonn's layouts: UBO2003's 81 directions and UBO2014's 151, whose
+        // last ring is at 75 degrees too.
+        for layout in Layout::ALL {
+            lambertian_over_the_hemisphere(layout.directions());
+        }
+    }
+
+    fn lambertian_over_the_hemisphere(dirs: Vec<DVec3>) {
         let albedo = 0.8;
-        let btf = lambertian_btf(bonn81(), albedo);
+        let btf = lambertian_btf(dirs, albedo);
         let table = BtfTable::new(&btf).expect("shadeable");
         let mut beyond = 0;
         for k in 0..4000u64 {

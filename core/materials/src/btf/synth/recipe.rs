@@ -20,7 +20,7 @@ pub(super) struct RecipeFile {
     name: String,
     width: u32,
     height: u32,
-    /// `"bonn81"` (the default) for the Bonn/UBO layout.
+    /// `"bonn81"` (the default) for the Bonn/UBO2003 layout, `"ubo151"` for UBO2014's.
     directions: Option<String>,
     /// A ring layout `[[theta_deg, count], ...]` used for both light and view sets.
     direction_rings: Option<Vec<(f64, u32)>>,
@@ -111,7 +111,9 @@ pub fn parse_recipe(text: &str, dir: &Path, source: &str) -> Result<SynthSetup, 
     }
     let dirs = match (&r.directions, &r.direction_rings) {
         (Some(_), Some(_)) => return Err(SynthErrorKind::TwoLayouts),
-        (Some(n), None) if n != "bonn81" => return Err(SynthErrorKind::Layout(n.clone())),
+        (Some(n), None) => directions::Layout::from_name(n)
+            .ok_or_else(|| SynthErrorKind::Layout(n.clone()))?
+            .directions(),
         (_, Some(rings)) => {
             for &(theta, count) in rings {
                 if !(0.0..89.0).contains(&theta) || count == 0 || count > 360 {

@@ -1,4 +1,4 @@
-//! `meso bench`: rays, strokes and frames.
+//! `meso bench`: rays, strokes, frames and edits.
 
 use crate::*;
 
@@ -265,5 +265,63 @@ fn bench_frames_measures_the_residual_off_and_the_moving_camera() {
     assert!(
         runs.iter().all(|r| r["ms_per_frame"].as_f64() > Some(0.0)),
         "{v}"
+    );
+}
+
+/// `meso bench edits` times every kind the scene has, skips the others with the
+/// reason, and its JSON has the documented shape; each edit was applied (a refused
+/// edit would fail the run), so the kinds' edits all reached a frame.
+#[test]
+fn bench_edits_times_each_kind_the_scene_has_and_names_what_it_skips() {
+    let scene = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../tests/scenes/default.toml"
+    );
+    let o = meso(
+        &[
+            "bench", "edits", scene, "--size", "32", "--edits", "2", "--json",
+        ],
+        "",
+    );
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    assert_eq!(
+        (v["size"].as_u64(), v["mode"].as_str()),
+        (Some(32), Some("spmm"))
+    );
+    assert_eq!(v["device"], "cpu");
+    let kinds = v["kinds"].as_array().expect("kinds");
+    let names: Vec<&str> = kinds
+        .iter()
+        .map(|k| k["kind"].as_str().expect("name"))
+        .collect();
+    assert_eq!(
+        names,
+        [
+            "material weight",
+            "basis parameter",
+            "light colour",
+            "light move",
+            "camera",
+            "environment rotation"
+        ]
+    );
+    for k in &kinds[..5] {
+        let (median, p95) = (k["median_ms"].as_f64(), k["p95_ms"].as_f64());
+        assert_eq!(k["edits"], 2, "{k}");
+        assert!(median.is_some_and(|m| m > 0.0) && p95 >= median, "{k}");
+    }
+    // The default scene has no environment.
+    assert_eq!(kinds[5]["edits"], 0);
+    assert!(kinds[5]["p95_ms"].is_null());
+    assert!(
+        kinds[5]["skipped"]
+            .as_str()
+            .expect("why")
+            .contains("environment")
+    );
+    assert_bad_input(
+        &meso(&["bench", "edits", scene, "--edits", "0"], ""),
+        &["--edits"],
     );
 }

@@ -131,7 +131,7 @@ pub struct AdaptiveMode {
     materials: Vec<Option<Arc<MaterialBandwidth>>>,
     /// Edited materials whose bandwidth is being analysed on a thread of its own (a
     /// second or more for a pack), by material index: taken up by the next frame.
-    analysing: Vec<(usize, JoinHandle<Option<Arc<MaterialBandwidth>>>)>,
+    analysing: Vec<Analysis>,
     /// The materials as the shading core shades them.
     shaders: Shaders,
     light_targets: Vec<LightTarget>,
@@ -151,6 +151,29 @@ pub struct AdaptiveMode {
     /// The preview shown until the first frame is done (`render_preview`): one sample
     /// at each previewed pixel, kept apart from the film.
     preview: Option<Image>,
+}
+
+/// A material's bandwidth analysed on a thread of its own, at most one per material:
+/// an edit made while it runs marks it `stale`, and a new one of the material as it
+/// then is starts when it ends (a slider drag analyses its latest step, not every one).
+struct Analysis {
+    index: usize,
+    thread: JoinHandle<Option<Arc<MaterialBandwidth>>>,
+    stale: bool,
+}
+
+/// `material_bandwidth` of `m` on a thread with a one-thread pool of its own (in the
+/// shared pool its rows would queue ahead of the frames'); `None` if no thread starts.
+fn analyse_beside(m: Material) -> Option<JoinHandle<Option<Arc<MaterialBandwidth>>>> {
+    std::thread::Builder::new()
+        .name("meso-bandwidth".into())
+        .spawn(
+            move || match rayon::ThreadPoolBuilder::new().num_threads(1).build() {
+                Ok(pool) => pool.install(|| material_bandwidth(&m)),
+                Err(_) => material_bandwidth(&m),
+            },
+        )
+        .ok()
 }
 
 /// Pixels per step of a yielding frame's shading (rows of about this many pixels): a
@@ -336,12 +359,14 @@ impl AdaptiveMode {
     /// placed for the softer one; otherwise the buffers stand until the next pass.
     fn take_analyses(&mut self) {
         let mut sharper = false;
-        for (index, thread) in std::mem::take(&mut self.analysing) {
-            if !thread.is_finished() {
-                self.analysing.push((index, thread));
+        for a in std::mem::take(&mut self.analysing) {
+            if !a.thread.is_finished() {
+                self.analysing.push(a);
                 continue;
             }
-            match thread.join() {
+            let index = a.index;
+            match a.thread.join() {
+                Ok(_) if a.stale => self.analyse(index),
                 Ok(bandwidth) => {
                     let peak =
                         |b: &Option<Arc<MaterialBandwidth>>| b.as_ref().map(|b| b.mean_peak());
@@ -359,6 +384,24 @@ impl AdaptiveMode {
         }
         if sharper && self.buffers.is_some() {
             self.restart_all();
+        }
+    }
+
+    /// Starts analysing material `index` as the scene has it now, or marks the
+    /// analysis under way stale; analyses here if no thread starts.
+    fn analyse(&mut self, index: usize) {
+        if let Some(a) = self.analysing.iter_mut().find(|a| a.index == index) {
+            a.stale = true;
+            return;
+        }
+        let m = self.core.scene.materials[index].clone();
+        match analyse_beside(m) {
+            Some(thread) => self.analysing.push(Analysis {
+                index,
+                thread,
+                stale: false,
+            }),
+            None => self.materials[index] = material_bandwidth(&self.core.scene.materials[index]),
         }
     }
 
@@ -460,24 +503,14 @@ impl RenderMode for AdaptiveMode {
                 self.restart_all()
             }
             Edited::Material { index, before } => {
-                let after = self.core.scene.materials[index].clone();
-                self.shaders.edited(index, Some(&before), &after);
+                let after = &self.core.scene.materials[index];
+                self.shaders.edited(index, Some(&before), after);
                 // The material's bandwidth only steers where samples go: the analysis
                 // (over a second for a pack) runs on a thread of its own, and the frames
                 // go on with the pass's buffers meanwhile (`take_analyses`). The film
                 // restarts: every sample shaded the old material or was up-sampled
                 // from samples that did.
-                let analysis = std::thread::Builder::new()
-                    .name("meso-bandwidth".into())
-                    .spawn(move || material_bandwidth(&after));
-                self.analysing.retain(|(i, _)| *i != index);
-                match analysis {
-                    Ok(thread) => self.analysing.push((index, thread)),
-                    Err(_) => {
-                        let m = &self.core.scene.materials[index];
-                        self.materials[index] = material_bandwidth(m);
-                    }
-                }
+                self.analyse(index);
                 self.restart_samples()
             }
             // The mode shades the same still or moving (its frames are already cheap)

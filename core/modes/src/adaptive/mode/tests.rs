@@ -107,6 +107,13 @@ fn a_material_edit_keeps_the_pass_and_analyses_the_material_beside_the_frames() 
     assert_eq!(mode.apply(edit.clone()), Ok(Invalidation::All));
     assert_eq!(mode.progress().min_samples, 0, "the samples restart");
     assert_eq!(mode.analysing.len(), 1, "analysed beside the frames");
+    // A second edit while it runs marks it stale: still one analysis, of the latest.
+    assert_eq!(mode.apply(edit.clone()), Ok(Invalidation::All));
+    assert_eq!(
+        mode.analysing.len(),
+        1,
+        "one analysis per material at a time"
+    );
     assert_eq!(sigma(&mode), Some(before), "the pass is kept");
     mode.render_frame();
     assert_eq!(mode.progress().frames, 1, "a frame");

@@ -10,7 +10,7 @@
 //!   automatic path (stochastic above 16 lights) against every light traced (forced),
 //!   with the film's bytes; `MESO_MANY_LIGHTS_REPORT=1` instead prints the frame
 //!   times, film bytes and an equal-time convergence comparison (docs/performance.md);
-//! - the viewport denoiser on the default scene's first frame at 256^2 and 512^2: the
+//! - the viewport denoiser on the default scene's first frame at 256^2, 512^2 and 1024^2: the
 //!   filter as used against its straightforward reference, and the half-resolution
 //!   filter of the first picture after an emission edit, 1 thread and all threads.
 
@@ -287,7 +287,7 @@ fn bench_frames(c: &mut Criterion) {
 fn bench_denoise(c: &mut Criterion) {
     let scene = default_scene();
     let one = single_thread();
-    for size in [256u32, 512] {
+    for size in [256u32, 512, 1024] {
         let mut mode = create(scene.clone(), size);
         mode.render_frame();
         let (image, guides) = (

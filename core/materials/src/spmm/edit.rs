@@ -8,6 +8,8 @@
 //! returns an equal material, so its pack is byte-identical. Weight edits never add a
 //! non-zero except where the designer paints weight in (`with_weight_added`).
 
+use std::sync::Arc;
+
 use glam::DVec3;
 
 use super::texel_mask::TexelMask;
@@ -374,7 +376,7 @@ impl SpmmMaterial {
         self.rebuilt_with(
             self.clusters().to_vec(),
             self.weights().clone(),
-            Some(r),
+            Some(Arc::new(r)),
             self.view().clone(),
         )
     }
@@ -455,7 +457,7 @@ impl SpmmMaterial {
         weights: SparseWeights,
         view: BasisView,
     ) -> Result<Self, SpmmError> {
-        self.rebuilt_with(clusters, weights, self.residual().cloned(), view)
+        self.rebuilt_with(clusters, weights, self.shared_residual().cloned(), view)
     }
 
     /// A validated material with these parts; marked edited if any stored part
@@ -464,23 +466,24 @@ impl SpmmMaterial {
         &self,
         clusters: Vec<Cluster>,
         weights: SparseWeights,
-        residual: Option<super::Residual>,
+        residual: Option<Arc<super::Residual>>,
         view: BasisView,
     ) -> Result<Self, SpmmError> {
-        let changed = clusters != self.clusters()
-            || &weights != self.weights()
-            || residual.as_ref() != self.residual();
+        let same_residual = match (&residual, self.shared_residual()) {
+            (Some(a), Some(b)) => Arc::ptr_eq(a, b) || a == b,
+            (None, None) => true,
+            _ => false,
+        };
+        let changed = clusters != self.clusters() || &weights != self.weights() || !same_residual;
         let mixture_changed = self.clusters_with_new_mixture(&clusters, &weights);
-        let mut m = SpmmMaterial::new(
-            self.name().to_string(),
-            self.provenance().to_string(),
-            self.width(),
-            self.height(),
-            clusters,
-            self.texel_cluster().to_vec(),
-            weights,
-            residual,
-        )?;
+        // The residual is shared, not copied, when an edit leaves it alone.
+        let header = super::material::Header {
+            name: self.name().to_string(),
+            provenance: self.provenance().to_string(),
+            edited: false,
+            edited_clusters: vec![false; clusters.len()],
+        };
+        let mut m = self.with_parts(header, clusters, weights, residual, BasisView::default())?;
         if changed || self.edited() {
             m.mark_clusters_edited(
                 (0..self.clusters().len())

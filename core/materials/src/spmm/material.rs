@@ -41,6 +41,15 @@ pub struct Residual {
     pub coefficients: Vec<f32>,
 }
 
+/// A material's name, provenance and edit marks.
+#[derive(Clone, Debug, PartialEq)]
+pub(super) struct Header {
+    pub name: String,
+    pub provenance: String,
+    pub edited: bool,
+    pub edited_clusters: Vec<bool>,
+}
+
 /// A validated SPMM material.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SpmmMaterial {
@@ -161,6 +170,113 @@ fn check_directions(part: &'static str, dirs: &[DVec3]) -> Result<(), SpmmError>
     Ok(())
 }
 
+/// The texel grid, the cluster map and the CSR weights' invariants (`SpmmMaterial::new`).
+fn check_mixture(
+    width: u32,
+    height: u32,
+    clusters: &[Cluster],
+    texel_cluster: &[u32],
+    weights: &SparseWeights,
+) -> Result<(), SpmmError> {
+    if !(1..=MAX_SIDE).contains(&width) || !(1..=MAX_SIDE).contains(&height) {
+        return Err(SpmmError::GridSize { width, height });
+    }
+    let texels = width as usize * height as usize;
+    check_len("texel_cluster", texel_cluster.len(), texels)?;
+    if clusters.is_empty() {
+        return Err(SpmmError::Length {
+            part: "clusters",
+            len: 0,
+            expected: 1,
+        });
+    }
+    for (cluster, c) in clusters.iter().enumerate() {
+        if c.bases.len() > usize::from(u16::MAX) + 1 {
+            return Err(SpmmError::TooManyBases {
+                cluster,
+                count: c.bases.len(),
+            });
+        }
+    }
+    for (index, &c) in texel_cluster.iter().enumerate() {
+        if c as usize >= clusters.len() {
+            return Err(SpmmError::Index {
+                part: "texel_cluster",
+                index,
+                value: c.into(),
+                bound: clusters.len() as u64,
+            });
+        }
+    }
+    check_len("weight_offsets", weights.offsets.len(), texels + 1)?;
+    check_len("weight_rgb", weights.rgb.len(), weights.basis.len())?;
+    if weights.offsets[0] != 0 {
+        return Err(SpmmError::Index {
+            part: "weight_offsets",
+            index: 0,
+            value: weights.offsets[0].into(),
+            bound: 1,
+        });
+    }
+    for i in 1..weights.offsets.len() {
+        if weights.offsets[i] < weights.offsets[i - 1] {
+            return Err(SpmmError::Offsets {
+                index: i,
+                value: weights.offsets[i],
+                prev_index: i - 1,
+                prev: weights.offsets[i - 1],
+            });
+        }
+    }
+    let nnz = weights.basis.len();
+    check_len(
+        "weight entries (last weight_offsets)",
+        weights.offsets[texels] as usize,
+        nnz,
+    )?;
+    for t in 0..texels {
+        let dictionary = clusters[texel_cluster[t] as usize].bases.len();
+        let range = weights.offsets[t] as usize..weights.offsets[t + 1] as usize;
+        for (k, &b) in weights.basis[range.clone()].iter().enumerate() {
+            if usize::from(b) >= dictionary {
+                return Err(SpmmError::Index {
+                    part: "weight_basis",
+                    index: range.start + k,
+                    value: b.into(),
+                    bound: dictionary as u64,
+                });
+            }
+            if weights.basis[range.start..range.start + k].contains(&b) {
+                return Err(SpmmError::DuplicateBasis { texel: t, basis: b });
+            }
+        }
+    }
+    check_finite("weight_rgb", weights.rgb.as_flattened())?;
+    Ok(())
+}
+
+/// The residual's directions, table sizes and values (`SpmmMaterial::new`).
+fn check_residual(r: &Residual, clusters: usize, texels: usize) -> Result<(), SpmmError> {
+    check_directions("light_dirs", &r.light_dirs)?;
+    check_directions("view_dirs", &r.view_dirs)?;
+    let table = r.light_dirs.len() * r.view_dirs.len() * 3;
+    check_len("residual_mean", r.mean.len(), clusters * table)?;
+    check_len(
+        "residual_components",
+        r.components.len(),
+        clusters * r.npca * table,
+    )?;
+    check_len(
+        "residual_coefficients",
+        r.coefficients.len(),
+        texels * r.npca,
+    )?;
+    check_finite("residual_mean", &r.mean)?;
+    check_finite("residual_components", &r.components)?;
+    check_finite("residual_coefficients", &r.coefficients)?;
+    Ok(())
+}
+
 impl SpmmMaterial {
     /// Checks every invariant: grid size, one cluster id per texel and in range, CSR
     /// offsets starting at 0, non-decreasing and ending at the entry count, basis
@@ -177,98 +293,9 @@ impl SpmmMaterial {
         weights: SparseWeights,
         residual: Option<Residual>,
     ) -> Result<Self, SpmmError> {
-        if !(1..=MAX_SIDE).contains(&width) || !(1..=MAX_SIDE).contains(&height) {
-            return Err(SpmmError::GridSize { width, height });
-        }
-        let texels = width as usize * height as usize;
-        check_len("texel_cluster", texel_cluster.len(), texels)?;
-        if clusters.is_empty() {
-            return Err(SpmmError::Length {
-                part: "clusters",
-                len: 0,
-                expected: 1,
-            });
-        }
-        for (cluster, c) in clusters.iter().enumerate() {
-            if c.bases.len() > usize::from(u16::MAX) + 1 {
-                return Err(SpmmError::TooManyBases {
-                    cluster,
-                    count: c.bases.len(),
-                });
-            }
-        }
-        for (index, &c) in texel_cluster.iter().enumerate() {
-            if c as usize >= clusters.len() {
-                return Err(SpmmError::Index {
-                    part: "texel_cluster",
-                    index,
-                    value: c.into(),
-                    bound: clusters.len() as u64,
-                });
-            }
-        }
-        check_len("weight_offsets", weights.offsets.len(), texels + 1)?;
-        check_len("weight_rgb", weights.rgb.len(), weights.basis.len())?;
-        if weights.offsets[0] != 0 {
-            return Err(SpmmError::Index {
-                part: "weight_offsets",
-                index: 0,
-                value: weights.offsets[0].into(),
-                bound: 1,
-            });
-        }
-        for i in 1..weights.offsets.len() {
-            if weights.offsets[i] < weights.offsets[i - 1] {
-                return Err(SpmmError::Offsets {
-                    index: i,
-                    value: weights.offsets[i],
-                    prev_index: i - 1,
-                    prev: weights.offsets[i - 1],
-                });
-            }
-        }
-        let nnz = weights.basis.len();
-        check_len(
-            "weight entries (last weight_offsets)",
-            weights.offsets[texels] as usize,
-            nnz,
-        )?;
-        for t in 0..texels {
-            let dictionary = clusters[texel_cluster[t] as usize].bases.len();
-            let range = weights.offsets[t] as usize..weights.offsets[t + 1] as usize;
-            for (k, &b) in weights.basis[range.clone()].iter().enumerate() {
-                if usize::from(b) >= dictionary {
-                    return Err(SpmmError::Index {
-                        part: "weight_basis",
-                        index: range.start + k,
-                        value: b.into(),
-                        bound: dictionary as u64,
-                    });
-                }
-                if weights.basis[range.start..range.start + k].contains(&b) {
-                    return Err(SpmmError::DuplicateBasis { texel: t, basis: b });
-                }
-            }
-        }
-        check_finite("weight_rgb", weights.rgb.as_flattened())?;
+        check_mixture(width, height, &clusters, &texel_cluster, &weights)?;
         if let Some(r) = &residual {
-            check_directions("light_dirs", &r.light_dirs)?;
-            check_directions("view_dirs", &r.view_dirs)?;
-            let table = r.light_dirs.len() * r.view_dirs.len() * 3;
-            check_len("residual_mean", r.mean.len(), clusters.len() * table)?;
-            check_len(
-                "residual_components",
-                r.components.len(),
-                clusters.len() * r.npca * table,
-            )?;
-            check_len(
-                "residual_coefficients",
-                r.coefficients.len(),
-                texels * r.npca,
-            )?;
-            check_finite("residual_mean", &r.mean)?;
-            check_finite("residual_components", &r.components)?;
-            check_finite("residual_coefficients", &r.coefficients)?;
+            check_residual(r, clusters.len(), width as usize * height as usize)?;
         }
         let table = |part, dirs: &[DVec3]| {
             DirectionTable::new(dirs).map_err(|source| SpmmError::DirectionSet { part, source })
@@ -297,6 +324,76 @@ impl SpmmMaterial {
             residual: residual.map(Arc::new),
             residual_tables,
             view: BasisView::default(),
+        })
+    }
+
+    /// What a pack stores beside the mixture and the residual (`delta.rs` records it).
+    pub(super) fn header(&self) -> Header {
+        Header {
+            name: self.name.clone(),
+            provenance: self.provenance.clone(),
+            edited: self.edited,
+            edited_clusters: self.edited_clusters.clone(),
+        }
+    }
+
+    /// This material with its header, dictionary, weights, residual and view replaced
+    /// (same grid and cluster map), checked as `new` checks them. A residual shared with
+    /// this one is not copied, and its direction tables are reused.
+    pub(super) fn with_parts(
+        &self,
+        header: Header,
+        clusters: Vec<Cluster>,
+        weights: SparseWeights,
+        residual: Option<Arc<Residual>>,
+        view: BasisView,
+    ) -> Result<Self, SpmmError> {
+        check_mixture(
+            self.width,
+            self.height,
+            &clusters,
+            &self.texel_cluster,
+            &weights,
+        )?;
+        check_len(
+            "edited_clusters",
+            header.edited_clusters.len(),
+            clusters.len(),
+        )?;
+        let same = match (&residual, &self.residual) {
+            (Some(a), Some(b)) => Arc::ptr_eq(a, b),
+            (None, None) => true,
+            _ => false,
+        };
+        let (residual_tables, residual_half) = if same {
+            (self.residual_tables.clone(), self.residual_half)
+        } else {
+            let fresh = Self::new(
+                String::new(),
+                String::new(),
+                self.width,
+                self.height,
+                clusters.clone(),
+                self.texel_cluster.clone(),
+                weights.clone(),
+                residual.as_deref().cloned(),
+            )?;
+            (fresh.residual_tables, fresh.residual_half)
+        };
+        Ok(Self {
+            name: header.name,
+            provenance: header.provenance,
+            edited: header.edited,
+            edited_clusters: header.edited_clusters,
+            width: self.width,
+            height: self.height,
+            clusters,
+            texel_cluster: self.texel_cluster.clone(),
+            weights,
+            residual,
+            residual_tables,
+            residual_half,
+            view,
         })
     }
 

@@ -5,6 +5,7 @@
 
 mod change;
 pub mod components;
+mod delta;
 pub mod directions;
 mod edit;
 mod eval;
@@ -21,6 +22,7 @@ pub mod testing;
 #[cfg(test)]
 pub(crate) mod tests;
 
+pub use delta::{DeltaError, PackDelta, Step};
 pub use edit::{Contributions, WeightTarget};
 pub use eval::TexelGrid;
 pub use eval::{EvalSettings, MOVING_NPCA, TexelFilter};

@@ -6,6 +6,9 @@
 
 use std::collections::BTreeSet;
 
+/// A basis by (cluster, index in its dictionary).
+pub type BasisId = (usize, usize);
+
 /// Mute and solo flags, by (cluster, basis). Empty: every basis shows.
 #[derive(Clone, Debug, PartialEq, Eq, Default)]
 pub struct BasisView {
@@ -17,6 +20,14 @@ impl BasisView {
     /// True when the view shows the material as stored.
     pub fn is_empty(&self) -> bool {
         self.muted.is_empty() && self.solo.is_empty()
+    }
+
+    /// The muted and the soloed (cluster, basis) pairs, in order.
+    pub fn entries(&self) -> [Vec<BasisId>; 2] {
+        [
+            self.muted.iter().copied().collect(),
+            self.solo.iter().copied().collect(),
+        ]
     }
 
     pub fn muted(&self, cluster: usize, basis: usize) -> bool {

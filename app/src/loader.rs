@@ -27,7 +27,8 @@ pub type Assigned = (PathBuf, Material, ResidualPrecision);
 /// A load that finished, to install.
 pub enum Loaded {
     /// An environment map was read: the scene's environment lit by it.
-    Environment(Environment),
+    /// A map read from this file, lighting the scene as its environment does now.
+    Environment(Environment, PathBuf),
     Scene(PathBuf, Box<(Scene, SceneBvh)>),
     /// A library file for material slot `.0`.
     Assigned(usize, Assigned),
@@ -197,8 +198,8 @@ impl Loader {
                         mis: true,
                     },
                 };
-                self.env_source = Some((path, map));
-                Loaded::Environment(env)
+                self.env_source = Some((path.clone(), map));
+                Loaded::Environment(env, path)
             }));
         }
         if let Some(r) = self.scene_job.as_ref().and_then(|j| j.poll()) {

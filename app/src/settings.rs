@@ -34,6 +34,12 @@ pub struct Settings {
     pub library_folders: Vec<PathBuf>,
     /// Where library thumbnails are cached (`None`: `library::default_cache_dir`).
     pub thumbnail_cache: Option<PathBuf>,
+    /// Keep a recovery journal of every edit (docs/app.md, "Never losing work").
+    pub journal: bool,
+    /// Where journals go (`None`: `MESO_STATE_DIR`, else the platform's state folder).
+    pub state_dir: Option<PathBuf>,
+    /// Memory undo may hold, in MiB; the oldest steps beyond it are dropped.
+    pub undo_budget_mb: usize,
 }
 
 impl Default for Settings {
@@ -52,17 +58,29 @@ impl Default for Settings {
             gpu_by_default: true,
             library_folders: Vec::new(),
             thumbnail_cache: None,
+            journal: true,
+            state_dir: None,
+            undo_budget_mb: meso_session::DEFAULT_UNDO_BUDGET >> 20,
         }
     }
 }
 
 impl Settings {
+    /// The folder session journals go to.
+    pub fn sessions_dir(&self) -> PathBuf {
+        self.state_dir
+            .as_ref()
+            .map_or_else(meso_session::journal::sessions_dir, |d| d.join("sessions"))
+    }
+
     /// The defaults, with the GPU default off: tests open scenes on the device they
     /// name, never on whatever GPU the machine running them has.
     #[cfg(test)]
     pub fn for_tests() -> Self {
         Self {
             gpu_by_default: false,
+            // Tests that journal name their own folder.
+            journal: false,
             ..Self::default()
         }
     }

@@ -54,6 +54,7 @@ impl StatusBar<'_> {
             }
             ui.separator();
             self.pack_status(ui, doc);
+            self.safety_status(ui, doc);
             if self.settings.compare {
                 ui.separator();
                 self.compare.status(ui, self.mode);
@@ -141,5 +142,36 @@ impl StatusBar<'_> {
             }
         };
         ui.label(format!("{} clusters · {parts}", material.clusters().len()));
+    }
+
+    /// Undo's memory and what it dropped; the journal, or why it cannot be written.
+    fn safety_status(&self, ui: &mut Ui, doc: &Document) {
+        let u = doc.undo_stats();
+        if u.dropped > 0 || u.bytes * 2 > u.budget {
+            ui.separator();
+            let mut text = format!(
+                "undo {} steps · {:.0} of {} MB",
+                u.steps,
+                u.bytes as f64 / (1 << 20) as f64,
+                u.budget >> 20
+            );
+            if u.dropped > 0 {
+                text += &format!(" · {} oldest dropped", u.dropped);
+            }
+            ui.label(text).on_hover_text(
+                "Undo keeps at most its budget (Settings: undo_budget_mb); the oldest steps beyond it are dropped.",
+            );
+        }
+        if let Some(e) = doc.journal_error() {
+            ui.separator();
+            ui.colored_label(ui.visuals().error_fg_color, "not journaled")
+                .on_hover_text(e);
+        } else if let Some(j) = doc.journal() {
+            ui.separator();
+            ui.label("journaled").on_hover_text(format!(
+                "Every edit is written to {} within a quarter of a second; after a crash the studio offers it back.",
+                j.path().display()
+            ));
+        }
     }
 }

@@ -27,8 +27,12 @@ use crate::library_window::LibraryWindow;
 use crate::loader::{self, Dropped, Loaded, Loader};
 use crate::material_panel::MaterialPanel;
 use crate::mode_switch::ModeSwitch;
+use crate::recovery::{Ask, Recovery};
 use crate::render_link::RenderLink;
 use crate::viewport::Viewport;
+use meso_session::SaveError;
+use meso_session::recover::{self, Session};
+use meso_session::script::{Runner, Script};
 use meso_viewport::maker::{ModeMaker, core_modes};
 use meso_viewport::worker::Command;
 
@@ -70,6 +74,10 @@ pub struct Studio {
     /// Menus, dialogs, title.
     chrome: Chrome,
     library: LibraryWindow,
+    /// The restore offer, pack conflicts and a scripted run.
+    recovery: Recovery,
+    /// A session being restored: its scene is loading, its journal replays then.
+    restoring: Option<Session>,
 }
 
 impl Studio {
@@ -100,7 +108,14 @@ impl Studio {
             loader: Loader::new(repaint.clone()),
             chrome: Chrome::default(),
             library: LibraryWindow::new(repaint),
+            recovery: Recovery::default(),
+            restoring: None,
         };
+        if s.settings.journal {
+            let mut offer = recover::restorable(&s.settings.sessions_dir());
+            offer.reverse();
+            s.recovery.offer = offer;
+        }
         s.set_max_samples(s.settings.max_samples);
         s.renderer.send(Command::Denoise(s.settings.denoise));
         s.open_scene(&scene.unwrap_or_else(default_scene_path));
@@ -220,7 +235,10 @@ impl Studio {
     /// Installs a finished load.
     fn install(&mut self, loaded: Loaded) {
         match loaded {
-            Loaded::Environment(env) => {
+            Loaded::Environment(env, path) => {
+                if let Some(doc) = &mut self.doc {
+                    doc.note_source(&env.map, &path);
+                }
                 self.edit(SceneEdit::Environment(Some(env)));
                 if let Some(doc) = &mut self.doc {
                     doc.close_group();
@@ -230,10 +248,20 @@ impl Studio {
                 let (scene, bvh) = *loaded;
                 remember(&mut self.settings.recent_scenes, &path);
                 self.canvas.bvh = Some(bvh);
+                // The previous document's journal goes if nothing in it is unsaved,
+                // else it stays for `meso recover` and the next start.
+                if let Some(old) = &mut self.doc {
+                    let clean = !old.dirty();
+                    old.close_journal(clean);
+                }
                 // Versions keep increasing across documents, so a frame of the
                 // previous scene never passes for one of this.
-                let mut doc = Document::new(scene, Some(path));
+                let mut doc = Document::new(scene, Some(path.clone()));
                 doc.version = self.doc.as_ref().map_or(1, |d| d.version + 1);
+                doc.set_undo_budget(self.settings.undo_budget_mb << 20);
+                if self.settings.journal {
+                    doc.journal_to(&self.settings.sessions_dir());
+                }
                 self.renderer.forget_in_flight();
                 self.material_panel = MaterialPanel::default();
                 self.selected_material = None;
@@ -243,6 +271,7 @@ impl Studio {
                 self.doc = Some(doc);
                 // The viewport loads it into the renderer at its size.
                 self.canvas.render_size = (0, 0);
+                self.finish_restore(&path);
             }
             Loaded::Assigned(index, (path, material, precision)) => {
                 let is_pack = matches!(material, Material::Spmm { .. });
@@ -368,8 +397,12 @@ impl Studio {
                 remember(&mut self.settings.recent_packs, path);
                 true
             }
+            Err(SaveError::ChangedOnDisk(p)) => {
+                self.recovery.conflict = Some(p);
+                false
+            }
             Err(e) => {
-                self.error = Some(format!("saving failed, the edits are kept: {e}"));
+                self.error = Some(e.to_string());
                 false
             }
         }
@@ -571,6 +604,156 @@ impl Studio {
         {
             self.material_panel.cluster = cluster;
             self.material_panel.texel = Some(texel);
+        }
+    }
+}
+
+impl Studio {
+    /// Sessions offered for restoring (newest first), until answered.
+    pub fn restore_offer(&self) -> &[Session] {
+        &self.recovery.offer
+    }
+
+    /// Restores a session: opens its scene, then replays its journal into it.
+    pub fn restore(&mut self, session: Session) {
+        self.recovery.offer.retain(|s| s.journal != session.journal);
+        let scene = session.scene.clone().unwrap_or_else(default_scene_path);
+        self.restoring = Some(session);
+        self.open_scene(&scene);
+    }
+
+    /// After a scene loaded: replays the journal being restored, if it is this
+    /// scene's, and removes it once the new session's journal holds its edits.
+    fn finish_restore(&mut self, path: &Path) {
+        let Some(session) = self.restoring.take() else {
+            return;
+        };
+        let wanted = session.scene.clone().unwrap_or_else(default_scene_path);
+        let same = |a: &Path, b: &Path| std::path::absolute(a).ok() == std::path::absolute(b).ok();
+        if !same(&wanted, path) {
+            return;
+        }
+        let Some(doc) = self.doc.as_mut() else { return };
+        let replayed = meso_session::journal::read(&session.journal)
+            .map_err(|e| e.to_string())
+            .and_then(|c| doc.replay(&c));
+        match replayed {
+            Ok(r) => {
+                let written = doc.journal().map_or(Ok(()), |j| j.flush());
+                if written.is_ok() {
+                    let _ = recover::discard(&session.journal);
+                }
+                if !r.lost.is_empty() {
+                    self.error = Some(format!(
+                        "restored; these edits could not be journaled and are missing: {}",
+                        r.lost.join(", ")
+                    ));
+                }
+                self.material_panel = MaterialPanel::default();
+            }
+            Err(e) => {
+                self.error = Some(format!(
+                    "could not restore `{}` (it is kept): {e}",
+                    session.journal.display()
+                ));
+            }
+        }
+    }
+
+    /// Runs a script's edits through the same path as the panels, one undo step each,
+    /// as their waits come due.
+    pub fn run_script(&mut self, script: Script) {
+        self.recovery.script = Some(Runner::new(script));
+    }
+
+    /// Whether a scripted run is still going.
+    pub fn script_running(&self) -> bool {
+        self.recovery.script.as_ref().is_some_and(|r| !r.done())
+    }
+
+    /// The scripted edits due now (after the scene has loaded).
+    fn step_script(&mut self, ctx: &egui::Context) {
+        if self.busy() || self.doc.is_none() {
+            return;
+        }
+        let Some(mut runner) = self.recovery.script.take() else {
+            return;
+        };
+        let now = std::time::Instant::now();
+        for i in runner.due(now) {
+            let Some(doc) = &self.doc else { break };
+            match runner.script.edit_on(i, doc) {
+                Ok(Some(e)) => {
+                    self.edit(e);
+                    if let Some(doc) = &mut self.doc {
+                        doc.close_group();
+                    }
+                }
+                Ok(None) => {}
+                Err(e) => {
+                    self.error = Some(e);
+                    return;
+                }
+            }
+        }
+        if let Some(wait) = runner.wait(now) {
+            ctx.request_repaint_after(wait);
+            self.recovery.script = Some(runner);
+        }
+    }
+
+    /// Checks the edited pack's file for changes by other programs, and does what
+    /// the recovery dialogs asked.
+    fn poll_recovery(&mut self, ctx: &egui::Context) {
+        self.step_script(ctx);
+        if self.recovery.check_due(std::time::Instant::now()) {
+            if let Some(p) = self.doc.as_ref().and_then(|d| d.pack_changed_on_disk()) {
+                self.recovery.changed_on_disk(p);
+            }
+            ctx.request_repaint_after(std::time::Duration::from_secs(2));
+        }
+        for ask in self.recovery.show(ctx) {
+            match ask {
+                Ask::Restore(s) => self.restore(s),
+                Ask::Discard(p) => {
+                    if let Err(e) = recover::discard(&p) {
+                        self.error = Some(e);
+                    }
+                }
+                Ask::Reload => {
+                    let reloaded = self.doc.as_mut().map(|d| d.reload_pack());
+                    match reloaded {
+                        Some(Ok(edit)) => {
+                            self.material_panel = MaterialPanel::default();
+                            self.send(edit);
+                        }
+                        Some(Err(e)) => self.error = Some(e),
+                        None => {}
+                    }
+                }
+                Ask::Overwrite => {
+                    let path = self
+                        .doc
+                        .as_ref()
+                        .and_then(|d| d.pack.as_ref())
+                        .and_then(|p| p.path.clone());
+                    if let (Some(doc), Some(path)) = (self.doc.as_mut(), path)
+                        && let Err(e) = doc.save_pack_over(&path)
+                    {
+                        self.error = Some(e.to_string());
+                    }
+                }
+                Ask::SaveAs => {
+                    self.save_as_dialog();
+                }
+            }
+        }
+    }
+
+    /// The window closes after the user saved or chose to discard: the journal goes.
+    pub fn on_exit(&mut self) {
+        if let Some(doc) = &mut self.doc {
+            doc.close_journal(true);
         }
     }
 }

@@ -102,6 +102,7 @@ impl Studio {
         let ctx = ui.ctx().clone();
         self.poll_jobs();
         self.receive();
+        self.poll_recovery(&ctx);
         for a in chrome::shortcuts(ui) {
             self.act(&ctx, a);
         }

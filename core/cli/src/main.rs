@@ -19,6 +19,7 @@ mod pack_edit_cmd;
 mod plot;
 mod precompute_cmd;
 mod progress;
+mod recover_cmd;
 mod regress_cmd;
 mod render_cmd;
 mod report_cmd;
@@ -72,6 +73,11 @@ enum Command {
     Precompute(precompute_cmd::PrecomputeArgs),
     /// Progressive render of a scene file in a render mode to EXR or PNG.
     Render(render_cmd::RenderArgs),
+    /// The studio's recovery journals: list sessions, write a journal's pack, discard.
+    Recover {
+        #[command(subcommand)]
+        command: recover_cmd::RecoverCommand,
+    },
     /// Regression renders over a manifest, compared with goldens; `merge` joins shards.
     Regress(regress_cmd::RegressArgs),
     /// Reports: speed against error of the render modes.
@@ -102,6 +108,7 @@ fn main() -> ExitCode {
         Command::Pack { command } => pack_cmd::run(command),
         Command::Precompute(args) => precompute_cmd::run(&args),
         Command::Render(args) => render_cmd::run(&args),
+        Command::Recover { command } => recover_cmd::run(command),
         Command::Regress(args) => regress_cmd::run(&args),
         Command::Report { command } => report_cmd::run(command),
     };

@@ -1,6 +1,7 @@
 //! Every reader survives hostile input: mutated scene files (structure-aware: numbers,
 //! keys, tables and lines of the shipped scenes), OBJ text, EXR, `.spmm`, `.btf`,
-//! Bonn's UBO2014 files and UBO2003 zips, and MERL bytes. The property for each case: the reader returns a value or an error
+//! Bonn's UBO2014 files and UBO2003 zips, MERL bytes, and the studio's recovery
+//! journals. The property for each case: the reader returns a value or an error
 //! whose message is one line; it never panics, never takes longer than a bound, and a
 //! size claimed by a header is checked before anything that large is allocated (an
 //! allocation failure would abort the test process, so it cannot pass unnoticed).
@@ -578,6 +579,70 @@ fn fuzz_merl_files() {
     eprintln!(
         "fuzz merl: {n} cases in {:.1} s, {accepted} accepted, no panic",
         start.elapsed().as_secs_f64()
+    );
+}
+
+/// A studio session's recovery journal on the Cornell scene's brushed-metal pack:
+/// strokes, a basis added, a light moved, an undo.
+fn journal_seed(state: &Path) -> (PathBuf, Vec<u8>) {
+    use meso_session::Document;
+    use meso_session::pack_edits::PackEdits;
+    let path = root().join("scenes/cornell.toml");
+    let mut doc = Document::new(load_scene(&path).expect("cornell"), Some(path));
+    doc.journal_to(state);
+    for line in [
+        "--cluster 0 --scale 1.2 --brush 3,3,2",
+        "--cluster 1 --basis 0 --scale 0.5,0.6,0.7",
+        "--add-basis 0 --model ward --param ax=0.2 --param ay=0.3 --add-weight 0.1 --brush 9,1,3",
+    ] {
+        let m = doc.material().expect("the pack");
+        let edited = PackEdits::parse(line)
+            .and_then(|e| e.apply(&m, Path::new(".")))
+            .expect("edit");
+        let slot = doc.pack.as_ref().expect("pack").material;
+        let mut material = doc.scene.materials[slot].clone();
+        if let meso_render::scene::Material::Spmm { material: m, .. } = &mut material {
+            *m = std::sync::Arc::new(edited.material);
+        }
+        doc.apply(&meso_render::SceneEdit::Material {
+            index: slot,
+            material,
+        })
+        .expect("applies");
+        doc.close_group();
+    }
+    doc.apply(&meso_render::SceneEdit::LightSamples(3))
+        .expect("applies");
+    doc.close_group();
+    doc.undo();
+    doc.journal().expect("journal").flush().expect("written");
+    let file = meso_session::journal::journal_files(state)
+        .pop()
+        .expect("a journal");
+    let bytes = std::fs::read(&file).expect("journal bytes");
+    doc.close_journal(false);
+    (file, bytes)
+}
+
+/// Journals are read after crashes, so torn and damaged ones are the normal case:
+/// reading one and replaying its pack never panics.
+#[test]
+fn fuzz_recovery_journals() {
+    use meso_session::{journal, recover};
+    let state = tempfile::tempdir().expect("temp dir");
+    let (path, seed_bytes) = journal_seed(state.path());
+    let full = journal::parse(&path, &seed_bytes).expect("the seed reads");
+    assert!(full.edits() >= 4 && full.cut_at.is_none());
+    recover::pack_of(&full).expect("the seed replays");
+    fuzz(
+        "journal",
+        &[seed_bytes],
+        |s, rng| mutate_bytes(s, rng),
+        |input| {
+            check("journal", &format!("({} bytes)", input.len()), || {
+                journal::parse(&path, input).map(|c| recover::pack_of(&c))
+            })
+        },
     );
 }
 

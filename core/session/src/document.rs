@@ -408,6 +408,9 @@ impl Document {
         if let Some(before) = self.open_group.take() {
             let now = Snapshot::of(&self.scene, &self.pack);
             self.history.push(Step::compact(before, &now));
+            if let Some(j) = &self.journal {
+                j.seal();
+            }
         }
     }
 
@@ -477,6 +480,9 @@ impl Document {
         }
         self.version += 1;
         self.journal_after(&edits, before);
+        if let Some(j) = &self.journal {
+            j.seal();
+        }
         edits
     }
 

@@ -12,6 +12,7 @@ mod btf_formats;
 mod compare;
 mod merl;
 mod pack;
+mod recover;
 mod regress;
 mod render;
 mod reports;

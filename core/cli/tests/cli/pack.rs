@@ -6,7 +6,7 @@ use crate::*;
 
 /// A two-cluster pack built through the public API (Ward + Lambertian, one weight
 /// per texel, no residual).
-fn write_small_pack(path: &Path) {
+pub(crate) fn write_small_pack(path: &Path) {
     use glam::DVec3;
     use meso_materials::brdf::{AnalyticBrdf, BasisFunction, BrdfModel};
     use meso_materials::spmm::{Cluster, SparseWeights, SpmmMaterial, pack};

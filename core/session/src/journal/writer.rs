@@ -32,6 +32,8 @@ enum Msg {
     /// The edited pack has no file: its whole content.
     Embed(usize, Arc<SpmmMaterial>),
     Rebase(Box<Start>),
+    /// An undo step ended: the pack's state so far is one record.
+    Seal,
     Flush(Sender<Result<(), String>>),
     Close {
         remove: bool,
@@ -127,6 +129,12 @@ impl Journal {
     /// The edited pack, without a file, is now `material` whole.
     pub fn embed(&self, slot: usize, material: Arc<SpmmMaterial>) {
         let _ = self.tx.send(Msg::Embed(slot, material));
+    }
+
+    /// Ends an edit (an undo step): the pack's changes so far become one record,
+    /// and the next edit's start a new one. Within a step (a drag) they merge.
+    pub fn seal(&self) {
+        let _ = self.tx.send(Msg::Seal);
     }
 
     /// Starts the journal again from `start` (after a save): the file is replaced
@@ -247,6 +255,7 @@ impl Writer {
                     });
                     self.base = Some((slot, material));
                 }
+                Ok(Msg::Seal) => self.materialize(),
                 Ok(Msg::Flush(ack)) => {
                     self.materialize();
                     let _ = ack.send(self.write());

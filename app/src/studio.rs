@@ -772,3 +772,7 @@ mod mode_tests;
 #[cfg(all(test, feature = "gpu"))]
 #[path = "window_device_tests.rs"]
 mod window_device_tests;
+
+#[cfg(test)]
+#[path = "recovery_tests.rs"]
+mod recovery_tests;

@@ -40,6 +40,8 @@ pub enum Action {
     MaxSamples,
     /// `Settings::denoise` changed.
     Denoise,
+    /// `Settings::undo_budget_mb` changed.
+    UndoBudget,
     /// Show this debug overlay (`None`: the image).
     Overlay(Option<&'static str>),
     /// The prompt's "switch with these lights disabled".
@@ -145,6 +147,22 @@ impl Chrome {
                 if ui.add_enabled(state.can_redo, redo).clicked() {
                     actions.push(Action::Redo);
                 }
+                ui.separator();
+                let budget = egui::Slider::new(&mut settings.undo_budget_mb, 16..=8192)
+                    .logarithmic(true)
+                    .text("undo memory (MB)");
+                if ui
+                    .add(budget)
+                    .on_hover_text("The oldest undo steps beyond this are dropped (the status bar says how many).")
+                    .changed()
+                {
+                    actions.push(Action::UndoBudget);
+                }
+                ui.checkbox(&mut settings.journal, "Recovery journal")
+                    .on_hover_text(
+                        "Write every edit to a journal as it happens, so a crash loses nothing \
+                         (from the next scene opened; docs/app.md)",
+                    );
             });
             ui.menu_button("View", |ui| {
                 if ui.button("BRDF explorer").clicked() {

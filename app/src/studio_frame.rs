@@ -49,6 +49,11 @@ impl Studio {
             Action::Redo => self.redo(),
             Action::MaxSamples => self.set_max_samples(self.settings.max_samples),
             Action::Denoise => self.renderer.send(Command::Denoise(self.settings.denoise)),
+            Action::UndoBudget => {
+                if let Some(doc) = &mut self.doc {
+                    doc.set_undo_budget(self.settings.undo_budget_mb << 20);
+                }
+            }
             Action::Overlay(o) => self.viewport.set_overlay(o),
             Action::SwitchWithoutLights(kind, device) => {
                 let size = self.canvas.prepare_size();

@@ -87,7 +87,11 @@ fn a_session_killed_a_second_after_its_last_edit_loses_none_of_them() {
             .material;
     }
     let file = std::fs::read(dir.path().join("metal.spmm")).expect("the pack");
-    assert_eq!(precision, pack::residual_precision(&file), "saved as the file was");
+    assert_eq!(
+        precision,
+        pack::residual_precision(&file),
+        "saved as the file was"
+    );
     assert_eq!(
         pack::encode_pack(&recovered, precision),
         pack::encode_pack(&reference, precision),

@@ -52,6 +52,11 @@ impl RenderLink {
     }
 
     /// Forgets the edits in flight (a new document).
+    /// Edits sent whose frame has not come back yet.
+    pub fn in_flight(&self) -> usize {
+        self.in_flight.len()
+    }
+
     pub fn forget_in_flight(&mut self) {
         self.in_flight.clear();
     }

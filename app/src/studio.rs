@@ -41,6 +41,9 @@ pub use crate::compare::Measured;
 pub use crate::render_link::Latency;
 pub use crate::settings::Settings;
 
+/// Scripted edits applied in one UI frame at most.
+const SCRIPT_EDITS_PER_FRAME: usize = 4;
+
 /// The scene the README's first command opens.
 pub fn default_scene_path() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../tests/scenes/default.toml")
@@ -673,14 +676,25 @@ impl Studio {
 
     /// The scripted edits due now (after the scene has loaded).
     fn step_script(&mut self, ctx: &egui::Context) {
-        if self.busy() || self.doc.is_none() {
+        // After the scene is loaded and in the renderer.
+        if self.busy() || self.doc.is_none() || self.canvas.render_size == (0, 0) {
+            if self.recovery.script.is_some() {
+                ctx.request_repaint_after(std::time::Duration::from_millis(10));
+            }
             return;
         }
         let Some(mut runner) = self.recovery.script.take() else {
             return;
         };
+        // Paced like a hand on the panels: a few edits a UI frame, and none while the
+        // renderer has not shown the last ones, so no queue grows behind the script.
+        if self.renderer.in_flight() > 1 {
+            ctx.request_repaint_after(std::time::Duration::from_millis(5));
+            self.recovery.script = Some(runner);
+            return;
+        }
         let now = std::time::Instant::now();
-        for i in runner.due(now) {
+        for i in runner.due_at_most(now, SCRIPT_EDITS_PER_FRAME) {
             let Some(doc) = &self.doc else { break };
             match runner.script.edit_on(i, doc) {
                 Ok(Some(e)) => {

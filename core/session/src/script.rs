@@ -148,12 +148,19 @@ impl Runner {
 
     /// The indices of the edits due at `now` (stopping at a wait, which starts).
     pub fn due(&mut self, now: Instant) -> Vec<usize> {
+        self.due_at_most(now, usize::MAX)
+    }
+
+    /// `due`, at most `n` of them (the rest stay due).
+    pub fn due_at_most(&mut self, now: Instant, n: usize) -> Vec<usize> {
         if self.resume_at.is_some_and(|t| now < t) {
             return Vec::new();
         }
         self.resume_at = None;
         let mut out = Vec::new();
-        while let Some(e) = self.script.edits.get(self.next) {
+        while out.len() < n
+            && let Some(e) = self.script.edits.get(self.next)
+        {
             self.next += 1;
             match e {
                 ScriptEdit::Wait(d) => {

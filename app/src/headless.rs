@@ -56,6 +56,14 @@ pub fn run(scene: Option<PathBuf>, script: Script) -> ExitCode {
             None => break,
         }
     }
+    let undo = doc.undo_stats();
+    println!(
+        "undo: {} steps in {:.1} KiB (budget {} MiB, {} oldest dropped)",
+        undo.steps,
+        undo.bytes as f64 / 1024.0,
+        undo.budget >> 20,
+        undo.dropped
+    );
     if let Some(j) = doc.journal() {
         if let Err(e) = j.flush() {
             eprintln!("meso-studio: {e}");

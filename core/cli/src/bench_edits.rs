@@ -9,7 +9,10 @@
 //! published: what the viewport would show next. The kinds take turns, so each sees
 //! the film as edits leave it (young, denoised), as in a session. Edits are made on
 //! the document as the edits before left it, as the studio's are, and each kind goes
-//! back and forth (a weight scaled by 1.25 then back), so nothing drifts.
+//! back and forth (a weight scaled by 1.25 then back), so nothing drifts. The timed
+//! interval starts before the edit reaches the studio's document
+//! (`meso_session::Document`: its undo step, with a pack's delta, and its recovery
+//! journal in a scratch folder), so what keeping work safe costs is in the figure.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -23,6 +26,7 @@ use meso_materials::rng::SampleStream;
 use meso_materials::spmm::{SpmmError, SpmmMaterial, WeightTarget};
 use meso_render::scene::{Light, Material, Scene, load_scene};
 use meso_render::{Device, ModeKind, SceneEdit};
+use meso_session::Document;
 use meso_viewport::{Command, Frame, RenderWorker};
 use serde_json::json;
 
@@ -253,19 +257,34 @@ pub fn run(args: &EditsArgs) -> Result<(), CliError> {
         width: args.size,
         height: args.size,
     });
-    // The studio's document: each edit is applied to it as the studio applies it.
-    let mut document = scene;
+    // The studio's document: each edit is applied to it as the studio applies it,
+    // with undo and a journal (removed at the end).
+    let mut document = Document::new(scene, Some(args.scene.clone()));
+    let journal_dir = std::env::temp_dir().join(format!("meso-bench-edits-{}", std::process::id()));
+    document.journal_to(&journal_dir);
+    let timed = time_edits(args, &worker, &kinds, &mut document);
+    document.close_journal(true);
+    let _ = std::fs::remove_dir_all(&journal_dir);
+    report(args, (kind, device), &kinds, timed?);
+    Ok(())
+}
+
+/// Sends `args.edits` rounds of each kind's edit and times each to its first frame.
+fn time_edits(
+    args: &EditsArgs,
+    worker: &RenderWorker,
+    kinds: &[Kind],
+    document: &mut Document,
+) -> Result<Vec<Vec<f64>>, CliError> {
     // Untimed: the mode's preparation and a few whole frames.
-    let (mut last, _) = wait_for(&worker, |f| !f.preview && f.progress.min_samples >= 4)?;
+    let (mut last, _) = wait_for(worker, |f| !f.preview && f.progress.min_samples >= 4)?;
     let mut version = 1u64;
     let mut times: Vec<Vec<f64>> = vec![Vec::new(); kinds.len()];
     let mut pauses = SampleStream::new(&[0xed17]);
     for round in 0..args.edits {
         for (k, kind) in kinds.iter().enumerate() {
             let Ok(make) = &kind.edit else { continue };
-            let edit = make(&document, round)
-                .map_err(|e| CliError::failure(anyhow!("{} edit {round}: {e}", kind.name)))?;
-            edit.apply_to(&mut document)
+            let edit = make(&document.scene, round)
                 .map_err(|e| CliError::failure(anyhow!("{} edit {round}: {e}", kind.name)))?;
             // The edit lands at a random point of the frame in flight.
             let frame_ms = last.frame_ms.clamp(1.0, 2_000.0);
@@ -277,19 +296,25 @@ pub fn run(args: &EditsArgs) -> Result<(), CliError> {
             }
             version += 1;
             let sent = Instant::now();
+            // As the studio does: a camera turn is a view edit, the rest undo steps.
+            let applied = if matches!(edit, SceneEdit::Camera(_)) {
+                document.apply_view(&edit)
+            } else {
+                document.apply(&edit).map(|()| document.close_group())
+            };
+            applied.map_err(|e| CliError::failure(anyhow!("{} edit {round}: {e}", kind.name)))?;
             worker.send(Command::Edit {
                 version,
                 edit: Box::new(edit),
             });
-            let (frame, at) = wait_for(&worker, |f| f.version >= version)?;
+            let (frame, at) = wait_for(worker, |f| f.version >= version)?;
             times[k].push((at - sent).as_secs_f64() * 1e3);
             if frame.frame_ms > 0.0 {
                 last = frame;
             }
         }
     }
-    report(args, (kind, device), &kinds, times);
-    Ok(())
+    Ok(times)
 }
 
 fn report(

@@ -15,3 +15,4 @@ pub mod merl;
 pub mod metrics;
 pub mod rng;
 pub mod spmm;
+pub mod utc;

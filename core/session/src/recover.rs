@@ -55,8 +55,8 @@ pub fn list(dir: &Path) -> (Vec<Session>, Vec<String>) {
                     scene: c.header.scene.clone(),
                     packs: c.packs(),
                     edits: c.edits(),
-                    started: journal::utc(c.header.started),
-                    last_edit: journal::utc(modified),
+                    started: meso_materials::utc::from_unix(c.header.started),
+                    last_edit: meso_materials::utc::from_unix(modified),
                     journal: path,
                 });
             }

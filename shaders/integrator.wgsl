@@ -4,8 +4,7 @@
 // lights, ambient occlusion (lights.wgsl) with the materials' response (brdf.wgsl,
 // spmm.wgsl). Each emitter's contribution goes to its own layer for unit emission;
 // the CPU adds the layers to its f64 film, so film semantics are the CPU's.
-// Random numbers: a PCG hash of (seed, sample index, pixel) advanced per draw: the
-// same distribution as the CPU's, not the same numbers.
+// Random numbers: the CPU's sampler and dimension layout (sampler.wgsl).
 
 struct Params {
     width: u32,
@@ -29,6 +28,11 @@ struct Params {
     // Points per area light per shading point (`[render] light_samples`, 1..=64);
     // above 16 lights, that many chosen lights.
     light_samples: u32,
+    // `[render] sampler` (SAMPLER_*), then padding to the vectors' alignment.
+    sampler: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
     cam_origin: vec4<f32>,
     // w: half the image plane's width at distance 1.
     cam_forward: vec4<f32>,
@@ -87,26 +91,6 @@ fn add_layer(pixel: u32, layer: u32, v: vec3<f32>) {
     if layer < MAX_LAYERS {
         acc[layer] += v;
     }
-}
-
-struct Rng {
-    state: u32,
-}
-
-fn pcg(v: u32) -> u32 {
-    let s = v * 747796405u + 2891336453u;
-    let w = ((s >> ((s >> 28u) + 4u)) ^ s) * 277803737u;
-    return (w >> 22u) ^ w;
-}
-
-fn rand(rng: ptr<function, Rng>) -> f32 {
-    (*rng).state = pcg((*rng).state);
-    return f32((*rng).state >> 8u) * (1.0 / 16777216.0);
-}
-
-fn rand2(rng: ptr<function, Rng>) -> vec2<f32> {
-    let a = rand(rng);
-    return vec2<f32>(a, rand(rng));
 }
 
 struct Shading {
@@ -233,7 +217,7 @@ fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups)
     counts = Counts(0u, 0u, 0u, 0u, 0u);
     mask = vec2<u32>(0u);
     uv_box = vec4<f32>(3.4e38, 3.4e38, -3.4e38, -3.4e38);
-    var rng = Rng(pcg(pixel + pcg(params.sample_lo + pcg(params.seed ^ pcg(params.sample_hi)))));
+    var rng = rng_for_sample(params.sampler, params.seed, params.sample_lo, params.sample_hi, pixel);
 
     let jitter = rand2(&rng);
     let sx = ((f32(x) + jitter.x) / f32(params.width)) * 2.0 - 1.0;

@@ -59,8 +59,7 @@ fn hit_parallelogram(o: vec3<f32>, dir: vec3<f32>, c: vec3<f32>, eu: vec3<f32>, 
 // The material's strategy for area light `k` (`sample_area_light_by_material`): a
 // direction drawn from the material, kept if it meets the light's front face
 // unshadowed, weighted by the power heuristic against the light's solid-angle pdf.
-fn sample_area_light_by_material(k: u32, s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f32>, pixel: u32, rng: ptr<function, Rng>) {
-    let u = rand2(rng);
+fn sample_area_light_by_material(k: u32, s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f32>, pixel: u32, u: vec2<f32>) {
     let at = params.light_table + k * LIGHT_WORDS;
     let m = material_sample(s, wo, u);
     if !(m.w > 0.0) || dot(m.xyz, s.n) <= 0.0 {
@@ -91,17 +90,23 @@ fn sample_lights(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f3
     let share = throughput / f32(n);
     for (var k = 0u; k < count; k++) {
         let at = params.light_table + k * LIGHT_WORDS;
+        // Both kinds draw a set of points (and area lights under MIS a set of material
+        // directions), as the CPU's: the layout does not depend on the lights' kinds.
+        let points = rand2_set(rng, n);
         if data[at] == LIGHT_POINT {
             // One exact sample.
-            sample_light_point(at, rand2(rng), false, s, wo, lift, throughput, pixel);
+            sample_light_point(at, set_draw(rng, points, 0u), false, s, wo, lift, throughput, pixel);
             continue;
         }
+        var directions = PairSet(0u, 0u);
+        if mis {
+            directions = rand2_set(rng, n);
+        }
         for (var r = 0u; r < n; r++) {
-            let u = rand2(rng);
             if mis {
-                sample_area_light_by_material(k, s, wo, lift, share, pixel, rng);
+                sample_area_light_by_material(k, s, wo, lift, share, pixel, set_draw(rng, directions, r));
             }
-            sample_light_point(at, u, mis, s, wo, lift, share, pixel);
+            sample_light_point(at, set_draw(rng, points, r), mis, s, wo, lift, share, pixel);
         }
     }
 }
@@ -170,15 +175,19 @@ fn sample_chosen_light(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: v
     var chosen_falloff = 0.0;
     var chosen_w = 0.0;
     for (var c = 0u; c < CANDIDATES; c++) {
-        // Walker's alias table: a bin, then keep it or take its alias.
-        let bin = min(u32(rand(rng) * f32(n)), n - 1u);
+        // One dimension's independent numbers per candidate, as the CPU's
+        // `next_32_16_16`: Walker's alias table (a bin, then keep it or take its
+        // alias), and a point on the light from 16 bits a side.
+        let bits = rand_bits(rng);
+        let bin = min(u32(unit_f32(bits) * f32(n)), n - 1u);
         let bin_at = params.light_table + bin * LIGHT_WORDS;
         var k = bin;
-        if !(rand(rng) < f32_at(bin_at + LIGHT_KEEP)) {
+        if !(unit_f32(pcg(bits)) < f32_at(bin_at + LIGHT_KEEP)) {
             k = min(data[bin_at + LIGHT_ALIAS], n - 1u);
         }
         let at = params.light_table + k * LIGHT_WORDS;
-        let u = rand2(rng);
+        let point_bits = pcg(bits ^ 0x9e3779b9u);
+        let u = (vec2<f32>(f32(point_bits >> 16u), f32(point_bits & 0xffffu)) + 0.5) * (1.0 / 65536.0);
         let q = light_vec(at + 1u) + light_vec(at + 4u) * u.x + light_vec(at + 7u) * u.y;
         let to = q - s.p;
         let d2 = dot(to, to);

@@ -78,3 +78,19 @@ fn trace_rays(@builtin(global_invocation_id) id: vec3<u32>) {
     // As a float (exact below 2^24): a bit pattern of NaN may not survive a store.
     results[2u * id.x + 1u] = select(f32(hit.prim), -1.0, hit.prim == NO_HIT);
 }
+
+// sobol_points: per case 3 words: index, seed 0, seed 1; per case 4 results: the
+// point's x and y as 32-bit fractions in 16-bit halves (exact in f32).
+@compute @workgroup_size(64)
+fn sobol_points(@builtin(global_invocation_id) id: vec3<u32>) {
+    let n = arrayLength(&cases) / 3u;
+    if id.x >= n {
+        return;
+    }
+    let at = id.x * 3u;
+    let p = sobol_point_bits(cases[at], cases[at + 1u], cases[at + 2u]);
+    results[4u * id.x] = f32(p.x >> 16u);
+    results[4u * id.x + 1u] = f32(p.x & 0xffffu);
+    results[4u * id.x + 2u] = f32(p.y >> 16u);
+    results[4u * id.x + 3u] = f32(p.y & 0xffffu);
+}

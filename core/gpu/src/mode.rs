@@ -26,6 +26,7 @@ use super::shaders;
 use super::{GpuContext, GpuError, Sharing};
 use limits::{ENVIRONMENT_WORDS, MATERIAL_WORDS_NAME, device_size_problem, words_size_problem};
 use meso_materials::image::Image;
+use meso_materials::rng::Sampler;
 use meso_materials::spmm::PrepareRequest;
 use meso_render::environment::EnvironmentSampler;
 use meso_render::film::{LayeredFilm, material_bit};
@@ -106,6 +107,9 @@ struct Params {
     stochastic: u32,
     /// Points per area light per shading point (`[render] light_samples`).
     light_samples: u32,
+    /// `[render] sampler`: 0 Sobol, 1 independent (`shaders/sampler.wgsl`).
+    sampler: u32,
+    pad: [u32; 3],
     cam_origin: [f32; 4],
     cam_forward: [f32; 4],
     cam_right: [f32; 4],
@@ -316,6 +320,11 @@ impl GpuSpmmMode {
             materials: self.core.scene.materials.len() as u32,
             stochastic: u32::from(LightSampling::Auto.stochastic(self.core.scene.lights.len())),
             light_samples: self.core.scene.render.light_samples,
+            sampler: match self.core.scene.render.sampler {
+                Sampler::Sobol => 0,
+                Sampler::Independent => 1,
+            },
+            pad: [0; 3],
             cam_origin: v4(cam.position, 0.0),
             cam_forward: v4(forward, half_w),
             cam_right: v4(right, half_h),

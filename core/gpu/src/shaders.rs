@@ -6,6 +6,7 @@
 pub(super) const BRDF: &str = include_str!("../../../shaders/brdf.wgsl");
 pub(super) const SPMM: &str = include_str!("../../../shaders/spmm.wgsl");
 pub(super) const TRAVERSAL: &str = include_str!("../../../shaders/traversal.wgsl");
+pub(super) const SAMPLER: &str = include_str!("../../../shaders/sampler.wgsl");
 pub(super) const LIGHTS: &str = include_str!("../../../shaders/lights.wgsl");
 pub(super) const INTEGRATOR: &str = include_str!("../../../shaders/integrator.wgsl");
 pub(super) const ENVIRONMENT: &str = include_str!("../../../shaders/environment.wgsl");
@@ -46,6 +47,7 @@ fn from_disk(embedded: &str) -> String {
 pub(super) fn integrator() -> String {
     module(&[
         INTEGRATOR,
+        SAMPLER,
         TRAVERSAL,
         BRDF,
         SPMM,

@@ -46,6 +46,7 @@ fn rounded(v: DVec3) -> DVec3 {
 pub(super) fn test_module() -> String {
     shaders::module(&[
         shaders::TEST_KERNELS,
+        shaders::SAMPLER,
         shaders::TRAVERSAL,
         shaders::BRDF,
         shaders::SPMM,

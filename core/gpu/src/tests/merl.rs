@@ -8,7 +8,7 @@ use meso_materials::rng::SampleStream;
 use crate::data::Words;
 
 use super::kernel_cases::{Case, direction_pairs, evaluate};
-use super::{gpu_mode, image_agrees_with_the_cpu, mean, test_scene};
+use super::{gpu_mode, mean, test_scene};
 
 /// A MERL table (a tabulated Cook-Torrance lobe with every 7th cell's red channel
 /// marked "no data") with its sampling tables in the data words.
@@ -153,10 +153,12 @@ fn merl_lookup_and_sampling_match_the_cpu() {
     );
 }
 
-/// The MERL scene (two tabulated tables, the studio map with MIS, an area light).
+/// The MERL scene (two tabulated tables, the studio map with MIS, an area light),
+/// pooled over three seeds: its sharp lobes make rare, large samples, so one seed's
+/// RMSE at 16 frames swings by a third (measured ratios 0.95 to 1.30 by seed).
 #[test]
 fn the_merl_scene_on_the_gpu_agrees_with_the_cpu() {
-    image_agrees_with_the_cpu("merl_bunny.toml", 32, 16);
+    super::scene_agrees_with_the_cpu_over_seeds("merl_bunny.toml", 32, 16, &[0, 7, 11]);
 }
 
 /// Diagnostics (not a check): means of the MERL scene's variants after many frames on

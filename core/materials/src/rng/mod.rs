@@ -11,6 +11,10 @@
 
 mod sobol;
 
+/// The scrambled Sobol point of a sample index under a 64-bit seed (the GPU's
+/// sampler is tested against it bit for bit).
+pub use sobol::point_2d as sobol_point;
+
 use serde::{Deserialize, Serialize};
 
 /// How a renderer draws the numbers of its samples.

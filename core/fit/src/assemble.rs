@@ -142,6 +142,7 @@ pub(crate) fn assemble(
     )?;
     debug_assert_eq!(material.clusters().len(), k);
     let mut cluster_npca = None;
+    let mut lowered = None;
     if let Some(max_bytes) = settings.max_bytes {
         let trimmed = budget::trim_to_bytes(&material, max_bytes, settings.precision)?;
         material = trimmed.material;
@@ -158,9 +159,10 @@ pub(crate) fn assemble(
             .map(|(w, p)| w * p)
             .fold(0.0f64, f64::max);
         if worst > lobe_bound::HEMISPHERE_MULTIPLE * 0.97 * pack_max {
-            material = budget::clamp_to_lobe_bound(&material)
-                .map_err(|_| FitError::LobeBound)?
-                .0;
+            let (clamped, n) =
+                budget::clamp_to_lobe_bound(&material).map_err(|_| FitError::LobeBound)?;
+            material = clamped;
+            lowered = Some(n);
         }
     }
     let [clustering, dictionary, residual] = tables.seconds;
@@ -186,6 +188,7 @@ pub(crate) fn assemble(
     if let Some(counts) = cluster_npca {
         report.set_cluster_npca(&stats, counts);
     }
+    report.lowered_weights = lowered;
     Ok(FitOutput {
         material,
         report,

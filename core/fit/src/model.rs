@@ -321,9 +321,9 @@ pub(crate) fn fit_model(
         })
         .collect();
     // The lobe bound's second half: each basis times its weight stays within the
-    // hemisphere multiple of the brightest value, here the sample's (a margin below
-    // the validator's multiple for the file's rounding). The assembled pack is
-    // checked against its own maximum and clamped where it falls short (assemble.rs).
+    // hemisphere multiple of the pack's brightest tabulated value (a margin below the
+    // validator's multiple for the file's rounding). That value is the sample's
+    // brightest at first, then what the fit reproduces of it (below).
     let peaks: Vec<f64> = clusters
         .iter()
         .flat_map(|c| c.bases.iter())
@@ -332,16 +332,18 @@ pub(crate) fn fit_model(
         .map(|b| lobe_bound::hemisphere_peak(b).0)
         .collect();
     let target = lobe_bound::HEMISPHERE_MULTIPLE * 0.97;
-    let caps: Vec<f64> = peaks
-        .iter()
-        .map(|&p| {
-            if p > 0.0 && settings.hemisphere_bound {
-                target * reference / p
-            } else {
-                f64::INFINITY
-            }
-        })
-        .collect();
+    let caps_for = |reference: f64| -> Vec<f64> {
+        peaks
+            .iter()
+            .map(|&p| {
+                if p > 0.0 && settings.hemisphere_bound {
+                    target * reference / p
+                } else {
+                    f64::INFINITY
+                }
+            })
+            .collect()
+    };
     let s_dict = t0.elapsed().as_secs_f64();
 
     // 3. The residual per cluster: mean + PCA of what the weights leave, over at most
@@ -354,36 +356,137 @@ pub(crate) fn fit_model(
         columns,
         first_col,
         grams,
-        caps,
-        peaks,
+        caps: caps_for(reference),
+        peaks: peaks.clone(),
         means: Vec::new(),
         components: Vec::new(),
         input_hash: h.finish(),
         seconds: [s_cluster, s_dict, 0.0],
     };
-    let d = m * 3;
-    for (c, mem) in members.iter().enumerate() {
-        if cancelled() {
+    let chosen: Vec<Vec<usize>> = members
+        .iter()
+        .map(|mem| {
+            let mut chosen: Vec<usize> = mem.clone();
+            chosen.sort_by_key(|&i| sample[i].1);
+            chosen.truncate(settings.residual_texels);
+            let mut texels: Vec<usize> = chosen.iter().map(|&i| sample[i].0).collect();
+            texels.sort_unstable();
+            texels
+        })
+        .collect();
+    // The caps hold every weight within the bound relative to `reference`; the bound
+    // itself is relative to the pack's maximum, at least what the fit reproduces at
+    // the sample's texels (they are fitted alike in every pack). Where that falls short
+    // of the reference, the reference drops to it and the weights and residual are
+    // fitted again; past the 4th attempt the assembly lowers the weights over the bound.
+    for attempt in 1..=4 {
+        fit_residual_model(src, &mut model, &chosen, settings, block, cancel, progress)?;
+        if !settings.hemisphere_bound || attempt == 4 {
+            break;
+        }
+        let reproduced = reproduced_maximum(src, &model, &sample_texels, settings, block)?;
+        if reference <= reproduced {
+            break;
+        }
+        reference = reproduced * 0.99;
+        model.caps = caps_for(reference);
+    }
+    model.seconds[2] = t0.elapsed().as_secs_f64();
+    Ok(model)
+}
+
+/// Calls `f` on each of `texels` (ascending) in parallel, reading up to `block` at a
+/// time; the results in order.
+fn map_texels<T: Send>(
+    src: &dyn TexelSource,
+    texels: &[usize],
+    block: usize,
+    f: impl Fn(&[f32]) -> T + Sync,
+) -> Result<Vec<T>, FitError> {
+    let per = src.pairs() * 3;
+    let mut out = Vec::with_capacity(texels.len());
+    let mut buf = Vec::new();
+    for group in texels.chunks(block.max(1)) {
+        buf.clear();
+        buf.resize(group.len() * per, 0.0f32);
+        let mut filled = 0;
+        for_each_texel(src, group, block, |i, row| {
+            buf[i * per..(i + 1) * per].copy_from_slice(row);
+            filled += 1;
+        })?;
+        debug_assert_eq!(filled, group.len());
+        out.extend(buf.par_chunks(per).map(&f).collect::<Vec<T>>());
+    }
+    Ok(out)
+}
+
+/// Each cluster's residual mean and components from its `chosen` sample texels, against
+/// the model's current caps.
+fn fit_residual_model(
+    src: &dyn TexelSource,
+    model: &mut Model,
+    chosen: &[Vec<usize>],
+    settings: &FitSettings,
+    block: usize,
+    cancel: &AtomicBool,
+    progress: Progress,
+) -> Result<(), FitError> {
+    let d = src.pairs() * 3;
+    model.means.clear();
+    model.components.clear();
+    let k = chosen.len();
+    for (c, texels) in chosen.iter().enumerate() {
+        if cancel.load(Ordering::Relaxed) {
             return Err(FitError::Cancelled);
         }
-        let mut chosen: Vec<usize> = mem.clone();
-        chosen.sort_by_key(|&i| sample[i].1);
-        chosen.truncate(settings.residual_texels);
-        chosen.sort_unstable();
-        let texels: Vec<usize> = chosen.iter().map(|&i| sample[i].0).collect();
+        let m: &Model = model;
+        let weights = map_texels(src, texels, block, |row| {
+            texel_fit::weights(m, c, row, settings.max_bases)
+        })?;
         // One column per texel, written in place (no second copy of the matrix).
         let mut xc = DMatrix::<f64>::zeros(d, texels.len());
-        let mut at = 0;
-        for_each_texel(src, &texels, block, |_, row| {
-            let w = texel_fit::weights(&model, c, row, settings.max_bases);
-            texel_fit::basis_residual(&model, c, row, &w, xc.column_mut(at).as_mut_slice());
-            at += 1;
+        for_each_texel(src, texels, block, |i, row| {
+            texel_fit::basis_residual(m, c, row, &weights[i], xc.column_mut(i).as_mut_slice());
         })?;
         let r = residual::fit_columns(xc, settings.npca);
         model.means.push(r.mean);
         model.components.push(r.components);
         progress(Stage::Residual, c + 1, k);
     }
-    model.seconds[2] = t0.elapsed().as_secs_f64();
-    Ok(model)
+    Ok(())
+}
+
+/// The largest value the pack will tabulate at the sample's texels, whatever a byte
+/// budget keeps of the residual: the lower of the maxima of their basis sums (weights
+/// as the pack stores them) plus the residual mean, with and without the components.
+/// The same with or without a budget, so a budget does not change the weights.
+fn reproduced_maximum(
+    src: &dyn TexelSource,
+    model: &Model,
+    sample_texels: &[usize],
+    settings: &FitSettings,
+    block: usize,
+) -> Result<f64, FitError> {
+    let maxima = map_texels(src, sample_texels, block, |row| {
+        let fit = texel_fit::fit_texel(model, row, settings.max_bases, &mut Default::default());
+        let c = fit.cluster as usize;
+        let cols = &model.columns[model.first_col[c]..model.first_col[c + 1]];
+        let mut v = model.means[c].clone();
+        for &(j, rgb) in &fit.weights {
+            for (p, a) in cols[j as usize].iter().enumerate() {
+                for ch in 0..3 {
+                    v[p * 3 + ch] += f64::from(rgb[ch]) * a;
+                }
+            }
+        }
+        let mean_only = v.iter().copied().fold(0.0f64, f64::max);
+        for (comp, coef) in model.components[c].iter().zip(&fit.coefficients) {
+            v.iter_mut().zip(comp).for_each(|(a, b)| *a += coef * b);
+        }
+        (mean_only, v.into_iter().fold(0.0f64, f64::max))
+    })?;
+    let (a, b) = maxima
+        .into_iter()
+        .fold((0.0f64, 0.0f64), |(a, b), (x, y)| (a.max(x), b.max(y)));
+    Ok(a.min(b))
 }

@@ -68,6 +68,10 @@ pub struct FitReport {
     pub cluster_npca: Option<Vec<usize>>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub rmse_budget: Option<f64>,
+    /// Weight entries lowered to the lobe bound after the fit (the pack's maximum fell
+    /// below the one the caps assumed); the RMSEs above are from before.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lowered_weights: Option<usize>,
 }
 
 /// The N_PCA values the report lists: 0, 1, 2, 4, 8 (up to the fit's N_PCA) and
@@ -215,6 +219,7 @@ pub(super) fn build(material: &SpmmMaterial, input: ReportInput) -> FitReport {
         seconds,
         cluster_npca: None,
         rmse_budget: None,
+        lowered_weights: None,
     }
 }
 
@@ -264,6 +269,11 @@ impl FitReport {
                 "  under the byte budget, N_PCA per cluster [{}]: RMSE {e:.5} ({:.2}%)\n",
                 list.join(", "),
                 rel(e)
+            ));
+        }
+        if let Some(n) = self.lowered_weights {
+            s.push_str(&format!(
+                "  {n} weight entries lowered to the lobe bound after the fit (the RMSEs above are from before)\n"
             ));
         }
         s.push_str(&format!(

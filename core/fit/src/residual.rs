@@ -174,7 +174,9 @@ mod tests {
         for w in r.sse_with.windows(2) {
             assert!(w[1] <= w[0]);
         }
-        assert!(r.sse_with.last().copied().unwrap_or(1.0) < 1e-18 * r.sse_with[0].max(1.0) + 1e-18);
+        // Nothing is left at full rank but the round-off of subtracting each component's
+        // energy from the total (the eigen solver's order of sums decides its sign).
+        assert!(r.sse_with.last().copied().unwrap_or(1.0) <= 1e-12 * r.sse_with[0]);
         assert!(r.sse_with[0] < r.sse_without);
         // Energies are sorted and the closed form agrees with a direct reconstruction.
         assert!(r.energy.windows(2).all(|w| w[1] <= w[0] * (1.0 + 1e-12)));

@@ -5,6 +5,7 @@ use glam::DVec3;
 use super::*;
 use meso_materials::brdf::{AnalyticBrdf, BasisFunction, BrdfModel};
 use meso_materials::btf::{Btf, directions};
+use meso_materials::rng::SampleStream;
 use meso_materials::spmm::{Cluster, SparseWeights, SpmmMaterial};
 
 fn basis(model: BrdfModel, params: &[(&str, f64)], normal: DVec3) -> BasisFunction {

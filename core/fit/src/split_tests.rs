@@ -135,7 +135,7 @@ fn blocks_disk_and_four_shards_all_give_the_same_pack() {
     bytes[mid] ^= 1;
     let damaged = dir.path().join("damaged.part");
     std::fs::write(&damaged, &bytes).expect("write");
-    let e = err(&[damaged.clone()]);
+    let e = err(std::slice::from_ref(&damaged));
     assert!(e.contains("damaged.part") && e.contains("checksum"), "{e}");
     std::fs::write(&damaged, b"MESOPART").expect("write");
     let e = err(&[damaged]);

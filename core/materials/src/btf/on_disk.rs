@@ -66,10 +66,11 @@ fn invalid(problem: String) -> ContainerError {
     ContainerError::Invalid(problem)
 }
 
+/// A container header: its tensors by name and its metadata.
+type Header = (HashMap<String, Entry>, HashMap<String, String>);
+
 /// The header's tensors and metadata, parsed from its JSON.
-fn parse_header(
-    json: &[u8],
-) -> Result<(HashMap<String, Entry>, HashMap<String, String>), ContainerError> {
+fn parse_header(json: &[u8]) -> Result<Header, ContainerError> {
     let value: serde_json::Value =
         serde_json::from_slice(json).map_err(|e| invalid(format!("header is not JSON: {e}")))?;
     let object = value
@@ -322,7 +323,7 @@ impl OnDiskBtf {
         let at = |kind: BtfFileErrorKind| BtfFileError::at(&self.path, kind);
         let per_texel = self.pairs() * 3;
         let count = out.len() / per_texel.max(1);
-        if out.len() % per_texel != 0 || first + count > self.texels() {
+        if !out.len().is_multiple_of(per_texel) || first + count > self.texels() {
             return Err(at(invalid(format!(
                 "texels {first}..{}: outside the {} texels of the file",
                 first + out.len().div_ceil(per_texel),

@@ -47,7 +47,7 @@ impl TexelSource for Btf {
         let n = Btf::pairs(self) * 3;
         let start = first * n;
         let end = start + out.len();
-        if out.len() % n != 0 || end > self.data().len() {
+        if !out.len().is_multiple_of(n) || end > self.data().len() {
             return Err(format!(
                 "texels {first}..{}: outside the {} texels of the BTF",
                 first + out.len().div_ceil(n),

@@ -183,18 +183,26 @@ pub(crate) fn fit_range(
         let n = block.min(range.end - first);
         let rows = &mut buf[..n * per];
         src.read_texels(first, rows).map_err(FitError::Input)?;
-        let part: Vec<TexelFit> = rows
+        // Cancelling is seen per texel, not only between blocks (a block may be
+        // thousands of texels).
+        let part: Vec<Option<TexelFit>> = rows
             .par_chunks(per)
             .map_init(Scratch::default, |scratch, row| {
+                if cancel.load(Ordering::Relaxed) {
+                    return None;
+                }
                 let fit = fit_texel(model, row, max_bases, scratch);
                 let d = done.fetch_add(1, Ordering::Relaxed) + 1;
                 if d.is_multiple_of(64) || d == total {
                     progress(Stage::Weights, d, total);
                 }
-                fit
+                Some(fit)
             })
             .collect();
-        fits.extend(part);
+        if cancel.load(Ordering::Relaxed) {
+            return Err(FitError::Cancelled);
+        }
+        fits.extend(part.into_iter().flatten());
         first += n;
     }
     Ok(fits)

@@ -107,8 +107,25 @@ pub(crate) fn pair_dirs(src: &dyn TexelSource, p: usize) -> (DVec3, DVec3) {
     (src.light_dirs()[p / nv], src.view_dirs()[p % nv])
 }
 
-/// Calls `f(i, texel values)` for each of `texels` (ascending), reading runs of
-/// consecutive texels up to `block` at a time.
+/// Reads `texels` (ascending) into `out` (`texels.len()` texels), a run of consecutive
+/// texels per read.
+fn read_into(src: &dyn TexelSource, texels: &[usize], out: &mut [f32]) -> Result<(), FitError> {
+    let per = src.pairs() * 3;
+    let mut i = 0;
+    while i < texels.len() {
+        let mut n = 1;
+        while i + n < texels.len() && texels[i + n] == texels[i] + n {
+            n += 1;
+        }
+        src.read_texels(texels[i], &mut out[i * per..(i + n) * per])
+            .map_err(FitError::Input)?;
+        i += n;
+    }
+    Ok(())
+}
+
+/// Calls `f(i, texel values)` for each of `texels` (ascending), reading up to `block`
+/// texels at a time.
 pub(crate) fn for_each_texel(
     src: &dyn TexelSource,
     texels: &[usize],
@@ -116,19 +133,14 @@ pub(crate) fn for_each_texel(
     mut f: impl FnMut(usize, &[f32]),
 ) -> Result<(), FitError> {
     let per = src.pairs() * 3;
-    let mut buf = vec![0.0f32; block.min(texels.len()).max(1) * per];
-    let mut i = 0;
-    while i < texels.len() {
-        let mut n = 1;
-        while i + n < texels.len() && n < block && texels[i + n] == texels[i] + n {
-            n += 1;
+    let block = block.max(1);
+    let mut buf = vec![0.0f32; block.min(texels.len()) * per];
+    for (g, group) in texels.chunks(block).enumerate() {
+        let rows = &mut buf[..group.len() * per];
+        read_into(src, group, rows)?;
+        for (j, row) in rows.chunks_exact(per).enumerate() {
+            f(g * block + j, row);
         }
-        let out = &mut buf[..n * per];
-        src.read_texels(texels[i], out).map_err(FitError::Input)?;
-        for j in 0..n {
-            f(i + j, &out[j * per..(j + 1) * per]);
-        }
-        i += n;
     }
     Ok(())
 }
@@ -396,7 +408,7 @@ pub(crate) fn fit_model(
 }
 
 /// Calls `f` on each of `texels` (ascending) in parallel, reading up to `block` at a
-/// time; the results in order.
+/// time into one buffer; the results in order.
 fn map_texels<T: Send>(
     src: &dyn TexelSource,
     texels: &[usize],
@@ -404,18 +416,13 @@ fn map_texels<T: Send>(
     f: impl Fn(&[f32]) -> T + Sync,
 ) -> Result<Vec<T>, FitError> {
     let per = src.pairs() * 3;
+    let block = block.max(1);
     let mut out = Vec::with_capacity(texels.len());
-    let mut buf = Vec::new();
-    for group in texels.chunks(block.max(1)) {
-        buf.clear();
-        buf.resize(group.len() * per, 0.0f32);
-        let mut filled = 0;
-        for_each_texel(src, group, block, |i, row| {
-            buf[i * per..(i + 1) * per].copy_from_slice(row);
-            filled += 1;
-        })?;
-        debug_assert_eq!(filled, group.len());
-        out.extend(buf.par_chunks(per).map(&f).collect::<Vec<T>>());
+    let mut buf = vec![0.0f32; block.min(texels.len()) * per];
+    for group in texels.chunks(block) {
+        let rows = &mut buf[..group.len() * per];
+        read_into(src, group, rows)?;
+        out.extend(rows.par_chunks(per).map(&f).collect::<Vec<T>>());
     }
     Ok(out)
 }

@@ -39,10 +39,10 @@ impl ClusterResidual {
 /// Fits the residual of one cluster: `rows` holds, per member texel, its `d`
 /// residual values (BTF minus basis sum) row after row.
 ///
-/// The Gram matrix, the components and the coefficients are each one blocked matrix
-/// product over the centred data and one transposed copy of it (a product per
-/// component, each through a fresh transposed copy, had cost most of the stage: up to
-/// 160 s of a fit).
+/// The Gram matrix, the components and the coefficients are each one matrix product
+/// over the centred data (a product per component, each through a fresh transposed
+/// copy, had cost most of the stage: up to 160 s of a fit); the transposed products
+/// read the data's columns in place (`tr_mul`), so no transposed copy is made.
 pub fn fit_cluster_residual(rows: &[f64], d: usize, npca: usize) -> ClusterResidual {
     let n = rows.len() / d;
     fit_columns(DMatrix::from_fn(d, n, |j, t| rows[t * d + j]), npca)

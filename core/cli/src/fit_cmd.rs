@@ -1,23 +1,32 @@
 //! `meso fit IN.btf -o OUT.spmm`: fit an SPMM pack to a BTF (core::fit), print the
 //! fit report (text, or one JSON object with --json), optionally save it as JSON.
-//! Ctrl-C stops between work items and leaves no output file.
+//! The BTF is read from disk block by block within `--max-memory`; `--shard K/N`
+//! fits one part of the texels and `meso fit merge` joins the parts into the pack the
+//! unsharded fit writes. Ctrl-C stops between work items and leaves no output file.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::anyhow;
-use clap::Args;
-use meso_fit::{FitError, FitSettings};
+use clap::{Args, Subcommand};
+use meso_fit::{FitError, FitOutput, FitSettings, MergeFailure, Shard};
+use meso_materials::btf::on_disk::OnDiskBtf;
+use meso_materials::btf::texels::TexelSource;
 use meso_materials::spmm::pack::{self, ResidualPrecision};
 
 use crate::failure::{CliError, ResultExt};
 use crate::progress::{ProgressLine, cancel_flag};
 
 #[derive(Args, Debug)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 pub struct FitArgs {
+    #[command(subcommand)]
+    command: Option<FitCommand>,
     /// The BTF to fit (.btf).
-    input: PathBuf,
-    #[arg(short = 'o', long)]
-    output: PathBuf,
+    #[arg(required = true)]
+    input: Option<PathBuf>,
+    /// The pack (.spmm), or with --shard the part file.
+    #[arg(short = 'o', long, required = true)]
+    output: Option<PathBuf>,
     /// Texel clusters (k-means).
     #[arg(long, default_value_t = 32)]
     clusters: usize,
@@ -35,11 +44,25 @@ pub struct FitArgs {
     /// Direction pairs the nonlinear dictionary fits see (a seeded subset; default all of the Bonn layout).
     #[arg(long, default_value_t = 6561)]
     fit_pairs: usize,
+    /// Texels of the seeded sample the clusters and dictionaries are found on.
+    #[arg(long, default_value_t = 4096)]
+    sample_texels: usize,
+    /// Sample texels per cluster at most that its residual mean and PCA are found on.
+    #[arg(long, default_value_t = 512)]
+    residual_texels: usize,
+    /// Peak memory: B, KB, MB, GB or TB (powers of 1024), e.g. 256MB. Sizes the
+    /// blocks of texels read at once; the result does not depend on it.
+    #[arg(long, default_value = "2GB")]
+    max_memory: String,
+    /// Fit only shard K of N (1 <= K <= N) of the texels and write a part file to
+    /// -o; `meso fit merge` joins every shard's part into the pack.
+    #[arg(long)]
+    shard: Option<String>,
     /// Name of the material (default: the BTF's).
     #[arg(long)]
     name: Option<String>,
     /// Write the report as JSON here as well.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "shard")]
     report: Option<PathBuf>,
     /// A byte budget for the pack: --npca becomes each cluster's most, and the
     /// components kept over all clusters are those that remove the most table error
@@ -54,6 +77,27 @@ pub struct FitArgs {
     /// The same as --precision f32.
     #[arg(long)]
     f32: bool,
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Subcommand, Debug)]
+enum FitCommand {
+    /// Join the part files of every shard into the pack the unsharded fit writes.
+    Merge(MergeArgs),
+}
+
+#[derive(Args, Debug)]
+struct MergeArgs {
+    /// The shards' part files, in any order.
+    #[arg(required = true)]
+    parts: Vec<PathBuf>,
+    /// The pack (.spmm).
+    #[arg(short = 'o', long)]
+    output: PathBuf,
+    /// Write the report as JSON here as well.
+    #[arg(long)]
+    report: Option<PathBuf>,
     #[arg(long)]
     json: bool,
 }
@@ -86,8 +130,38 @@ impl FitArgs {
     }
 }
 
+fn fit_error(e: FitError, output: &Path) -> CliError {
+    match e {
+        FitError::Cancelled => CliError::failure(anyhow!(
+            "cancelled (Ctrl-C); `{}` was not written",
+            output.display()
+        )),
+        e @ (FitError::Setting { .. } | FitError::Budget(_) | FitError::Memory(_)) => {
+            CliError::bad_input(e)
+        }
+        e @ FitError::Input(_) => CliError::bad_input(e),
+        e => CliError::failure(e),
+    }
+}
+
 pub fn run(args: &FitArgs) -> Result<(), CliError> {
-    let btf = crate::btf_cmd::load(&args.input)?;
+    if let Some(FitCommand::Merge(m)) = &args.command {
+        return merge(m);
+    }
+    let (Some(input), Some(output)) = (&args.input, &args.output) else {
+        return Err(CliError::bad_input(anyhow!(
+            "meso fit needs IN.btf and -o OUT"
+        )));
+    };
+    let max_memory = meso_fit::memory::parse_bytes(&args.max_memory)
+        .map_err(|e| CliError::bad_input(anyhow!("--max-memory {e}")))?;
+    let shard = args
+        .shard
+        .as_deref()
+        .map(Shard::parse)
+        .transpose()
+        .map_err(|e| CliError::bad_input(anyhow!("--shard {e}")))?;
+    let btf = OnDiskBtf::open(input).map_err(CliError::bad_input)?;
     let settings = FitSettings {
         clusters: args.clusters,
         subclusters: args.subclusters,
@@ -97,6 +171,9 @@ pub fn run(args: &FitArgs) -> Result<(), CliError> {
         fit_pairs: args.fit_pairs,
         max_bytes: args.max_bytes,
         precision: args.residual_precision(),
+        sample_texels: args.sample_texels,
+        residual_texels: args.residual_texels,
+        max_memory,
         ..FitSettings::default()
     };
     let budget = args
@@ -107,10 +184,13 @@ pub fn run(args: &FitArgs) -> Result<(), CliError> {
         ResidualPrecision::I8 => format!("{budget} --precision i8"),
         _ => budget,
     };
-    let name = args.name.clone().unwrap_or_else(|| btf.name().to_string());
+    let name = args
+        .name
+        .clone()
+        .unwrap_or_else(|| TexelSource::name(&btf).to_string());
     let provenance = format!(
         "meso fit {} --clusters {} --subclusters {} --max-bases {} --npca {}{budget} --seed {}",
-        file_name(&args.input),
+        file_name(input),
         args.clusters,
         args.subclusters,
         args.max_bases,
@@ -118,47 +198,89 @@ pub fn run(args: &FitArgs) -> Result<(), CliError> {
         args.seed
     );
     let bar = ProgressLine::new();
+    let progress = |s: meso_fit::Stage, d, n| bar.update(s.name(), d, n);
+    if let Some(shard) = shard {
+        let result = meso_fit::fit_part(
+            &btf,
+            (&name, &provenance, &file_name(input)),
+            &settings,
+            shard,
+            cancel_flag(),
+            &progress,
+        );
+        bar.finish();
+        let part = result.map_err(|e| fit_error(e, output))?;
+        let bytes = part.encode();
+        meso_materials::atomic::write_bytes_atomic(output, &bytes)
+            .failure_ctx(|| format!("writing `{}`", output.display()))?;
+        let texels = shard.texels(btf.texels());
+        if args.json {
+            return crate::print_json(&serde_json::json!({
+                "output": output.display().to_string(),
+                "shard": shard.to_string(),
+                "texels": [texels.start, texels.end],
+                "bytes": bytes.len(),
+                "texel_seconds": part.texel_seconds,
+            }));
+        }
+        println!(
+            "wrote {} (shard {shard}: texels {}..{} of {}, {} bytes); join every shard with `meso fit merge`",
+            output.display(),
+            texels.start,
+            texels.end,
+            btf.texels(),
+            bytes.len()
+        );
+        return Ok(());
+    }
     let result = meso_fit::fit_btf(
         &btf,
         &name,
         &provenance,
         &settings,
         cancel_flag(),
-        &|s, d, n| bar.update(s.name(), d, n),
+        &progress,
     );
     bar.finish();
-    let mut out = match result {
-        Ok(o) => o,
-        Err(FitError::Cancelled) => {
-            return Err(CliError::failure(anyhow!(
-                "cancelled (Ctrl-C); `{}` was not written",
-                args.output.display()
-            )));
-        }
-        Err(e @ (FitError::Setting { .. } | FitError::Budget(_))) => {
-            return Err(CliError::bad_input(e));
-        }
-        Err(e) => return Err(CliError::failure(e)),
-    };
-    let bytes = pack::encode_pack(&out.material, args.residual_precision());
+    let out = result.map_err(|e| fit_error(e, output))?;
+    write_pack(out, output, args.report.as_deref(), args.json)
+}
+
+/// `meso fit merge PART... -o OUT.spmm`.
+fn merge(args: &MergeArgs) -> Result<(), CliError> {
+    let out = meso_fit::merge(&args.parts).map_err(|e| match e {
+        MergeFailure::Parts(p) => CliError::bad_input(p),
+        MergeFailure::Fit(f) => fit_error(f, &args.output),
+    })?;
+    write_pack(out, &args.output, args.report.as_deref(), args.json)
+}
+
+/// Writes the pack atomically, then the report (JSON file, stdout).
+fn write_pack(
+    mut out: FitOutput,
+    output: &Path,
+    report: Option<&Path>,
+    json: bool,
+) -> Result<(), CliError> {
+    let bytes = pack::encode_pack(&out.material, out.precision);
     out.report.set_pack_bytes(bytes.len() as u64);
-    meso_materials::atomic::write_bytes_atomic(&args.output, &bytes)
-        .failure_ctx(|| format!("writing `{}`", args.output.display()))?;
+    meso_materials::atomic::write_bytes_atomic(output, &bytes)
+        .failure_ctx(|| format!("writing `{}`", output.display()))?;
     let report_json = serde_json::to_value(&out.report)
         .map_err(|e| CliError::failure(anyhow!("cannot encode the report: {e}")))?;
-    if let Some(path) = &args.report {
+    if let Some(path) = report {
         let text = serde_json::to_string_pretty(&report_json)
             .map_err(|e| CliError::failure(anyhow!("cannot encode the report: {e}")))?;
         meso_materials::atomic::write_bytes_atomic(path, text.as_bytes())
             .failure_ctx(|| format!("writing `{}`", path.display()))?;
     }
-    if args.json {
+    if json {
         let mut v = report_json;
-        v["output"] = args.output.display().to_string().into();
+        v["output"] = output.display().to_string().into();
         return crate::print_json(&v);
     }
     print!("{}", out.report.to_text());
-    println!("wrote {}", args.output.display());
+    println!("wrote {}", output.display());
     Ok(())
 }
 

@@ -34,7 +34,7 @@ impl Pairs {
 }
 
 /// Settings of the greedy representative fit.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DictionarySettings {
     /// Bases kept per representative at most.
     pub max_rounds: usize,

@@ -29,7 +29,15 @@ fn dist2(a: &[f32], b: &[f32]) -> f64 {
 /// Clusters `n = points.len() / dim` points into at most `k` clusters (fewer when
 /// there are fewer points). `max_iter` bounds Lloyd's iterations.
 pub fn kmeans(points: &[f32], dim: usize, k: usize, seed: u64, max_iter: usize) -> Clustering {
-    let n = points.len() / dim;
+    let n = points.len() / dim.max(1);
+    if n == 0 {
+        // Nothing to cluster (a cluster no sample texel is nearest to has no members).
+        return Clustering {
+            k: 0,
+            assignment: Vec::new(),
+            centroids: Vec::new(),
+        };
+    }
     let k = k.min(n).max(1);
     let point = |i: usize| &points[i * dim..(i + 1) * dim];
     let stream = SampleStream::new(&[seed, 0x6b6d_6561_6e73]);
@@ -94,22 +102,30 @@ pub fn kmeans(points: &[f32], dim: usize, k: usize, seed: u64, max_iter: usize) 
                 *s += f64::from(*x);
             }
         }
-        // An empty cluster takes the point farthest from its centroid.
+        // An empty cluster takes the point farthest from its centroid among those
+        // whose cluster keeps another point and that no other empty cluster took this
+        // round (several empty clusters taking one point left all but one empty).
+        let mut taken = vec![false; n];
         for c in 0..k {
-            if counts[c] == 0 {
-                let far = (0..n)
-                    .max_by(|&a, &b| nearest[a].1.total_cmp(&nearest[b].1).then(b.cmp(&a)))
-                    .unwrap_or(0);
-                let old = assignment[far] as usize;
-                counts[old] -= 1;
-                for (s, x) in sums[old * dim..(old + 1) * dim].iter_mut().zip(point(far)) {
-                    *s -= f64::from(*x);
-                }
-                assignment[far] = c as u32;
-                counts[c] = 1;
-                for (s, x) in sums[c * dim..(c + 1) * dim].iter_mut().zip(point(far)) {
-                    *s = f64::from(*x);
-                }
+            if counts[c] > 0 {
+                continue;
+            }
+            let far = (0..n)
+                .filter(|&i| !taken[i] && counts[assignment[i] as usize] > 1)
+                .max_by(|&a, &b| nearest[a].1.total_cmp(&nearest[b].1).then(b.cmp(&a)));
+            let Some(far) = far else {
+                continue;
+            };
+            taken[far] = true;
+            let old = assignment[far] as usize;
+            counts[old] -= 1;
+            for (s, x) in sums[old * dim..(old + 1) * dim].iter_mut().zip(point(far)) {
+                *s -= f64::from(*x);
+            }
+            assignment[far] = c as u32;
+            counts[c] = 1;
+            for (s, x) in sums[c * dim..(c + 1) * dim].iter_mut().zip(point(far)) {
+                *s = f64::from(*x);
             }
         }
         for c in 0..k {
@@ -156,6 +172,20 @@ mod tests {
         let mut labels: Vec<u32> = (0..3).map(|b| a.assignment[b * 50]).collect();
         labels.sort();
         assert_eq!(labels, [0, 1, 2]);
+        // Coinciding points leave clusters empty after the seeding; each empty cluster
+        // takes a point of its own, and no cluster is left without one.
+        let mut same = vec![0.5f32; 2 * 10];
+        same.extend_from_slice(&[3.0, 3.0, -2.0, 1.0]);
+        let e = kmeans(&same, 2, 5, 4, 20);
+        assert_eq!(e.k, 5);
+        for c in 0..5 {
+            assert!(
+                e.assignment.contains(&c),
+                "cluster {c} empty: {:?}",
+                e.assignment
+            );
+        }
+        assert_eq!(kmeans(&[], 2, 3, 1, 5).k, 0);
         // More clusters than points: one per point.
         let few = kmeans(&pts[..4], 2, 8, 1, 10);
         assert_eq!(few.k, 2);

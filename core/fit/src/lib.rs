@@ -5,34 +5,48 @@
 //! cluster fitted to them by nonlinear least squares over each analytic model's
 //! parameters and normal (`dictionary.rs`), sparse non-negative RGB weights per texel
 //! on the lasso path (`lasso.rs`), and a per-cluster mean + PCA residual
-//! (`residual.rs`). `report.rs` measures the result. The stages run in `stages.rs`,
-//! this root holds their order and the lobe bound's retries (`fit_btf`). Deterministic for a seed and
-//! independent of the thread count. The nonlinear stages see a seeded subset of the
-//! direction pairs; the weights and the residual use every pair.
+//! (`residual.rs`). `report.rs` measures the result.
+//!
+//! Out of core and splittable: the clusters, dictionaries and residual tables come
+//! from a seeded sample of texels (`model.rs`); each texel's fit then reads only its
+//! own values and that model (`texel_fit.rs`), streamed in blocks sized to
+//! `--max-memory` (`memory.rs`) from any `TexelSource` (a `.btf` on disk included).
+//! `assemble.rs` makes the pack and report from the model and every texel's fit; a
+//! fit split into shards writes parts (`part.rs`) that `merge` assembles the same
+//! way, so the merged pack is the unsharded one bit for bit. Deterministic for a seed
+//! and independent of the thread count and the memory budget. The nonlinear stages
+//! see a seeded subset of the direction pairs; the weights and the residual use every pair.
 
+mod assemble;
 pub mod budget;
 pub mod dictionary;
 pub mod kmeans;
 pub mod lasso;
+pub mod memory;
+mod model;
+pub mod part;
 pub mod report;
 pub mod residual;
-mod stages;
+mod texel_fit;
 
+#[cfg(test)]
+mod split_tests;
 #[cfg(test)]
 mod tests;
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use dictionary::DictionarySettings;
-use meso_materials::btf::Btf;
-use meso_materials::rng::SampleStream;
-use meso_materials::spmm::pack::ResidualPrecision;
-use meso_materials::spmm::{SpmmError, SpmmMaterial, lobe_bound};
+use meso_materials::btf::texels::TexelSource;
+pub use meso_materials::spmm::pack::ResidualPrecision;
+use meso_materials::spmm::{SpmmError, SpmmMaterial};
+pub use part::{MergeError, Part, Shard};
 pub use report::{ClusterReport, ErrorRow, FitReport, StageSeconds};
 
 /// The knobs of `meso fit`.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FitSettings {
     /// k of the texel k-means (the seed used 32).
     pub clusters: usize,
@@ -57,6 +71,13 @@ pub struct FitSettings {
     pub max_bytes: Option<u64>,
     /// Precision of the residual tables the budget counts.
     pub precision: ResidualPrecision,
+    /// Texels of the seeded sample the clusters and dictionaries are found on.
+    pub sample_texels: usize,
+    /// Sample texels per cluster at most that its residual mean and PCA are found on.
+    pub residual_texels: usize,
+    /// Peak memory the fit keeps within (bytes); sizes the texel blocks only, never
+    /// the result.
+    pub max_memory: u64,
 }
 
 impl Default for FitSettings {
@@ -73,6 +94,9 @@ impl Default for FitSettings {
             hemisphere_bound: true,
             max_bytes: None,
             precision: ResidualPrecision::F16,
+            sample_texels: 4096,
+            residual_texels: 512,
+            max_memory: memory::DEFAULT_MAX_MEMORY,
         }
     }
 }
@@ -116,6 +140,10 @@ pub enum FitError {
     LobeBound,
     #[error("--max-bytes: {0}")]
     Budget(String),
+    #[error("{0}")]
+    Memory(String),
+    #[error("reading the BTF: {0}")]
+    Input(String),
     #[error("the fitted material is invalid: {0}")]
     Material(#[from] SpmmError),
 }
@@ -124,150 +152,178 @@ pub enum FitError {
 pub struct FitOutput {
     pub material: SpmmMaterial,
     pub report: FitReport,
+    /// The precision the pack is to be written at (`FitSettings::precision`).
+    pub precision: ResidualPrecision,
 }
 
-/// A seeded permutation of 0..n (Fisher-Yates on `SampleStream`).
-fn permutation(n: usize, seed: u64) -> Vec<usize> {
-    let mut p: Vec<usize> = (0..n).collect();
-    let s = SampleStream::new(&[seed, 0x7065_726d]);
-    for i in (1..n).rev() {
-        let j = ((s.at(i as u64) * (i + 1) as f64) as usize).min(i);
-        p.swap(i, j);
+impl FitSettings {
+    /// Every setting that shapes the result, as text: shards of one fit must agree
+    /// on it (`--max-memory` and the shard are not in it; they change nothing).
+    pub fn options_text(&self) -> String {
+        let d = &self.dictionary;
+        format!(
+            "clusters {} subclusters {} max-bases {} npca {} seed {} feature-pairs {} fit-pairs {} sample-texels {} residual-texels {} max-bytes {:?} precision {} hemisphere-bound {} dictionary {}/{}/{}",
+            self.clusters,
+            self.subclusters,
+            self.max_bases,
+            self.npca,
+            self.seed,
+            self.feature_pairs,
+            self.fit_pairs,
+            self.sample_texels,
+            self.residual_texels,
+            self.max_bytes,
+            self.precision.name(),
+            self.hemisphere_bound,
+            d.max_rounds,
+            d.min_gain,
+            d.iterations
+        )
     }
-    p
 }
 
-/// Fits an SPMM to `btf`. `cancel` is polled between work items. The stages are in
-/// `stages.rs`; this is their order, the lobe bound's retries and the timing.
+/// Rejects settings outside their documented ranges.
+fn check_settings(settings: &FitSettings) -> Result<(), FitError> {
+    let check = |name: &'static str, value: usize, lo: usize, hi: usize, rule: &'static str| {
+        if (lo..=hi).contains(&value) {
+            Ok(())
+        } else {
+            Err(FitError::Setting { name, value, rule })
+        }
+    };
+    check("clusters", settings.clusters, 1, 255, "must be in 1..=255")?;
+    check(
+        "subclusters",
+        settings.subclusters,
+        1,
+        64,
+        "must be in 1..=64",
+    )?;
+    check("max-bases", settings.max_bases, 1, 64, "must be in 1..=64")?;
+    check("npca", settings.npca, 0, 256, "must be in 0..=256")?;
+    check(
+        "fit-pairs",
+        settings.fit_pairs,
+        16,
+        usize::MAX,
+        "must be at least 16",
+    )?;
+    check(
+        "sample-texels",
+        settings.sample_texels,
+        1,
+        usize::MAX,
+        "must be at least 1",
+    )?;
+    check(
+        "residual-texels",
+        settings.residual_texels,
+        1,
+        usize::MAX,
+        "must be at least 1",
+    )?;
+    Ok(())
+}
+
+/// The model of `src` (the sample stages) and the block size of `settings`' budget.
+fn model_of(
+    src: &dyn TexelSource,
+    settings: &FitSettings,
+    cancel: &AtomicBool,
+    progress: Progress,
+) -> Result<(model::Model, usize), FitError> {
+    check_settings(settings)?;
+    let block = memory::block_texels(settings, src.texels(), src.pairs())?;
+    let model = model::fit_model(src, settings, block, cancel, progress)?;
+    Ok((model, block))
+}
+
+/// Fits an SPMM to `src` (in memory or on disk), within `settings.max_memory`.
+/// `cancel` is polled between work items.
 pub fn fit_btf(
-    btf: &Btf,
+    src: &dyn TexelSource,
     name: &str,
     provenance: &str,
     settings: &FitSettings,
     cancel: &AtomicBool,
     progress: Progress,
 ) -> Result<FitOutput, FitError> {
-    stages::check_settings(settings)?;
-    let cancelled = || cancel.load(Ordering::Relaxed);
-    let t_all = Instant::now();
-    let m = btf.light_dirs().len() * btf.view_dirs().len();
-    let order = permutation(m, settings.seed);
-    let mut feature_pairs: Vec<usize> = order[..settings.feature_pairs.min(m)].to_vec();
-    feature_pairs.sort_unstable();
-    let mut fit_pairs: Vec<usize> = order[..settings.fit_pairs.min(m)].to_vec();
-    fit_pairs.sort_unstable();
-
-    // 1. Texel clusters from their apparent BRDFs at the feature pairs (RGB).
+    let (model, block) = model_of(src, settings, cancel, progress)?;
     let t0 = Instant::now();
-    progress(Stage::Clustering, 0, 1);
-    let tc = stages::cluster_texels(btf, &feature_pairs, settings);
-    progress(Stage::Clustering, 1, 1);
-    if cancelled() {
-        return Err(FitError::Cancelled);
-    }
-    let s_cluster = t0.elapsed().as_secs_f64();
+    let fits = texel_fit::fit_range(
+        src,
+        &model,
+        0..src.texels(),
+        block,
+        settings.max_bases,
+        cancel,
+        progress,
+    )?;
+    let seconds = t0.elapsed().as_secs_f64();
+    let tables = assemble::Tables::new(&model, (name, provenance), src, settings);
+    drop(model);
+    assemble::assemble(&tables, &fits, seconds)
+}
 
-    // 2. Representatives (sub-cluster means) and their fitted bases.
+/// Fits shard `shard` of `src`'s texels: the shared model, then this shard's texels.
+/// `input` names the input in the part (for messages).
+pub fn fit_part(
+    src: &dyn TexelSource,
+    (name, provenance, input): (&str, &str, &str),
+    settings: &FitSettings,
+    shard: Shard,
+    cancel: &AtomicBool,
+    progress: Progress,
+) -> Result<Part, FitError> {
+    let (model, block) = model_of(src, settings, cancel, progress)?;
     let t0 = Instant::now();
-    let clusters = stages::fit_dictionaries(btf, &tc, &fit_pairs, settings, cancel, progress)?;
-    let s_dict = t0.elapsed().as_secs_f64();
+    let fits = texel_fit::fit_range(
+        src,
+        &model,
+        shard.texels(src.texels()),
+        block,
+        settings.max_bases,
+        cancel,
+        progress,
+    )?;
+    Ok(Part {
+        shard,
+        input: input.to_string(),
+        options: settings.options_text(),
+        input_hash: model.input_hash,
+        tables: assemble::Tables::new(&model, (name, provenance), src, settings),
+        fits,
+        texel_seconds: t0.elapsed().as_secs_f64(),
+    })
+}
 
-    // 3. and 4. Weights and residual, again with smaller caps while the lobe bound fails.
-    let mut s_weights = 0.0;
-    let mut s_residual = 0.0;
-    let design = stages::design(btf, &clusters);
-    // The lobe bound's second half (spmm::lobe_bound): each basis times its weight
-    // stays within HEMISPHERE_MULTIPLE times the pack's largest tabulated value
-    // anywhere on the hemisphere down to 88.2 degrees. The weights are capped at that
-    // relative to the BTF's maximum (which the pack's maximum approximates); if the
-    // finished pack's own maximum is lower, the caps shrink by the shortfall and the
-    // weights and residual are fitted again.
-    let peaks = stages::hemisphere_peaks(&clusters);
-    let btf_max = btf.data().iter().fold(0.0f64, |a, &x| a.max(f64::from(x)));
-    // A margin below the validator's multiple for the f32/f16 rounding of the file.
-    let target = lobe_bound::HEMISPHERE_MULTIPLE * 0.97;
-    let mut reference = btf_max;
-    let mut attempt = 0;
-    let (material, weights, residuals, cluster_npca) = loop {
-        attempt += 1;
-        let caps: Vec<f64> = peaks
-            .iter()
-            .map(|&p| {
-                if p > 0.0 && settings.hemisphere_bound {
-                    target * reference / p
-                } else {
-                    f64::INFINITY
-                }
-            })
-            .collect();
-        let t0 = Instant::now();
-        let assignment = &tc.clustering.assignment;
-        let weights =
-            stages::fit_weights(btf, assignment, &design, &caps, settings, cancel, progress)?;
-        s_weights += t0.elapsed().as_secs_f64();
+/// Merges the part files at `paths` (every shard of one fit, in any order) into the
+/// pack the unsharded fit makes.
+pub fn merge(paths: &[PathBuf]) -> Result<FitOutput, MergeFailure> {
+    let parts = paths
+        .iter()
+        .map(|p| Part::read(p).map(|part| (p.clone(), part)))
+        .collect::<Result<Vec<_>, _>>()?;
+    merge_parts(parts)
+}
 
-        let t0 = Instant::now();
-        let residuals = stages::fit_residuals(
-            btf,
-            &tc.members,
-            &design,
-            &weights,
-            settings,
-            cancel,
-            progress,
-        )?;
-        s_residual += t0.elapsed().as_secs_f64();
-
-        let mut material = stages::material(
-            btf,
-            (name, provenance),
-            &clusters,
-            &tc,
-            &weights,
-            &residuals,
-            settings.npca,
-        )?;
-        let mut cluster_npca = None;
-        if let Some(max_bytes) = settings.max_bytes {
-            let trimmed = budget::trim_to_bytes(&material, max_bytes, settings.precision)?;
-            material = trimmed.material;
-            cluster_npca = Some(trimmed.cluster_npca);
-        }
-        let pack_max = lobe_bound::tabulated_maximum(&material);
-        let largest = lobe_bound::largest_weights(&material);
-        let worst = largest
-            .iter()
-            .flatten()
-            .zip(&peaks)
-            .map(|(w, p)| w * p)
-            .fold(0.0f64, f64::max);
-        if worst <= target * pack_max || !settings.hemisphere_bound {
-            break (material, weights, residuals, cluster_npca);
-        }
-        if attempt == 4 {
-            return Err(FitError::LobeBound);
-        }
-        // The pack's maximum fell short of the BTF's: shrink the caps by the shortfall.
-        reference *= (target * pack_max / worst).min(0.99);
-    };
-    let seconds = StageSeconds {
-        clustering: s_cluster,
-        dictionary: s_dict,
-        weights: s_weights,
-        residual: s_residual,
-        total: t_all.elapsed().as_secs_f64(),
-    };
-    let mut report = report::build(
-        btf,
-        &material,
-        &tc.members,
-        &residuals,
-        &weights,
-        settings,
-        seconds,
-    );
-    if let Some(counts) = cluster_npca {
-        report.set_cluster_npca(&residuals, counts);
+/// `merge` of parts already read (with the paths their messages name).
+pub fn merge_parts(parts: Vec<(PathBuf, Part)>) -> Result<FitOutput, MergeFailure> {
+    let parts = part::check_parts(parts)?;
+    let seconds: f64 = parts.iter().map(|(_, p)| p.texel_seconds).sum();
+    let mut parts = parts.into_iter().map(|(_, p)| p);
+    let mut first = parts.next().expect("check_parts refuses no parts");
+    for p in parts {
+        first.fits.extend(p.fits);
     }
-    Ok(FitOutput { material, report })
+    Ok(assemble::assemble(&first.tables, &first.fits, seconds)?)
+}
+
+/// Why a merge failed: the parts (named), or the assembly of the pack.
+#[derive(Debug, thiserror::Error)]
+pub enum MergeFailure {
+    #[error(transparent)]
+    Parts(#[from] MergeError),
+    #[error(transparent)]
+    Fit(#[from] FitError),
 }

@@ -7,8 +7,6 @@
 use serde::Serialize;
 
 use super::FitSettings;
-use super::residual::ClusterResidual;
-use meso_materials::btf::Btf;
 use meso_materials::spmm::SpmmMaterial;
 
 /// RMSE rows: `rmse_basis` without the residual, `rmse_npca` as (N_PCA, RMSE) with
@@ -70,6 +68,10 @@ pub struct FitReport {
     pub cluster_npca: Option<Vec<usize>>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub rmse_budget: Option<f64>,
+    /// Weight entries lowered to the lobe bound after the fit (the pack's maximum fell
+    /// below the one the caps assumed); the RMSEs above are from before.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lowered_weights: Option<usize>,
 }
 
 /// The N_PCA values the report lists: 0, 1, 2, 4, 8 (up to the fit's N_PCA) and
@@ -82,13 +84,64 @@ pub fn npca_levels(npca: usize) -> Vec<usize> {
     v
 }
 
-fn row(residuals: &[&ClusterResidual], texels: usize, per_texel: usize, npca: usize) -> ErrorRow {
+/// A cluster's squared errors summed over its texels, in texel order.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(crate) struct ClusterStats {
+    pub texels: usize,
+    /// Without the residual.
+    pub sse_basis: f64,
+    /// With the mean and the first k components, k = 0 ..= the cluster's components.
+    pub sse_with: Vec<f64>,
+    /// Squared coefficients summed per component: the error each one removes.
+    pub energy: Vec<f64>,
+}
+
+impl ClusterStats {
+    /// The empty sums of a cluster with `components` components.
+    pub fn new(components: usize) -> Self {
+        Self {
+            sse_with: vec![0.0],
+            energy: vec![0.0; components],
+            ..Self::default()
+        }
+    }
+
+    /// Adds one texel: its basis-only and mean-only errors and its coefficients.
+    pub fn add(&mut self, sse_basis: f64, sse_mean: f64, coefficients: &[f64]) {
+        self.texels += 1;
+        self.sse_basis += sse_basis;
+        self.sse_with[0] += sse_mean;
+        for (e, c) in self.energy.iter_mut().zip(coefficients) {
+            *e += c * c;
+        }
+    }
+
+    /// Closes the sums: the error left after each component (exact projections on
+    /// orthonormal components remove their energy each).
+    pub fn finish(&mut self) {
+        self.sse_with.truncate(1);
+        for k in 0..self.energy.len() {
+            let prev = self.sse_with[k];
+            self.sse_with.push((prev - self.energy[k]).max(0.0));
+        }
+    }
+
+    fn retained(&self) -> Vec<f64> {
+        let total = self.sse_with[0];
+        self.energy
+            .iter()
+            .map(|e| if total > 0.0 { e / total } else { 0.0 })
+            .collect()
+    }
+}
+
+fn row(stats: &[&ClusterStats], texels: usize, per_texel: usize, npca: usize) -> ErrorRow {
     let n = (texels * per_texel).max(1) as f64;
-    let without: f64 = residuals.iter().map(|r| r.sse_without).sum();
+    let without: f64 = stats.iter().map(|r| r.sse_basis).sum();
     let rmse_npca = npca_levels(npca)
         .into_iter()
         .map(|k| {
-            let sse: f64 = residuals
+            let sse: f64 = stats
                 .iter()
                 .map(|r| r.sse_with[k.min(r.sse_with.len() - 1)])
                 .sum();
@@ -102,17 +155,32 @@ fn row(residuals: &[&ClusterResidual], texels: usize, per_texel: usize, npca: us
     }
 }
 
-pub(super) fn build(
-    btf: &Btf,
-    material: &SpmmMaterial,
-    members: &[Vec<usize>],
-    residuals: &[ClusterResidual],
-    weights: &[Vec<(usize, [f64; 3])>],
-    settings: &FitSettings,
-    seconds: StageSeconds,
-) -> FitReport {
-    let per_texel = btf.pairs() * 3;
-    let per_cluster = residuals
+/// What the report takes from the fit besides the material and the sums.
+pub(crate) struct ReportInput<'a> {
+    pub stats: &'a [ClusterStats],
+    /// Weights per texel.
+    pub counts: &'a [usize],
+    /// Sum of every BTF value.
+    pub value_sum: f64,
+    pub lights: usize,
+    pub views: usize,
+    pub settings: &'a FitSettings,
+    pub seconds: StageSeconds,
+}
+
+pub(super) fn build(material: &SpmmMaterial, input: ReportInput) -> FitReport {
+    let ReportInput {
+        stats,
+        counts,
+        value_sum,
+        lights,
+        views,
+        settings,
+        seconds,
+    } = input;
+    let per_texel = lights * views * 3;
+    let texels = material.width() as usize * material.height() as usize;
+    let per_cluster = stats
         .iter()
         .enumerate()
         .map(|(c, r)| ClusterReport {
@@ -122,25 +190,24 @@ pub(super) fn build(
                 .iter()
                 .map(|b| b.brdf().model().name())
                 .collect(),
-            errors: row(&[r], members[c].len(), per_texel, settings.npca),
+            errors: row(&[r], r.texels, per_texel, settings.npca),
             retained_energy: r.retained(),
         })
         .collect();
-    let all: Vec<&ClusterResidual> = residuals.iter().collect();
-    let counts: Vec<usize> = weights.iter().map(Vec::len).collect();
-    let btf_bytes = (btf.data().len() * 4) as u64;
+    let all: Vec<&ClusterStats> = stats.iter().collect();
+    let btf_bytes = (texels * per_texel * 4) as u64;
     FitReport {
-        width: btf.width(),
-        height: btf.height(),
-        lights: btf.light_dirs().len(),
-        views: btf.view_dirs().len(),
+        width: material.width(),
+        height: material.height(),
+        lights,
+        views,
         clusters: material.clusters().len(),
         subclusters: settings.subclusters,
         max_bases: settings.max_bases,
         npca: settings.npca,
         seed: settings.seed,
-        mean_reflectance: btf.mean_value(),
-        overall: row(&all, btf.texels(), per_texel, settings.npca),
+        mean_reflectance: value_sum / (texels * per_texel).max(1) as f64,
+        overall: row(&all, texels, per_texel, settings.npca),
         per_cluster,
         dictionary_bases: material.clusters().iter().map(|c| c.bases.len()).sum(),
         bases_per_texel_mean: counts.iter().sum::<usize>() as f64 / counts.len().max(1) as f64,
@@ -152,15 +219,16 @@ pub(super) fn build(
         seconds,
         cluster_npca: None,
         rmse_budget: None,
+        lowered_weights: None,
     }
 }
 
 impl FitReport {
     /// Records the per-cluster component counts a byte budget chose, and the error
     /// they leave.
-    pub(super) fn set_cluster_npca(&mut self, residuals: &[ClusterResidual], counts: Vec<usize>) {
+    pub(super) fn set_cluster_npca(&mut self, stats: &[ClusterStats], counts: Vec<usize>) {
         let n = (self.width as usize * self.height as usize * self.lights * self.views * 3).max(1);
-        let sse: f64 = residuals
+        let sse: f64 = stats
             .iter()
             .zip(&counts)
             .map(|(r, &k)| r.sse_with[k.min(r.sse_with.len() - 1)])
@@ -201,6 +269,11 @@ impl FitReport {
                 "  under the byte budget, N_PCA per cluster [{}]: RMSE {e:.5} ({:.2}%)\n",
                 list.join(", "),
                 rel(e)
+            ));
+        }
+        if let Some(n) = self.lowered_weights {
+            s.push_str(&format!(
+                "  {n} weight entries lowered to the lobe bound after the fit (the RMSEs above are from before)\n"
             ));
         }
         s.push_str(&format!(

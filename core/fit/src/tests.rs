@@ -4,7 +4,8 @@ use glam::DVec3;
 
 use super::*;
 use meso_materials::brdf::{AnalyticBrdf, BasisFunction, BrdfModel};
-use meso_materials::btf::directions;
+use meso_materials::btf::{Btf, directions};
+use meso_materials::rng::SampleStream;
 use meso_materials::spmm::{Cluster, SparseWeights, SpmmMaterial};
 
 fn basis(model: BrdfModel, params: &[(&str, f64)], normal: DVec3) -> BasisFunction {
@@ -103,7 +104,7 @@ fn btf_of(m: &SpmmMaterial, dirs: &[DVec3]) -> Btf {
     .expect("valid")
 }
 
-fn quiet(_: Stage, _: usize, _: usize) {}
+pub(crate) fn quiet(_: Stage, _: usize, _: usize) {}
 
 #[test]
 fn fitting_a_known_spmm_recovers_it() {
@@ -240,7 +241,7 @@ fn fitting_a_known_spmm_recovers_it() {
     );
 }
 
-fn weave_btf() -> Btf {
+pub(crate) fn weave_btf() -> Btf {
     let text = r#"
 version = 1
 name = "w"

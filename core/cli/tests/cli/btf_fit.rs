@@ -365,3 +365,96 @@ fn report_fit_measures_a_pack_against_its_btf_as_compare_does() {
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(e.contains("no material `sample`"), "{e}");
 }
+
+#[test]
+fn fit_in_shards_merges_to_the_unsharded_pack_and_refuses_odd_parts() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let recipe = dir.path().join("weave.toml");
+    std::fs::write(&recipe, SMALL_BTF_RECIPE).expect("write recipe");
+    let btf = dir.path().join("weave.btf");
+    let path = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_string();
+    let b = btf.to_str().expect("utf-8");
+    assert_ok(&meso(
+        &["btf", "synth", recipe.to_str().expect("utf-8"), "-o", b],
+        "",
+    ));
+    // A sample of 20 of the 36 texels, a tight memory budget.
+    let common = [
+        "--clusters",
+        "2",
+        "--subclusters",
+        "2",
+        "--npca",
+        "2",
+        "--sample-texels",
+        "20",
+        "--residual-texels",
+        "5",
+        "--max-memory",
+        "64MB",
+    ];
+    let whole = path("whole.spmm");
+    let mut args = vec!["fit", b, "-o", &whole];
+    args.extend(common);
+    assert_ok(&meso(&args, ""));
+    let parts: Vec<String> = (1..=3).map(|k| path(&format!("p{k}.part"))).collect();
+    for (k, part) in parts.iter().enumerate() {
+        let shard = format!("{}/3", k + 1);
+        let mut args = vec!["fit", b, "-o", part, "--shard", &shard, "--json"];
+        args.extend(common);
+        let o = meso(&args, "");
+        assert_ok(&o);
+        let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("one JSON object");
+        assert_eq!(v["shard"], shard);
+        let texels = v["texels"].as_array().expect("range");
+        assert_eq!(
+            texels[1].as_u64().expect("end") - texels[0].as_u64().expect("first"),
+            12
+        );
+    }
+    let merged = path("merged.spmm");
+    let o = meso(
+        &[
+            "fit", "merge", &parts[2], &parts[0], &parts[1], "-o", &merged, "--json",
+        ],
+        "",
+    );
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("one JSON object");
+    assert_eq!(v["width"], 6);
+    assert!(
+        std::fs::read(&merged).expect("merged") == std::fs::read(&whole).expect("whole"),
+        "3 shards merged differ from the unsharded pack"
+    );
+    assert_ok(&meso(&["pack", "validate", &merged], ""));
+
+    // Refusals name the place at fault; nothing is written.
+    let refused = path("refused.spmm");
+    assert_bad_input(
+        &meso(
+            &[
+                "fit", "merge", &parts[0], &parts[1], &parts[1], "-o", &refused,
+            ],
+            "",
+        ),
+        &["p2.part", "both shard 2/3"],
+    );
+    assert_bad_input(
+        &meso(&["fit", "merge", &parts[0], &parts[2], "-o", &refused], ""),
+        &["shard(s) 2 of 3 missing"],
+    );
+    assert!(!std::path::Path::new(&refused).exists());
+    assert_bad_input(
+        &meso(&["fit", b, "-o", &refused, "--shard", "4/3"], ""),
+        &["--shard", "4/3", "out of range"],
+    );
+    assert_bad_input(
+        &meso(&["fit", b, "-o", &refused, "--max-memory", "12XB"], ""),
+        &["--max-memory", "12XB", "suffix"],
+    );
+    assert_bad_input(
+        &meso(&["fit", b, "-o", &refused, "--max-memory", "1MB"], ""),
+        &["--max-memory 1048576 bytes", "--sample-texels"],
+    );
+    assert!(!std::path::Path::new(&refused).exists());
+}

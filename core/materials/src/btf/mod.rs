@@ -6,14 +6,17 @@
 //! is the `.btf` container (docs/formats/btf.md), `table.rs` the BTF as the spmm mode
 //! shades it (the scene's `btf` material). `ubo2003.rs` and `ubo2014.rs` read the
 //! University of Bonn's database formats (zips of JPEGs, factorised binaries) and
-//! `crop.rs` keeps an import within memory. Fitting them lives in `fit`.
+//! `crop.rs` keeps an import within memory. `texels.rs` is where a fit reads texels
+//! from, `on_disk.rs` a `.btf` read block by block (BTFs larger than memory). Fitting them lives in `fit`.
 
 pub mod crop;
 pub mod directions;
 pub mod file;
 pub mod import;
+pub mod on_disk;
 pub mod synth;
 pub mod table;
+pub mod texels;
 pub mod ubo2003;
 pub mod ubo2014;
 
@@ -69,7 +72,7 @@ pub enum BtfError {
     },
 }
 
-fn check_dirs(part: &'static str, dirs: &[DVec3]) -> Result<(), BtfError> {
+pub(crate) fn check_dirs(part: &'static str, dirs: &[DVec3]) -> Result<(), BtfError> {
     if dirs.is_empty() {
         return Err(BtfError::NoDirections { part });
     }

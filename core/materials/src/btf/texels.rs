@@ -1,0 +1,60 @@
+//! Where a fit reads texels from: a BTF in memory (`Btf`) or one read from disk block by
+//! block (`on_disk::OnDiskBtf`). The fitter asks for runs of consecutive texels, so a
+//! source needs neither the whole BTF in memory nor random access finer than a texel.
+
+use glam::DVec3;
+
+use super::Btf;
+
+/// Texels on demand: the directions and grid of a BTF, and its values (texel-major,
+/// `L * V * 3` per texel as in `Btf::texel`) read a run of texels at a time.
+pub trait TexelSource: Sync {
+    fn name(&self) -> &str;
+    fn width(&self) -> u32;
+    fn height(&self) -> u32;
+    fn light_dirs(&self) -> &[DVec3];
+    fn view_dirs(&self) -> &[DVec3];
+    /// Fills `out` with the texels from `first` on (`out.len()` must be a multiple of
+    /// `pairs() * 3`); a source that cannot says which texel and why.
+    fn read_texels(&self, first: usize, out: &mut [f32]) -> Result<(), String>;
+
+    fn texels(&self) -> usize {
+        self.width() as usize * self.height() as usize
+    }
+    /// Direction pairs per texel, `L * V`.
+    fn pairs(&self) -> usize {
+        self.light_dirs().len() * self.view_dirs().len()
+    }
+}
+
+impl TexelSource for Btf {
+    fn name(&self) -> &str {
+        Btf::name(self)
+    }
+    fn width(&self) -> u32 {
+        Btf::width(self)
+    }
+    fn height(&self) -> u32 {
+        Btf::height(self)
+    }
+    fn light_dirs(&self) -> &[DVec3] {
+        Btf::light_dirs(self)
+    }
+    fn view_dirs(&self) -> &[DVec3] {
+        Btf::view_dirs(self)
+    }
+    fn read_texels(&self, first: usize, out: &mut [f32]) -> Result<(), String> {
+        let n = Btf::pairs(self) * 3;
+        let start = first * n;
+        let end = start + out.len();
+        if !out.len().is_multiple_of(n) || end > self.data().len() {
+            return Err(format!(
+                "texels {first}..{}: outside the {} texels of the BTF",
+                first + out.len().div_ceil(n),
+                Btf::texels(self)
+            ));
+        }
+        out.copy_from_slice(&self.data()[start..end]);
+        Ok(())
+    }
+}

@@ -1,7 +1,8 @@
 //! Every reader survives hostile input: mutated scene files (structure-aware: numbers,
 //! keys, tables and lines of the shipped scenes), OBJ text, EXR, `.spmm`, `.btf`,
-//! Bonn's UBO2014 files and UBO2003 zips, MERL bytes, and the studio's recovery
-//! journals. The property for each case: the reader returns a value or an error
+//! Bonn's UBO2014 files and UBO2003 zips, MERL bytes, the studio's recovery
+//! journals and the parts of sharded fits; `.btf` through both the in-memory and the
+//! out-of-core reader. The property for each case: the reader returns a value or an error
 //! whose message is one line; it never panics, never takes longer than a bound, and a
 //! size claimed by a header is checked before anything that large is allocated (an
 //! allocation failure would abort the test process, so it cannot pass unnoticed).
@@ -485,6 +486,79 @@ fn fuzz_btf_files() {
         |input| {
             check("btf", &format!("({} bytes)", input.len()), || {
                 meso_materials::btf::file::decode_btf(input)
+            }) | check("btf on disk", &format!("({} bytes)", input.len()), || {
+                read_btf_from_disk(input)
+            })
+        },
+    );
+}
+
+/// The out-of-core reader (`meso fit`'s) over the same bytes: opened from a file, then
+/// every texel read one at a time. A header it accepts must not claim more values than
+/// the file holds (two bytes each at the least).
+fn read_btf_from_disk(input: &[u8]) -> Result<(), String> {
+    use meso_materials::btf::on_disk::OnDiskBtf;
+    use meso_materials::btf::texels::TexelSource;
+    let dir = tempfile::tempdir().map_err(|e| e.to_string())?;
+    let path = dir.path().join("fuzz.btf");
+    std::fs::write(&path, input).map_err(|e| e.to_string())?;
+    let btf = OnDiskBtf::open(&path).map_err(|e| e.to_string())?;
+    let per_texel = btf.pairs() * 3;
+    assert!(
+        btf.texels().saturating_mul(per_texel).saturating_mul(2) <= input.len(),
+        "the on-disk reader accepted {} texels of {per_texel} values in {} bytes",
+        btf.texels(),
+        input.len()
+    );
+    let mut texel = vec![0f32; per_texel];
+    for t in 0..btf.texels() {
+        btf.read_block(t, &mut texel).map_err(|e| e.to_string())?;
+    }
+    Ok(())
+}
+
+/// A part of a sharded fit (`meso fit --shard`) of the BTF seed, as `meso fit merge`
+/// reads it.
+fn fit_part_seed() -> Vec<u8> {
+    use meso_fit::{FitSettings, Shard, fit_part};
+    let btf = meso_materials::btf::file::decode_btf(&btf_seeds()[1]).expect("the seed reads");
+    let settings = FitSettings {
+        clusters: 2,
+        subclusters: 1,
+        max_bases: 2,
+        npca: 2,
+        fit_pairs: 20,
+        sample_texels: 6,
+        residual_texels: 3,
+        ..FitSettings::default()
+    };
+    let shard = Shard::new(1, 2).expect("a shard");
+    let cancel = std::sync::atomic::AtomicBool::new(false);
+    fit_part(
+        &btf,
+        ("fuzz", "test", "fuzz.btf"),
+        &settings,
+        shard,
+        &cancel,
+        &|_, _, _| {},
+    )
+    .expect("the seed fits")
+    .encode()
+}
+
+/// Parts come from other machines, over networks and shared disks: a damaged one is
+/// refused by name, never a panic.
+#[test]
+fn fuzz_fit_parts() {
+    let seed = fit_part_seed();
+    meso_fit::Part::decode(&seed).expect("the seed part reads");
+    fuzz(
+        "fit part",
+        &[seed],
+        |s, rng| mutate_bytes(s, rng),
+        |input| {
+            check("fit part", &format!("({} bytes)", input.len()), || {
+                meso_fit::Part::decode(input)
             })
         },
     );

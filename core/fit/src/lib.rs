@@ -312,7 +312,9 @@ pub fn merge_parts(parts: Vec<(PathBuf, Part)>) -> Result<FitOutput, MergeFailur
     let parts = part::check_parts(parts)?;
     let seconds: f64 = parts.iter().map(|(_, p)| p.texel_seconds).sum();
     let mut parts = parts.into_iter().map(|(_, p)| p);
-    let mut first = parts.next().expect("check_parts refuses no parts");
+    let Some(mut first) = parts.next() else {
+        return Err(part::MergeError::NoParts.into());
+    };
     for p in parts {
         first.fits.extend(p.fits);
     }

@@ -189,20 +189,20 @@ impl<'a> In<'a> {
     fn u8(&mut self, what: &str) -> Result<u8, String> {
         Ok(self.take(1, what)?[0])
     }
+    /// The next `N` bytes as an array.
+    fn array<const N: usize>(&mut self, what: &str) -> Result<[u8; N], String> {
+        let mut out = [0u8; N];
+        out.copy_from_slice(self.take(N, what)?);
+        Ok(out)
+    }
     fn u16(&mut self, what: &str) -> Result<u16, String> {
-        Ok(u16::from_le_bytes(
-            self.take(2, what)?.try_into().expect("2"),
-        ))
+        self.array(what).map(u16::from_le_bytes)
     }
     fn u32(&mut self, what: &str) -> Result<u32, String> {
-        Ok(u32::from_le_bytes(
-            self.take(4, what)?.try_into().expect("4"),
-        ))
+        self.array(what).map(u32::from_le_bytes)
     }
     fn u64(&mut self, what: &str) -> Result<u64, String> {
-        Ok(u64::from_le_bytes(
-            self.take(8, what)?.try_into().expect("8"),
-        ))
+        self.array(what).map(u64::from_le_bytes)
     }
     fn f32(&mut self, what: &str) -> Result<f32, String> {
         Ok(f32::from_bits(self.u32(what)?))
@@ -439,8 +439,10 @@ impl Part {
         if bytes.len() < 8 + 4 + 8 || &bytes[..8] != MAGIC {
             return Err("it does not start with `MESOPART`".into());
         }
-        let (body, sum) = bytes.split_at(bytes.len() - 8);
-        let sum = u64::from_le_bytes(sum.try_into().expect("8"));
+        let Some((body, sum)) = bytes.split_last_chunk::<8>() else {
+            return Err("it is cut short before its checksum".into());
+        };
+        let sum = u64::from_le_bytes(*sum);
         if fnv1a64(body) != sum {
             return Err("checksum mismatch (damaged or cut short)".into());
         }
@@ -584,13 +586,8 @@ pub fn check_parts(parts: Vec<(PathBuf, Part)>) -> Result<Vec<(PathBuf, Part)>, 
     if !missing.is_empty() {
         return Err(MergeError::Missing { missing, n });
     }
-    let mut parts: Vec<Option<(PathBuf, Part)>> = parts.into_iter().map(Some).collect();
-    Ok(by_shard
-        .into_iter()
-        .map(|i| {
-            parts[i.expect("every shard present")]
-                .take()
-                .expect("each once")
-        })
-        .collect())
+    // Every shard 1..=N once: in shard order the parts are the texels in order.
+    let mut parts = parts;
+    parts.sort_by_key(|(_, p)| p.shard.k);
+    Ok(parts)
 }

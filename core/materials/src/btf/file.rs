@@ -172,13 +172,23 @@ fn directions(st: &SafeTensors, name: &'static str) -> Result<Vec<DVec3>, Contai
             expected: "[N, 3]".into(),
         });
     }
-    Ok(t.data()
+    Ok(dirs_of_bytes(t.data()))
+}
+
+/// Directions from their tensor's bytes (`dir_bytes` read back: three little-endian
+/// f64 each; a trailing partial direction is ignored, the shape check names it).
+pub(crate) fn dirs_of_bytes(bytes: &[u8]) -> Vec<DVec3> {
+    bytes
         .chunks_exact(24)
         .map(|c| {
-            let f = |k: usize| f64::from_le_bytes(c[k * 8..k * 8 + 8].try_into().expect("8 bytes"));
+            let f = |k: usize| {
+                let mut b = [0u8; 8];
+                b.copy_from_slice(&c[k * 8..k * 8 + 8]);
+                f64::from_le_bytes(b)
+            };
             DVec3::new(f(0), f(1), f(2))
         })
-        .collect())
+        .collect()
 }
 
 /// Parses and validates `.btf` bytes (see `read_btf`).

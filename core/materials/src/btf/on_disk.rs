@@ -247,13 +247,7 @@ impl OnDiskBtf {
             }
             let mut bytes = vec![0u8; n * 24];
             read_at(&file, &mut bytes, data_at + e.range.0).map_err(io)?;
-            let f = |c: &[u8], k: usize| {
-                f64::from_le_bytes(c[k * 8..k * 8 + 8].try_into().expect("8 bytes"))
-            };
-            Ok(bytes
-                .chunks_exact(24)
-                .map(|c| DVec3::new(f(c, 0), f(c, 1), f(c, 2)))
-                .collect())
+            Ok(super::file::dirs_of_bytes(&bytes))
         };
         let light_dirs = dirs("light_dirs")?;
         let view_dirs = dirs("view_dirs")?;

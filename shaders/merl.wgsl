@@ -3,8 +3,9 @@
 // `MerlBrdf::eval` do (nearest cell, the same atan2 forms and fold), and the CPU's
 // tabulated importance sampling (`MerlSampler`: per band of theta_o a piecewise-
 // constant density over (cos theta_i, phi_i - phi_o)) from its own tables in f32.
-// Record in `data` (4 words): the offsets of the table (RGB per cell, scaled; cells
-// without data 0), the cell probabilities, the row CDFs and the column CDFs.
+// Record in `data` (7 words): the offsets of the table (RGB per cell, scaled; cells
+// without data 0), the cell probabilities, the row CDFs and the column CDFs, then the
+// albedo at normal view (RGB, the denoiser's guide: guides.wgsl).
 
 const MERL_THETA_H: u32 = 90u;
 const MERL_THETA_D: u32 = 90u;

@@ -22,7 +22,7 @@ use meso_gpu::{DisplayTexture, GpuContext};
 use meso_materials::image::{Image, to_srgb8};
 use meso_render::scene::Camera;
 
-use meso_viewport::worker::Frame;
+use meso_viewport::worker::{Frame, Picture};
 
 /// Radians of orbit per point of drag.
 const ORBIT_PER_POINT: f64 = 0.008;
@@ -181,15 +181,15 @@ impl Default for Viewport {
     }
 }
 
-/// The window's texture showing `frame`'s estimate after `exposure`, encoded on the
-/// device, if the estimate is on the window's device.
+/// The window's texture showing `picture` (a frame's estimate or its denoised
+/// picture) after `exposure`, encoded on the device, if it is on the window's device.
 #[cfg(feature = "gpu")]
 fn device_texture(
     window: Option<&mut WindowTexture>,
-    frame: &Frame,
+    picture: &Picture,
     exposure: f64,
 ) -> Option<TextureId> {
-    let (d, w) = frame.estimate.on_device().zip(window)?;
+    let (d, w) = picture.on_device().zip(window)?;
     w.texture.show(d, exposure).then(|| w.id())
 }
 
@@ -197,7 +197,7 @@ fn device_texture(
 #[cfg(not(feature = "gpu"))]
 fn device_texture(
     window: Option<&mut WindowTexture>,
-    _frame: &Frame,
+    _picture: &Picture,
     _exposure: f64,
 ) -> Option<TextureId> {
     window.map(|w| match *w {})
@@ -274,11 +274,15 @@ impl Viewport {
             let overlay = self
                 .overlay
                 .and_then(|name| frame.overlays.iter().find(|o| o.0 == name));
-            // The estimate itself (not a denoised blend), shown on the window's device
-            // when it is there.
-            let estimate_itself = overlay.is_none() && (compare || frame.shown.is_none());
-            let on_device = estimate_itself
-                .then(|| device_texture(self.window.as_mut(), frame, exposure))
+            // The estimate, or its denoised picture, shown on the window's device when
+            // it is there.
+            let picture = match &frame.shown {
+                Some(shown) if !compare => shown,
+                _ => &frame.estimate,
+            };
+            let on_device = overlay
+                .is_none()
+                .then(|| device_texture(self.window.as_mut(), picture, exposure))
                 .flatten();
             self.painted = if let Some(id) = on_device {
                 Some((id, true))

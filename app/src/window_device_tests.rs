@@ -89,8 +89,20 @@ fn the_gpu_mode_renders_on_the_windows_own_device() {
 /// bulk). Needs a wgpu adapter (CI: lavapipe).
 #[test]
 fn a_gpu_frame_reaches_the_window_without_a_read_back() {
+    gpu_frames_reach_the_window_without_a_read_back(false);
+}
+
+/// The same with the denoiser on: the first frames are filtered on the device
+/// (`RenderMode::denoised_on_device`), so the picture shown stays there too and what
+/// the window draws is that picture.
+#[test]
+fn a_denoised_gpu_frame_reaches_the_window_without_a_read_back() {
+    gpu_frames_reach_the_window_without_a_read_back(true);
+}
+
+fn gpu_frames_reach_the_window_without_a_read_back(denoise: bool) {
     let settings = Settings {
-        denoise: false,
+        denoise,
         exposure: 0.5,
         ..small()
     };
@@ -128,6 +140,16 @@ fn a_gpu_frame_reaches_the_window_without_a_read_back() {
         frame.estimate.on_device().is_some(),
         "the estimate stays on the device"
     );
+    if denoise {
+        assert!(frame.progress.min_samples < meso_render::denoise::FADE_SAMPLES);
+        assert!(
+            frame
+                .shown
+                .as_ref()
+                .is_some_and(|s| s.on_device().is_some()),
+            "the denoised picture is made and kept on the device"
+        );
+    }
     assert!(
         h.state().shows_frames_from_device(),
         "shown from the device"
@@ -153,7 +175,7 @@ fn a_gpu_frame_reaches_the_window_without_a_read_back() {
         .flat_map(|(x, y)| screen.get_pixel(x, y).0[..3].to_vec())
         .map(f64::from)
         .collect();
-    let want: Vec<f64> = meso_materials::image::to_srgb8(&frame.image(), 0.5)
+    let want: Vec<f64> = meso_materials::image::to_srgb8(&frame.shown_image(), 0.5)
         .into_iter()
         .flatten()
         .map(f64::from)

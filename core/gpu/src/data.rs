@@ -244,7 +244,8 @@ impl Words {
     }
 
     /// A MERL table as `shaders/merl.wgsl` reads it: a header of offsets (the table,
-    /// the sampler's cell probabilities, row and column CDFs), the table's cells
+    /// the sampler's cell probabilities, row and column CDFs) and the albedo at normal
+    /// view (RGB f32, the denoiser's guide: `shaders/guides.wgsl`), the table's cells
     /// scaled as `MerlBrdf::cell_value` (cells without data 0), and the CPU sampler's
     /// own tables in f32. Returns the header's offset.
     pub fn push_merl(&mut self, brdf: &MerlBrdf) -> u32 {
@@ -257,7 +258,16 @@ impl Words {
         let prob_at = self.push_f32s(prob.iter().map(|&p| p as f32));
         let rows_at = self.push_f32s(rows.iter().map(|&p| p as f32));
         let cols_at = self.push_f32s(cols.iter().map(|&p| p as f32));
-        let at = self.push_u32s([table_at, prob_at, rows_at, cols_at]);
+        let albedo = brdf.albedo_at_normal().as_vec3();
+        let at = self.push_u32s([
+            table_at,
+            prob_at,
+            rows_at,
+            cols_at,
+            albedo.x.to_bits(),
+            albedo.y.to_bits(),
+            albedo.z.to_bits(),
+        ]);
         self.bytes.merl_tables += 4 * (self.words.len() - start) as u64;
         at
     }

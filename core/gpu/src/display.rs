@@ -45,6 +45,24 @@ impl DeviceImage {
         }
     }
 
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// The device it is on.
+    pub(super) fn context(&self) -> &GpuContext {
+        &self.ctx
+    }
+
+    /// The buffer holding it (one `vec4<f32>` per pixel), for kernels that read it.
+    pub(super) fn buffer(&self) -> &wgpu::Buffer {
+        &self.buffer
+    }
+
     /// The image on the host: read back the first time it is asked for.
     pub fn read(&self) -> Result<Arc<Image>, GpuError> {
         self.host

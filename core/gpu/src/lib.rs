@@ -8,11 +8,13 @@
 //! environment map with its sampling tables and the background image
 //! (`environment.rs`), one compute dispatch with its buffers (`kernel.rs`), the film
 //! kept on the device (`film.rs`), a resolved image and the texture a window shows it
-//! in (`display.rs`), and the mode itself (`mode.rs`). The CPU's
+//! in (`display.rs`), the viewport denoiser on the device (`denoise.rs`), and the mode
+//! itself (`mode.rs`). The CPU's
 //! `trace::SpmmMode` is the reference every part here is tested against.
 
 mod context;
 mod data;
+mod denoise;
 mod display;
 mod environment;
 mod film;

@@ -5,6 +5,7 @@
 //! invalidation); a frame reads back only its counters. Geometry (BVH nodes and
 //! triangles), the prepared SPMM data, BRDFs, materials and lights live on the device.
 
+mod denoising;
 mod edit;
 mod limits;
 mod resources;
@@ -125,6 +126,8 @@ pub struct GpuSpmmMode {
     kernel: Kernel,
     res: Resources,
     scene_data: SceneData,
+    /// The viewport denoiser's guides and filter on the device.
+    denoising: denoising::SharedDenoising,
     /// The environment map's importance sampler (`None`: no environment, or black).
     env_sampler: Option<EnvironmentSampler>,
     /// The `env` words (`environment::words`).
@@ -259,6 +262,7 @@ impl GpuSpmmMode {
             overflows: [0; 2],
             failure: None,
             all_clusters,
+            denoising: Default::default(),
         })
     }
 
@@ -581,6 +585,20 @@ impl RenderMode for GpuSpmmMode {
         self.device_image().map(|d| std::sync::Arc::new(d) as _)
     }
 
+    fn guides(&self, pass: Pass) -> Option<meso_render::Guides> {
+        // No preview, so no preview's guides.
+        (pass == Pass::Frame).then(|| self.host_guides()).flatten()
+    }
+
+    fn denoised_on_device(
+        &self,
+        image: &dyn ImageOnDevice,
+        denoiser: &meso_render::Denoiser,
+        strength: f32,
+    ) -> Option<std::sync::Arc<dyn ImageOnDevice>> {
+        self.denoise_on_device(image, denoiser, strength)
+    }
+
     fn progress(&self) -> Progress {
         Progress {
             frames: self.core.frames,
@@ -627,6 +645,11 @@ impl RenderMode for GpuSpmmMode {
     }
 
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
+        // Whatever the edit, the guides are traced again when next asked for (one ray
+        // per pixel).
+        if let Ok(d) = self.denoising.get_mut() {
+            d.forget_guides();
+        }
         let result = self.apply_edit(edit);
         // The film's fewest samples as the edit left them (one small read-back).
         if result.is_ok()

@@ -15,6 +15,8 @@ pub(super) const CDF: &str = include_str!("../../../shaders/cdf.wgsl");
 pub(super) const BTF_TABLE: &str = include_str!("../../../shaders/btf.wgsl");
 pub(super) const FILM: &str = include_str!("../../../shaders/film.wgsl");
 pub(super) const DISPLAY: &str = include_str!("../../../shaders/display.wgsl");
+pub(super) const GUIDES: &str = include_str!("../../../shaders/guides.wgsl");
+pub(super) const DENOISE: &str = include_str!("../../../shaders/denoise.wgsl");
 
 /// The test kernels: evaluations of BRDFs and SPMM texels, and primary-ray hits.
 #[cfg(test)]
@@ -43,10 +45,12 @@ fn from_disk(embedded: &str) -> String {
     embedded.to_string()
 }
 
-/// The integrator: one sample per pixel per dispatch.
+/// The integrator: one sample per pixel per dispatch (`render`), and the denoiser's
+/// guides (`guides`).
 pub(super) fn integrator() -> String {
     module(&[
         INTEGRATOR,
+        GUIDES,
         SAMPLER,
         TRAVERSAL,
         BRDF,

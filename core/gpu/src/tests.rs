@@ -9,6 +9,7 @@
 
 mod brdfs;
 mod btf;
+mod denoise;
 mod device;
 mod environment;
 mod images;

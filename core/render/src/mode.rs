@@ -9,7 +9,7 @@ use meso_materials::image::Image;
 
 use crate::scene::Scene;
 use crate::{
-    Counters, Device, EditError, FrameStats, Guides, Invalidation, ModeError, ModeKind,
+    Counters, Denoiser, Device, EditError, FrameStats, Guides, Invalidation, ModeError, ModeKind,
     PreparationReport, Progress, SceneEdit,
 };
 
@@ -65,6 +65,20 @@ pub trait RenderMode: Send {
     /// The same image left on the mode's GPU device (`None`: the mode's film is on the
     /// host): a window drawn with that device shows it without a read-back.
     fn image_on_device(&self) -> Option<Arc<dyn ImageOnDevice>> {
+        None
+    }
+    /// `image` (a frame's image on this mode's device, from `image_on_device`) blended
+    /// at `strength` with its version through `denoiser` (`denoise::blend`), filtered
+    /// on the device with the mode's own guides, so the viewport's first frames need
+    /// no read-back. `None` where the mode cannot (the viewport then filters on the
+    /// host with `guides`).
+    fn denoised_on_device(
+        &self,
+        image: &dyn ImageOnDevice,
+        denoiser: &Denoiser,
+        strength: f32,
+    ) -> Option<Arc<dyn ImageOnDevice>> {
+        let _ = (image, denoiser, strength);
         None
     }
     fn progress(&self) -> Progress;

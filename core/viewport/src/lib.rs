@@ -9,4 +9,4 @@ pub mod maker;
 pub mod worker;
 
 pub use maker::{CoreModes, ModeMaker, core_modes, mode_name};
-pub use worker::{Command, Estimate, Frame, Notice, Rejected, RenderWorker, Wake};
+pub use worker::{Command, Frame, Notice, Picture, Rejected, RenderWorker, Wake};

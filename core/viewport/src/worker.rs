@@ -8,9 +8,10 @@
 //! shows the newest filtered picture of its document version, if there is one.
 //! A mode prepared elsewhere (the studio's mode-switch job) is swapped in by
 //! `Install`; until then the previous mode keeps rendering.
-//! A GPU mode's frame stays on its device (`Estimate::Device`) unless the denoiser
-//! needs it on the host: the viewport shows it from there, and the host reads it back
-//! only when it asks for the image (saving, comparing).
+//! A GPU mode's frame stays on its device (`Picture::Device`), and so does its
+//! denoised picture, filtered there (`RenderMode::denoised_on_device`): the viewport
+//! shows them from there, and the host reads one back only when it asks for the image
+//! (saving, comparing).
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
@@ -65,16 +66,17 @@ pub enum Command {
     YieldToEdits(bool),
 }
 
-/// A frame's estimate: on the host, or left on the GPU mode's device.
+/// A frame's image (its estimate, or the denoised picture shown): on the host, or
+/// left on the GPU mode's device.
 #[derive(Clone, Debug)]
-pub enum Estimate {
+pub enum Picture {
     Host(Arc<Image>),
     /// Read back the first time the host asks for it (`image`).
     Device(Arc<dyn ImageOnDevice>),
 }
 
-impl Estimate {
-    /// The estimate on the host. A read-back the device fails gives a black image of
+impl Picture {
+    /// The image on the host. A read-back the device fails gives a black image of
     /// the frame's size (the render thread reports the failure with the next frame).
     pub fn image(&self) -> Arc<Image> {
         match self {
@@ -93,7 +95,15 @@ impl Estimate {
         }
     }
 
-    /// The estimate on the device, when it is there.
+    /// The image on the host, when it is there (nothing is read back).
+    pub fn on_host(&self) -> Option<&Image> {
+        match self {
+            Self::Host(img) => Some(img),
+            Self::Device(_) => None,
+        }
+    }
+
+    /// The image on the device, when it is there.
     pub fn on_device(&self) -> Option<&dyn ImageOnDevice> {
         match self {
             Self::Host(_) => None,
@@ -111,14 +121,14 @@ pub struct Frame {
     pub mode: ModeKind,
     pub device: Device,
     /// The estimate: what is saved, compared and measured (`image`).
-    pub estimate: Estimate,
+    pub estimate: Picture,
     /// The mode's debug images by name (`RenderMode::debug_overlays`; the adaptive
     /// mode's bandwidth level and samples per pixel), empty for other modes.
     pub overlays: Vec<(&'static str, Arc<Image>)>,
     /// What the viewport shows when it is not the estimate itself: the estimate
     /// blended with its denoised version during the first frames when the denoiser is
-    /// on (`None`: the estimate).
-    pub shown: Option<Arc<Image>>,
+    /// on (`None`: the estimate); on the device when a GPU mode filtered it there.
+    pub shown: Option<Picture>,
     /// Samples per pixel of the frame whose filtered picture `shown` is (a frame
     /// shows an earlier frame's picture of its version until its own filter is done;
     /// 0: the preview's); `None` when `shown` is not the denoiser's.
@@ -145,7 +155,7 @@ impl Frame {
 
     /// What the viewport shows, on the host.
     pub fn shown_image(&self) -> Arc<Image> {
-        self.shown.clone().unwrap_or_else(|| self.image())
+        self.shown.as_ref().unwrap_or(&self.estimate).image()
     }
 }
 
@@ -286,7 +296,7 @@ impl Publisher {
                 && frame.shown.is_none()
                 && let Some(f) = s.filtered.as_ref().filter(|f| f.version == frame.version)
             {
-                frame.shown = Some(Arc::clone(&f.picture));
+                frame.shown = Some(Picture::Host(Arc::clone(&f.picture)));
                 frame.shown_samples = Some(f.samples);
             }
             s.latest = Some((frame.clone(), filterable));
@@ -307,7 +317,7 @@ impl Publisher {
         };
         let picture = Arc::new(picture);
         let frame = Frame {
-            shown: Some(Arc::clone(&picture)),
+            shown: Some(Picture::Host(Arc::clone(&picture))),
             shown_samples: Some(job.samples),
             ..latest.clone()
         };
@@ -377,17 +387,32 @@ impl Denoising {
     ) {
         let samples = m.progress().min_samples;
         let strength = denoise::viewport_strength(samples);
-        if !self.on || strength <= 0.0 || partial || self.guides == Some(None) {
-            let estimate = match m.image_on_device() {
-                Some(d) => Estimate::Device(d),
-                None => Estimate::Host(Arc::new(m.image())),
+        let on_device = m.image_on_device();
+        let filter = self.on && strength > 0.0 && !partial;
+        // A GPU mode filters on its device: the frame and its picture stay there.
+        if filter && let Some(estimate) = &on_device {
+            let denoiser = Denoiser::for_samples(samples);
+            if let Some(picture) = m.denoised_on_device(estimate.as_ref(), &denoiser, strength) {
+                let estimate = Picture::Device(Arc::clone(estimate));
+                let picture = Some(Picture::Device(picture));
+                let frame = Frame {
+                    shown_samples: Some(samples),
+                    ..frame_with(m, stats, version, estimate, picture)
+                };
+                return out.frame(frame, false);
+            }
+        }
+        if !filter || self.guides == Some(None) {
+            let estimate = match on_device {
+                Some(d) => Picture::Device(d),
+                None => Picture::Host(Arc::new(m.image())),
             };
             return out.frame(frame_with(m, stats, version, estimate, None), false);
         }
         let image = Arc::new(m.image());
         let quick = !out.has_filtered(version);
         out.frame(
-            frame_with(m, stats, version, Estimate::Host(Arc::clone(&image)), None),
+            frame_with(m, stats, version, Picture::Host(Arc::clone(&image)), None),
             true,
         );
         let Some(guides) = self
@@ -433,7 +458,7 @@ impl Denoising {
         let image = Arc::new(preview::spread(&estimate, stride));
         let frame = Frame {
             preview: true,
-            ..frame_with(m, stats, version, Estimate::Host(image), None)
+            ..frame_with(m, stats, version, Picture::Host(image), None)
         };
         if !self.on {
             return out.frame(frame, false);
@@ -500,8 +525,8 @@ fn frame_with(
     m: &dyn RenderMode,
     stats: meso_render::FrameStats,
     version: u64,
-    estimate: Estimate,
-    shown: Option<Arc<Image>>,
+    estimate: Picture,
+    shown: Option<Picture>,
 ) -> Frame {
     let diagnostics = m.diagnostics();
     let (summary, material_bytes) = (diagnostics.summary(), diagnostics.material_bytes());

@@ -307,7 +307,7 @@ fn a_restart_shows_a_preview_before_the_whole_frame() {
             .expect("preview guides");
         let expected = denoised_preview(&direct.image(), &guides, stride);
         assert!(
-            denoised.shown.as_deref() == expected.as_ref(),
+            denoised.shown.as_ref().and_then(Picture::on_host) == expected.as_ref(),
             "the preview is not shown through the denoiser on its grid"
         );
         let roughness = |img: &Image| {
@@ -437,7 +437,7 @@ fn a_filtered_picture_never_shows_over_another_version() {
             m.as_ref(),
             Default::default(),
             version,
-            Estimate::Host(Arc::new(m.image())),
+            Picture::Host(Arc::new(m.image())),
             None,
         )
     };
@@ -452,12 +452,18 @@ fn a_filtered_picture_never_shows_over_another_version() {
     publisher.frame(frame_of(1), true);
     publisher.filtered(&job(1), picture.clone());
     let filtered = take().expect("a frame");
-    assert_eq!(filtered.shown.as_deref(), Some(&picture));
+    assert_eq!(
+        filtered.shown.as_ref().and_then(Picture::on_host),
+        Some(&picture)
+    );
     assert_eq!(filtered.shown_samples, Some(1));
     // The same version's next frame shows it until its own arrives.
     publisher.frame(frame_of(1), true);
     let next = take().expect("a frame");
-    assert_eq!(next.shown.as_deref(), Some(&picture));
+    assert_eq!(
+        next.shown.as_ref().and_then(Picture::on_host),
+        Some(&picture)
+    );
     assert_eq!(next.shown_samples, Some(1), "an earlier frame's picture");
     // A frame that may not be filtered (a partial one) shows its estimate.
     publisher.frame(frame_of(1), false);

@@ -3,8 +3,11 @@
 //! scene as it is, with ambient occlusion off, with the SPMM residual off, and as the
 //! viewport renders it while the camera moves (where the scene has AO or a residual). Per run: preparation seconds, milliseconds per frame (the
 //! mean of `--frames` frames after one warm-up frame), rays per second, and the
-//! edit-to-frame time of a light-colour edit (apply + one frame + the resolved image,
-//! the viewport's path). A device without an adapter is reported, not fatal.
+//! edit-to-frame time of a light-colour edit along the viewport's path: apply, one
+//! frame, the resolved image (on the GPU left on the device, through the device's
+//! denoiser while the studio would blend it in, until the device has made it), and,
+//! for comparison, the same with the image read back to the host. A device without an
+//! adapter is reported, not fatal.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -88,14 +91,18 @@ fn measure(
     let run = run_frames(mode.as_mut(), frames, |_, _| {});
     let rays = run.counters.rays.total();
     // A light-colour edit keeps every sample: its cost is the next frame and image.
-    let edit_ms = mode.scene().lights.first().copied().map(|light| {
+    let mut edit = |read_back: bool| {
+        let light = mode.scene().lights.first().copied()?;
         let light = light.with_emission(light.emission() * 1.01);
         let start = Instant::now();
         let _ = mode.apply(SceneEdit::Light { index: 0, light });
         mode.render_frame();
-        let _ = mode.image();
-        start.elapsed().as_secs_f64() * 1e3
-    });
+        viewport_picture(mode.as_ref(), read_back);
+        Some(start.elapsed().as_secs_f64() * 1e3)
+    };
+    // Untimed first: the device's denoiser and guides kernels are made on first use.
+    edit(false);
+    let (edit_ms, edit_read_back_ms) = (edit(false), edit(true));
     if let Some(e) = mode.failure() {
         return Err(e.to_string());
     }
@@ -105,12 +112,32 @@ fn measure(
         "ms_per_frame": run.seconds * 1e3 / f64::from(frames),
         "rays_per_second": rays as f64 / run.seconds.max(1e-12),
         "edit_to_frame_ms": edit_ms,
+        "edit_to_host_image_ms": edit_read_back_ms,
         "traversal_overflows": mode.diagnostics().traversal_overflows(),
         "device_bytes": mode.diagnostics().device_memory()
             .into_iter()
             .map(|(k, v)| (k.to_string(), json!(v)))
             .collect::<serde_json::Map<String, serde_json::Value>>(),
     }))
+}
+
+/// The picture the viewport shows of `mode`'s last frame, made as the render thread
+/// makes it (`meso_viewport::worker`): on a GPU mode's device, blended through the
+/// device's denoiser while the studio's fade is above zero, and waited for; on the
+/// host (or with `read_back`), the image read back.
+fn viewport_picture(mode: &dyn meso_render::RenderMode, read_back: bool) {
+    let Some(image) = mode.image_on_device().filter(|_| !read_back) else {
+        let _ = mode.image();
+        return;
+    };
+    let samples = mode.progress().min_samples;
+    let strength = meso_render::denoise::viewport_strength(samples);
+    let denoiser = meso_render::Denoiser::for_samples(samples);
+    let picture = (strength > 0.0)
+        .then(|| mode.denoised_on_device(image.as_ref(), &denoiser, strength))
+        .flatten()
+        .unwrap_or(image);
+    let _ = picture.wait();
 }
 
 pub fn run(args: &FramesArgs) -> Result<(), CliError> {
@@ -140,11 +167,14 @@ pub fn run(args: &FramesArgs) -> Result<(), CliError> {
             if !args.json {
                 match &result {
                     Ok(v) => println!(
-                        "{variant:<13} {:<4} {:>9.1} ms/frame {:>7.2} Mrays/s  edit-to-frame {} ms{}",
+                        "{variant:<13} {:<4} {:>9.1} ms/frame {:>7.2} Mrays/s  edit-to-frame {} ms (read back: {} ms){}",
                         device.name(),
                         v["ms_per_frame"].as_f64().unwrap_or(f64::NAN),
                         v["rays_per_second"].as_f64().unwrap_or(f64::NAN) / 1e6,
                         v["edit_to_frame_ms"]
+                            .as_f64()
+                            .map_or("-".into(), |m| format!("{m:.1}")),
+                        v["edit_to_host_image_ms"]
                             .as_f64()
                             .map_or("-".into(), |m| format!("{m:.1}")),
                         v["adapter"]

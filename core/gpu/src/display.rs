@@ -134,6 +134,14 @@ impl ImageOnDevice for DeviceImage {
         DeviceImage::read(self).map_err(|e| ModeError::DeviceFailed(e.to_string()))
     }
 
+    fn wait(&self) -> Result<(), ModeError> {
+        self.ctx
+            .device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| ModeError::DeviceFailed(format!("waiting for the device: {e}")))
+    }
+
     fn as_any(&self) -> &dyn std::any::Any {
         self
     }

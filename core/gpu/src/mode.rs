@@ -645,9 +645,10 @@ impl RenderMode for GpuSpmmMode {
     }
 
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
-        // Whatever the edit, the guides are traced again when next asked for (one ray
-        // per pixel).
-        if let Ok(d) = self.denoising.get_mut() {
+        // The guides are traced again when next asked for (one ray per pixel).
+        if edit.changes_guides()
+            && let Ok(d) = self.denoising.get_mut()
+        {
             d.forget_guides();
         }
         let result = self.apply_edit(edit);

@@ -90,6 +90,22 @@ pub enum EditError {
 }
 
 impl SceneEdit {
+    /// Whether the edit may change what a pixel's centre ray first sees (the
+    /// denoiser's guides: `RenderMode::guides`): anything but the emitters and the
+    /// light samples.
+    pub fn changes_guides(&self) -> bool {
+        !matches!(
+            self,
+            SceneEdit::Light { .. }
+                | SceneEdit::AddLight(_)
+                | SceneEdit::RemoveLight(_)
+                | SceneEdit::Ambient(_)
+                | SceneEdit::Environment(_)
+                | SceneEdit::Background(_)
+                | SceneEdit::LightSamples(_)
+        )
+    }
+
     /// Checks the edit against `scene` and applies it to the scene's description (the
     /// one place edits change a `Scene`: render modes and the editor's document both
     /// use it). `Resize` and `Moving` concern the render, not the scene: no change.

@@ -33,6 +33,9 @@ pub trait ImageOnDevice: Send + Sync + std::fmt::Debug {
     fn size(&self) -> (u32, u32);
     /// The image on the host: read back the first time it is asked for.
     fn read(&self) -> Result<Arc<Image>, ModeError>;
+    /// Waits until the device has made the image (what a window's frame waits for
+    /// before it shows it), without reading it back: where benches stop the clock.
+    fn wait(&self) -> Result<(), ModeError>;
     /// The concrete image, for the module that shows it.
     fn as_any(&self) -> &dyn std::any::Any;
 }

@@ -507,16 +507,7 @@ fn changes_guides(command: &Command) -> bool {
         | Command::Denoise(_)
         | Command::YieldToEdits(_)
         | Command::Unchanged { .. } => false,
-        Command::Edit { edit, .. } => !matches!(
-            **edit,
-            SceneEdit::Light { .. }
-                | SceneEdit::AddLight(_)
-                | SceneEdit::RemoveLight(_)
-                | SceneEdit::Ambient(_)
-                | SceneEdit::Environment(_)
-                | SceneEdit::Background(_)
-                | SceneEdit::LightSamples(_)
-        ),
+        Command::Edit { edit, .. } => edit.changes_guides(),
         Command::Load { .. } | Command::Install { .. } => true,
     }
 }

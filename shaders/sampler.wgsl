@@ -54,18 +54,17 @@ fn laine_karras(v: u32, seed: u32) -> u32 {
 
 // Sobol dimension 1 of an index given bit-reversed, reversed (`sobol1_reversed`): the
 // XOR over set bits p of reverse(DIM1[31 - p]), DIM1[k] = DIM1[k-1] ^ (DIM1[k-1] >> 1)
-// from the top bit. Its reversal is column k = c ^ (c << 1) from bit 0, walked from
-// p = 31 down; 32 steps, bounded.
+// from the top bit. That matrix is Pascal's triangle mod 2, which splits into halves
+// as [[S, 0], [S, S]]: on the index in its own order, each block's low half takes the
+// XOR of its high half, halving the blocks five times. No loop, no branch.
 fn sobol1_reversed(reversed: u32) -> u32 {
-    var out = 0u;
-    var column = 1u;
-    for (var k = 0u; k < 32u; k++) {
-        if (reversed & (0x80000000u >> k)) != 0u {
-            out ^= column;
-        }
-        column ^= column << 1u;
-    }
-    return out;
+    var x = reverseBits(reversed);
+    x ^= (x >> 16u) & 0x0000ffffu;
+    x ^= (x >> 8u) & 0x00ff00ffu;
+    x ^= (x >> 4u) & 0x0f0f0f0fu;
+    x ^= (x >> 2u) & 0x33333333u;
+    x ^= (x >> 1u) & 0x55555555u;
+    return x;
 }
 
 // `point_2d` as 32-bit fractions: the index shuffled, the first two Sobol dimensions,

@@ -519,10 +519,20 @@ fn read_btf_from_disk(input: &[u8]) -> Result<(), String> {
 
 /// A part of a sharded fit (`meso fit --shard`) of the BTF seed, as `meso fit merge`
 /// reads it.
-fn fit_part_seed() -> Vec<u8> {
-    use meso_fit::{FitSettings, Shard, fit_part};
-    let btf = meso_materials::btf::file::decode_btf(&btf_seeds()[1]).expect("the seed reads");
-    let settings = FitSettings {
+/// Half the time, `bytes` with their last 8 replaced by the FNV-1a checksum of the rest,
+/// as the fit's files end: the mutation then reaches the parser behind the checksum.
+fn with_checksum(mut bytes: Vec<u8>, rng: &mut Rng) -> Vec<u8> {
+    if bytes.len() >= 8 && rng.below(2) == 0 {
+        let body = bytes.len() - 8;
+        let sum = meso_materials::hash::fnv1a64(&bytes[..body]);
+        bytes[body..].copy_from_slice(&sum.to_le_bytes());
+    }
+    bytes
+}
+
+/// The settings of the fit seeds: small, and still sampling.
+fn fit_seed_settings() -> meso_fit::FitSettings {
+    meso_fit::FitSettings {
         clusters: 2,
         subclusters: 1,
         max_bases: 2,
@@ -530,8 +540,14 @@ fn fit_part_seed() -> Vec<u8> {
         fit_pairs: 20,
         sample_texels: 6,
         residual_texels: 3,
-        ..FitSettings::default()
-    };
+        ..meso_fit::FitSettings::default()
+    }
+}
+
+fn fit_part_seed() -> Vec<u8> {
+    use meso_fit::{Shard, fit_part};
+    let btf = meso_materials::btf::file::decode_btf(&btf_seeds()[1]).expect("the seed reads");
+    let settings = fit_seed_settings();
     let shard = Shard::new(1, 2).expect("a shard");
     let cancel = std::sync::atomic::AtomicBool::new(false);
     fit_part(
@@ -555,10 +571,38 @@ fn fuzz_fit_parts() {
     fuzz(
         "fit part",
         &[seed],
-        |s, rng| mutate_bytes(s, rng),
+        |s, rng| with_checksum(mutate_bytes(s, rng), rng),
         |input| {
             check("fit part", &format!("({} bytes)", input.len()), || {
                 meso_fit::Part::decode(input)
+            })
+        },
+    );
+}
+
+/// A fit's model file travels to every shard's machine like the parts come back: a
+/// damaged one is refused, never a panic.
+#[test]
+fn fuzz_fit_models() {
+    let btf = meso_materials::btf::file::decode_btf(&btf_seeds()[1]).expect("the seed reads");
+    let cancel = std::sync::atomic::AtomicBool::new(false);
+    let seed = meso_fit::find_model(
+        &btf,
+        "fuzz.btf",
+        &fit_seed_settings(),
+        &cancel,
+        &|_, _, _| {},
+    )
+    .expect("the seed's model")
+    .encode();
+    meso_fit::FitModel::decode(&seed).expect("the seed model reads");
+    fuzz(
+        "fit model",
+        &[seed],
+        |s, rng| with_checksum(mutate_bytes(s, rng), rng),
+        |input| {
+            check("fit model", &format!("({} bytes)", input.len()), || {
+                meso_fit::FitModel::decode(input)
             })
         },
     );

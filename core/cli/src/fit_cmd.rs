@@ -2,7 +2,8 @@
 //! fit report (text, or one JSON object with --json), optionally save it as JSON.
 //! The BTF is read from disk block by block within `--max-memory`; `--shard K/N`
 //! fits one part of the texels and `meso fit merge` joins the parts into the pack the
-//! unsharded fit writes. Ctrl-C stops between work items and leaves no output file.
+//! unsharded fit writes; `--model-only` writes the fit's model once, and `--model`
+//! spares each shard finding it again. Ctrl-C stops between work items and leaves no output file.
 
 use std::path::{Path, PathBuf};
 
@@ -58,6 +59,14 @@ pub struct FitArgs {
     /// -o; `meso fit merge` joins every shard's part into the pack.
     #[arg(long)]
     shard: Option<String>,
+    /// Only find the fit's model (clusters, dictionaries, residual tables: the stages
+    /// every shard repeats) and write it to -o, for `--model`.
+    #[arg(long, conflicts_with_all = ["shard", "model", "report"])]
+    model_only: bool,
+    /// Use this model file (from `--model-only` with the same options on the same
+    /// BTF) instead of finding the model again.
+    #[arg(long)]
+    model: Option<PathBuf>,
     /// Name of the material (default: the BTF's).
     #[arg(long)]
     name: Option<String>,
@@ -139,7 +148,7 @@ fn fit_error(e: FitError, output: &Path) -> CliError {
         e @ (FitError::Setting { .. } | FitError::Budget(_) | FitError::Memory(_)) => {
             CliError::bad_input(e)
         }
-        e @ FitError::Input(_) => CliError::bad_input(e),
+        e @ (FitError::Input(_) | FitError::Model(_)) => CliError::bad_input(e),
         e => CliError::failure(e),
     }
 }
@@ -199,12 +208,48 @@ pub fn run(args: &FitArgs) -> Result<(), CliError> {
     );
     let bar = ProgressLine::new();
     let progress = |s: meso_fit::Stage, d, n| bar.update(s.name(), d, n);
+    if args.model_only {
+        let result =
+            meso_fit::find_model(&btf, &file_name(input), &settings, cancel_flag(), &progress);
+        bar.finish();
+        let model = result.map_err(|e| fit_error(e, output))?;
+        let bytes = model.encode();
+        meso_materials::atomic::write_bytes_atomic(output, &bytes)
+            .failure_ctx(|| format!("writing `{}`", output.display()))?;
+        if args.json {
+            return crate::print_json(&serde_json::json!({
+                "output": output.display().to_string(),
+                "bytes": bytes.len(),
+            }));
+        }
+        println!(
+            "wrote {} (the fit's model, {} bytes); fit with `--model {}` and the same options",
+            output.display(),
+            bytes.len(),
+            output.display()
+        );
+        return Ok(());
+    }
+    let model = args
+        .model
+        .as_deref()
+        .map(|path| {
+            meso_fit::FitModel::read(path)
+                .map(|m| (m, path))
+                .map_err(CliError::bad_input)
+        })
+        .transpose()?;
+    let from = || match &model {
+        Some((m, path)) => meso_fit::ModelFrom::File(Box::new(m.clone()), path),
+        None => meso_fit::ModelFrom::Sample,
+    };
     if let Some(shard) = shard {
-        let result = meso_fit::fit_part(
+        let result = meso_fit::fit_part_from(
             &btf,
             (&name, &provenance, &file_name(input)),
             &settings,
             shard,
+            from(),
             cancel_flag(),
             &progress,
         );
@@ -233,11 +278,11 @@ pub fn run(args: &FitArgs) -> Result<(), CliError> {
         );
         return Ok(());
     }
-    let result = meso_fit::fit_btf(
+    let result = meso_fit::fit_btf_from(
         &btf,
-        &name,
-        &provenance,
+        (&name, &provenance),
         &settings,
+        from(),
         cancel_flag(),
         &progress,
     );

@@ -19,11 +19,13 @@
 
 mod assemble;
 pub mod budget;
+mod codec;
 pub mod dictionary;
 pub mod kmeans;
 pub mod lasso;
 pub mod memory;
 mod model;
+pub mod model_file;
 pub mod part;
 pub mod report;
 pub mod residual;
@@ -42,6 +44,7 @@ use dictionary::DictionarySettings;
 use meso_materials::btf::texels::TexelSource;
 pub use meso_materials::spmm::pack::ResidualPrecision;
 use meso_materials::spmm::{SpmmError, SpmmMaterial};
+pub use model_file::{FitModel, ModelFileError};
 pub use part::{MergeError, Part, Shard};
 pub use report::{ClusterReport, ErrorRow, FitReport, StageSeconds};
 
@@ -144,6 +147,9 @@ pub enum FitError {
     Memory(String),
     #[error("reading the BTF: {0}")]
     Input(String),
+    /// A model file that cannot be used for this fit (`model_file.rs`).
+    #[error("{0}")]
+    Model(String),
     #[error("the fitted material is invalid: {0}")]
     Material(#[from] SpmmError),
 }
@@ -225,17 +231,48 @@ fn check_settings(settings: &FitSettings) -> Result<(), FitError> {
     Ok(())
 }
 
-/// The model of `src` (the sample stages) and the block size of `settings`' budget.
+/// Where a fit's model comes from.
+pub enum ModelFrom<'a> {
+    /// Found now on `src`'s seeded sample (the model stages).
+    Sample,
+    /// A model file (`find_model`'s, read with `FitModel::read`) at this path: used
+    /// only when it was found with the same options on the same input.
+    File(Box<FitModel>, &'a std::path::Path),
+}
+
+/// The model of `src` (found, or a model file's checked and attached) and the block
+/// size of `settings`' budget.
 fn model_of(
     src: &dyn TexelSource,
     settings: &FitSettings,
+    from: ModelFrom,
     cancel: &AtomicBool,
     progress: Progress,
 ) -> Result<(model::Model, usize), FitError> {
     check_settings(settings)?;
     let block = memory::block_texels(settings, src.texels(), src.pairs())?;
-    let model = model::fit_model(src, settings, block, cancel, progress)?;
+    let model = match from {
+        ModelFrom::Sample => model::fit_model(src, settings, block, cancel, progress)?,
+        ModelFrom::File(m, path) => m.attach(src, settings, block, path)?,
+    };
     Ok((model, block))
+}
+
+/// Finds the model of a fit of `src` with `settings` (the stages every shard would
+/// repeat) to write as a model file; `input` names the input in it.
+pub fn find_model(
+    src: &dyn TexelSource,
+    input: &str,
+    settings: &FitSettings,
+    cancel: &AtomicBool,
+    progress: Progress,
+) -> Result<FitModel, FitError> {
+    let (model, _) = model_of(src, settings, ModelFrom::Sample, cancel, progress)?;
+    Ok(FitModel {
+        input: input.to_string(),
+        options: settings.options_text(),
+        model,
+    })
 }
 
 /// Fits an SPMM to `src` (in memory or on disk), within `settings.max_memory`.
@@ -248,7 +285,26 @@ pub fn fit_btf(
     cancel: &AtomicBool,
     progress: Progress,
 ) -> Result<FitOutput, FitError> {
-    let (model, block) = model_of(src, settings, cancel, progress)?;
+    fit_btf_from(
+        src,
+        (name, provenance),
+        settings,
+        ModelFrom::Sample,
+        cancel,
+        progress,
+    )
+}
+
+/// `fit_btf` with the model from `from`.
+pub fn fit_btf_from(
+    src: &dyn TexelSource,
+    (name, provenance): (&str, &str),
+    settings: &FitSettings,
+    from: ModelFrom,
+    cancel: &AtomicBool,
+    progress: Progress,
+) -> Result<FitOutput, FitError> {
+    let (model, block) = model_of(src, settings, from, cancel, progress)?;
     let t0 = Instant::now();
     let fits = texel_fit::fit_range(
         src,
@@ -269,13 +325,35 @@ pub fn fit_btf(
 /// `input` names the input in the part (for messages).
 pub fn fit_part(
     src: &dyn TexelSource,
-    (name, provenance, input): (&str, &str, &str),
+    names: (&str, &str, &str),
     settings: &FitSettings,
     shard: Shard,
     cancel: &AtomicBool,
     progress: Progress,
 ) -> Result<Part, FitError> {
-    let (model, block) = model_of(src, settings, cancel, progress)?;
+    fit_part_from(
+        src,
+        names,
+        settings,
+        shard,
+        ModelFrom::Sample,
+        cancel,
+        progress,
+    )
+}
+
+/// `fit_part` with the model from `from`: a model file spares each shard the model
+/// stages.
+pub fn fit_part_from(
+    src: &dyn TexelSource,
+    (name, provenance, input): (&str, &str, &str),
+    settings: &FitSettings,
+    shard: Shard,
+    from: ModelFrom,
+    cancel: &AtomicBool,
+    progress: Progress,
+) -> Result<Part, FitError> {
+    let (model, block) = model_of(src, settings, from, cancel, progress)?;
     let t0 = Instant::now();
     let fits = texel_fit::fit_range(
         src,

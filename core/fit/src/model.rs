@@ -39,6 +39,7 @@ const PAIRS_TAG: u64 = 0x7065_726d;
 const TEXELS_TAG: u64 = 0x7465_786c;
 
 /// What every texel's fit is solved against.
+#[derive(Clone, Debug)]
 pub(crate) struct Model {
     /// Direction pairs of the clustering features, ascending.
     pub feature_pairs: Vec<usize>,
@@ -162,15 +163,7 @@ pub(crate) fn fit_model(
     feature_pairs.sort_unstable();
     let mut fit_pairs: Vec<usize> = order[..settings.fit_pairs.min(m)].to_vec();
     fit_pairs.sort_unstable();
-    // The sample: a seeded choice of texels (all of them when there are few), read in
-    // ascending order; `rank` keeps each one's place in the seeded order.
-    let drawn = permutation(texels, settings.seed, TEXELS_TAG);
-    let mut sample: Vec<(usize, usize)> = drawn[..settings.sample_texels.min(texels)]
-        .iter()
-        .enumerate()
-        .map(|(rank, &t)| (t, rank))
-        .collect();
-    sample.sort_unstable();
+    let sample = sample_of(texels, settings);
     let sample_texels: Vec<usize> = sample.iter().map(|s| s.0).collect();
 
     // 1. Features of the sample, its brightest value and the input's hash.
@@ -178,12 +171,7 @@ pub(crate) fn fit_model(
     let dim = feature_pairs.len() * 3;
     let mut features = vec![0.0f32; sample.len() * dim];
     let mut reference = 0.0f64;
-    let mut h = Fnv1a::default();
-    h.word(u64::from(src.width()));
-    h.word(u64::from(src.height()));
-    for d in src.light_dirs().iter().chain(src.view_dirs()) {
-        d.to_array().iter().for_each(|x| h.word(x.to_bits()));
-    }
+    let mut h = input_hasher(src);
     for_each_texel(src, &sample_texels, block, |i, row| {
         texel_fit::feature(row, &feature_pairs, &mut features[i * dim..(i + 1) * dim]);
         for x in row {
@@ -307,31 +295,7 @@ pub(crate) fn fit_model(
             );
         }
     }
-    let columns: Vec<Vec<f64>> = clusters
-        .par_iter()
-        .flat_map_iter(|c| {
-            c.bases.iter().map(|b| {
-                (0..m)
-                    .map(|p| {
-                        let (wi, wo) = pair_dirs(src, p);
-                        b.eval(wi, wo)
-                    })
-                    .collect::<Vec<f64>>()
-            })
-        })
-        .collect();
-    let mut first_col = vec![0usize];
-    for c in &clusters {
-        first_col.push(first_col.last().copied().unwrap_or(0) + c.bases.len());
-    }
-    let grams: Vec<DMatrix<f64>> = (0..k)
-        .map(|c| {
-            let cols = &columns[first_col[c]..first_col[c + 1]];
-            DMatrix::from_fn(cols.len(), cols.len(), |i, j| {
-                cols[i].iter().zip(&cols[j]).map(|(a, b)| a * b).sum()
-            })
-        })
-        .collect();
+    let (columns, first_col, grams) = basis_tables(src, &clusters);
     // The lobe bound's second half: each basis times its weight stays within the
     // hemisphere multiple of the pack's brightest tabulated value (a margin below the
     // validator's multiple for the file's rounding). That value is the sample's
@@ -405,6 +369,84 @@ pub(crate) fn fit_model(
     }
     model.seconds[2] = t0.elapsed().as_secs_f64();
     Ok(model)
+}
+
+/// The seeded sample of `texels` texels (all of them when there are few) as (texel,
+/// rank), in ascending texel order: `rank` keeps each one's place in the seeded order.
+fn sample_of(texels: usize, settings: &FitSettings) -> Vec<(usize, usize)> {
+    let drawn = permutation(texels, settings.seed, TEXELS_TAG);
+    let mut sample: Vec<(usize, usize)> = drawn[..settings.sample_texels.min(texels)]
+        .iter()
+        .enumerate()
+        .map(|(rank, &t)| (t, rank))
+        .collect();
+    sample.sort_unstable();
+    sample
+}
+
+/// The input hash's start: the grid and the directions; the sample's values follow.
+fn input_hasher(src: &dyn TexelSource) -> Fnv1a {
+    let mut h = Fnv1a::default();
+    h.word(u64::from(src.width()));
+    h.word(u64::from(src.height()));
+    for d in src.light_dirs().iter().chain(src.view_dirs()) {
+        d.to_array().iter().for_each(|x| h.word(x.to_bits()));
+    }
+    h
+}
+
+/// The hash of `src` as `settings`' sample sees it (`Model::input_hash`): a model
+/// file is used only on the input it was found on.
+pub(crate) fn input_hash(
+    src: &dyn TexelSource,
+    settings: &FitSettings,
+    block: usize,
+) -> Result<u64, FitError> {
+    let texels: Vec<usize> = sample_of(src.texels(), settings)
+        .iter()
+        .map(|s| s.0)
+        .collect();
+    let mut h = input_hasher(src);
+    for_each_texel(src, &texels, block, |_, row| {
+        row.iter().for_each(|x| h.bytes(&x.to_le_bytes()));
+    })?;
+    Ok(h.finish())
+}
+
+/// Per basis (cluster by cluster) its values at every direction pair of `src`, where
+/// each cluster's bases start, and each cluster's Gram matrix: what the weights are
+/// solved against, a function of the dictionaries and the directions alone.
+pub(crate) fn basis_tables(
+    src: &dyn TexelSource,
+    clusters: &[Cluster],
+) -> (Vec<Vec<f64>>, Vec<usize>, Vec<DMatrix<f64>>) {
+    let m = src.pairs();
+    let columns: Vec<Vec<f64>> = clusters
+        .par_iter()
+        .flat_map_iter(|c| {
+            c.bases.iter().map(|b| {
+                (0..m)
+                    .map(|p| {
+                        let (wi, wo) = pair_dirs(src, p);
+                        b.eval(wi, wo)
+                    })
+                    .collect::<Vec<f64>>()
+            })
+        })
+        .collect();
+    let mut first_col = vec![0usize];
+    for c in clusters {
+        first_col.push(first_col.last().copied().unwrap_or(0) + c.bases.len());
+    }
+    let grams: Vec<DMatrix<f64>> = (0..clusters.len())
+        .map(|c| {
+            let cols = &columns[first_col[c]..first_col[c + 1]];
+            DMatrix::from_fn(cols.len(), cols.len(), |i, j| {
+                cols[i].iter().zip(&cols[j]).map(|(a, b)| a * b).sum()
+            })
+        })
+        .collect();
+    (columns, first_col, grams)
 }
 
 /// Calls `f` on each of `texels` (ascending) in parallel, reading up to `block` at a

@@ -9,15 +9,12 @@
 
 use std::path::{Path, PathBuf};
 
-use glam::DVec3;
-
 use crate::assemble::Tables;
+use crate::codec::{In, Out, read_basis, write_clusters};
 use crate::texel_fit::TexelFit;
 use crate::{FitSettings, ResidualPrecision};
-use meso_materials::brdf::{AnalyticBrdf, BasisFunction, BrdfModel};
 use meso_materials::hash::fnv1a64;
 use meso_materials::spmm::Cluster;
-use meso_materials::spmm::pack::model_id;
 
 const MAGIC: &[u8; 8] = b"MESOPART";
 const VERSION: u32 = 1;
@@ -132,119 +129,6 @@ pub enum MergeError {
     DifferentModel { first: PathBuf, second: PathBuf },
 }
 
-/// Little-endian writer.
-#[derive(Default)]
-struct Out(Vec<u8>);
-
-impl Out {
-    fn u8(&mut self, v: u8) {
-        self.0.push(v);
-    }
-    fn u16(&mut self, v: u16) {
-        self.0.extend_from_slice(&v.to_le_bytes());
-    }
-    fn u32(&mut self, v: u32) {
-        self.0.extend_from_slice(&v.to_le_bytes());
-    }
-    fn u64(&mut self, v: u64) {
-        self.0.extend_from_slice(&v.to_le_bytes());
-    }
-    fn f32(&mut self, v: f32) {
-        self.u32(v.to_bits());
-    }
-    fn f64(&mut self, v: f64) {
-        self.u64(v.to_bits());
-    }
-    fn str(&mut self, s: &str) {
-        self.u32(s.len() as u32);
-        self.0.extend_from_slice(s.as_bytes());
-    }
-    fn f32s(&mut self, v: &[f32]) {
-        self.u64(v.len() as u64);
-        v.iter().for_each(|&x| self.f32(x));
-    }
-    fn dirs(&mut self, v: &[DVec3]) {
-        self.u32(v.len() as u32);
-        v.iter()
-            .flat_map(|d| d.to_array())
-            .for_each(|x| self.f64(x));
-    }
-}
-
-/// Little-endian reader; errors say what was being read and where.
-struct In<'a> {
-    bytes: &'a [u8],
-    at: usize,
-}
-
-impl<'a> In<'a> {
-    fn take(&mut self, n: usize, what: &str) -> Result<&'a [u8], String> {
-        if self.bytes.len() - self.at < n {
-            return Err(format!("cut short at byte {} reading {what}", self.at));
-        }
-        let s = &self.bytes[self.at..self.at + n];
-        self.at += n;
-        Ok(s)
-    }
-    fn u8(&mut self, what: &str) -> Result<u8, String> {
-        Ok(self.take(1, what)?[0])
-    }
-    /// The next `N` bytes as an array.
-    fn array<const N: usize>(&mut self, what: &str) -> Result<[u8; N], String> {
-        let mut out = [0u8; N];
-        out.copy_from_slice(self.take(N, what)?);
-        Ok(out)
-    }
-    fn u16(&mut self, what: &str) -> Result<u16, String> {
-        self.array(what).map(u16::from_le_bytes)
-    }
-    fn u32(&mut self, what: &str) -> Result<u32, String> {
-        self.array(what).map(u32::from_le_bytes)
-    }
-    fn u64(&mut self, what: &str) -> Result<u64, String> {
-        self.array(what).map(u64::from_le_bytes)
-    }
-    fn f32(&mut self, what: &str) -> Result<f32, String> {
-        Ok(f32::from_bits(self.u32(what)?))
-    }
-    fn f64(&mut self, what: &str) -> Result<f64, String> {
-        Ok(f64::from_bits(self.u64(what)?))
-    }
-    /// A count of items of `size` bytes each that must fit in what is left.
-    fn count(&mut self, n: u64, size: usize, what: &str) -> Result<usize, String> {
-        let left = (self.bytes.len() - self.at) as u64;
-        if n.saturating_mul(size as u64) > left {
-            return Err(format!(
-                "{what}: {n} entries do not fit the {left} bytes left"
-            ));
-        }
-        Ok(n as usize)
-    }
-    fn str(&mut self, what: &str) -> Result<String, String> {
-        let n = self.u32(what)? as u64;
-        let n = self.count(n, 1, what)?;
-        String::from_utf8(self.take(n, what)?.to_vec()).map_err(|_| format!("{what} is not UTF-8"))
-    }
-    fn f32s(&mut self, what: &str) -> Result<Vec<f32>, String> {
-        let n = self.u64(what)?;
-        let n = self.count(n, 4, what)?;
-        (0..n).map(|_| self.f32(what)).collect()
-    }
-    fn dirs(&mut self, what: &str) -> Result<Vec<DVec3>, String> {
-        let n = self.u32(what)? as u64;
-        let n = self.count(n, 24, what)?;
-        (0..n)
-            .map(|_| {
-                Ok(DVec3::new(
-                    self.f64(what)?,
-                    self.f64(what)?,
-                    self.f64(what)?,
-                ))
-            })
-            .collect()
-    }
-}
-
 fn precision_id(p: ResidualPrecision) -> u8 {
     match p {
         ResidualPrecision::F16 => 0,
@@ -286,16 +170,7 @@ fn write_tables(o: &mut Out, t: &Tables) {
     o.u64(s.max_bytes.unwrap_or(0));
     o.u8(precision_id(s.precision));
     o.u32(t.clusters.len() as u32);
-    for c in &t.clusters {
-        o.u32(c.bases.len() as u32);
-        for b in &c.bases {
-            o.u8(model_id(b.brdf().model()));
-            let params = b.brdf().param_values();
-            o.u8(params.len() as u8);
-            params.iter().for_each(|&x| o.f64(x));
-            b.normal().to_array().iter().for_each(|&x| o.f64(x));
-        }
-    }
+    write_clusters(o, &t.clusters);
     o.u32(t.peaks.len() as u32);
     t.peaks.iter().for_each(|&x| o.f64(x));
     t.cluster_components.iter().for_each(|&n| o.u32(n as u32));
@@ -303,27 +178,6 @@ fn write_tables(o: &mut Out, t: &Tables) {
     o.f32s(&t.components);
     t.seconds.iter().for_each(|&x| o.f64(x));
     o.u64(t.model_hash);
-}
-
-fn read_basis(i: &mut In, what: &str) -> Result<BasisFunction, String> {
-    let id = i.u8(what)? as usize;
-    let model = *BrdfModel::ALL
-        .get(id)
-        .ok_or_else(|| format!("{what}: model id {id} is not 0..=6"))?;
-    let n = i.u8(what)? as usize;
-    let specs = model.param_specs();
-    if n != specs.len() {
-        return Err(format!(
-            "{what}: {n} parameters, model `{}` has {}",
-            model.name(),
-            specs.len()
-        ));
-    }
-    let values: Vec<f64> = (0..n).map(|_| i.f64(what)).collect::<Result<_, _>>()?;
-    let named: Vec<(&str, f64)> = specs.iter().map(|s| s.name).zip(values).collect();
-    let brdf = AnalyticBrdf::new(model, &named).map_err(|e| format!("{what}: {e}"))?;
-    let normal = DVec3::new(i.f64(what)?, i.f64(what)?, i.f64(what)?);
-    BasisFunction::new(brdf, normal).map_err(|e| format!("{what}: {e}"))
 }
 
 fn read_tables(i: &mut In) -> Result<Tables, String> {

@@ -199,3 +199,88 @@ fn shards_parse_and_cover_the_texels() {
         assert_eq!(next, texels);
     }
 }
+
+/// A model file spares shards the model stages and changes nothing: the unsharded fit
+/// and two shards merged, both from the model read back from its bytes, give the
+/// unsharded pack bit for bit. A model found with other options, on another input, or
+/// damaged is refused with the file named, never a panic.
+#[test]
+fn a_model_file_gives_the_same_pack_and_is_used_only_where_it_was_found() {
+    let btf = weave_btf();
+    let s = settings();
+    let no = AtomicBool::new(false);
+    let want = pack_bytes(&fit_btf(&btf, "w", "t", &s, &no, &quiet).expect("fit"));
+    let found = find_model(&btf, "w.btf", &s, &no, &quiet).expect("model");
+    let bytes = found.encode();
+    let path = std::path::Path::new("w.model");
+    let load = || FitModel::decode(&bytes).expect("decodes");
+    let from = fit_btf_from(
+        &btf,
+        ("w", "t"),
+        &s,
+        ModelFrom::File(Box::new(load()), path),
+        &no,
+        &quiet,
+    )
+    .expect("fit from the model file");
+    assert!(pack_bytes(&from) == want, "the model file changed the pack");
+    let parts: Vec<(PathBuf, Part)> = (1..=2)
+        .map(|k| {
+            let shard = Shard::new(k, 2).expect("shard");
+            let from = ModelFrom::File(Box::new(load()), path);
+            let p = fit_part_from(&btf, ("w", "t", "w.btf"), &s, shard, from, &no, &quiet)
+                .expect("part");
+            (PathBuf::from(format!("p{k}.part")), p)
+        })
+        .collect();
+    // A part whose shard found the model itself merges with them: the same model.
+    // (Timings aside: the stages' and the texels' seconds are the runs' own.)
+    let mut own = part(&btf, &s, 2, 2);
+    own.texel_seconds = parts[1].1.texel_seconds;
+    own.tables.seconds = parts[1].1.tables.seconds;
+    assert!(parts[1].1 == own, "a part from the file differs");
+    let merged = merge_parts(parts).expect("merge");
+    assert!(
+        pack_bytes(&merged) == want,
+        "shards from the model file differ"
+    );
+
+    let refused = |settings: &FitSettings, src: &Btf, model: FitModel| {
+        fit_btf_from(
+            src,
+            ("w", "t"),
+            settings,
+            ModelFrom::File(Box::new(model), path),
+            &no,
+            &quiet,
+        )
+        .err()
+        .expect("refused")
+        .to_string()
+    };
+    let other = FitSettings { npca: 2, ..s };
+    let e = refused(&other, &btf, load());
+    assert!(e.contains("w.model") && e.contains("other options"), "{e}");
+    let brighter = Btf::new(
+        "w".into(),
+        "t".into(),
+        btf.width(),
+        btf.height(),
+        btf.light_dirs().to_vec(),
+        btf.view_dirs().to_vec(),
+        btf.data().iter().map(|v| v * 1.5).collect(),
+    )
+    .expect("a valid BTF");
+    let e = refused(&s, &brighter, load());
+    assert!(e.contains("w.model") && e.contains("another input"), "{e}");
+
+    // Every truncation and a flipped byte in each part of the file: an error, no panic.
+    for cut in (0..bytes.len()).step_by(97) {
+        assert!(FitModel::decode(&bytes[..cut]).is_err(), "cut at {cut}");
+    }
+    for at in (8..bytes.len()).step_by(89) {
+        let mut bad = bytes.clone();
+        bad[at] ^= 0x40;
+        assert!(FitModel::decode(&bad).is_err(), "flipped byte {at}");
+    }
+}

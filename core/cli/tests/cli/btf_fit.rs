@@ -397,10 +397,18 @@ fn fit_in_shards_merges_to_the_unsharded_pack_and_refuses_odd_parts() {
     let mut args = vec!["fit", b, "-o", &whole];
     args.extend(common);
     assert_ok(&meso(&args, ""));
+    // The model once; shards 2 and 3 take it from the file, shard 1 finds its own.
+    let model = path("weave.model");
+    let mut args = vec!["fit", b, "--model-only", "-o", &model];
+    args.extend(common);
+    assert_ok(&meso(&args, ""));
     let parts: Vec<String> = (1..=3).map(|k| path(&format!("p{k}.part"))).collect();
     for (k, part) in parts.iter().enumerate() {
         let shard = format!("{}/3", k + 1);
         let mut args = vec!["fit", b, "-o", part, "--shard", &shard, "--json"];
+        if k > 0 {
+            args.extend(["--model", model.as_str()]);
+        }
         args.extend(common);
         let o = meso(&args, "");
         assert_ok(&o);
@@ -442,6 +450,14 @@ fn fit_in_shards_merges_to_the_unsharded_pack_and_refuses_odd_parts() {
     assert_bad_input(
         &meso(&["fit", "merge", &parts[0], &parts[2], "-o", &refused], ""),
         &["shard(s) 2 of 3 missing"],
+    );
+    let mut args = vec!["fit", b, "-o", &refused, "--model", &model];
+    args.extend(common.iter().map(|a| if *a == "2" { "1" } else { a }));
+    assert_bad_input(&meso(&args, ""), &["weave.model", "other options"]);
+    let whole_as_model = ["fit", b, "-o", &refused, "--model", &whole];
+    assert_bad_input(
+        &meso(&whole_as_model, ""),
+        &["whole.spmm", "not a fit model"],
     );
     assert!(!std::path::Path::new(&refused).exists());
     assert_bad_input(

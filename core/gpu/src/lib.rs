@@ -11,6 +11,7 @@
 //! in (`display.rs`), and the mode itself (`mode.rs`). The CPU's
 //! `trace::SpmmMode` is the reference every part here is tested against.
 
+mod biscale;
 mod context;
 mod data;
 mod display;
@@ -22,6 +23,7 @@ mod mode;
 mod reach;
 mod shaders;
 
+pub use biscale::{BiscaleBlock, BiscaleBytes, BiscaleInputs, BiscaleTable, LEAF_BIT};
 pub use context::{GpuContext, GpuError, Sharing, hardware_adapter, is_hardware};
 pub use display::{DeviceImage, DisplayTexture};
 pub use mode::{DeviceBytes, GpuSpmmMode};

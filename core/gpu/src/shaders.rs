@@ -15,6 +15,7 @@ pub(super) const CDF: &str = include_str!("../../../shaders/cdf.wgsl");
 pub(super) const BTF_TABLE: &str = include_str!("../../../shaders/btf.wgsl");
 pub(super) const FILM: &str = include_str!("../../../shaders/film.wgsl");
 pub(super) const DISPLAY: &str = include_str!("../../../shaders/display.wgsl");
+pub(super) const BISCALE: &str = include_str!("../../../shaders/biscale.wgsl");
 
 /// The test kernels: evaluations of BRDFs and SPMM texels, and primary-ray hits.
 #[cfg(test)]
@@ -47,6 +48,23 @@ fn from_disk(embedded: &str) -> String {
 pub(super) fn integrator() -> String {
     module(&[
         INTEGRATOR,
+        SAMPLER,
+        TRAVERSAL,
+        BRDF,
+        SPMM,
+        LIGHTS,
+        ENVIRONMENT,
+        MERL,
+        CDF,
+        BTF_TABLE,
+    ])
+}
+
+/// The biscale mode's frames: the integrator's module with `render_biscale` after it.
+pub(super) fn biscale() -> String {
+    module(&[
+        INTEGRATOR,
+        BISCALE,
         SAMPLER,
         TRAVERSAL,
         BRDF,

@@ -26,6 +26,8 @@ pub mod refine;
 pub mod sh;
 #[cfg(test)]
 mod tests;
+#[cfg(all(test, feature = "gpu"))]
+mod gpu_tests;
 pub mod transfer;
 
 use std::path::PathBuf;

@@ -1,0 +1,237 @@
+//! The biscale mode on the GPU against the CPU biscale mode: the same preparation
+//! (shared through a precomputation cache), images compared by the GPU spmm tests'
+//! rule (RMSE against the CPU's converged image at most 1.25x the CPU's own at equal
+//! frames plus 0.2% of the mean; means within 2% plus four standard errors), the
+//! environment layer on its own, and edits. They need a wgpu adapter (CI: lavapipe,
+//! WGPU_BACKEND=vulkan) and fail without one, naming the cause.
+
+use std::path::Path;
+use std::sync::OnceLock;
+
+use glam::DVec3;
+use meso_gpu::GpuContext;
+use meso_materials::image::Image;
+use meso_render::scene::{Environment, Material, Scene, load_scene};
+use meso_render::{Invalidation, Prepare, RenderMode, SceneEdit, run_frames};
+
+use super::{BiscaleMode, BiscaleSettings, GpuBiscaleMode};
+use crate::REFERENCE_SEED_XOR;
+
+fn context() -> &'static GpuContext {
+    static CONTEXT: OnceLock<GpuContext> = OnceLock::new();
+    CONTEXT.get_or_init(|| {
+        GpuContext::new().unwrap_or_else(|e| {
+            panic!("the GPU tests need a wgpu adapter (CI: lavapipe, WGPU_BACKEND=vulkan): {e}")
+        })
+    })
+}
+
+/// Small resolutions so lavapipe and a debug build take seconds; one cache for every
+/// mode of a test, so the CPU and the GPU use the very same precomputation.
+fn settings(cache: &Path) -> BiscaleSettings {
+    BiscaleSettings {
+        cube_n: 8,
+        local_res: 8,
+        view_res: 8,
+        rays_per_side: 1,
+        refine_vertices: 256,
+        cache_dir: Some(cache.to_path_buf()),
+        ..BiscaleSettings::default()
+    }
+}
+
+/// The MERL bunny on its MERL floor under the studio map and one area light.
+fn bunny() -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/scenes/merl_bunny.toml");
+    load_scene(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+fn rmse(a: &Image, b: &Image) -> f64 {
+    let n = a.pixels().len() as f64 * 3.0;
+    let sum: f64 = a
+        .pixels()
+        .iter()
+        .zip(b.pixels())
+        .flat_map(|(p, q)| (0..3).map(move |c| (f64::from(p[c]) - f64::from(q[c])).powi(2)))
+        .sum();
+    (sum / n).sqrt()
+}
+
+fn mean(a: &Image) -> f64 {
+    a.pixels().iter().flatten().map(|&v| f64::from(v)).sum::<f64>() / (a.pixels().len() * 3) as f64
+}
+
+fn cpu(scene: Scene, size: u32, s: &BiscaleSettings) -> BiscaleMode {
+    BiscaleMode::prepare(scene, size, size, s.clone(), Prepare::quietly()).expect("CPU biscale")
+}
+
+fn gpu(scene: Scene, size: u32, s: &BiscaleSettings) -> GpuBiscaleMode {
+    GpuBiscaleMode::prepare(
+        context().clone(),
+        scene,
+        (size, size),
+        s.clone(),
+        Prepare::quietly(),
+    )
+    .expect("GPU biscale")
+}
+
+/// `gpu` after `frames` more frames against the CPU biscale mode of `scene` (converged:
+/// 16x the frames, another seed; and at equal frames), by the rule in the header.
+/// Returns the GPU's mean and the reference's.
+fn agrees(what: &str, scene: &Scene, gpu: &mut GpuBiscaleMode, size: u32, frames: u32, s: &BiscaleSettings) -> (f64, f64) {
+    let mut ref_scene = scene.clone();
+    ref_scene.render.seed ^= REFERENCE_SEED_XOR;
+    let mut reference = cpu(ref_scene, size, s);
+    run_frames(&mut reference, 16 * frames, |_, _| {});
+    let reference = reference.image();
+    let mut same = cpu(scene.clone(), size, s);
+    run_frames(&mut same, frames, |_, _| {});
+    let run = run_frames(gpu, frames, |_, _| {});
+    let image = gpu.image();
+    assert!(image.pixels().iter().flatten().all(|v| v.is_finite()), "{what}: non-finite pixels");
+    assert_eq!(run.dropped, 0, "{what}: non-finite samples");
+    assert_eq!(gpu.device_mode().overflows(), (0, 0), "{what}: traversal overflows");
+    let (e_gpu, e_cpu) = (rmse(&image, &reference), rmse(&same.image(), &reference));
+    let (m_gpu, m_ref) = (mean(&image), mean(&reference));
+    eprintln!(
+        "{what}: {size}x{size}, {frames} frames: RMSE gpu {e_gpu:.5}, cpu {e_cpu:.5} (ratio {:.3}); mean gpu {m_gpu:.5}, cpu {:.5}, reference {m_ref:.5} ({:+.2}%)",
+        e_gpu / e_cpu,
+        mean(&same.image()),
+        100.0 * (m_gpu / m_ref - 1.0)
+    );
+    assert!(
+        e_gpu <= 1.25 * e_cpu + 0.002 * m_ref,
+        "{what}: GPU RMSE {e_gpu} against the CPU's {e_cpu}"
+    );
+    let standard_error = e_cpu / f64::from(size);
+    assert!(
+        (m_gpu - m_ref).abs() <= 0.02 * m_ref + 4.0 * standard_error,
+        "{what}: mean {m_gpu} against {m_ref} (standard error {standard_error})"
+    );
+    (m_gpu, m_ref)
+}
+
+#[test]
+fn the_gpu_biscale_image_is_the_cpus() {
+    let cache = tempfile::tempdir().expect("a temporary folder");
+    let s = settings(cache.path());
+    let scene = bunny();
+    let mut mode = gpu(scene.clone(), 48, &s);
+    assert_eq!((mode.kind(), mode.device()), (meso_render::ModeKind::Biscale, meso_render::Device::Gpu));
+    agrees("merl_bunny", &scene, &mut mode, 48, 16, &s);
+    let memory = mode.diagnostics();
+    let summary = memory.summary().expect("a summary");
+    assert!(summary.contains("biclusters"), "{summary}");
+}
+
+/// The environment layer alone (no light, no ambient term): the precomputed part and
+/// the traced peaks, which the lights' layers cannot hide.
+#[test]
+fn the_gpu_environment_layer_is_the_cpus() {
+    let cache = tempfile::tempdir().expect("a temporary folder");
+    let s = settings(cache.path());
+    let mut scene = bunny();
+    scene.lights.clear();
+    scene.ambient = None;
+    let mut mode = gpu(scene.clone(), 48, &s);
+    let (m_gpu, m_ref) = agrees("merl_bunny, environment only", &scene, &mut mode, 48, 16, &s);
+    assert!(m_ref > 0.0 && (m_gpu / m_ref - 1.0).abs() < 0.02, "{m_gpu} against {m_ref}");
+}
+
+/// A light's strength re-weights its layer only: the image moves by exactly the
+/// light's layer (linear in the strength), no sample is dropped, and the environment
+/// layer keeps its samples.
+#[test]
+fn a_light_edit_changes_only_the_lights_layer() {
+    let cache = tempfile::tempdir().expect("a temporary folder");
+    let s = settings(cache.path());
+    let scene = bunny();
+    let mut mode = gpu(scene.clone(), 32, &s);
+    run_frames(&mut mode, 4, |_, _| {});
+    let before = mode.image();
+    let progress = mode.progress();
+    let light = scene.lights[0].clone();
+    let emission = light.emission();
+    let set = |k: f64, mode: &mut GpuBiscaleMode| {
+        let edit = SceneEdit::Light {
+            index: 0,
+            light: light.clone().with_emission(emission * k),
+        };
+        let inv = mode.apply(edit).expect("a light edit");
+        assert_eq!(inv, Invalidation::Nothing, "a strength edit keeps every sample");
+        mode.image()
+    };
+    let twice = set(2.0, &mut mode);
+    let thrice = set(3.0, &mut mode);
+    assert_eq!(mode.progress().min_samples, progress.min_samples);
+    let (mut moved, mut off) = (0.0f64, 0.0f64);
+    for ((a, b), c) in before.pixels().iter().zip(twice.pixels()).zip(thrice.pixels()) {
+        for ch in 0..3 {
+            let (d1, d2) = (f64::from(b[ch] - a[ch]), f64::from(c[ch] - a[ch]));
+            moved = moved.max(d1.abs());
+            off = off.max((d2 - 2.0 * d1).abs());
+        }
+    }
+    assert!(moved > 1e-3, "the light lights the scene");
+    assert!(off <= 1e-4 * moved.max(1.0) + 1e-5, "not linear in the light: {off} of {moved}");
+    // Off altogether: the environment's and ambient layers' samples remain.
+    let dark = set(0.0, &mut mode);
+    assert!(mean(&dark) > 0.0 && mean(&dark) < mean(&before));
+}
+
+/// A camera edit and an environment turn (a light change: a new split's lighting and
+/// a new L* uploaded) give the CPU's image of the edited scene.
+#[test]
+fn camera_and_environment_edits_give_the_cpus_image() {
+    let cache = tempfile::tempdir().expect("a temporary folder");
+    let s = settings(cache.path());
+    let scene = bunny();
+    let mut mode = gpu(scene.clone(), 32, &s);
+    run_frames(&mut mode, 2, |_, _| {});
+    let mut edited = scene.clone();
+    edited.camera.position += DVec3::new(0.6, 0.2, 0.0);
+    let env = edited.environment.as_mut().expect("an environment");
+    env.rotate_y_deg += 120.0;
+    let turned: Environment = env.clone();
+    assert_eq!(mode.apply(SceneEdit::Camera(edited.camera.clone())).expect("camera"), Invalidation::All);
+    mode.apply(SceneEdit::Environment(Some(turned))).expect("a turn");
+    agrees("merl_bunny, moved and turned", &edited, &mut mode, 32, 16, &s);
+}
+
+/// A material edit to an analytic BRDF (a gray table on the device) gives the CPU's
+/// image; SPMM packs are refused by name, the scene left as it was.
+#[test]
+fn material_edits_are_uploaded_or_refused_by_name() {
+    let cache = tempfile::tempdir().expect("a temporary folder");
+    let s = settings(cache.path());
+    let scene = bunny();
+    let mut mode = gpu(scene.clone(), 32, &s);
+    let plastic = Material::Brdf {
+        brdf: meso_materials::brdf::AnalyticBrdf::with_defaults(
+            meso_materials::brdf::BrdfModel::CookTorrance,
+        ),
+        albedo: DVec3::new(0.2, 0.5, 0.8),
+    };
+    let mut edited = scene.clone();
+    edited.materials[1] = plastic.clone();
+    mode.apply(SceneEdit::Material {
+        index: 1,
+        material: plastic,
+    })
+    .expect("a BRDF on the device");
+    agrees("merl_bunny, BRDF floor", &edited, &mut mode, 32, 16, &s);
+    let pack = meso_render::scene::test_scenes::tilted_spmm();
+    let err = mode
+        .apply(SceneEdit::Material {
+            index: 0,
+            material: pack.clone(),
+        })
+        .expect_err("refused");
+    assert!(err.to_string().contains("(spmm)"), "{err}");
+    assert!(matches!(mode.scene().materials[0], Material::Merl { .. }));
+    let mut with_pack = edited;
+    with_pack.materials[0] = pack;
+    let err = GpuBiscaleMode::supports(&with_pack).expect_err("refused");
+    assert!(err.to_string().contains("(spmm)"), "{err}");
+}

@@ -204,7 +204,11 @@ mod tests {
     #[test]
     fn modes_not_built_say_so() {
         let scene = edit_test_scene();
-        for (kind, device) in [(ModeKind::Adaptive, Device::Gpu)] {
+        let mut missing = vec![(ModeKind::Adaptive, Device::Gpu)];
+        if !cfg!(feature = "gpu") {
+            missing.push((ModeKind::Biscale, Device::Gpu));
+        }
+        for (kind, device) in missing {
             let err = create(kind, device, scene.clone(), 8, 8, Prepare::quietly())
                 .err()
                 .expect("not built");

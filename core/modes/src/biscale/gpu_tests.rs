@@ -134,8 +134,8 @@ fn the_gpu_environment_layer_is_the_cpus() {
     let mut scene = bunny();
     scene.lights.clear();
     scene.ambient = None;
-    let mut mode = gpu(scene.clone(), 48, &s);
-    let (m_gpu, m_ref) = agrees("merl_bunny, environment only", &scene, &mut mode, 48, 16, &s);
+    let mut mode = gpu(scene.clone(), 32, &s);
+    let (m_gpu, m_ref) = agrees("merl_bunny, environment only", &scene, &mut mode, 32, 16, &s);
     assert!(m_ref > 0.0 && (m_gpu / m_ref - 1.0).abs() < 0.02, "{m_gpu} against {m_ref}");
 }
 
@@ -196,7 +196,7 @@ fn camera_and_environment_edits_give_the_cpus_image() {
     let turned: Environment = env.clone();
     assert_eq!(mode.apply(SceneEdit::Camera(edited.camera.clone())).expect("camera"), Invalidation::All);
     mode.apply(SceneEdit::Environment(Some(turned))).expect("a turn");
-    agrees("merl_bunny, moved and turned", &edited, &mut mode, 32, 16, &s);
+    agrees("merl_bunny, moved and turned", &edited, &mut mode, 32, 8, &s);
 }
 
 /// A material edit to an analytic BRDF (a gray table on the device) gives the CPU's
@@ -220,7 +220,7 @@ fn material_edits_are_uploaded_or_refused_by_name() {
         material: plastic,
     })
     .expect("a BRDF on the device");
-    agrees("merl_bunny, BRDF floor", &edited, &mut mode, 32, 16, &s);
+    agrees("merl_bunny, BRDF floor", &edited, &mut mode, 32, 8, &s);
     let pack = meso_render::scene::test_scenes::tilted_spmm();
     let err = mode
         .apply(SceneEdit::Material {

@@ -100,13 +100,22 @@ impl BiscaleBlock {
         if let Some(l) = i.lstar
             && l.len() % (3 * m) != 0
         {
-            return Err(format!("L* has {} values, not a multiple of 3 x {m}", l.len()));
+            return Err(format!(
+                "L* has {} values, not a multiple of 3 x {m}",
+                l.len()
+            ));
         }
         if let Some(t) = i.mesh_first.iter().find(|&&t| t as usize > i.roots.len()) {
-            return Err(format!("a mesh starts at triangle {t} of {}", i.roots.len()));
+            return Err(format!(
+                "a mesh starts at triangle {t} of {}",
+                i.roots.len()
+            ));
         }
         if let Some(r) = i.roots.iter().find(|&&r| r as usize >= i.nodes.len()) {
-            return Err(format!("a quadtree root {r} lies past {} nodes", i.nodes.len()));
+            return Err(format!(
+                "a quadtree root {r} lies past {} nodes",
+                i.nodes.len()
+            ));
         }
         for &n in i.nodes {
             let bad = if n & LEAF_BIT != 0 {
@@ -187,7 +196,10 @@ impl BiscaleBlock {
             bytes.peaks = 4 * (w.len() - start) as u64;
         }
         if u32::try_from(w.len()).is_err() {
-            return Err(format!("{} biscale words do not fit 32-bit offsets", w.len()));
+            return Err(format!(
+                "{} biscale words do not fit 32-bit offsets",
+                w.len()
+            ));
         }
         Ok(Self { words: w, bytes })
     }

@@ -25,6 +25,7 @@ use super::kernel::{self, Kernel, Slot};
 use super::reach::{Reach, reachable_clusters};
 use super::shaders;
 use super::{GpuContext, GpuError, Sharing};
+use biscale::env_words;
 use limits::{ENVIRONMENT_WORDS, MATERIAL_WORDS_NAME, device_size_problem, words_size_problem};
 use meso_materials::image::Image;
 use meso_materials::rng::Sampler;
@@ -42,7 +43,6 @@ use meso_render::{
     ModeError, ModeKind, Pass, PreparationReport, Prepare, Progress, RayCounts, RenderMode,
     SceneEdit, Unrenderable, Unsupported,
 };
-use biscale::env_words;
 use resources::Resources;
 use scene_data::{LIGHT_WORDS, SceneData, light_capacity, light_table};
 

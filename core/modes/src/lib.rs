@@ -217,7 +217,10 @@ mod tests {
         }
         assert!(create(ModeKind::Spmm, Device::Cpu, scene, 8, 8, Prepare::quietly()).is_ok());
         assert_eq!(is_built(ModeKind::Spmm, Device::Gpu), cfg!(feature = "gpu"));
-        assert_eq!(is_built(ModeKind::Biscale, Device::Gpu), cfg!(feature = "gpu"));
+        assert_eq!(
+            is_built(ModeKind::Biscale, Device::Gpu),
+            cfg!(feature = "gpu")
+        );
     }
 
     #[test]

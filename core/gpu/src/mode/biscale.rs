@@ -31,7 +31,14 @@ impl GpuSpmmMode {
         bvh: SceneBvh,
         block: BiscaleBlock,
     ) -> Result<Self, ModeError> {
-        Self::prepare_with(ctx, scene, (width, height), prepare, false, Some((bvh, block)))
+        Self::prepare_with(
+            ctx,
+            scene,
+            (width, height),
+            prepare,
+            false,
+            Some((bvh, block)),
+        )
     }
 
     /// New biscale words (a new L* after a light change, new tables after a material

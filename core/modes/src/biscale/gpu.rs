@@ -24,18 +24,18 @@ use meso_materials::image::Image;
 use meso_render::geometry::SceneBvh;
 use meso_render::scene::{Environment, Material, RenderSettings, Scene};
 use meso_render::{
-    Device, Diagnostic, Diagnostics, EditError, FrameStats, ImageOnDevice, Invalidation,
-    ModeError, ModeKind, Pass, PreparationReport, Prepare, Progress, RenderMode, SceneEdit,
-    Unrenderable, Unsupported,
+    Device, Diagnostic, Diagnostics, EditError, FrameStats, ImageOnDevice, Invalidation, ModeError,
+    ModeKind, Pass, PreparationReport, Prepare, Progress, RenderMode, SceneEdit, Unrenderable,
+    Unsupported,
 };
 
+use super::BiscaleSettings;
 use super::btf_table::{BtfTable, Tabulation};
 use super::hemisphere::HemisphereGrid;
 use super::mode::{per_vertex, split_lighting};
 use super::peaks::EnvironmentSplit;
 use super::precompute::{Precomputed, precompute};
 use super::refine::FlatQuadtrees;
-use super::BiscaleSettings;
 
 pub struct GpuBiscaleMode {
     /// The device half: skeleton, device film, geometry, lights, biscale words.
@@ -96,7 +96,13 @@ impl GpuBiscaleMode {
         height: u32,
         prepare: Prepare,
     ) -> Result<Self, ModeError> {
-        Self::prepare(ctx, scene, (width, height), BiscaleSettings::default(), prepare)
+        Self::prepare(
+            ctx,
+            scene,
+            (width, height),
+            BiscaleSettings::default(),
+            prepare,
+        )
     }
 
     pub fn prepare(
@@ -152,7 +158,8 @@ impl GpuBiscaleMode {
             split.as_ref(),
         )
         .map_err(upload_error)?;
-        let device = GpuSpmmMode::prepare_biscale(ctx, scene, (width, height), prepare, bvh, block)?;
+        let device =
+            GpuSpmmMode::prepare_biscale(ctx, scene, (width, height), prepare, bvh, block)?;
         Ok(Self {
             device,
             settings,
@@ -205,15 +212,14 @@ impl GpuBiscaleMode {
         let b = self.device.biscale_bytes();
         let traced = match &self.split {
             Some(s) if s.traced_power > 0.0 => {
-                format!(" · traced: {:.0}% of the map's power", 100.0 * s.traced_power)
+                format!(
+                    " · traced: {:.0}% of the map's power",
+                    100.0 * s.traced_power
+                )
             }
             _ => String::new(),
         };
-        let inner = self
-            .device
-            .diagnostics()
-            .summary()
-            .unwrap_or_default();
+        let inner = self.device.diagnostics().summary().unwrap_or_default();
         format!(
             "{inner} · biscale: {} vertices ({} added), {} biclusters, L* {:.1} MB, tables {:.1} MB{traced} · light change {:.1} ms",
             self.pre.frames.len(),

@@ -58,7 +58,12 @@ fn rmse(a: &Image, b: &Image) -> f64 {
 }
 
 fn mean(a: &Image) -> f64 {
-    a.pixels().iter().flatten().map(|&v| f64::from(v)).sum::<f64>() / (a.pixels().len() * 3) as f64
+    a.pixels()
+        .iter()
+        .flatten()
+        .map(|&v| f64::from(v))
+        .sum::<f64>()
+        / (a.pixels().len() * 3) as f64
 }
 
 fn cpu(scene: Scene, size: u32, s: &BiscaleSettings) -> BiscaleMode {
@@ -79,7 +84,14 @@ fn gpu(scene: Scene, size: u32, s: &BiscaleSettings) -> GpuBiscaleMode {
 /// `gpu` after `frames` more frames against the CPU biscale mode of `scene` (converged:
 /// 16x the frames, another seed; and at equal frames), by the rule in the header.
 /// Returns the GPU's mean and the reference's.
-fn agrees(what: &str, scene: &Scene, gpu: &mut GpuBiscaleMode, size: u32, frames: u32, s: &BiscaleSettings) -> (f64, f64) {
+fn agrees(
+    what: &str,
+    scene: &Scene,
+    gpu: &mut GpuBiscaleMode,
+    size: u32,
+    frames: u32,
+    s: &BiscaleSettings,
+) -> (f64, f64) {
     let mut ref_scene = scene.clone();
     ref_scene.render.seed ^= REFERENCE_SEED_XOR;
     let mut reference = cpu(ref_scene, size, s);
@@ -89,9 +101,16 @@ fn agrees(what: &str, scene: &Scene, gpu: &mut GpuBiscaleMode, size: u32, frames
     run_frames(&mut same, frames, |_, _| {});
     let run = run_frames(gpu, frames, |_, _| {});
     let image = gpu.image();
-    assert!(image.pixels().iter().flatten().all(|v| v.is_finite()), "{what}: non-finite pixels");
+    assert!(
+        image.pixels().iter().flatten().all(|v| v.is_finite()),
+        "{what}: non-finite pixels"
+    );
     assert_eq!(run.dropped, 0, "{what}: non-finite samples");
-    assert_eq!(gpu.device_mode().overflows(), (0, 0), "{what}: traversal overflows");
+    assert_eq!(
+        gpu.device_mode().overflows(),
+        (0, 0),
+        "{what}: traversal overflows"
+    );
     let (e_gpu, e_cpu) = (rmse(&image, &reference), rmse(&same.image(), &reference));
     let (m_gpu, m_ref) = (mean(&image), mean(&reference));
     eprintln!(
@@ -118,7 +137,10 @@ fn the_gpu_biscale_image_is_the_cpus() {
     let s = settings(cache.path());
     let scene = bunny();
     let mut mode = gpu(scene.clone(), 48, &s);
-    assert_eq!((mode.kind(), mode.device()), (meso_render::ModeKind::Biscale, meso_render::Device::Gpu));
+    assert_eq!(
+        (mode.kind(), mode.device()),
+        (meso_render::ModeKind::Biscale, meso_render::Device::Gpu)
+    );
     agrees("merl_bunny", &scene, &mut mode, 48, 16, &s);
     let memory = mode.diagnostics();
     let summary = memory.summary().expect("a summary");
@@ -135,8 +157,18 @@ fn the_gpu_environment_layer_is_the_cpus() {
     scene.lights.clear();
     scene.ambient = None;
     let mut mode = gpu(scene.clone(), 32, &s);
-    let (m_gpu, m_ref) = agrees("merl_bunny, environment only", &scene, &mut mode, 32, 16, &s);
-    assert!(m_ref > 0.0 && (m_gpu / m_ref - 1.0).abs() < 0.02, "{m_gpu} against {m_ref}");
+    let (m_gpu, m_ref) = agrees(
+        "merl_bunny, environment only",
+        &scene,
+        &mut mode,
+        32,
+        16,
+        &s,
+    );
+    assert!(
+        m_ref > 0.0 && (m_gpu / m_ref - 1.0).abs() < 0.02,
+        "{m_gpu} against {m_ref}"
+    );
 }
 
 /// A light's strength re-weights its layer only: the image moves by exactly the
@@ -151,22 +183,31 @@ fn a_light_edit_changes_only_the_lights_layer() {
     run_frames(&mut mode, 4, |_, _| {});
     let before = mode.image();
     let progress = mode.progress();
-    let light = scene.lights[0].clone();
+    let light = scene.lights[0];
     let emission = light.emission();
     let set = |k: f64, mode: &mut GpuBiscaleMode| {
         let edit = SceneEdit::Light {
             index: 0,
-            light: light.clone().with_emission(emission * k),
+            light: light.with_emission(emission * k),
         };
         let inv = mode.apply(edit).expect("a light edit");
-        assert_eq!(inv, Invalidation::Nothing, "a strength edit keeps every sample");
+        assert_eq!(
+            inv,
+            Invalidation::Nothing,
+            "a strength edit keeps every sample"
+        );
         mode.image()
     };
     let twice = set(2.0, &mut mode);
     let thrice = set(3.0, &mut mode);
     assert_eq!(mode.progress().min_samples, progress.min_samples);
     let (mut moved, mut off) = (0.0f64, 0.0f64);
-    for ((a, b), c) in before.pixels().iter().zip(twice.pixels()).zip(thrice.pixels()) {
+    for ((a, b), c) in before
+        .pixels()
+        .iter()
+        .zip(twice.pixels())
+        .zip(thrice.pixels())
+    {
         for ch in 0..3 {
             let (d1, d2) = (f64::from(b[ch] - a[ch]), f64::from(c[ch] - a[ch]));
             moved = moved.max(d1.abs());
@@ -174,7 +215,10 @@ fn a_light_edit_changes_only_the_lights_layer() {
         }
     }
     assert!(moved > 1e-3, "the light lights the scene");
-    assert!(off <= 1e-4 * moved.max(1.0) + 1e-5, "not linear in the light: {off} of {moved}");
+    assert!(
+        off <= 1e-4 * moved.max(1.0) + 1e-5,
+        "not linear in the light: {off} of {moved}"
+    );
     // Off altogether: the environment's and ambient layers' samples remain.
     let dark = set(0.0, &mut mode);
     assert!(mean(&dark) > 0.0 && mean(&dark) < mean(&before));
@@ -194,9 +238,21 @@ fn camera_and_environment_edits_give_the_cpus_image() {
     let env = edited.environment.as_mut().expect("an environment");
     env.rotate_y_deg += 120.0;
     let turned: Environment = env.clone();
-    assert_eq!(mode.apply(SceneEdit::Camera(edited.camera.clone())).expect("camera"), Invalidation::All);
-    mode.apply(SceneEdit::Environment(Some(turned))).expect("a turn");
-    agrees("merl_bunny, moved and turned", &edited, &mut mode, 32, 8, &s);
+    assert_eq!(
+        mode.apply(SceneEdit::Camera(edited.camera))
+            .expect("camera"),
+        Invalidation::All
+    );
+    mode.apply(SceneEdit::Environment(Some(turned)))
+        .expect("a turn");
+    agrees(
+        "merl_bunny, moved and turned",
+        &edited,
+        &mut mode,
+        32,
+        8,
+        &s,
+    );
 }
 
 /// A material edit to an analytic BRDF (a gray table on the device) gives the CPU's

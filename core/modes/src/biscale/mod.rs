@@ -18,6 +18,8 @@ pub mod cpca;
 pub mod cubemap;
 #[cfg(feature = "gpu")]
 mod gpu;
+#[cfg(all(test, feature = "gpu"))]
+mod gpu_tests;
 pub mod hemisphere;
 mod mode;
 pub mod peaks;
@@ -26,8 +28,6 @@ pub mod refine;
 pub mod sh;
 #[cfg(test)]
 mod tests;
-#[cfg(all(test, feature = "gpu"))]
-mod gpu_tests;
 pub mod transfer;
 
 use std::path::PathBuf;

@@ -119,7 +119,8 @@ impl Refinement {
         for (mesh, nodes) in self.nodes.iter().enumerate() {
             let (node_base, leaf_base) = (f.nodes.len() as u32, f.leaves.len() as u32);
             f.mesh_first.push(f.roots.len() as u32);
-            f.roots.extend(self.roots[mesh].iter().map(|r| r + node_base));
+            f.roots
+                .extend(self.roots[mesh].iter().map(|r| r + node_base));
             f.nodes.extend(nodes.iter().map(|n| match n {
                 Node::Leaf(t) => leaf_bit | (leaf_base + t),
                 Node::Split(first) => node_base + first,

@@ -142,9 +142,22 @@ fn the_gpu_biscale_image_is_the_cpus() {
         (meso_render::ModeKind::Biscale, meso_render::Device::Gpu)
     );
     agrees("merl_bunny", &scene, &mut mode, 48, 16, &s);
-    let memory = mode.diagnostics();
-    let summary = memory.summary().expect("a summary");
+    let diagnostics = mode.diagnostics();
+    let summary = diagnostics.summary().expect("a summary");
     assert!(summary.contains("biclusters"), "{summary}");
+    let memory = diagnostics
+        .0
+        .iter()
+        .find_map(|d| match d {
+            meso_render::Diagnostic::DeviceMemory(m) => Some(m.clone()),
+            _ => None,
+        })
+        .expect("device memory");
+    eprintln!("{summary}\n{memory:?}");
+    // L* is vertices x 3 x M f32, all of it on the device.
+    let lstar = memory.iter().find(|(n, _)| *n == "biscale_lstar").expect("L*").1;
+    let m = u64::from(s.local_res * s.local_res);
+    assert_eq!(lstar, mode.precomputed().frames.len() as u64 * 3 * m * 4);
 }
 
 /// The environment layer alone (no light, no ambient term): the precomputed part and

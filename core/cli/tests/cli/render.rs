@@ -228,8 +228,8 @@ material = "gold"
     // The biscale mode renders it on the GPU too.
     let o = meso(
         &[
-            "render", merl_arg, "-o", out_arg, "--width", "8", "--height", "8", "--frames",
-            "1", "--mode", "biscale", "--device", "gpu", "--json",
+            "render", merl_arg, "-o", out_arg, "--width", "8", "--height", "8", "--frames", "1",
+            "--mode", "biscale", "--device", "gpu", "--json",
         ],
         "",
     );

@@ -336,7 +336,7 @@ impl RenderMode for GpuBiscaleMode {
                     // The biscale words sit in the environment's buffer: shown apart.
                     for (name, bytes) in memory.iter_mut() {
                         if *name == "environment" {
-                            *bytes -= b.total();
+                            *bytes = bytes.saturating_sub(b.total());
                         }
                     }
                     memory.push(("biscale_lstar", b.lstar));
@@ -354,7 +354,8 @@ impl RenderMode for GpuBiscaleMode {
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
         match edit {
             SceneEdit::Material { index, material } => {
-                if !Self::shades(&material) {
+                // A material that does not exist is the device half's error to name.
+                if !Self::shades(&material) && index < self.scene().materials.len() {
                     let name = self.scene().material_name(index);
                     return Err(Unsupported {
                         mode: ModeKind::Biscale,
@@ -374,13 +375,18 @@ impl RenderMode for GpuBiscaleMode {
                 self.upload()?;
                 Ok(invalidation)
             }
-            SceneEdit::Meshes(meshes) => {
+            edit @ SceneEdit::Meshes(_) => {
                 // New geometry: new visibility, so the precomputation runs again, before
-                // the device takes the meshes (nothing changes if it fails).
-                let bvh = SceneBvh::build(&meshes);
-                let pre = precompute(&meshes, &bvh, &self.settings, &Prepare::quietly())
+                // the device takes the meshes (nothing changes if it fails). Meshes the
+                // scene would refuse are refused before any of it.
+                edit.apply_to(&mut self.scene().clone())?;
+                let SceneEdit::Meshes(meshes) = &edit else {
+                    return self.device.apply(edit);
+                };
+                let bvh = SceneBvh::build(meshes);
+                let pre = precompute(meshes, &bvh, &self.settings, &Prepare::quietly())
                     .map_err(|e| EditError::Size(format!("biscale precomputation: {e}")))?;
-                let invalidation = self.device.apply(SceneEdit::Meshes(meshes))?;
+                let invalidation = self.device.apply(edit)?;
                 self.quadtrees = pre
                     .refinement
                     .flat(&pre.frames.mesh_offsets, meso_gpu::LEAF_BIT);

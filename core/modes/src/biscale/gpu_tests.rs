@@ -155,7 +155,11 @@ fn the_gpu_biscale_image_is_the_cpus() {
         .expect("device memory");
     eprintln!("{summary}\n{memory:?}");
     // L* is vertices x 3 x M f32, all of it on the device.
-    let lstar = memory.iter().find(|(n, _)| *n == "biscale_lstar").expect("L*").1;
+    let lstar = memory
+        .iter()
+        .find(|(n, _)| *n == "biscale_lstar")
+        .expect("L*")
+        .1;
     let m = u64::from(s.local_res * s.local_res);
     assert_eq!(lstar, mode.precomputed().frames.len() as u64 * 3 * m * 4);
 }
@@ -303,4 +307,26 @@ fn material_edits_are_uploaded_or_refused_by_name() {
     with_pack.materials[0] = pack;
     let err = GpuBiscaleMode::supports(&with_pack).expect_err("refused");
     assert!(err.to_string().contains("(spmm)"), "{err}");
+}
+
+/// New meshes (the bunny moved along the floor) run the precomputation again: the
+/// device's image is the CPU's of the moved scene, its shadow moved with it.
+#[test]
+fn a_mesh_edit_precomputes_again_and_gives_the_cpus_image() {
+    let cache = tempfile::tempdir().expect("a temporary folder");
+    let s = settings(cache.path());
+    let scene = bunny();
+    let mut mode = gpu(scene.clone(), 24, &s);
+    run_frames(&mut mode, 1, |_, _| {});
+    let mut edited = scene.clone();
+    for p in &mut edited.meshes[0].positions {
+        *p += DVec3::new(0.3, 0.0, -0.2);
+    }
+    let key_before = mode.precomputed().key;
+    let inv = mode
+        .apply(SceneEdit::Meshes(edited.meshes.clone()))
+        .expect("new meshes");
+    assert_eq!(inv, Invalidation::All);
+    assert_ne!(mode.precomputed().key, key_before, "precomputed again");
+    agrees("merl_bunny, moved bunny", &edited, &mut mode, 24, 8, &s);
 }

@@ -330,3 +330,22 @@ fn a_mesh_edit_precomputes_again_and_gives_the_cpus_image() {
     assert_ne!(mode.precomputed().key, key_before, "precomputed again");
     agrees("merl_bunny, moved bunny", &edited, &mut mode, 24, 8, &s);
 }
+
+/// The precomputed part alone (nothing traced: no peaks, no light, no ambient term),
+/// where the only noise is the pixel jitter and the view pick, so the rule is tight
+/// enough to see how L* is interpolated and the rows are read (a nearest-vertex L*
+/// passes the image tests above, whose noise is the peaks', and fails this one).
+#[test]
+fn the_precomputed_part_is_the_cpus() {
+    let cache = tempfile::tempdir().expect("a temporary folder");
+    let s = BiscaleSettings {
+        traced_share: 0.0,
+        ..settings(cache.path())
+    };
+    let mut scene = bunny();
+    scene.lights.clear();
+    scene.ambient = None;
+    let mut mode = gpu(scene.clone(), 32, &s);
+    let (m_gpu, m_ref) = agrees("merl_bunny, precomputed part", &scene, &mut mode, 32, 8, &s);
+    assert!((m_gpu / m_ref - 1.0).abs() < 0.01, "{m_gpu} against {m_ref}");
+}

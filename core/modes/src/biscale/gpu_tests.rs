@@ -179,7 +179,7 @@ fn the_gpu_environment_layer_is_the_cpus() {
         &scene,
         &mut mode,
         32,
-        16,
+        48,
         &s,
     );
     assert!(
@@ -346,5 +346,12 @@ fn the_precomputed_part_is_the_cpus() {
     scene.lights.clear();
     scene.ambient = None;
     let mut mode = gpu(scene.clone(), 32, &s);
-    agrees("merl_bunny, precomputed part", &scene, &mut mode, 32, 48, &s);
+    agrees(
+        "merl_bunny, precomputed part",
+        &scene,
+        &mut mode,
+        32,
+        48,
+        &s,
+    );
 }

@@ -355,3 +355,21 @@ fn the_precomputed_part_is_the_cpus() {
         &s,
     );
 }
+
+/// A `btf` material has no table: the device evaluates each cell's response at one
+/// jittered direction with its own `btf` code, as the CPU does with its shading core.
+#[test]
+fn a_btf_floor_is_evaluated_per_cell_as_on_the_cpu() {
+    let cache = tempfile::tempdir().expect("a temporary folder");
+    let s = settings(cache.path());
+    let mut scene = bunny();
+    scene.materials[1] = meso_render::scene::test_scenes::tabulated_btf(
+        &meso_materials::brdf::AnalyticBrdf::with_defaults(
+            meso_materials::brdf::BrdfModel::CookTorrance,
+        ),
+        DVec3::new(0.7, 0.4, 0.2),
+        glam::DVec2::ONE,
+    );
+    let mut mode = gpu(scene.clone(), 32, &s);
+    agrees("merl_bunny, btf floor", &scene, &mut mode, 32, 16, &s);
+}

@@ -30,7 +30,8 @@ struct Params {
     light_samples: u32,
     // `[render] sampler` (SAMPLER_*), then padding to the vectors' alignment.
     sampler: u32,
-    pad0: u32,
+    // Where the biscale words start in `env` (biscale.wgsl); 0 for the spmm mode.
+    biscale: u32,
     pad1: u32,
     pad2: u32,
     cam_origin: vec4<f32>,

@@ -12,6 +12,7 @@
 //! itself (`mode.rs`). The CPU's
 //! `trace::SpmmMode` is the reference every part here is tested against.
 
+mod biscale;
 mod context;
 mod data;
 mod denoise;
@@ -24,6 +25,7 @@ mod mode;
 mod reach;
 mod shaders;
 
+pub use biscale::{BiscaleBlock, BiscaleBytes, BiscaleInputs, BiscaleTable, LEAF_BIT};
 pub use context::{GpuContext, GpuError, Sharing, hardware_adapter, is_hardware};
 pub use display::{DeviceImage, DisplayTexture};
 pub use mode::{DeviceBytes, GpuSpmmMode};

@@ -5,6 +5,7 @@
 //! invalidation); a frame reads back only its counters. Geometry (BVH nodes and
 //! triangles), the prepared SPMM data, BRDFs, materials and lights live on the device.
 
+mod biscale;
 mod denoising;
 mod edit;
 mod limits;
@@ -25,6 +26,7 @@ use super::kernel::{self, Kernel, Slot};
 use super::reach::{Reach, reachable_clusters};
 use super::shaders;
 use super::{GpuContext, GpuError, Sharing};
+use biscale::env_words;
 use limits::{ENVIRONMENT_WORDS, MATERIAL_WORDS_NAME, device_size_problem, words_size_problem};
 use meso_materials::image::Image;
 use meso_materials::rng::Sampler;
@@ -110,7 +112,9 @@ struct Params {
     light_samples: u32,
     /// `[render] sampler`: 0 Sobol, 1 independent (`shaders/sampler.wgsl`).
     sampler: u32,
-    pad: [u32; 3],
+    /// Where the biscale words start in `env` (`shaders/biscale.wgsl`; 0 otherwise).
+    biscale: u32,
+    pad: [u32; 2],
     cam_origin: [f32; 4],
     cam_forward: [f32; 4],
     cam_right: [f32; 4],
@@ -138,6 +142,8 @@ pub struct GpuSpmmMode {
     failure: Option<GpuError>,
     /// Every cluster of every pack on the device, not just the reachable ones.
     all_clusters: bool,
+    /// The biscale mode's words (`mode/biscale.rs`), appended to `env_words`.
+    biscale: Option<super::biscale::BiscaleBlock>,
 }
 
 const SLOTS: [Slot; 9] = [
@@ -188,17 +194,31 @@ impl GpuSpmmMode {
         height: u32,
         prepare: Prepare,
     ) -> Result<Self, ModeError> {
-        Self::prepare_uploading(ctx, scene, (width, height), prepare, false)
+        Self::prepare_with(ctx, scene, (width, height), prepare, false, None)
     }
 
     /// `prepare`, with every cluster of every pack uploaded when `all_clusters` (the
     /// tests' reference for the reachable set).
+    #[cfg(test)]
     pub(super) fn prepare_uploading(
+        ctx: GpuContext,
+        scene: Scene,
+        size: (u32, u32),
+        prepare: Prepare,
+        all_clusters: bool,
+    ) -> Result<Self, ModeError> {
+        Self::prepare_with(ctx, scene, size, prepare, all_clusters, None)
+    }
+
+    /// `prepare_uploading`, rendering the biscale mode's frames when `biscale` is
+    /// given (its BVH, built by the CPU's preparation, and its words).
+    fn prepare_with(
         ctx: GpuContext,
         scene: Scene,
         (width, height): (u32, u32),
         prepare: Prepare,
         all_clusters: bool,
+        biscale: Option<(SceneBvh, super::biscale::BiscaleBlock)>,
     ) -> Result<Self, ModeError> {
         if let Some(p) = RenderSettings::size_problem(width, height) {
             return Err(ModeError::Size(p));
@@ -214,7 +234,10 @@ impl GpuSpmmMode {
             return Err(ModeError::Size(p));
         }
         let mut report = PreparationReport::default();
-        let bvh = prepare.bvh(&scene.meshes, &mut report)?;
+        let (bvh, biscale) = match biscale {
+            Some((bvh, block)) => (bvh, Some(block)),
+            None => (prepare.bvh(&scene.meshes, &mut report)?, None),
+        };
         prepare.report("materials", 0.0)?;
         let start = Instant::now();
         let scene_data = SceneData::build(&scene, &layers, all_clusters);
@@ -229,14 +252,17 @@ impl GpuSpmmMode {
             .environment
             .as_ref()
             .and_then(|e| EnvironmentSampler::new(&e.map));
-        let env_words = environment::words(&scene, env_sampler.as_ref());
+        let env_words = env_words(&scene, env_sampler.as_ref(), biscale.as_ref());
         if let Some(p) = words_size_problem(&ctx, ENVIRONMENT_WORDS, env_words.len()) {
             return Err(ModeError::Size(p));
         }
         report.record_since("environment", start);
         prepare.report("device", 0.0)?;
         let start = Instant::now();
-        let kernel = Kernel::new(&ctx, &shaders::integrator(), "render", &SLOTS);
+        let kernel = match biscale {
+            Some(_) => Kernel::new(&ctx, &shaders::biscale(), "render_biscale", &SLOTS),
+            None => Kernel::new(&ctx, &shaders::integrator(), "render", &SLOTS),
+        };
         let film = DeviceFilm::new(&ctx, width, height, layer_count);
         let res = Resources::upload(
             &ctx,
@@ -263,6 +289,7 @@ impl GpuSpmmMode {
             failure: None,
             all_clusters,
             denoising: Default::default(),
+            biscale,
         })
     }
 
@@ -328,7 +355,8 @@ impl GpuSpmmMode {
                 Sampler::Sobol => 0,
                 Sampler::Independent => 1,
             },
-            pad: [0; 3],
+            biscale: self.biscale_at(),
+            pad: [0; 2],
             cam_origin: v4(cam.position, 0.0),
             cam_forward: v4(forward, half_w),
             cam_right: v4(right, half_h),
@@ -472,7 +500,11 @@ impl GpuSpmmMode {
                 .as_ref()
                 .and_then(|e| EnvironmentSampler::new(&e.map));
         }
-        self.env_words = environment::words(&self.core.scene, self.env_sampler.as_ref());
+        self.env_words = env_words(
+            &self.core.scene,
+            self.env_sampler.as_ref(),
+            self.biscale.as_ref(),
+        );
         self.rebind();
     }
 

@@ -17,6 +17,7 @@ pub(super) const FILM: &str = include_str!("../../../shaders/film.wgsl");
 pub(super) const DISPLAY: &str = include_str!("../../../shaders/display.wgsl");
 pub(super) const GUIDES: &str = include_str!("../../../shaders/guides.wgsl");
 pub(super) const DENOISE: &str = include_str!("../../../shaders/denoise.wgsl");
+pub(super) const BISCALE: &str = include_str!("../../../shaders/biscale.wgsl");
 
 /// The test kernels: evaluations of BRDFs and SPMM texels, and primary-ray hits.
 #[cfg(test)]
@@ -51,6 +52,23 @@ pub(super) fn integrator() -> String {
     module(&[
         INTEGRATOR,
         GUIDES,
+        SAMPLER,
+        TRAVERSAL,
+        BRDF,
+        SPMM,
+        LIGHTS,
+        ENVIRONMENT,
+        MERL,
+        CDF,
+        BTF_TABLE,
+    ])
+}
+
+/// The biscale mode's frames: the integrator's module with `render_biscale` after it.
+pub(super) fn biscale() -> String {
+    module(&[
+        INTEGRATOR,
+        BISCALE,
         SAMPLER,
         TRAVERSAL,
         BRDF,

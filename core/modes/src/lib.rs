@@ -11,6 +11,8 @@ pub mod trace;
 use crate::adaptive::AdaptiveMode;
 use crate::biscale::BiscaleMode;
 #[cfg(feature = "gpu")]
+use crate::biscale::GpuBiscaleMode;
+#[cfg(feature = "gpu")]
 use meso_gpu::{GpuContext, GpuSpmmMode};
 use meso_render::scene::Scene;
 use meso_render::{Device, ModeError, ModeKind, Prepare, RenderMode, Unsupported};
@@ -64,6 +66,13 @@ pub const MODES: &[ModeEntry] = &[
         create: |_, scene, width, height, prepare| {
             Ok(Box::new(BiscaleMode::new(scene, width, height, prepare)?))
         },
+    },
+    #[cfg(feature = "gpu")]
+    ModeEntry {
+        kind: ModeKind::Biscale,
+        device: Device::Gpu,
+        supports: GpuBiscaleMode::supports,
+        create: create_gpu_biscale,
     },
     ModeEntry {
         kind: ModeKind::Adaptive,
@@ -145,15 +154,43 @@ fn create_gpu_spmm(
     // The scene is checked before a device is looked for, so a scene at fault is
     // named whether or not this machine has an adapter.
     GpuSpmmMode::supports(&scene)?;
+    Ok(Box::new(GpuSpmmMode::prepare(
+        context(gpu)?,
+        scene,
+        width,
+        height,
+        prepare,
+    )?))
+}
+
+#[cfg(feature = "gpu")]
+fn create_gpu_biscale(
+    gpu: GpuDevice,
+    scene: Scene,
+    width: u32,
+    height: u32,
+    prepare: Prepare,
+) -> Result<Box<dyn RenderMode>, ModeError> {
+    // As for spmm: the scene is judged before a device is looked for.
+    GpuBiscaleMode::supports(&scene)?;
+    Ok(Box::new(GpuBiscaleMode::new(
+        context(gpu)?,
+        scene,
+        width,
+        height,
+        prepare,
+    )?))
+}
+
+/// The device `gpu` names: the shared one, or one of the mode's own.
+#[cfg(feature = "gpu")]
+fn context(gpu: GpuDevice) -> Result<GpuContext, ModeError> {
     let own = || GpuContext::new().map_err(|e| ModeError::NoDevice(e.to_string()));
-    let ctx = match gpu {
+    Ok(match gpu {
         GpuDevice::Shared(ctx) => ctx.clone(),
         GpuDevice::Own => own()?,
         GpuDevice::OwnBecause(why) => own()?.own_because(why),
-    };
-    Ok(Box::new(GpuSpmmMode::prepare(
-        ctx, scene, width, height, prepare,
-    )?))
+    })
 }
 
 #[cfg(test)]
@@ -167,10 +204,11 @@ mod tests {
     #[test]
     fn modes_not_built_say_so() {
         let scene = edit_test_scene();
-        for (kind, device) in [
-            (ModeKind::Adaptive, Device::Gpu),
-            (ModeKind::Biscale, Device::Gpu),
-        ] {
+        let mut missing = vec![(ModeKind::Adaptive, Device::Gpu)];
+        if !cfg!(feature = "gpu") {
+            missing.push((ModeKind::Biscale, Device::Gpu));
+        }
+        for (kind, device) in missing {
             let err = create(kind, device, scene.clone(), 8, 8, Prepare::quietly())
                 .err()
                 .expect("not built");
@@ -179,6 +217,10 @@ mod tests {
         }
         assert!(create(ModeKind::Spmm, Device::Cpu, scene, 8, 8, Prepare::quietly()).is_ok());
         assert_eq!(is_built(ModeKind::Spmm, Device::Gpu), cfg!(feature = "gpu"));
+        assert_eq!(
+            is_built(ModeKind::Biscale, Device::Gpu),
+            cfg!(feature = "gpu")
+        );
     }
 
     #[test]

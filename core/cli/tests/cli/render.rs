@@ -117,9 +117,15 @@ fn render_modes_devices_and_unsupported_scenes_exit_2_naming_why() {
     };
     assert_ok(&in_mode("adaptive"));
     assert_ok(&in_mode("biscale"));
+    // The biscale mode on the GPU refuses SPMM packs by name (their biscale tables
+    // are not uploaded); the adaptive mode is not built there.
     assert_bad_input(
         &render(&["--mode", "biscale", "--device", "gpu"]),
-        &["biscale", "gpu", "not built yet"],
+        &["biscale", "gpu", "cannot render", "(spmm)"],
+    );
+    assert_bad_input(
+        &render(&["--mode", "adaptive", "--device", "gpu"]),
+        &["adaptive", "gpu", "not built yet"],
     );
     assert_bad_input(
         &render(&["--mode", "fast"]),
@@ -218,6 +224,20 @@ material = "gold"
     assert!(
         centre[0] > centre[1] && centre[1] > centre[2] && centre[2] > 0.0,
         "{centre:?}"
+    );
+    // The biscale mode renders it on the GPU too.
+    let o = meso(
+        &[
+            "render", merl_arg, "-o", out_arg, "--width", "8", "--height", "8", "--frames", "1",
+            "--mode", "biscale", "--device", "gpu", "--json",
+        ],
+        "",
+    );
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    assert_eq!(
+        (v["mode"].as_str(), v["device"].as_str()),
+        (Some("biscale"), Some("gpu"))
     );
 }
 

@@ -8,13 +8,18 @@
 //! and CPCA baselines (`sh.rs`, `cpca.rs`) are computed from the same matrix for the
 //! reports. The environment is the precomputed part, but for its brightest pixels,
 //! which are traced per pixel like a light (`peaks.rs`); lights and the ambient term
-//! are traced exactly on top (`mode.rs`). CPU only.
+//! are traced exactly on top (`mode.rs`). With the `gpu` feature, `gpu.rs` renders
+//! the same frames on a wgpu device from the same preparation.
 
 pub mod bicluster;
 pub mod btf_table;
 pub mod cache;
 pub mod cpca;
 pub mod cubemap;
+#[cfg(feature = "gpu")]
+mod gpu;
+#[cfg(all(test, feature = "gpu"))]
+mod gpu_tests;
 pub mod hemisphere;
 mod mode;
 pub mod peaks;
@@ -27,6 +32,8 @@ pub mod transfer;
 
 use std::path::PathBuf;
 
+#[cfg(feature = "gpu")]
+pub use gpu::GpuBiscaleMode;
 pub use mode::{BiscaleMode, TransferSource};
 pub use precompute::{PrecomputeStats, Precomputed, precompute};
 

@@ -85,7 +85,7 @@ const EPSILON_REL: f64 = 1e-5;
 
 /// L* rows (j = p M + m, RGB) laid out per vertex as [channel][M], the layout a
 /// pixel interpolates.
-fn per_vertex(rows: &[[f32; 3]], mc: usize) -> Vec<f32> {
+pub(super) fn per_vertex(rows: &[[f32; 3]], mc: usize) -> Vec<f32> {
     let mut local = vec![0.0f32; rows.len() * 3];
     for (j, v) in rows.iter().enumerate() {
         let (p, m) = (j / mc, j % mc);
@@ -94,6 +94,28 @@ fn per_vertex(rows: &[[f32; 3]], mc: usize) -> Vec<f32> {
         }
     }
     local
+}
+
+/// The split of `env` (keeping `kept` if it was made from the same map: a turn keeps
+/// it, since it is made in map space) and the cube-map lighting vector of the split's
+/// remainder at unit strength (zero without an environment).
+pub(super) fn split_lighting(
+    settings: &BiscaleSettings,
+    env: Option<&Environment>,
+    kept: Option<EnvironmentSplit>,
+) -> (Option<EnvironmentSplit>, Vec<[f32; 3]>) {
+    let cube = CubeLayout::new(settings.cube_n);
+    let kept = kept.filter(|s| env.is_some_and(|e| Arc::ptr_eq(&s.source, &e.map)));
+    let split =
+        env.map(|e| kept.unwrap_or_else(|| EnvironmentSplit::new(&e.map, settings.traced_share)));
+    let light = match (env, &split) {
+        (Some(e), Some(split)) => cube.lighting(&Environment {
+            map: Arc::clone(&split.remainder),
+            ..e.clone()
+        }),
+        _ => vec![[0.0; 3]; cube.len()],
+    };
+    (split, light)
 }
 
 impl BiscaleMode {
@@ -199,23 +221,8 @@ impl BiscaleMode {
     /// L*.
     fn relight(&mut self) {
         let start = Instant::now();
-        let cube = CubeLayout::new(self.settings.cube_n);
         let env = self.core.scene.environment.as_ref();
-        // A turn keeps the split (it is made in map space).
-        let kept = self
-            .split
-            .take()
-            .filter(|s| env.is_some_and(|e| Arc::ptr_eq(&s.source, &e.map)));
-        self.split = env.map(|e| {
-            kept.unwrap_or_else(|| EnvironmentSplit::new(&e.map, self.settings.traced_share))
-        });
-        self.light = match (env, &self.split) {
-            (Some(e), Some(split)) => cube.lighting(&Environment {
-                map: Arc::clone(&split.remainder),
-                ..e.clone()
-            }),
-            _ => vec![[0.0; 3]; cube.len()],
-        };
+        (self.split, self.light) = split_lighting(&self.settings, env, self.split.take());
         let rows = match &self.source {
             TransferSource::Biclustered => self.pre.biclusters.apply(&self.light),
             TransferSource::Dense => self.pre.transfer.apply(&self.light),

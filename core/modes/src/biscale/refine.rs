@@ -99,6 +99,44 @@ impl Refinement {
     }
 }
 
+/// Every quadtree as flat arrays, the layout the GPU mode's `locate` descends
+/// (`meso_gpu::BiscaleInputs`): per mesh its first triangle, per scene triangle its
+/// root, the nodes of every mesh (`meso_gpu::LEAF_BIT | leaf`, or the first of four
+/// children) and per leaf its three vertices, offset by `mesh_offsets` into the
+/// refined vertices of all meshes.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct FlatQuadtrees {
+    pub mesh_first: Vec<u32>,
+    pub roots: Vec<u32>,
+    pub nodes: Vec<u32>,
+    pub leaves: Vec<[u32; 3]>,
+}
+
+impl Refinement {
+    /// The quadtrees flattened, `leaf_bit` marking leaves (see `FlatQuadtrees`).
+    pub fn flat(&self, mesh_offsets: &[usize], leaf_bit: u32) -> FlatQuadtrees {
+        let mut f = FlatQuadtrees::default();
+        for (mesh, nodes) in self.nodes.iter().enumerate() {
+            let (node_base, leaf_base) = (f.nodes.len() as u32, f.leaves.len() as u32);
+            f.mesh_first.push(f.roots.len() as u32);
+            f.roots
+                .extend(self.roots[mesh].iter().map(|r| r + node_base));
+            f.nodes.extend(nodes.iter().map(|n| match n {
+                Node::Leaf(t) => leaf_bit | (leaf_base + t),
+                Node::Split(first) => node_base + first,
+            }));
+            let offset = mesh_offsets[mesh] as u32;
+            f.leaves.extend(
+                self.meshes[mesh]
+                    .indices
+                    .iter()
+                    .map(|tri| tri.map(|v| offset + v)),
+            );
+        }
+        f
+    }
+}
+
 /// Which child of a midpoint split holds (u, v), and the point's coordinates in it.
 /// Children: 0 at corner 0 (u, v small), 1 at corner 1 (u >= 1/2), 2 at corner 2
 /// (v >= 1/2), 3 the middle, whose corners are the midpoints of edges 12, 20, 01.

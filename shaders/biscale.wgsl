@@ -1,0 +1,363 @@
+// The biscale mode's frame on the GPU (core/modes/src/biscale/mode.rs, `sample`, is the
+// reference): a jittered primary ray, mirrors as in the integrator, then at the first
+// other surface the precomputed environment: L* of the refined vertices around the hit
+// (the triangle's quadtree, descended with the hit's barycentric coordinates),
+// interpolated, dotted with the material's tabulated BTF row for the view direction
+// into the environment layer; the environment's brightest pixels (the split's peaks)
+// traced with one shadow ray; the lights and the ambient term by the integrator's own
+// estimators (lights.wgsl). Concatenated after integrator.wgsl, whose bindings,
+// parameters and shading it uses. The biscale words (core/gpu/src/biscale.rs) sit in
+// `env` after the environment's own, from `params.biscale`; every offset in their
+// header is relative to that start. Every loop is bounded.
+
+const BIS_CELLS: u32 = 0u;        // M, local cells
+const BIS_LOCAL_RES: u32 = 1u;
+const BIS_VIEW_RES: u32 = 2u;
+const BIS_LIT: u32 = 3u;          // 1: an environment lights the scene (L* is not zero)
+const BIS_MESH_FIRST: u32 = 4u;   // per mesh, its first triangle's index in the roots
+const BIS_ROOTS: u32 = 5u;        // per scene triangle, its quadtree's root node
+const BIS_NODES: u32 = 6u;        // LEAF_BIT | leaf, or the first of four children
+const BIS_LEAVES: u32 = 7u;       // per leaf, three vertices
+const BIS_LSTAR: u32 = 8u;        // per vertex, [channel][M] f32
+const BIS_TABLES: u32 = 9u;       // per material: kind, offset
+const BIS_PEAKS: u32 = 10u;       // 1: the peaks are traced
+const BIS_PEAKS_WIDTH: u32 = 11u;
+const BIS_PEAKS_HEIGHT: u32 = 12u;
+const BIS_PEAKS_ROW_CDF: u32 = 13u;
+const BIS_PEAKS_COL_CDF: u32 = 14u;
+const BIS_PEAKS_PDF: u32 = 15u;
+const BIS_PEAKS_RGB: u32 = 16u;
+
+const TABLE_NONE: u32 = 0u;
+// [view][M] rows, times the albedo (words 0..3 of the table).
+const TABLE_GRAY: u32 = 1u;
+// [view][channel][M] rows.
+const TABLE_RGB: u32 = 2u;
+// A `btf` material: each cell's response at one jittered direction (`shade_untabulated`).
+const TABLE_CELLS: u32 = 3u;
+
+const LEAF_BIT: u32 = 0x80000000u;
+// `refine::MAX_DEPTH` + 1 steps.
+const QUADTREE_STEPS: u32 = 13u;
+// `BiscaleSettings::problem` allows at most 32 x 32 cells and 64 x 64 views.
+const MAX_CELLS: u32 = 1024u;
+
+fn bis(i: u32) -> u32 {
+    return env[params.biscale + i];
+}
+
+fn bis_f(i: u32) -> f32 {
+    return bitcast<f32>(env[params.biscale + i]);
+}
+
+struct Around {
+    v: vec3<u32>,
+    w: vec3<f32>,
+}
+
+// `Refinement::locate`: the refined vertices around barycentric (b1, b2) of scene
+// triangle `t` of mesh `mesh`, with their weights.
+fn locate(mesh: u32, t: u32, b1: f32, b2: f32) -> Around {
+    let tri = bis(bis(BIS_MESH_FIRST) + mesh) + t;
+    var node = bis(bis(BIS_NODES) + bis(bis(BIS_ROOTS) + tri));
+    var u = b1;
+    var v = b2;
+    for (var k = 0u; k < QUADTREE_STEPS; k++) {
+        if (node & LEAF_BIT) != 0u {
+            let at = bis(BIS_LEAVES) + (node & ~LEAF_BIT) * 3u;
+            return Around(vec3<u32>(bis(at), bis(at + 1u), bis(at + 2u)), vec3<f32>(max(1.0 - u - v, 0.0), u, v));
+        }
+        // `refine::child_of`.
+        var child = 0u;
+        if u >= 0.5 {
+            child = 1u;
+            u = 2.0 * u - 1.0;
+            v = 2.0 * v;
+        } else if v >= 0.5 {
+            child = 2u;
+            u = 2.0 * u;
+            v = 2.0 * v - 1.0;
+        } else if u + v < 0.5 {
+            u = 2.0 * u;
+            v = 2.0 * v;
+        } else {
+            child = 3u;
+            u = 1.0 - 2.0 * u;
+            v = 1.0 - 2.0 * v;
+        }
+        node = bis(bis(BIS_NODES) + node + child);
+    }
+    // A damaged tree: nothing (the CPU refuses such a tree before upload).
+    return Around(vec3<u32>(0u), vec3<f32>(0.0));
+}
+
+// L* of cell `m`, RGB, interpolated at the hit.
+fn lstar_at(a: Around, m: u32, cells: u32) -> vec3<f32> {
+    let base = bis(BIS_LSTAR);
+    var l = vec3<f32>(0.0);
+    for (var k = 0u; k < 3u; k++) {
+        let at = base + a.v[k] * 3u * cells + m;
+        l += a.w[k] * vec3<f32>(bis_f(at), bis_f(at + cells), bis_f(at + 2u * cells));
+    }
+    return l;
+}
+
+// `hemisphere::square_to_hemisphere`.
+fn square_to_hemisphere(s: vec2<f32>) -> vec3<f32> {
+    let a = 2.0 * s.x - 1.0;
+    let b = 2.0 * s.y - 1.0;
+    if a == 0.0 && b == 0.0 {
+        return vec3<f32>(0.0, 0.0, 1.0);
+    }
+    var r = b;
+    var phi = 0.5 * PI - 0.25 * PI * (a / b);
+    if abs(a) > abs(b) {
+        r = a;
+        phi = 0.25 * PI * (b / a);
+    }
+    let r2 = r * r;
+    let k = sqrt(max(2.0 - r2, 0.0));
+    return vec3<f32>(r * cos(phi) * k, r * sin(phi) * k, 1.0 - r2);
+}
+
+// `hemisphere::hemisphere_to_square`.
+fn hemisphere_to_square(d: vec3<f32>) -> vec2<f32> {
+    let z = clamp(d.z, 0.0, 1.0);
+    let r = sqrt(1.0 - z);
+    if r == 0.0 {
+        return vec2<f32>(0.5);
+    }
+    let phi = atan2(d.y, d.x);
+    let q = 0.25 * PI;
+    var ab: vec2<f32>;
+    if phi >= -q && phi <= q {
+        ab = vec2<f32>(r, r * phi / q);
+    } else if phi > q && phi <= 3.0 * q {
+        ab = vec2<f32>(r * (2.0 * q - phi) / q, r);
+    } else if phi >= -3.0 * q && phi < -q {
+        ab = vec2<f32>(r * (2.0 * q + phi) / q, -r);
+    } else if phi > 0.0 {
+        ab = vec2<f32>(-r, -r * (phi - PI) / q);
+    } else {
+        ab = vec2<f32>(-r, -r * (phi + PI) / q);
+    }
+    return clamp((ab + 1.0) * 0.5, vec2<f32>(0.0), vec2<f32>(1.0));
+}
+
+// One of the four views around local `wo` (`HemisphereGrid::bilinear`), chosen with
+// probability equal to its bilinear weight (`ViewLookup::Pick`): an unbiased
+// estimate of the bilinear interpolant.
+fn pick_view(wo: vec3<f32>, res: u32, u: f32) -> u32 {
+    let s = hemisphere_to_square(wo);
+    let n = f32(res);
+    let f = clamp(s * n - 0.5, vec2<f32>(0.0), vec2<f32>(n - 1.0));
+    let x0 = min(u32(floor(f.x)), res - 1u);
+    let y0 = min(u32(floor(f.y)), res - 1u);
+    let x1 = min(x0 + 1u, res - 1u);
+    let y1 = min(y0 + 1u, res - 1u);
+    let tx = f.x - f32(x0);
+    let ty = f.y - f32(y0);
+    // The column by its weight, then the row by its weight with what is left of
+    // `u` (the product is the view's bilinear weight).
+    let keep = 1.0 - tx;
+    var x = x0;
+    var uy = 0.0;
+    if u < keep {
+        uy = u / keep;
+    } else {
+        x = x1;
+        uy = (u - keep) / max(tx, 1e-30);
+    }
+    let y = select(y0, y1, uy >= 1.0 - ty);
+    return y * res + x;
+}
+
+// Eq. 3 at the hit: the tabulated row of the view (or, for a `btf` material, the
+// response at a jittered direction per cell) dotted with L*, RGB.
+fn biscale_radiance(s: Shading, wo: vec3<f32>, a: Around, rng: ptr<function, Rng>) -> vec3<f32> {
+    let u_view = rand(rng);
+    let jitter = rand2(rng);
+    let lo = vec3<f32>(dot(wo, s.t), dot(wo, s.b), dot(wo, s.n));
+    if lo.z <= 0.0 || bis(BIS_LIT) == 0u {
+        return vec3<f32>(0.0);
+    }
+    let cells = min(bis(BIS_CELLS), MAX_CELLS);
+    let table = bis(BIS_TABLES) + s.material * 2u;
+    let kind = bis(table);
+    let at = bis(table + 1u);
+    var out = vec3<f32>(0.0);
+    if kind == TABLE_GRAY || kind == TABLE_RGB {
+        let view = pick_view(lo, bis(BIS_VIEW_RES), u_view);
+        for (var m = 0u; m < cells; m++) {
+            let l = lstar_at(a, m, cells);
+            if kind == TABLE_GRAY {
+                out += bis_f(at + 3u + view * cells + m) * l;
+            } else {
+                let row = at + view * 3u * cells + m;
+                out += vec3<f32>(bis_f(row), bis_f(row + cells), bis_f(row + 2u * cells)) * l;
+            }
+        }
+        if kind == TABLE_GRAY {
+            out *= vec3<f32>(bis_f(at), bis_f(at + 1u), bis_f(at + 2u));
+        }
+    } else if kind == TABLE_CELLS {
+        let res = max(bis(BIS_LOCAL_RES), 1u);
+        for (var m = 0u; m < cells; m++) {
+            let c = vec2<f32>(f32(m % res), f32(m / res));
+            let li = square_to_hemisphere((c + jitter) / f32(res));
+            let wi = s.t * li.x + s.b * li.y + s.n * li.z;
+            out += response(s, wi, wo) * lstar_at(a, m, cells);
+        }
+    }
+    return out;
+}
+
+// `EnvironmentSampler::sample` of the split's peaks, rotated into the world as the
+// map is (the environment's own rotation in `env`).
+fn peaks_sample(u: vec2<f32>) -> EnvSample {
+    let w = bis(BIS_PEAKS_WIDTH);
+    let h = bis(BIS_PEAKS_HEIGHT);
+    let row = cdf_pick(CDF_IN_ENV, params.biscale + bis(BIS_PEAKS_ROW_CDF), h, u.x, CDF_STEPS, 0.99999994);
+    let y = row.index;
+    let col = cdf_pick(CDF_IN_ENV, params.biscale + bis(BIS_PEAKS_COL_CDF) + y * (w + 1u), w, u.y, CDF_STEPS, 0.99999994);
+    let x = col.index;
+    let phi = 2.0 * PI * ((f32(x) + col.t) / f32(w) - 0.5);
+    let c0 = cos(PI * f32(y) / f32(h));
+    let c1 = cos(PI * f32(y + 1u) / f32(h));
+    let cos_t = c0 + (c1 - c0) * row.t;
+    let sin_t = sqrt(max(1.0 - cos_t * cos_t, 0.0));
+    let m = vec3<f32>(sin_t * cos(phi), cos_t, sin_t * sin(phi));
+    let p = y * w + x;
+    let rgb = bis(BIS_PEAKS_RGB) + p * 3u;
+    return EnvSample(
+        rotate_about_y(m, env_f(ENV_COS), env_f(ENV_SIN)),
+        bis_f(bis(BIS_PEAKS_PDF) + p),
+        vec3<f32>(bis_f(rgb), bis_f(rgb + 1u), bis_f(rgb + 2u)));
+}
+
+// The peaks' part (`BiscaleMode::trace_exact`): one direction drawn from them, one
+// shadow ray. Always draws two numbers.
+fn sample_peaks(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f32>, pixel: u32, rng: ptr<function, Rng>) {
+    let u = rand2(rng);
+    if bis(BIS_PEAKS) == 0u {
+        return;
+    }
+    let e = peaks_sample(u);
+    if e.pdf > 0.0 && dot(e.dir, s.n) > 0.0 {
+        counts.environment += 1u;
+        if !occluded(lift, e.dir, FAR) {
+            add_layer(pixel, LAYER_ENVIRONMENT, throughput * response(s, e.dir, wo) * e.radiance / e.pdf);
+        }
+    }
+}
+
+@compute @workgroup_size(64)
+fn render_biscale(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    let pixel = id.x + id.y * groups.x * 64u;
+    if pixel >= params.width * params.height {
+        return;
+    }
+    let x = pixel % params.width;
+    let y = pixel / params.width;
+    for (var l = 0u; l < MAX_LAYERS; l++) {
+        acc[l] = vec3<f32>(0.0);
+    }
+    counts = Counts(0u, 0u, 0u, 0u, 0u);
+    mask = vec2<u32>(0u);
+    uv_box = vec4<f32>(3.4e38, 3.4e38, -3.4e38, -3.4e38);
+    var rng = rng_for_sample(params.sampler, params.seed, params.sample_lo, params.sample_hi, pixel);
+
+    let jitter = rand2(&rng);
+    let sx = ((f32(x) + jitter.x) / f32(params.width)) * 2.0 - 1.0;
+    let sy = 1.0 - ((f32(y) + jitter.y) / f32(params.height)) * 2.0;
+    var origin = params.cam_origin.xyz;
+    var dir = normalize(params.cam_forward.xyz + params.cam_right.xyz * (sx * params.cam_forward.w)
+        + params.cam_up.xyz * (sy * params.cam_right.w));
+    var throughput = vec3<f32>(1.0);
+    let max_depth = min(params.max_depth, 64u);
+    for (var depth = 0u; depth <= max_depth; depth++) {
+        let hit = traverse(make_ray(origin, dir, 0.0, FAR), false);
+        if hit.prim == NO_HIT {
+            switch params.background {
+                case ESCAPE_COLOR: {
+                    add_layer(pixel, LAYER_BACKGROUND, throughput);
+                }
+                case ESCAPE_IMAGE: {
+                    add_layer(pixel, LAYER_BACKGROUND, throughput * background_radiance(dir));
+                }
+                case ESCAPE_ENVIRONMENT: {
+                    add_layer(pixel, LAYER_ENVIRONMENT, throughput * env_radiance(dir));
+                }
+                default: {}
+            }
+            break;
+        }
+        let s = shading_at(hit.prim, origin, dir, hit.t);
+        let bit = s.material % 64u;
+        if bit < 32u {
+            mask.x |= 1u << bit;
+        } else {
+            mask.y |= 1u << (bit - 32u);
+        }
+        let kind = material_kind(s.material);
+        let wo = -dir;
+        let ap = abs(s.p);
+        let lift = s.p + s.n * (EPSILON_REL * max(max(max(ap.x, ap.y), ap.z), 1.0));
+        if kind == MATERIAL_MIRROR {
+            if depth >= params.max_depth {
+                break;
+            }
+            counts.specular += 1u;
+            throughput *= rgb_at(params.material_table + s.material * MATERIAL_WORDS + 4u);
+            dir = dir - 2.0 * dot(dir, s.n) * s.n;
+            origin = lift;
+            continue;
+        }
+        counts.shading += 1u;
+        // The hit's barycentric coordinates, as `shading_at` finds them.
+        let p0 = tri_vertex(hit.prim, 0u);
+        let e1 = tri_vertex(hit.prim, 1u) - p0;
+        let e2 = tri_vertex(hit.prim, 2u) - p0;
+        let ep = origin + dir * hit.t - p0;
+        let d11 = dot(e1, e1);
+        let d12 = dot(e1, e2);
+        let d22 = dot(e2, e2);
+        let denom = d11 * d22 - d12 * d12;
+        var b1 = 0.0;
+        var b2 = 0.0;
+        if denom > 0.0 {
+            b1 = (d22 * dot(ep, e1) - d12 * dot(ep, e2)) / denom;
+            b2 = (d11 * dot(ep, e2) - d12 * dot(ep, e1)) / denom;
+        }
+        b1 = clamp(b1, 0.0, 1.0);
+        b2 = clamp(b2, 0.0, 1.0 - b1);
+        let t = hit.prim * TRI_WORDS;
+        let around = locate(tris[t + 10u], tris[t + 11u], b1, b2);
+        add_layer(pixel, LAYER_ENVIRONMENT, throughput * biscale_radiance(s, wo, around, &rng));
+        sample_peaks(s, wo, lift, throughput, pixel, &rng);
+        sample_lights(s, wo, lift, throughput, pixel, &rng);
+        sample_ambient(s, wo, lift, throughput, pixel, &rng);
+        break;
+    }
+
+    let layers = min(params.layers, MAX_LAYERS);
+    for (var l = 0u; l < layers; l++) {
+        let at = (pixel * params.layers + l) * 3u;
+        frame[at] = acc[l].x;
+        frame[at + 1u] = acc[l].y;
+        frame[at + 2u] = acc[l].z;
+    }
+    let a = pixel * AUX_WORDS;
+    aux[a] = mask.x;
+    aux[a + 1u] = mask.y;
+    aux[a + 2u] = bitcast<u32>(uv_box.x);
+    aux[a + 3u] = bitcast<u32>(uv_box.y);
+    aux[a + 4u] = bitcast<u32>(uv_box.z);
+    aux[a + 5u] = bitcast<u32>(uv_box.w);
+    atomicAdd(&counters[COUNT_PRIMARY], 1u);
+    atomicAdd(&counters[COUNT_SHADOW], counts.shadow);
+    atomicAdd(&counters[COUNT_AMBIENT], counts.ambient);
+    atomicAdd(&counters[COUNT_SPECULAR], counts.specular);
+    atomicAdd(&counters[COUNT_SHADING], counts.shading);
+    atomicAdd(&counters[COUNT_ENVIRONMENT], counts.environment);
+}

@@ -155,12 +155,14 @@ impl GpuSpmmMode {
     pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
         // Exhaustive, so a new material kind cannot be added without saying here
         // whether the device shades it.
+        // A BTF read out of core (larger than its memory bound) would have to be
+        // held whole to go up: refused, saying how to hold it whole.
         let shaded = |m: &Material| match m {
             Material::Brdf { .. }
             | Material::Merl { .. }
             | Material::Spmm { .. }
-            | Material::Btf { .. }
             | Material::Mirror { .. } => true,
+            Material::Btf { table, .. } => table.is_resident(),
         };
         let parts = scene
             .materials
@@ -170,7 +172,12 @@ impl GpuSpmmMode {
             .map(|(index, m)| Unrenderable::Material {
                 index,
                 name: scene.material_name(index),
-                kind: m.kind_name(),
+                kind: match m {
+                    Material::Btf { .. } => {
+                        "btf larger than --max-memory, read from disk; a bound above its values uploads it whole"
+                    }
+                    _ => m.kind_name(),
+                },
             })
             .collect();
         Unsupported::check(ModeKind::Spmm, Device::Gpu, parts)

@@ -310,6 +310,10 @@ impl OnDiskBtf {
     pub fn provenance(&self) -> &str {
         &self.provenance
     }
+    /// Whether the file holds its values as F16 (else F32).
+    pub fn stored_as_f16(&self) -> bool {
+        self.elem == Elem::F16
+    }
 
     /// Reads texels `first..` into `out` (see `TexelSource::read_texels`) and checks
     /// every value finite, naming the first that is not.

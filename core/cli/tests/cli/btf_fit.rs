@@ -458,3 +458,71 @@ fn fit_in_shards_merges_to_the_unsharded_pack_and_refuses_odd_parts() {
     );
     assert!(!std::path::Path::new(&refused).exists());
 }
+
+/// `meso btf slice` reads the BTF in blocks of `--max-memory`: one texel at a time
+/// gives the same image as the whole file in one block, and both hold the BTF's own
+/// values at the pair; a bound under one texel, or a damaged file, is named.
+#[test]
+fn slices_read_in_blocks_equal_the_btf_held_whole() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let recipe = dir.path().join("weave.toml");
+    std::fs::write(&recipe, SMALL_BTF_RECIPE).expect("write recipe");
+    let btf = dir.path().join("weave.btf");
+    let (r, b) = (
+        recipe.to_str().expect("utf-8"),
+        btf.to_str().expect("utf-8"),
+    );
+    assert_ok(&meso(&["btf", "synth", r, "-o", b], ""));
+    let whole = meso_materials::btf::file::read_btf(&btf).expect("read");
+    // 9 x 9 pairs, RGB, f32: one texel's values.
+    let texel = (whole.pairs() * 3 * 4).to_string();
+    let slice = |name: &str, bound: &str| {
+        let out = dir.path().join(name);
+        let o = meso(
+            &[
+                "btf",
+                "slice",
+                b,
+                "-o",
+                out.to_str().expect("utf-8"),
+                "--light",
+                "45,90",
+                "--view",
+                "70,0",
+                "--scale",
+                "1",
+                "--max-memory",
+                bound,
+            ],
+            "",
+        );
+        (o, out)
+    };
+    let (o, one) = slice("one.exr", &texel);
+    assert_ok(&o);
+    let (o, all) = slice("all.exr", "1GB");
+    assert_ok(&o);
+    assert_eq!(
+        std::fs::read(&one).expect("exr"),
+        std::fs::read(&all).expect("exr")
+    );
+    let image = meso_materials::image::read_image(&one).expect("exr");
+    let dirs = meso_materials::btf::directions::from_angles_deg;
+    let nearest = |set: &[glam::DVec3], d: glam::DVec3| {
+        (0..set.len())
+            .max_by(|&a, &b| set[a].dot(d).total_cmp(&set[b].dot(d)))
+            .expect("directions")
+    };
+    let l = nearest(whole.light_dirs(), dirs(45.0, 90.0));
+    let v = nearest(whole.view_dirs(), dirs(70.0, 0.0));
+    for t in 0..whole.texels() {
+        let (x, y) = ((t % 6) as u32, (t / 6) as u32);
+        assert_eq!(image.get(x, y), whole.value(t, l, v), "texel {t}");
+    }
+    let smaller = (whole.pairs() * 3 * 4 - 1).to_string();
+    assert_bad_input(&slice("no.exr", &smaller).0, &["--max-memory", "one texel"]);
+    // Damaged: the file cut short is named with the sizes that disagree.
+    let bytes = std::fs::read(&btf).expect("btf");
+    std::fs::write(&btf, &bytes[..bytes.len() - 2]).expect("write");
+    assert_bad_input(&slice("cut.exr", "1GB").0, &["weave.btf", "the file has"]);
+}

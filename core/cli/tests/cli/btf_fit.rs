@@ -526,3 +526,60 @@ fn slices_read_in_blocks_equal_the_btf_held_whole() {
     std::fs::write(&btf, &bytes[..bytes.len() - 2]).expect("write");
     assert_bad_input(&slice("cut.exr", "1GB").0, &["weave.btf", "the file has"]);
 }
+
+/// `meso report fit` with a bound far under the BTF's values (both the BTF and the
+/// pack's tabulation shaded from blocks on demand, the table errors read a texel at a
+/// time) writes the same images and figures as with both held whole.
+#[test]
+fn report_fit_out_of_core_equals_the_report_held_whole() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let recipe = dir.path().join("weave.toml");
+    std::fs::write(&recipe, SMALL_BTF_RECIPE).expect("write recipe");
+    let path = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_string();
+    let (b, p) = (path("weave.btf"), path("weave.spmm"));
+    assert_ok(&meso(
+        &["btf", "synth", recipe.to_str().expect("utf-8"), "-o", &b],
+        "",
+    ));
+    assert_ok(&meso(
+        &["fit", &b, "-o", &p, "--clusters", "2", "--npca", "2"],
+        "",
+    ));
+    let scene = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../tests/scenes/fit_grazing.toml"
+    );
+    let report = |out: &str, bound: &str| {
+        let o = meso_with_env(
+            &[
+                "report", "fit", &b, &p, "-o", out, "--scene", scene, "--width", "16", "--height",
+                "16", "--frames", "1", "--max-memory", bound, "--json",
+            ],
+            &[("RAYON_NUM_THREADS", "2")],
+        );
+        assert_ok(&o);
+        let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+        v
+    };
+    // 36 texels of 81 pairs: 17.5 KB as f16, 35 KB as f32; 20 KB is 10 KB a table.
+    let (whole, out_whole) = (report(&path("whole"), "1GB"), path("whole"));
+    let (ooc, out_ooc) = (report(&path("ooc"), "20KB"), path("ooc"));
+    assert!(
+        whole["btf_resident_bytes"].as_u64() > ooc["btf_resident_bytes"].as_u64(),
+        "{whole} {ooc}"
+    );
+    for key in [
+        "table_relative_rmse",
+        "table_basis_relative_rmse",
+        "mean_reflectance",
+        "image_relative_rmse",
+        "fit_image_relative_rmse",
+    ] {
+        assert_eq!(whole[key], ooc[key], "{key}");
+    }
+    for file in ["btf", "pack", "tabulated"] {
+        let f = format!("fit_grazing_{file}.exr");
+        let read = |d: &str| std::fs::read(std::path::Path::new(d).join(&f)).expect("exr");
+        assert!(read(&out_whole) == read(&out_ooc), "{f}");
+    }
+}

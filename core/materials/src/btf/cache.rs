@@ -15,7 +15,6 @@ use std::sync::{Arc, Mutex, OnceLock, PoisonError};
 
 use half::f16;
 
-use super::on_disk::OnDiskBtf;
 use super::table::Storage;
 use super::texels::TexelSource;
 
@@ -27,6 +26,8 @@ const MAX_SHARDS: usize = 64;
 /// Blocks each worker may hold beyond the resident set: one it reads (with its f32
 /// read buffer, up to two blocks' worth for f16 values) and one evicted under it.
 const TRANSIENT_BLOCKS_PER_THREAD: u64 = 4;
+/// Resident blocks a tight bound is still split into, when texels are small enough.
+const MIN_RESIDENT: u64 = 4;
 /// An empty index entry.
 const ABSENT: u32 = u32::MAX;
 
@@ -47,8 +48,8 @@ pub struct CacheShape {
 
 impl CacheShape {
     /// The shape that keeps resident and in-flight blocks within `max_bytes` for
-    /// `threads` workers, blocks of about `block_bytes` (at least one texel), or why no
-    /// cache fits: the bound must hold one block per shard besides the workers'.
+    /// `threads` workers, blocks of at most about `block_bytes` (at least one texel),
+    /// or why no cache fits: the bound must hold one block besides the workers'.
     pub fn fit(
         texel_bytes: u64,
         texels: usize,
@@ -56,7 +57,10 @@ impl CacheShape {
         block_bytes: u64,
         threads: usize,
     ) -> Result<Self, String> {
-        let texels_per_block = (block_bytes / texel_bytes.max(1)).clamp(1, texels as u64) as usize;
+        // Under a tight bound, smaller blocks, so that a few stay resident besides
+        // the workers' (down to one texel).
+        let target = block_bytes.min(max_bytes / (TRANSIENT_BLOCKS_PER_THREAD * threads.max(1) as u64 + MIN_RESIDENT));
+        let texels_per_block = (target / texel_bytes.max(1)).clamp(1, texels as u64) as usize;
         let block = texels_per_block as u64 * texel_bytes;
         let transient = TRANSIENT_BLOCKS_PER_THREAD * threads.max(1) as u64 * block;
         let resident = max_bytes.saturating_sub(transient) / block;
@@ -141,9 +145,13 @@ impl Shard {
     }
 }
 
-/// A bounded, thread-safe cache of one `.btf`'s texel blocks (see the module comment).
+/// Where a cache reads its blocks: a `.btf` on disk (`on_disk::OnDiskBtf`), or
+/// values computed on demand (`meso report fit`'s pack tabulated at a BTF's pairs).
+pub type BlockSource = Box<dyn TexelSource + Send>;
+
+/// A bounded, thread-safe cache of one BTF's texel blocks (see the module comment).
 pub struct BlockCache {
-    disk: OnDiskBtf,
+    source: BlockSource,
     storage: Storage,
     shape: CacheShape,
     threads: usize,
@@ -159,7 +167,7 @@ pub struct BlockCache {
 impl std::fmt::Debug for BlockCache {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("BlockCache")
-            .field("path", &self.disk.path())
+            .field("source", &self.source.name())
             .field("storage", &self.storage)
             .field("shape", &self.shape)
             .finish_non_exhaustive()
@@ -167,11 +175,11 @@ impl std::fmt::Debug for BlockCache {
 }
 
 impl BlockCache {
-    /// A cache of `disk`'s values in `storage` precision laid out as `shape` (for
+    /// A cache of `source`'s values in `storage` precision laid out as `shape` (for
     /// `threads` workers, see `CacheShape::fit`).
-    pub fn new(disk: OnDiskBtf, storage: Storage, shape: CacheShape, threads: usize) -> Self {
-        let values_per_texel = disk.pairs() * 3;
-        let blocks = disk.texels().div_ceil(shape.texels_per_block);
+    pub fn new(source: BlockSource, storage: Storage, shape: CacheShape, threads: usize) -> Self {
+        let values_per_texel = source.pairs() * 3;
+        let blocks = source.texels().div_ceil(shape.texels_per_block);
         let per_shard_numbers = blocks.div_ceil(shape.shards);
         let shards = (0..shape.shards)
             .map(|_| {
@@ -183,7 +191,7 @@ impl BlockCache {
             })
             .collect();
         Self {
-            disk,
+            source,
             storage,
             shape,
             threads,
@@ -196,9 +204,6 @@ impl BlockCache {
 
     pub fn shape(&self) -> CacheShape {
         self.shape
-    }
-    pub fn disk(&self) -> &OnDiskBtf {
-        &self.disk
     }
     pub fn storage(&self) -> Storage {
         self.storage
@@ -242,11 +247,11 @@ impl BlockCache {
 
     fn read(&self, block: usize) -> Option<Block> {
         let first = block * self.shape.texels_per_block;
-        let count = self.shape.texels_per_block.min(self.disk.texels() - first);
+        let count = self.shape.texels_per_block.min(self.source.texels() - first);
         let mut values = vec![0.0f32; count * self.values_per_texel];
         self.reads.fetch_add(1, Ordering::Relaxed);
-        if let Err(e) = self.disk.read_block(first, &mut values) {
-            let _ = self.error.set(e.to_string());
+        if let Err(e) = self.source.read_texels(first, &mut values) {
+            let _ = self.error.set(e);
             return None;
         }
         Some(match self.storage {

@@ -385,6 +385,9 @@ impl TexelSource for OnDiskBtf {
     fn read_texels(&self, first: usize, out: &mut [f32]) -> Result<(), String> {
         self.read_block(first, out).map_err(|e| e.to_string())
     }
+    fn values_are_f16(&self) -> bool {
+        self.stored_as_f16()
+    }
 }
 
 #[cfg(test)]

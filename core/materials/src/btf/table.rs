@@ -22,7 +22,7 @@ use glam::{DVec2, DVec3};
 use half::f16;
 
 use super::Btf;
-use super::cache::{BLOCK_BYTES, Block, BlockCache, CacheShape};
+use super::cache::{BLOCK_BYTES, Block, BlockCache, BlockSource, CacheShape};
 use super::file::BtfFileError;
 use super::on_disk::OnDiskBtf;
 use super::texels::TexelSource;
@@ -108,6 +108,20 @@ pub enum BtfOpenError {
     },
     #[error("{}: {problem}", path.display())]
     Memory { path: PathBuf, problem: String },
+    /// A value the scan refused, as the reader names it (file and texel).
+    #[error("{0}")]
+    Values(String),
+}
+
+/// Why `BtfTable::from_source` cannot shade a source's values.
+#[derive(Debug, thiserror::Error)]
+pub enum SourceError {
+    #[error(transparent)]
+    Table(BtfTableError),
+    #[error("{0}")]
+    Values(String),
+    #[error("{0}")]
+    Memory(String),
 }
 
 /// Why a BTF cannot be shaded with.
@@ -183,74 +197,106 @@ impl BtfTable {
     /// when they fit, else read through a cache; the same values either way.
     pub fn open(path: &Path, bound: MemoryBound) -> Result<Self, BtfOpenError> {
         let disk = OnDiskBtf::open(path)?;
-        let table_err = |source| BtfOpenError::Table {
-            path: path.to_path_buf(),
-            source,
-        };
+        let mut table = Self::from_source(Box::new(disk), bound).map_err(|e| match e {
+            SourceError::Table(source) => BtfOpenError::Table {
+                path: path.to_path_buf(),
+                source,
+            },
+            // The on-disk reader's messages name the file and the texel.
+            SourceError::Values(problem) => BtfOpenError::Values(problem),
+            SourceError::Memory(problem) => BtfOpenError::Memory {
+                path: path.to_path_buf(),
+                problem,
+            },
+        })?;
+        table.path = Some(path.to_path_buf());
+        Ok(table)
+    }
+
+    /// A table of `source`'s values within `bound`, as `open` makes of a file:
+    /// every value read once to check it and choose f16 or f32 as `new` does, then
+    /// held whole if it fits, else read again block by block as shaded.
+    pub fn from_source(source: BlockSource, bound: MemoryBound) -> Result<Self, SourceError> {
         let table = |part, dirs: &[DVec3]| {
             DirectionTable::new(dirs)
-                .map_err(|source| table_err(BtfTableError::Directions { part, source }))
+                .map_err(|source| SourceError::Table(BtfTableError::Directions { part, source }))
         };
-        let lights = table("light_dirs", disk.light_dirs())?;
-        let views = table("view_dirs", disk.view_dirs())?;
-        let name = TexelSource::name(&disk).to_string();
+        let lights = table("light_dirs", source.light_dirs())?;
+        let views = table("view_dirs", source.view_dirs())?;
+        let name = source.name().to_string();
         let grid = TexelGrid {
-            width: TexelSource::width(&disk),
-            height: TexelSource::height(&disk),
+            width: source.width(),
+            height: source.height(),
         };
-        let (light_dirs, view_dirs) = (disk.light_dirs().to_vec(), disk.view_dirs().to_vec());
-        let per_texel = disk.pairs() * 3;
-        let count = disk.texels() * per_texel;
+        let (light_dirs, view_dirs) = (source.light_dirs().to_vec(), source.view_dirs().to_vec());
+        let per_texel = source.pairs() * 3;
+        let count = source.texels() * per_texel;
         let chunk = (SCAN_BYTES / (per_texel * 4)).max(1);
-        // An F16 file is F16 storage; an F32 file is when every value is an f16.
-        let mut lossless = true;
-        let scan_f32 = !disk.stored_as_f16();
-        let f16_whole = disk.stored_as_f16() && count as u64 * 2 <= bound.max_bytes;
-        let mut halves: Vec<f16> = Vec::with_capacity(if f16_whole { count } else { 0 });
-        if scan_f32 || !f16_whole {
-            // The scan: every value read once (finite checked by `read_block`).
-            Self::for_blocks(&disk, chunk, |block| {
-                if scan_f32 && lossless {
+        let f32_bytes = count as u64 * 4;
+        let values = if source.values_are_f16() && count as u64 * 2 <= bound.max_bytes {
+            // Values that are f16 already (an F16 file): held as f16, read once.
+            let mut halves: Vec<f16> = Vec::with_capacity(count);
+            Self::for_blocks(&*source, chunk, |block| {
+                halves.extend(block.iter().map(|&x| f16::from_f32(x)));
+            })?;
+            Values::F16(halves)
+        } else if !source.values_are_f16() && f32_bytes <= bound.max_bytes {
+            // Read once (a computed source is costly to read twice); when every value
+            // is an f16 the f32 copy briefly sits beside the f16 one (1.5 times the
+            // values, within 1.5 times the bound).
+            let mut values = Vec::with_capacity(count);
+            Self::for_blocks(&*source, chunk, |block| values.extend_from_slice(block))?;
+            if values.iter().all(|&x| f16::from_f32(x).to_f32() == x) {
+                Values::F16(values.iter().map(|&x| f16::from_f32(x)).collect())
+            } else {
+                Values::F32(values)
+            }
+        } else {
+            // Out of core. The scan reads every value once (the source checks each
+            // finite) and, unless they are known f16, finds whether all are.
+            let mut lossless = true;
+            Self::for_blocks(&*source, chunk, |block| {
+                if lossless && !source.values_are_f16() {
                     lossless = block.iter().all(|&x| f16::from_f32(x).to_f32() == x);
                 }
             })?;
-        } else {
-            Self::for_blocks(&disk, chunk, |block| {
-                halves.extend(block.iter().map(|&x| f16::from_f32(x)));
-            })?;
-        }
-        let storage = if lossless { Storage::F16 } else { Storage::F32 };
-        let size = if lossless { 2 } else { 4 };
-        let values = if f16_whole {
-            Values::F16(halves)
-        } else if count as u64 * size <= bound.max_bytes {
-            let mut values = Vec::with_capacity(count);
-            Self::for_blocks(&disk, chunk, |block| values.extend_from_slice(block))?;
-            match storage {
-                Storage::F16 => Values::F16(values.iter().map(|&x| f16::from_f32(x)).collect()),
-                Storage::F32 => Values::F32(values),
+            let (storage, size) = if lossless {
+                (Storage::F16, 2)
+            } else {
+                (Storage::F32, 4)
+            };
+            if count as u64 * size <= bound.max_bytes {
+                // All f16 after all, and they fit as such: held whole.
+                let mut halves: Vec<f16> = Vec::with_capacity(count);
+                Self::for_blocks(&*source, chunk, |block| {
+                    halves.extend(block.iter().map(|&x| f16::from_f32(x)));
+                })?;
+                Values::F16(halves)
+            } else {
+                let shape = CacheShape::fit(
+                    per_texel as u64 * size,
+                    source.texels(),
+                    bound.max_bytes,
+                    bound.block_bytes,
+                    bound.threads,
+                )
+                .map_err(|problem| {
+                    SourceError::Memory(format!(
+                        "its {} bytes of values exceed the memory bound, and {problem}",
+                        count as u64 * size
+                    ))
+                })?;
+                Values::Cached(Arc::new(BlockCache::new(
+                    source,
+                    storage,
+                    shape,
+                    bound.threads,
+                )))
             }
-        } else {
-            let threads = bound.threads;
-            let shape = CacheShape::fit(
-                per_texel as u64 * size,
-                disk.texels(),
-                bound.max_bytes,
-                bound.block_bytes,
-                threads,
-            )
-            .map_err(|problem| BtfOpenError::Memory {
-                path: path.to_path_buf(),
-                problem: format!(
-                    "its {} bytes of values exceed the memory bound, and {problem}",
-                    count as u64 * size
-                ),
-            })?;
-            Values::Cached(Arc::new(BlockCache::new(disk, storage, shape, threads)))
         };
         Ok(Self {
             name,
-            path: Some(path.to_path_buf()),
+            path: None,
             grid,
             lights,
             views,
@@ -260,18 +306,20 @@ impl BtfTable {
         })
     }
 
-    /// Reads every texel of `disk` in order, `chunk` texels at a time.
+    /// Reads every texel of `source` in order, `chunk` texels at a time.
     fn for_blocks(
-        disk: &OnDiskBtf,
+        source: &dyn TexelSource,
         chunk: usize,
         mut f: impl FnMut(&[f32]),
-    ) -> Result<(), BtfFileError> {
-        let per_texel = disk.pairs() * 3;
-        let mut buf = vec![0.0f32; chunk.min(disk.texels()) * per_texel];
-        for first in (0..disk.texels()).step_by(chunk) {
-            let n = chunk.min(disk.texels() - first);
+    ) -> Result<(), SourceError> {
+        let per_texel = source.pairs() * 3;
+        let mut buf = vec![0.0f32; chunk.min(source.texels()) * per_texel];
+        for first in (0..source.texels()).step_by(chunk) {
+            let n = chunk.min(source.texels() - first);
             let block = &mut buf[..n * per_texel];
-            disk.read_block(first, block)?;
+            source
+                .read_texels(first, block)
+                .map_err(SourceError::Values)?;
             f(block);
         }
         Ok(())

@@ -25,6 +25,10 @@ pub trait TexelSource: Sync {
     fn pairs(&self) -> usize {
         self.light_dirs().len() * self.view_dirs().len()
     }
+    /// Whether every value is known to be an f16 without reading it (an F16 file).
+    fn values_are_f16(&self) -> bool {
+        false
+    }
 }
 
 impl TexelSource for Btf {

@@ -253,7 +253,10 @@ fn report_scene(
         .iter()
         .find_map(|t| t.read_error())
     {
-        return Err(CliError::failure(anyhow!("rendering `{}`: {e}", path.display())));
+        return Err(CliError::failure(anyhow!(
+            "rendering `{}`: {e}",
+            path.display()
+        )));
     }
     let e = image_errors(&r.btf, &r.pack).map_err(CliError::failure)?;
     let fit = image_errors(&r.btf, &r.tabulated).map_err(CliError::failure)?;

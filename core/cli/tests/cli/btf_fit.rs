@@ -552,8 +552,23 @@ fn report_fit_out_of_core_equals_the_report_held_whole() {
     let report = |out: &str, bound: &str| {
         let o = meso_with_env(
             &[
-                "report", "fit", &b, &p, "-o", out, "--scene", scene, "--width", "16", "--height",
-                "16", "--frames", "1", "--max-memory", bound, "--json",
+                "report",
+                "fit",
+                &b,
+                &p,
+                "-o",
+                out,
+                "--scene",
+                scene,
+                "--width",
+                "16",
+                "--height",
+                "16",
+                "--frames",
+                "1",
+                "--max-memory",
+                bound,
+                "--json",
             ],
             &[("RAYON_NUM_THREADS", "2")],
         );

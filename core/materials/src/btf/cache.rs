@@ -59,7 +59,8 @@ impl CacheShape {
     ) -> Result<Self, String> {
         // Under a tight bound, smaller blocks, so that a few stay resident besides
         // the workers' (down to one texel).
-        let target = block_bytes.min(max_bytes / (TRANSIENT_BLOCKS_PER_THREAD * threads.max(1) as u64 + MIN_RESIDENT));
+        let target = block_bytes
+            .min(max_bytes / (TRANSIENT_BLOCKS_PER_THREAD * threads.max(1) as u64 + MIN_RESIDENT));
         let texels_per_block = (target / texel_bytes.max(1)).clamp(1, texels as u64) as usize;
         let block = texels_per_block as u64 * texel_bytes;
         let transient = TRANSIENT_BLOCKS_PER_THREAD * threads.max(1) as u64 * block;
@@ -231,7 +232,11 @@ impl BlockCache {
         let block = t / self.shape.texels_per_block;
         let offset = (t - block * self.shape.texels_per_block) * self.values_per_texel;
         let (shard, local) = (block % self.shape.shards, block / self.shape.shards);
-        let lock = || self.shards[shard].lock().unwrap_or_else(PoisonError::into_inner);
+        let lock = || {
+            self.shards[shard]
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+        };
         if let Some(values) = lock().get(local) {
             return Some((values, offset));
         }
@@ -247,7 +252,10 @@ impl BlockCache {
 
     fn read(&self, block: usize) -> Option<Block> {
         let first = block * self.shape.texels_per_block;
-        let count = self.shape.texels_per_block.min(self.source.texels() - first);
+        let count = self
+            .shape
+            .texels_per_block
+            .min(self.source.texels() - first);
         let mut values = vec![0.0f32; count * self.values_per_texel];
         self.reads.fetch_add(1, Ordering::Relaxed);
         if let Err(e) = self.source.read_texels(first, &mut values) {

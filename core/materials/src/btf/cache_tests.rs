@@ -121,7 +121,10 @@ fn out_of_core_values_equal_the_in_memory_table_at_every_pair() {
         assert!(table.bytes() < whole.bytes() / 2, "{} bytes", table.bytes());
         for (t, wi, wo) in sweep(source, 0) {
             let (a, b) = (table.eval_texel(t, wi, wo), whole.eval_texel(t, wi, wo));
-            assert_eq!(a.to_array().map(f64::to_bits), b.to_array().map(f64::to_bits));
+            assert_eq!(
+                a.to_array().map(f64::to_bits),
+                b.to_array().map(f64::to_bits)
+            );
         }
         for t in 0..source.texels() {
             for (wi, wo) in between() {
@@ -211,7 +214,10 @@ fn bad_files_and_bounds_are_refused_naming_the_file_and_the_place() {
     bad[end - 4..].copy_from_slice(&f32::NAN.to_le_bytes());
     std::fs::write(&path, &bad).expect("write");
     let e = BtfTable::open(&path, bound).expect_err("NaN").to_string();
-    assert!(e.contains("s.btf") && e.contains("texel 15") && e.contains("not finite"), "{e}");
+    assert!(
+        e.contains("s.btf") && e.contains("texel 15") && e.contains("not finite"),
+        "{e}"
+    );
 
     // Cut short: refused at opening, naming the sizes.
     std::fs::write(&path, &good[..good.len() - 10]).expect("write");

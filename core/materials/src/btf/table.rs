@@ -53,9 +53,7 @@ enum TexelValues<'a> {
 impl TexelValues<'_> {
     fn rgb(&self, i: usize) -> DVec3 {
         match self {
-            TexelValues::F16(v) => {
-                DVec3::new(v[i].to_f64(), v[i + 1].to_f64(), v[i + 2].to_f64())
-            }
+            TexelValues::F16(v) => DVec3::new(v[i].to_f64(), v[i + 1].to_f64(), v[i + 2].to_f64()),
             TexelValues::F32(v) => DVec3::new(v[i] as f64, v[i + 1] as f64, v[i + 2] as f64),
         }
     }

@@ -109,8 +109,12 @@ weight = [0.6, 0.5, 0.2]
 "#;
     let setup =
         parse_recipe(recipe, std::path::Path::new("."), "weave.toml").expect("valid recipe");
-    let btf = synthesize(&setup, &std::sync::atomic::AtomicBool::new(false), &|_, _| {})
-        .expect("synthesis runs");
+    let btf = synthesize(
+        &setup,
+        &std::sync::atomic::AtomicBool::new(false),
+        &|_, _| {},
+    )
+    .expect("synthesis runs");
     let dir = tempfile::tempdir().expect("temp dir");
     let path = dir.path().join("weave.btf");
     write_btf(&path, &btf, BtfPrecision::F16).expect("write");

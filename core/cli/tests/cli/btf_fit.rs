@@ -2,7 +2,7 @@
 
 use crate::*;
 
-const SMALL_BTF_RECIPE: &str = r#"
+pub(crate) const SMALL_BTF_RECIPE: &str = r#"
 version = 1
 name = "small weave"
 width = 6

@@ -136,7 +136,8 @@ fn btf_materials_and_many_lights_are_supported() {
 }
 
 /// A BTF held out of core (larger than its memory bound) is refused by name, before
-/// any device is asked for: uploading it would hold it whole. Held whole, it goes.
+/// any device is asked for, and so is an edit that brings one: uploading it would hold
+/// it whole. Held whole, it goes.
 #[test]
 fn a_btf_read_out_of_core_is_refused_naming_the_material() {
     use meso_materials::btf::file::{BtfPrecision, write_btf};
@@ -173,4 +174,15 @@ fn a_btf_read_out_of_core_is_refused_naming_the_material() {
     assert!(e.contains(&name) && e.contains("--max-memory"), "{e}");
     scene.materials[0] = material(MemoryBound::default());
     crate::GpuSpmmMode::supports(&scene).expect("held whole");
+    // An edit that brings it to a running mode is refused the same way.
+    use meso_render::{RenderMode, SceneEdit};
+    let mut gpu = gpu_mode(scene, 8);
+    let e = gpu
+        .apply(SceneEdit::Material {
+            index: 0,
+            material: material(tight),
+        })
+        .expect_err("out of core")
+        .to_string();
+    assert!(e.contains(&name) && e.contains("--max-memory"), "{e}");
 }

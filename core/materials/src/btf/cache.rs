@@ -256,8 +256,20 @@ impl BlockCache {
             .shape
             .texels_per_block
             .min(self.source.texels() - first);
-        let mut values = vec![0.0f32; count * self.values_per_texel];
         self.reads.fetch_add(1, Ordering::Relaxed);
+        if self.storage == Storage::F16 {
+            // An F16 file: its values as stored, no f32 buffer.
+            let mut halves = vec![f16::ZERO; count * self.values_per_texel];
+            match self.source.read_texels_f16(first, &mut halves) {
+                Some(Ok(())) => return Some(Block::F16(halves.into_boxed_slice())),
+                Some(Err(e)) => {
+                    let _ = self.error.set(e);
+                    return None;
+                }
+                None => {}
+            }
+        }
+        let mut values = vec![0.0f32; count * self.values_per_texel];
         if let Err(e) = self.source.read_texels(first, &mut values) {
             let _ = self.error.set(e);
             return None;

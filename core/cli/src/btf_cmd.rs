@@ -11,6 +11,8 @@ use anyhow::anyhow;
 use clap::{Subcommand, ValueEnum};
 use glam::DVec3;
 use meso_materials::btf::crop::{self, TexelRect};
+use meso_materials::btf::on_disk::OnDiskBtf;
+use meso_materials::btf::texels::TexelSource;
 use meso_materials::btf::{self, Btf, directions, file, synth, ubo2003, ubo2014};
 use meso_materials::image::Image;
 use meso_materials::spmm::pack;
@@ -86,6 +88,10 @@ pub enum BtfCommand {
         /// Exposure in stops for PNG output.
         #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
         exposure: f64,
+        /// Most bytes of the BTF's values read at once (`256MB`, `4GB`; powers of
+        /// 1024): the file is read in blocks of texels this size, never whole.
+        #[arg(long, default_value = "256MB")]
+        max_memory: String,
     },
 }
 
@@ -127,14 +133,14 @@ pub fn run(command: BtfCommand) -> Result<(), CliError> {
             pack,
             scale,
             exposure,
+            max_memory,
         } => slice(
             &file,
             &output,
-            &light,
-            &view,
+            (&light, &view),
             pack.as_deref(),
-            scale,
-            exposure,
+            (scale, exposure),
+            &max_memory,
         ),
     }
 }
@@ -419,24 +425,59 @@ fn nearest(dirs: &[DVec3], d: DVec3) -> usize {
         .unwrap_or(0)
 }
 
+/// The BTF's value at light `l`, view `v` of every texel, read from disk in blocks of
+/// at most `max_memory` bytes of values (every value is read, so every one is checked
+/// finite, as loading the whole file would).
+fn slice_values(
+    b: &OnDiskBtf,
+    (l, v): (usize, usize),
+    max_memory: u64,
+) -> Result<Vec<[f32; 3]>, CliError> {
+    let per_texel = b.pairs() * 3;
+    let texel_bytes = per_texel as u64 * 4;
+    if max_memory < texel_bytes {
+        return Err(CliError::bad_input(anyhow!(
+            "--max-memory {max_memory} bytes cannot hold one texel of `{}` ({texel_bytes} bytes of values); at least that is needed",
+            b.path().display()
+        )));
+    }
+    let block = (max_memory / texel_bytes).min(b.texels() as u64) as usize;
+    let at = (l * b.view_dirs().len() + v) * 3;
+    let mut buf = vec![0.0f32; block * per_texel];
+    let mut out = Vec::with_capacity(b.texels());
+    for first in (0..b.texels()).step_by(block) {
+        let n = block.min(b.texels() - first);
+        let values = &mut buf[..n * per_texel];
+        b.read_block(first, values).map_err(CliError::bad_input)?;
+        out.extend(
+            values
+                .chunks_exact(per_texel)
+                .map(|t| [t[at], t[at + 1], t[at + 2]]),
+        );
+    }
+    Ok(out)
+}
+
 fn slice(
     path: &Path,
     output: &Path,
-    light: &str,
-    view: &str,
+    (light, view): (&str, &str),
     pack_path: Option<&Path>,
-    scale: u32,
-    exposure: f64,
+    (scale, exposure): (u32, f64),
+    max_memory: &str,
 ) -> Result<(), CliError> {
     if !(1..=64).contains(&scale) || !exposure.is_finite() {
         return Err(CliError::bad_input(anyhow!(
             "--scale must be in 1..=64 and --exposure finite"
         )));
     }
-    let b = load(path)?;
+    let max_memory = meso_fit::memory::parse_bytes(max_memory)
+        .map_err(|e| CliError::bad_input(anyhow!("--max-memory {e}")))?;
+    let b = OnDiskBtf::open(path).map_err(CliError::bad_input)?;
     let l = nearest(b.light_dirs(), parse_dir("light", light)?);
     let v = nearest(b.view_dirs(), parse_dir("view", view)?);
     let (wi, wo) = (b.light_dirs()[l], b.view_dirs()[v]);
+    let values = slice_values(&b, (l, v), max_memory)?;
     let material = match pack_path {
         Some(p) => {
             let m = pack::read_pack(p).map_err(CliError::bad_input)?;
@@ -462,7 +503,7 @@ fn slice(
     for y in 0..h {
         for x in 0..w {
             let t = ((y / scale) * b.width() + x / scale) as usize;
-            img.set(x, y, b.value(t, l, v));
+            img.set(x, y, values[t]);
             if let Some(m) = &material {
                 let off = m.eval_texel(t, wi, wo, false, 0);
                 let on = m.eval_texel(t, wi, wo, true, usize::MAX);

@@ -3,7 +3,8 @@
 //! scene's); `--json` reports time, frames,
 //! the mode and device, its counters (samples, shading points, rays by kind), rays
 //! per second, the preparation's stages, the film's bytes and dropped non-finite
-//! samples.
+//! samples. `--max-memory` bounds each `btf` material's values held in memory: a
+//! larger BTF is shaded from blocks read from its file through a bounded cache.
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -11,7 +12,8 @@ use std::time::Instant;
 
 use anyhow::anyhow;
 use clap::Args;
-use meso_render::scene::{RenderSettings, load_scene};
+use meso_materials::btf::table::{DEFAULT_MAX_MEMORY, MemoryBound};
+use meso_render::scene::{Material, RenderSettings, load_scene_within};
 use meso_render::{Denoiser, Pass, Prepare, run_frames};
 use serde_json::json;
 
@@ -48,12 +50,34 @@ pub struct RenderArgs {
     /// by normal, depth and albedo). Off by default: the image is the estimate itself.
     #[arg(long)]
     denoise: bool,
+    /// Most bytes of each `btf` material's values held in memory (`256MB`, `4GB`;
+    /// powers of 1024): a BTF within it is held whole, a larger one is read from its
+    /// file as it is shaded, through a cache of this size (CPU modes; the GPU refuses
+    /// it). Images are the same either way.
+    #[arg(long, default_value_t = default_max_memory())]
+    max_memory: String,
     #[arg(long)]
     json: bool,
 }
 
+fn default_max_memory() -> String {
+    format!("{}GB", DEFAULT_MAX_MEMORY >> 30)
+}
+
 pub fn run(args: &RenderArgs) -> Result<(), CliError> {
-    let mut scene = load_scene(&args.scene).map_err(CliError::bad_input)?;
+    let max_memory = meso_fit::memory::parse_bytes(&args.max_memory)
+        .map_err(|e| CliError::bad_input(anyhow!("--max-memory {e}")))?;
+    let mut scene = load_scene_within(&args.scene, MemoryBound::new(max_memory))
+        .map_err(CliError::bad_input)?;
+    // Out-of-core tables, to check after rendering that every block could be read.
+    let on_disk: Vec<_> = scene
+        .materials
+        .iter()
+        .filter_map(|m| match m {
+            Material::Btf { table, .. } if !table.is_resident() => Some(table.clone()),
+            _ => None,
+        })
+        .collect();
     if let Some(n) = args.light_samples {
         if let Some(p) = RenderSettings::light_samples_problem(n) {
             return Err(CliError::bad_input(anyhow!("--light-samples: {p}")));
@@ -117,6 +141,12 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
     if let Some(e) = mode.failure() {
         return Err(CliError::failure(anyhow!(e)));
     }
+    // A BTF file changed or damaged after it was opened shaded 0 where unreadable.
+    if let Some(e) = on_disk.iter().find_map(|t| t.read_error()) {
+        return Err(CliError::failure(anyhow!(
+            "a btf material's file could not be read while rendering: {e}"
+        )));
+    }
     let counters = run.counters;
     let rays = counters.rays;
     let trace_s = run.seconds;
@@ -172,6 +202,8 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
                 .collect::<serde_json::Map<String, serde_json::Value>>(),
             "traversal_overflows": mode.diagnostics().traversal_overflows(),
             "denoised": args.denoise,
+            "btf_out_of_core": on_disk.len(),
+            "btf_blocks_read": on_disk.iter().filter_map(|t| t.cache()).map(|c| c.reads()).sum::<u64>(),
         }));
     }
     println!(

@@ -3,7 +3,9 @@
 //! elsewhere, basis sum alone), then per scene the BTF and the pack rendered alike,
 //! their `meso compare` metrics, and a side-by-side PNG (BTF, pack, difference); and
 //! the image error split into the fit's part and the direction interpolation's, by a
-//! third render of the pack tabulated at the BTF's pairs.
+//! third render of the pack tabulated at the BTF's pairs. The BTF is read from disk in
+//! blocks and both it and the tabulation are shaded within `--max-memory` (each held
+//! whole within half of it, else read on demand through a bounded cache).
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -12,15 +14,16 @@ use std::time::Instant;
 use anyhow::anyhow;
 use clap::Args;
 use meso_materials::atomic::write_bytes_atomic;
-use meso_materials::btf::file::read_btf;
-use meso_materials::btf::table::BtfTable;
+use meso_materials::btf::on_disk::OnDiskBtf;
+use meso_materials::btf::table::{BtfTable, MemoryBound, SourceError};
+use meso_materials::btf::texels::TexelSource;
 use meso_materials::image::{write_exr, write_image};
 use meso_materials::spmm::SpmmMaterial;
 use meso_materials::spmm::pack::read_pack;
 use meso_render::scene::{RenderSettings, load_scene};
 use meso_reports::fidelity::{
-    ImageErrors, RenderRequest, TableErrors, image_errors, render_all, side_by_side, table_errors,
-    tabulate_pack,
+    ImageErrors, PackTabulation, RenderRequest, TableErrors, image_errors, render_all,
+    side_by_side, table_errors,
 };
 use serde_json::json;
 
@@ -59,6 +62,11 @@ pub struct FitReportArgs {
     /// Gain of the difference panel.
     #[arg(long, default_value_t = 4.0)]
     diff_gain: f32,
+    /// Most bytes of BTF values held at once (`256MB`, `4GB`; powers of 1024): half
+    /// for the BTF, half for the pack tabulated at its pairs, each held whole within
+    /// its half, else shaded from blocks read (or evaluated) on demand.
+    #[arg(long, default_value = "2GB")]
+    max_memory: String,
     #[arg(long)]
     json: bool,
 }
@@ -177,29 +185,43 @@ struct Inputs {
     tabulated: Arc<BtfTable>,
 }
 
-/// Reads the BTF and the pack and prepares `Inputs`; the BTF itself is not kept.
+/// Reads the pack, measures it against the BTF read in blocks, and opens the BTF and
+/// the pack's tabulation as tables within `--max-memory`.
 fn read_inputs(args: &FitReportArgs) -> Result<Inputs, CliError> {
-    let btf = read_btf(&args.btf).map_err(CliError::bad_input)?;
-    let pack = read_pack(&args.pack).map_err(CliError::bad_input)?;
+    let max_memory = meso_fit::memory::parse_bytes(&args.max_memory)
+        .map_err(|e| CliError::bad_input(anyhow!("--max-memory {e}")))?;
+    let disk = OnDiskBtf::open(&args.btf).map_err(CliError::bad_input)?;
+    let pack = Arc::new(read_pack(&args.pack).map_err(CliError::bad_input)?);
     let pack_bytes = std::fs::metadata(&args.pack)
         .failure_ctx(|| format!("reading `{}`", args.pack.display()))?
         .len();
-    let table = table_errors(&btf, &pack)
+    let texel_bytes = disk.pairs() as u64 * 3 * 4;
+    let block = max_memory / 2 / texel_bytes;
+    if block == 0 {
+        return Err(CliError::bad_input(anyhow!(
+            "--max-memory {max_memory} bytes: half of it cannot hold one texel of `{}` ({texel_bytes} bytes of values)",
+            args.btf.display()
+        )));
+    }
+    let table = table_errors(&disk, &pack, block as usize)
         .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", args.pack.display())))?;
-    let shaded = Arc::new(
-        BtfTable::new(&btf)
-            .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", args.btf.display())))?,
-    );
+    let half = MemoryBound::new(max_memory / 2);
+    let shaded = Arc::new(BtfTable::open(&args.btf, half).map_err(CliError::bad_input)?);
     // The pack at the BTF's pairs, shown as a BTF: the third render's material.
-    let tabulated = tabulate_pack(&btf, &pack)
+    let tabulation = PackTabulation::new(&disk, Arc::clone(&pack))
         .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", args.pack.display())))?;
-    let tabulated =
-        Arc::new(BtfTable::new(&tabulated).map_err(|e| {
-            CliError::failure(anyhow!("the pack tabulated at the BTF's pairs: {e}"))
-        })?);
-    drop(btf);
+    let tabulated = Arc::new(
+        BtfTable::from_source(Box::new(tabulation), half).map_err(|e| {
+            let message = anyhow!("the pack tabulated at the BTF's pairs: {e}");
+            match e {
+                // A bound too small is the user's to raise.
+                SourceError::Memory(_) => CliError::bad_input(anyhow!("--max-memory: {message}")),
+                _ => CliError::failure(message),
+            }
+        })?,
+    );
     Ok(Inputs {
-        pack: Arc::new(pack),
+        pack,
         pack_bytes,
         table,
         shaded,
@@ -226,6 +248,16 @@ fn report_scene(
         request,
     )
     .map_err(|e| CliError::bad_input(anyhow!("`{}`: {e}", path.display())))?;
+    // A block that could not be read shaded 0: the renders are wrong, say why.
+    if let Some(e) = [&inputs.shaded, &inputs.tabulated]
+        .iter()
+        .find_map(|t| t.read_error())
+    {
+        return Err(CliError::failure(anyhow!(
+            "rendering `{}`: {e}",
+            path.display()
+        )));
+    }
     let e = image_errors(&r.btf, &r.pack).map_err(CliError::failure)?;
     let fit = image_errors(&r.btf, &r.tabulated).map_err(CliError::failure)?;
     let interpolation = image_errors(&r.tabulated, &r.pack).map_err(CliError::failure)?;

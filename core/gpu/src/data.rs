@@ -218,8 +218,11 @@ impl Words {
     /// direction tables as the residual's), the values `[texel][light][view][rgb]`
     /// as they are held: f16 two to a word (low half first) or f32. Returns the
     /// header's offset.
+    /// Out-of-core tables never get here: `GpuSpmmMode::supports` refuses them.
     pub fn push_btf(&mut self, table: &BtfTable, uv_scale: glam::DVec2) -> u32 {
-        let p = table.parts();
+        let p = table
+            .parts()
+            .expect("GpuSpmmMode::supports refuses BTFs not held in memory");
         let start = self.words.len();
         let (values_at, half) = match p.values {
             BtfValues::F16(v) => (self.push_halves(v.iter().copied()), 1),

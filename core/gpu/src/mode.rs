@@ -158,29 +158,39 @@ const SLOTS: [Slot; 9] = [
     Slot::Read,
 ];
 
+/// Material `index` of `scene` (`m`) as a part the device cannot shade, if it is one.
+/// Exhaustive, so a new material kind cannot be added without saying here whether the
+/// device shades it. A BTF read out of core (larger than its memory bound) would have
+/// to be held whole to go up: refused, saying how to hold it whole.
+pub(crate) fn unshaded(scene: &Scene, index: usize, m: &Material) -> Option<Unrenderable> {
+    let shaded = match m {
+        Material::Brdf { .. }
+        | Material::Merl { .. }
+        | Material::Spmm { .. }
+        | Material::Mirror { .. } => true,
+        Material::Btf { table, .. } => table.is_resident(),
+    };
+    (!shaded).then(|| Unrenderable::Material {
+        index,
+        name: scene.material_name(index),
+        kind: match m {
+            Material::Btf { .. } => {
+                "btf larger than --max-memory, read from disk; a bound above its values uploads it whole"
+            }
+            _ => m.kind_name(),
+        },
+    })
+}
+
 impl GpuSpmmMode {
     /// What this mode cannot render in `scene`, each by name: nothing the CPU mode
     /// renders (what would not fit on the adapter is refused by size instead).
     pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
-        // Exhaustive, so a new material kind cannot be added without saying here
-        // whether the device shades it.
-        let shaded = |m: &Material| match m {
-            Material::Brdf { .. }
-            | Material::Merl { .. }
-            | Material::Spmm { .. }
-            | Material::Btf { .. }
-            | Material::Mirror { .. } => true,
-        };
         let parts = scene
             .materials
             .iter()
             .enumerate()
-            .filter(|(_, m)| !shaded(m))
-            .map(|(index, m)| Unrenderable::Material {
-                index,
-                name: scene.material_name(index),
-                kind: m.kind_name(),
-            })
+            .filter_map(|(index, m)| unshaded(scene, index, m))
             .collect();
         Unsupported::check(ModeKind::Spmm, Device::Gpu, parts)
     }

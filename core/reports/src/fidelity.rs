@@ -21,6 +21,7 @@ use serde::Serialize;
 use crate::regress::case::substitute;
 use meso_materials::btf::Btf;
 use meso_materials::btf::table::BtfTable;
+use meso_materials::btf::texels::TexelSource;
 use meso_materials::image::Image;
 use meso_materials::metrics::{MetricsError, compare};
 use meso_materials::spmm::SpmmMaterial;
@@ -64,13 +65,16 @@ pub enum FidelityError {
     Mode(String),
     #[error("{0}")]
     Metrics(String),
+    /// The BTF's values could not be read (the reader names the file and texel).
+    #[error("{0}")]
+    Read(String),
 }
 
 fn grazing(d: DVec3) -> bool {
     d.z < GRAZING_DEG.to_radians().cos()
 }
 
-fn check_grid(btf: &Btf, pack: &SpmmMaterial) -> Result<(), FidelityError> {
+fn check_grid(btf: &dyn TexelSource, pack: &SpmmMaterial) -> Result<(), FidelityError> {
     if (btf.width(), btf.height()) != (pack.width(), pack.height()) {
         return Err(FidelityError::GridMismatch {
             btf_width: btf.width(),
@@ -82,28 +86,36 @@ fn check_grid(btf: &Btf, pack: &SpmmMaterial) -> Result<(), FidelityError> {
     Ok(())
 }
 
-/// Table-space errors of `pack` against `btf` (same texel grid).
-pub fn table_errors(btf: &Btf, pack: &SpmmMaterial) -> Result<TableErrors, FidelityError> {
+/// Table-space errors of `pack` against `btf` (same texel grid), the BTF read
+/// `block_texels` texels at a time (`meso report fit --max-memory`). Each texel's sums
+/// are added up in texel order, so the result does not depend on the block size.
+pub fn table_errors(
+    btf: &dyn TexelSource,
+    pack: &SpmmMaterial,
+    block_texels: usize,
+) -> Result<TableErrors, FidelityError> {
     check_grid(btf, pack)?;
     let (lights, views) = (btf.light_dirs(), btf.view_dirs());
-    // Per texel: squared errors (grazing, elsewhere, basis only).
-    let sums = (0..btf.texels())
-        .into_par_iter()
-        .map(|t| {
-            let mut s = [0.0f64; 3];
-            for (l, &wi) in lights.iter().enumerate() {
-                for (v, &wo) in views.iter().enumerate() {
-                    let want = DVec3::from_array(btf.value(t, l, v).map(f64::from));
-                    let full = pack.eval_texel(t, wi, wo, true, usize::MAX);
-                    let basis = pack.eval_texel(t, wi, wo, false, 0);
-                    let e = (full - want).length_squared();
-                    s[if grazing(wi) || grazing(wo) { 0 } else { 1 }] += e;
-                    s[2] += (basis - want).length_squared();
-                }
-            }
-            s
-        })
-        .reduce(|| [0.0; 3], |a, b| [a[0] + b[0], a[1] + b[1], a[2] + b[2]]);
+    let per_texel = btf.pairs() * 3;
+    let block_texels = block_texels.clamp(1, btf.texels());
+    let mut buf = vec![0.0f32; block_texels * per_texel];
+    // Per texel: squared errors (grazing, elsewhere, basis only) and its values' sum.
+    let mut sums = Vec::with_capacity(btf.texels());
+    for first in (0..btf.texels()).step_by(block_texels) {
+        let n = block_texels.min(btf.texels() - first);
+        let block = &mut buf[..n * per_texel];
+        btf.read_texels(first, block).map_err(FidelityError::Read)?;
+        let mut part = Vec::new();
+        block
+            .par_chunks(per_texel)
+            .enumerate()
+            .map(|(i, values)| texel_sums(pack, lights, views, first + i, values))
+            .collect_into_vec(&mut part);
+        sums.extend(part);
+    }
+    let sums = sums.iter().fold([0.0f64; 4], |a, b| {
+        [a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3]]
+    });
     let graze_pairs = lights
         .iter()
         .flat_map(|&l| views.iter().map(move |&v| grazing(l) || grazing(v)))
@@ -111,7 +123,7 @@ pub fn table_errors(btf: &Btf, pack: &SpmmMaterial) -> Result<TableErrors, Fidel
         .count();
     let pairs = btf.pairs();
     let values = |pairs: usize| (btf.texels() * pairs * 3).max(1) as f64;
-    let mean = btf.mean_value();
+    let mean = sums[3] / values(pairs);
     let rel = |sum: f64, pairs: usize| (sum / values(pairs)).sqrt() / mean;
     Ok(TableErrors {
         mean_reflectance: mean,
@@ -129,6 +141,31 @@ pub fn table_errors(btf: &Btf, pack: &SpmmMaterial) -> Result<TableErrors, Fidel
         grazing_fraction: graze_pairs as f64 / pairs as f64,
         basis_relative_rmse: rel(sums[2], pairs),
     })
+}
+
+/// One texel's squared errors (grazing pairs, the others, the basis sum alone) and
+/// the sum of its values.
+fn texel_sums(
+    pack: &SpmmMaterial,
+    lights: &[DVec3],
+    views: &[DVec3],
+    t: usize,
+    values: &[f32],
+) -> [f64; 4] {
+    let mut s = [0.0f64; 4];
+    let pairs = lights
+        .iter()
+        .flat_map(|&wi| views.iter().map(move |&wo| (wi, wo)));
+    for ((wi, wo), rgb) in pairs.zip(values.chunks_exact(3)) {
+        let want = DVec3::new(rgb[0].into(), rgb[1].into(), rgb[2].into());
+        let full = pack.eval_texel(t, wi, wo, true, usize::MAX);
+        let basis = pack.eval_texel(t, wi, wo, false, 0);
+        let e = (full - want).length_squared();
+        s[if grazing(wi) || grazing(wo) { 0 } else { 1 }] += e;
+        s[2] += (basis - want).length_squared();
+        s[3] += want.x + want.y + want.z;
+    }
+    s
 }
 
 /// Image error of the pack's render against the BTF's.
@@ -187,31 +224,98 @@ fn render(scene: &Scene, r: &RenderRequest) -> Result<Image, FidelityError> {
     Ok(mode.image())
 }
 
-/// The pack (residual on, all its components) evaluated at every texel and direction
-/// pair of `btf`, as a BTF on the same grid and direction sets.
+/// The pack evaluated at a BTF's direction pairs, texel by texel on demand, as a
+/// `TexelSource`: what `tabulate_pack` holds whole, and what `meso report fit` shades
+/// as a `btf` material through a bounded cache when it exceeds `--max-memory`.
+pub struct PackTabulation {
+    name: String,
+    width: u32,
+    height: u32,
+    light_dirs: Vec<DVec3>,
+    view_dirs: Vec<DVec3>,
+    pack: Arc<SpmmMaterial>,
+}
+
+impl PackTabulation {
+    /// `pack` at the pairs of `btf` (same texel grid).
+    pub fn new(btf: &dyn TexelSource, pack: Arc<SpmmMaterial>) -> Result<Self, FidelityError> {
+        check_grid(btf, &pack)?;
+        Ok(Self {
+            name: format!("{} tabulated", btf.name()),
+            width: btf.width(),
+            height: btf.height(),
+            light_dirs: btf.light_dirs().to_vec(),
+            view_dirs: btf.view_dirs().to_vec(),
+            pack,
+        })
+    }
+}
+
+impl TexelSource for PackTabulation {
+    fn name(&self) -> &str {
+        &self.name
+    }
+    fn width(&self) -> u32 {
+        self.width
+    }
+    fn height(&self) -> u32 {
+        self.height
+    }
+    fn light_dirs(&self) -> &[DVec3] {
+        &self.light_dirs
+    }
+    fn view_dirs(&self) -> &[DVec3] {
+        &self.view_dirs
+    }
+    fn read_texels(&self, first: usize, out: &mut [f32]) -> Result<(), String> {
+        let per_texel = self.pairs() * 3;
+        if !out.len().is_multiple_of(per_texel) || first + out.len() / per_texel > self.texels() {
+            return Err(format!(
+                "{}: texels {first}..{} are outside its {} texels",
+                self.name,
+                first + out.len().div_ceil(per_texel),
+                self.texels()
+            ));
+        }
+        let (lights, views) = (&self.light_dirs, &self.view_dirs);
+        out.par_chunks_mut(per_texel)
+            .enumerate()
+            .for_each(|(i, out)| {
+                let pairs = lights
+                    .iter()
+                    .flat_map(|&wi| views.iter().map(move |&wo| (wi, wo)));
+                for ((wi, wo), rgb) in pairs.zip(out.chunks_exact_mut(3)) {
+                    let v = self.pack.eval_texel(first + i, wi, wo, true, usize::MAX);
+                    rgb.copy_from_slice(&v.to_array().map(|x| x as f32));
+                }
+            });
+        match out.iter().position(|x| !x.is_finite()) {
+            Some(i) => Err(format!(
+                "{}: value {} of texel {} is not finite",
+                self.name,
+                out[i],
+                first + i / per_texel
+            )),
+            None => Ok(()),
+        }
+    }
+}
+
+/// The pack evaluated at the BTF's direction pairs (residual on, every component),
+/// as a BTF of the same grid and directions, held whole.
 pub fn tabulate_pack(btf: &Btf, pack: &SpmmMaterial) -> Result<Btf, FidelityError> {
-    check_grid(btf, pack)?;
-    let (lights, views) = (btf.light_dirs(), btf.view_dirs());
-    let per_texel = lights.len() * views.len() * 3;
-    let mut data = vec![0.0f32; btf.texels() * per_texel];
-    data.par_chunks_mut(per_texel)
-        .enumerate()
-        .for_each(|(t, out)| {
-            let pairs = lights
-                .iter()
-                .flat_map(|&wi| views.iter().map(move |&wo| (wi, wo)));
-            for ((wi, wo), rgb) in pairs.zip(out.chunks_exact_mut(3)) {
-                let v = pack.eval_texel(t, wi, wo, true, usize::MAX);
-                rgb.copy_from_slice(&v.to_array().map(|x| x as f32));
-            }
-        });
+    let source = PackTabulation::new(btf, Arc::new(pack.clone()))?;
+    let mut data = vec![0.0f32; btf.texels() * btf.pairs() * 3];
+    source
+        .read_texels(0, &mut data)
+        .map_err(FidelityError::Mode)?;
     Btf::new(
-        format!("{} tabulated", btf.name()),
+        source.name,
         "a pack evaluated at a BTF's direction pairs (meso report fit)".into(),
         btf.width(),
         btf.height(),
-        lights.to_vec(),
-        views.to_vec(),
+        source.light_dirs,
+        source.view_dirs,
         data,
     )
     .map_err(|e| FidelityError::Mode(format!("the pack tabulated at the BTF's pairs: {e}")))
@@ -362,14 +466,14 @@ mod tests {
                 rgb.iter().map(move |x| x * k)
             })
             .collect();
-        let e = table_errors(&btf, &pack).expect("same grid");
+        let e = table_errors(&btf, &pack, 3).expect("same grid");
         assert!(e.relative_rmse < 1e-6, "{e:?}");
         assert!(
             e.basis_relative_rmse > 1e-3,
             "the residual matters here: {e:?}"
         );
         let bumped = Btf::new("b".into(), "b".into(), 4, 3, lights, views, bumped).expect("valid");
-        let e = table_errors(&bumped, &pack).expect("same grid");
+        let e = table_errors(&bumped, &pack, usize::MAX).expect("same grid");
         assert!(
             e.grazing_fraction > 0.0 && e.grazing_fraction < 1.0,
             "{e:?}"
@@ -383,7 +487,7 @@ mod tests {
         assert!((mix - e.relative_rmse).abs() < 1e-9 * mix.max(1.0), "{e:?}");
         let small = sample_material(2, 2, 1, None);
         assert!(matches!(
-            table_errors(&btf, &small),
+            table_errors(&btf, &small, 1),
             Err(FidelityError::GridMismatch { .. })
         ));
         assert!(matches!(

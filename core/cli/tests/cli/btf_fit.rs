@@ -2,7 +2,7 @@
 
 use crate::*;
 
-const SMALL_BTF_RECIPE: &str = r#"
+pub(crate) const SMALL_BTF_RECIPE: &str = r#"
 version = 1
 name = "small weave"
 width = 6
@@ -473,4 +473,144 @@ fn fit_in_shards_merges_to_the_unsharded_pack_and_refuses_odd_parts() {
         &["--max-memory 1048576 bytes", "--sample-texels"],
     );
     assert!(!std::path::Path::new(&refused).exists());
+}
+
+/// `meso btf slice` reads the BTF in blocks of `--max-memory`: one texel at a time
+/// gives the same image as the whole file in one block, and both hold the BTF's own
+/// values at the pair; a bound under one texel, or a damaged file, is named.
+#[test]
+fn slices_read_in_blocks_equal_the_btf_held_whole() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let recipe = dir.path().join("weave.toml");
+    std::fs::write(&recipe, SMALL_BTF_RECIPE).expect("write recipe");
+    let btf = dir.path().join("weave.btf");
+    let (r, b) = (
+        recipe.to_str().expect("utf-8"),
+        btf.to_str().expect("utf-8"),
+    );
+    assert_ok(&meso(&["btf", "synth", r, "-o", b], ""));
+    let whole = meso_materials::btf::file::read_btf(&btf).expect("read");
+    // 9 x 9 pairs, RGB, f32: one texel's values.
+    let texel = (whole.pairs() * 3 * 4).to_string();
+    let slice = |name: &str, bound: &str| {
+        let out = dir.path().join(name);
+        let o = meso(
+            &[
+                "btf",
+                "slice",
+                b,
+                "-o",
+                out.to_str().expect("utf-8"),
+                "--light",
+                "45,90",
+                "--view",
+                "70,0",
+                "--scale",
+                "1",
+                "--max-memory",
+                bound,
+            ],
+            "",
+        );
+        (o, out)
+    };
+    let (o, one) = slice("one.exr", &texel);
+    assert_ok(&o);
+    let (o, all) = slice("all.exr", "1GB");
+    assert_ok(&o);
+    assert_eq!(
+        std::fs::read(&one).expect("exr"),
+        std::fs::read(&all).expect("exr")
+    );
+    let image = meso_materials::image::read_image(&one).expect("exr");
+    let dirs = meso_materials::btf::directions::from_angles_deg;
+    let nearest = |set: &[glam::DVec3], d: glam::DVec3| {
+        (0..set.len())
+            .max_by(|&a, &b| set[a].dot(d).total_cmp(&set[b].dot(d)))
+            .expect("directions")
+    };
+    let l = nearest(whole.light_dirs(), dirs(45.0, 90.0));
+    let v = nearest(whole.view_dirs(), dirs(70.0, 0.0));
+    for t in 0..whole.texels() {
+        let (x, y) = ((t % 6) as u32, (t / 6) as u32);
+        assert_eq!(image.get(x, y), whole.value(t, l, v), "texel {t}");
+    }
+    let smaller = (whole.pairs() * 3 * 4 - 1).to_string();
+    assert_bad_input(&slice("no.exr", &smaller).0, &["--max-memory", "one texel"]);
+    // Damaged: the file cut short is named with the sizes that disagree.
+    let bytes = std::fs::read(&btf).expect("btf");
+    std::fs::write(&btf, &bytes[..bytes.len() - 2]).expect("write");
+    assert_bad_input(&slice("cut.exr", "1GB").0, &["weave.btf", "the file has"]);
+}
+
+/// `meso report fit` with a bound far under the BTF's values (both the BTF and the
+/// pack's tabulation shaded from blocks on demand, the table errors read a texel at a
+/// time) writes the same images and figures as with both held whole.
+#[test]
+fn report_fit_out_of_core_equals_the_report_held_whole() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let recipe = dir.path().join("weave.toml");
+    std::fs::write(&recipe, SMALL_BTF_RECIPE).expect("write recipe");
+    let path = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_string();
+    let (b, p) = (path("weave.btf"), path("weave.spmm"));
+    assert_ok(&meso(
+        &["btf", "synth", recipe.to_str().expect("utf-8"), "-o", &b],
+        "",
+    ));
+    assert_ok(&meso(
+        &["fit", &b, "-o", &p, "--clusters", "2", "--npca", "2"],
+        "",
+    ));
+    let scene = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../tests/scenes/fit_grazing.toml"
+    );
+    let report = |out: &str, bound: &str| {
+        let o = meso_with_env(
+            &[
+                "report",
+                "fit",
+                &b,
+                &p,
+                "-o",
+                out,
+                "--scene",
+                scene,
+                "--width",
+                "16",
+                "--height",
+                "16",
+                "--frames",
+                "1",
+                "--max-memory",
+                bound,
+                "--json",
+            ],
+            &[("RAYON_NUM_THREADS", "2")],
+        );
+        assert_ok(&o);
+        let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+        v
+    };
+    // 36 texels of 81 pairs: 17.5 KB as f16, 35 KB as f32; 20 KB is 10 KB a table.
+    let (whole, out_whole) = (report(&path("whole"), "1GB"), path("whole"));
+    let (ooc, out_ooc) = (report(&path("ooc"), "20KB"), path("ooc"));
+    assert!(
+        whole["btf_resident_bytes"].as_u64() > ooc["btf_resident_bytes"].as_u64(),
+        "{whole} {ooc}"
+    );
+    for key in [
+        "table_relative_rmse",
+        "table_basis_relative_rmse",
+        "mean_reflectance",
+        "image_relative_rmse",
+        "fit_image_relative_rmse",
+    ] {
+        assert_eq!(whole[key], ooc[key], "{key}");
+    }
+    for file in ["btf", "pack", "tabulated"] {
+        let f = format!("fit_grazing_{file}.exr");
+        let read = |d: &str| std::fs::read(std::path::Path::new(d).join(&f)).expect("exr");
+        assert!(read(&out_whole) == read(&out_ooc), "{f}");
+    }
 }

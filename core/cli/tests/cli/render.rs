@@ -376,3 +376,74 @@ fn render_on_the_gpu_reports_device_memory_and_no_adapter_is_exit_2() {
     assert!(v["rays"]["shadow"].as_u64().expect("count") > 0);
     assert!(out.exists());
 }
+
+/// `meso render --max-memory`: a `btf` material larger than the bound is shaded from
+/// its file through the bounded cache and gives the same image bytes as held whole;
+/// a bound too small for the cache or not a byte count is exit 2 naming it.
+#[test]
+fn render_reads_a_btf_larger_than_max_memory_from_disk_with_the_same_image() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let recipe = dir.path().join("weave.toml");
+    std::fs::write(&recipe, crate::btf_fit::SMALL_BTF_RECIPE).expect("write recipe");
+    let btf = dir.path().join("weave.btf");
+    assert_ok(&meso(
+        &[
+            "btf",
+            "synth",
+            recipe.to_str().expect("utf-8"),
+            "-o",
+            btf.to_str().expect("utf-8"),
+        ],
+        "",
+    ));
+    let grazing = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../tests/scenes/fit_grazing.toml"
+    ))
+    .expect("scene");
+    let scene = dir.path().join("btf.toml");
+    std::fs::write(
+        &scene,
+        grazing.replace(
+            "kind = \"spmm\"\npack = \"../../materials/leather.spmm\"",
+            "kind = \"btf\"\npath = \"weave.btf\"",
+        ),
+    )
+    .expect("write scene");
+    let render = |name: &str, bound: &str| {
+        let out = dir.path().join(name);
+        let o = meso_with_env(
+            &[
+                "render",
+                scene.to_str().expect("utf-8"),
+                "-o",
+                out.to_str().expect("utf-8"),
+                "--width",
+                "24",
+                "--height",
+                "24",
+                "--frames",
+                "2",
+                "--max-memory",
+                bound,
+                "--json",
+            ],
+            &[("RAYON_NUM_THREADS", "2")],
+        );
+        (o, out)
+    };
+    let (o, whole) = render("whole.exr", "2GB");
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    assert_eq!(v["btf_out_of_core"], 0);
+    // 36 texels of 81 pairs as f16, 17.5 KB: 8 KB holds 8 one-texel blocks besides
+    // two workers' 4 each.
+    let (o, ooc) = render("ooc.exr", "8KB");
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    assert_eq!(v["btf_out_of_core"], 1);
+    assert!(v["btf_blocks_read"].as_u64() > Some(8), "{v}");
+    assert!(std::fs::read(&whole).expect("exr") == std::fs::read(&ooc).expect("exr"));
+    assert_bad_input(&render("no.exr", "2KB").0, &["weave.btf", "at least"]);
+    assert_bad_input(&render("no.exr", "lots").0, &["--max-memory", "lots"]);
+}

@@ -5,6 +5,11 @@ use super::*;
 
 impl GpuSpmmMode {
     pub(super) fn apply_edit(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
+        if let SceneEdit::Material { index, material } = &edit
+            && let Some(part) = unshaded(&self.core.scene, *index, material)
+        {
+            Unsupported::check(ModeKind::Spmm, Device::Gpu, vec![part])?;
+        }
         let env_words = match &edit {
             SceneEdit::Environment(e) => {
                 environment::word_count(e.as_ref(), &self.core.scene.background)

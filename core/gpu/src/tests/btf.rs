@@ -134,3 +134,55 @@ fn btf_materials_and_many_lights_are_supported() {
     bare.meshes.retain(|m| m.material != 0);
     assert_eq!(gpu_mode(bare, 8).device_bytes().btf_tables, 0);
 }
+
+/// A BTF held out of core (larger than its memory bound) is refused by name, before
+/// any device is asked for, and so is an edit that brings one: uploading it would hold
+/// it whole. Held whole, it goes.
+#[test]
+fn a_btf_read_out_of_core_is_refused_naming_the_material() {
+    use meso_materials::btf::file::{BtfPrecision, write_btf};
+    use meso_materials::btf::table::{BtfTable, MemoryBound};
+    let dirs = meso_materials::btf::directions::rings(&[(0.0, 1), (45.0, 4)]);
+    let btf = meso_materials::btf::Btf::from_brdf(
+        &AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
+        DVec3::splat(0.5),
+        8,
+        8,
+        dirs.clone(),
+        dirs,
+    )
+    .expect("valid BTF");
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("l.btf");
+    write_btf(&path, &btf, BtfPrecision::F32).expect("write");
+    let texel = (btf.pairs() * 3 * 4) as u64;
+    let tight = MemoryBound {
+        max_bytes: 8 * texel,
+        block_bytes: texel,
+        threads: 1,
+    };
+    let mut scene = test_scene("cornell.toml");
+    let material = |bound| meso_render::scene::Material::Btf {
+        table: std::sync::Arc::new(BtfTable::open(&path, bound).expect("opens")),
+        uv_scale: glam::DVec2::ONE,
+    };
+    scene.materials[0] = material(tight);
+    let e = crate::GpuSpmmMode::supports(&scene)
+        .expect_err("out of core")
+        .to_string();
+    let name = scene.material_name(0);
+    assert!(e.contains(&name) && e.contains("--max-memory"), "{e}");
+    scene.materials[0] = material(MemoryBound::default());
+    crate::GpuSpmmMode::supports(&scene).expect("held whole");
+    // An edit that brings it to a running mode is refused the same way.
+    use meso_render::{RenderMode, SceneEdit};
+    let mut gpu = gpu_mode(scene, 8);
+    let e = gpu
+        .apply(SceneEdit::Material {
+            index: 0,
+            material: material(tight),
+        })
+        .expect_err("out of core")
+        .to_string();
+    assert!(e.contains(&name) && e.contains("--max-memory"), "{e}");
+}

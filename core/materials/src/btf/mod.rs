@@ -7,8 +7,11 @@
 //! shades it (the scene's `btf` material). `ubo2003.rs` and `ubo2014.rs` read the
 //! University of Bonn's database formats (zips of JPEGs, factorised binaries) and
 //! `crop.rs` keeps an import within memory. `texels.rs` is where a fit reads texels
-//! from, `on_disk.rs` a `.btf` read block by block (BTFs larger than memory). Fitting them lives in `fit`.
+//! from, `on_disk.rs` a `.btf` read block by block (BTFs larger than memory) and
+//! `cache.rs` the bounded cache of its blocks an out-of-core table shades from.
+//! Fitting them lives in `fit`.
 
+pub mod cache;
 pub mod crop;
 pub mod directions;
 pub mod file;

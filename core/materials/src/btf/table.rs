@@ -8,11 +8,24 @@
 //! cosine like every SPMM basis. Values are held as f16 when that is lossless (every
 //! value of the file is an f16, as `meso btf synth` writes them), halving the memory
 //! (a 64x64 x 81x81 BTF: 161 MB instead of 322 MB); otherwise as f32.
+//!
+//! `BtfTable::open` reads a `.btf` within a memory bound: values that fit are held
+//! whole, as `new` holds them; larger ones stay on disk and are read a block of texels
+//! at a time through a bounded cache (`cache.rs`), in the same precision, so both
+//! shade bit-identically. Opening scans every value once either way (finite, and for
+//! an F32 file whether all are f16), so a bad value is refused before shading starts.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use glam::{DVec2, DVec3};
 use half::f16;
 
 use super::Btf;
+use super::cache::{BLOCK_BYTES, Block, BlockCache, BlockSource, CacheShape};
+use super::file::BtfFileError;
+use super::on_disk::OnDiskBtf;
+use super::texels::TexelSource;
 use crate::spmm::TexelGrid;
 use crate::spmm::directions::{DirectionTable, DirectionTableError};
 
@@ -27,6 +40,86 @@ pub enum Storage {
 enum Values {
     F16(Vec<f16>),
     F32(Vec<f32>),
+    /// On disk, read through a bounded cache (values too large for the bound).
+    Cached(Arc<BlockCache>),
+}
+
+/// One texel's values: `L * V * 3`, light-major then view, RGB.
+enum TexelValues<'a> {
+    F16(&'a [f16]),
+    F32(&'a [f32]),
+}
+
+impl TexelValues<'_> {
+    fn rgb(&self, i: usize) -> DVec3 {
+        match self {
+            TexelValues::F16(v) => DVec3::new(v[i].to_f64(), v[i + 1].to_f64(), v[i + 2].to_f64()),
+            TexelValues::F32(v) => DVec3::new(v[i] as f64, v[i + 1] as f64, v[i + 2] as f64),
+        }
+    }
+}
+
+/// `BtfTable::open`'s default bound: 2 GiB (a 64x64 Bonn BTF, 161 MB, stays whole;
+/// a 256x256 one, 2.6 GB as f16, is read on demand).
+pub const DEFAULT_MAX_MEMORY: u64 = 2 << 30;
+/// Bytes of values read at once while opening.
+const SCAN_BYTES: usize = 16 << 20;
+
+/// How much of a BTF's values `BtfTable::open` may hold: values up to `max_bytes`
+/// (in the precision held) are held whole, larger ones through a cache of blocks of
+/// about `block_bytes` whose resident blocks and those in flight in `threads`
+/// shading workers stay within `max_bytes`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MemoryBound {
+    pub max_bytes: u64,
+    pub block_bytes: u64,
+    pub threads: usize,
+}
+
+impl MemoryBound {
+    /// `max_bytes` with the default block size, for rayon's worker count.
+    pub fn new(max_bytes: u64) -> Self {
+        Self {
+            max_bytes,
+            block_bytes: BLOCK_BYTES,
+            threads: rayon::current_num_threads(),
+        }
+    }
+}
+
+impl Default for MemoryBound {
+    fn default() -> Self {
+        Self::new(DEFAULT_MAX_MEMORY)
+    }
+}
+
+/// Why `BtfTable::open` cannot shade a `.btf`: the file (naming it and the part), its
+/// directions, or a bound too small for the cache.
+#[derive(Debug, thiserror::Error)]
+pub enum BtfOpenError {
+    #[error(transparent)]
+    File(#[from] BtfFileError),
+    #[error("{}: {source}", path.display())]
+    Table {
+        path: PathBuf,
+        source: BtfTableError,
+    },
+    #[error("{}: {problem}", path.display())]
+    Memory { path: PathBuf, problem: String },
+    /// A value the scan refused, as the reader names it (file and texel).
+    #[error("{0}")]
+    Values(String),
+}
+
+/// Why `BtfTable::from_source` cannot shade a source's values.
+#[derive(Debug, thiserror::Error)]
+pub enum SourceError {
+    #[error(transparent)]
+    Table(BtfTableError),
+    #[error("{0}")]
+    Values(String),
+    #[error("{0}")]
+    Memory(String),
 }
 
 /// Why a BTF cannot be shaded with.
@@ -58,6 +151,8 @@ pub enum BtfValues<'a> {
 #[derive(Clone, Debug)]
 pub struct BtfTable {
     name: String,
+    /// The file opened (`open`); None when built from a `Btf` in memory.
+    path: Option<PathBuf>,
     grid: TexelGrid,
     lights: DirectionTable,
     views: DirectionTable,
@@ -83,6 +178,7 @@ impl BtfTable {
         };
         Ok(Self {
             name: btf.name().to_string(),
+            path: None,
             grid: TexelGrid {
                 width: btf.width(),
                 height: btf.height(),
@@ -95,8 +191,160 @@ impl BtfTable {
         })
     }
 
+    /// Opens `path` within `bound` (see the module comment): the values held whole
+    /// when they fit, else read through a cache; the same values either way.
+    pub fn open(path: &Path, bound: MemoryBound) -> Result<Self, BtfOpenError> {
+        let disk = OnDiskBtf::open(path)?;
+        let mut table = Self::from_source(Box::new(disk), bound).map_err(|e| match e {
+            SourceError::Table(source) => BtfOpenError::Table {
+                path: path.to_path_buf(),
+                source,
+            },
+            // The on-disk reader's messages name the file and the texel.
+            SourceError::Values(problem) => BtfOpenError::Values(problem),
+            SourceError::Memory(problem) => BtfOpenError::Memory {
+                path: path.to_path_buf(),
+                problem,
+            },
+        })?;
+        table.path = Some(path.to_path_buf());
+        Ok(table)
+    }
+
+    /// A table of `source`'s values within `bound`, as `open` makes of a file:
+    /// every value read once to check it and choose f16 or f32 as `new` does, then
+    /// held whole if it fits, else read again block by block as shaded.
+    pub fn from_source(source: BlockSource, bound: MemoryBound) -> Result<Self, SourceError> {
+        let table = |part, dirs: &[DVec3]| {
+            DirectionTable::new(dirs)
+                .map_err(|source| SourceError::Table(BtfTableError::Directions { part, source }))
+        };
+        let lights = table("light_dirs", source.light_dirs())?;
+        let views = table("view_dirs", source.view_dirs())?;
+        let name = source.name().to_string();
+        let grid = TexelGrid {
+            width: source.width(),
+            height: source.height(),
+        };
+        let (light_dirs, view_dirs) = (source.light_dirs().to_vec(), source.view_dirs().to_vec());
+        let per_texel = source.pairs() * 3;
+        let count = source.texels() * per_texel;
+        let chunk = (SCAN_BYTES / (per_texel * 4)).max(1);
+        let f32_bytes = count as u64 * 4;
+        let values = if source.values_are_f16() && count as u64 * 2 <= bound.max_bytes {
+            // Values that are f16 already (an F16 file): held as f16, read once.
+            let mut halves: Vec<f16> = Vec::with_capacity(count);
+            Self::for_blocks(&*source, chunk, |block| {
+                halves.extend(block.iter().map(|&x| f16::from_f32(x)));
+            })?;
+            Values::F16(halves)
+        } else if !source.values_are_f16() && f32_bytes <= bound.max_bytes {
+            // Read once (a computed source is costly to read twice); when every value
+            // is an f16 the f32 copy briefly sits beside the f16 one (1.5 times the
+            // values, within 1.5 times the bound).
+            let mut values = Vec::with_capacity(count);
+            Self::for_blocks(&*source, chunk, |block| values.extend_from_slice(block))?;
+            if values.iter().all(|&x| f16::from_f32(x).to_f32() == x) {
+                Values::F16(values.iter().map(|&x| f16::from_f32(x)).collect())
+            } else {
+                Values::F32(values)
+            }
+        } else {
+            // Out of core. The scan reads every value once (the source checks each
+            // finite) and, unless they are known f16, finds whether all are.
+            let mut lossless = true;
+            Self::for_blocks(&*source, chunk, |block| {
+                if lossless && !source.values_are_f16() {
+                    lossless = block.iter().all(|&x| f16::from_f32(x).to_f32() == x);
+                }
+            })?;
+            let (storage, size) = if lossless {
+                (Storage::F16, 2)
+            } else {
+                (Storage::F32, 4)
+            };
+            if count as u64 * size <= bound.max_bytes {
+                // All f16 after all, and they fit as such: held whole.
+                let mut halves: Vec<f16> = Vec::with_capacity(count);
+                Self::for_blocks(&*source, chunk, |block| {
+                    halves.extend(block.iter().map(|&x| f16::from_f32(x)));
+                })?;
+                Values::F16(halves)
+            } else {
+                let shape = CacheShape::fit(
+                    per_texel as u64 * size,
+                    source.texels(),
+                    bound.max_bytes,
+                    bound.block_bytes,
+                    bound.threads,
+                )
+                .map_err(|problem| {
+                    SourceError::Memory(format!(
+                        "its {} bytes of values exceed the memory bound, and {problem}",
+                        count as u64 * size
+                    ))
+                })?;
+                Values::Cached(Arc::new(BlockCache::new(
+                    source,
+                    storage,
+                    shape,
+                    bound.threads,
+                )))
+            }
+        };
+        Ok(Self {
+            name,
+            path: None,
+            grid,
+            lights,
+            views,
+            light_dirs,
+            view_dirs,
+            values,
+        })
+    }
+
+    /// Reads every texel of `source` in order, `chunk` texels at a time.
+    fn for_blocks(
+        source: &dyn TexelSource,
+        chunk: usize,
+        mut f: impl FnMut(&[f32]),
+    ) -> Result<(), SourceError> {
+        let per_texel = source.pairs() * 3;
+        let mut buf = vec![0.0f32; chunk.min(source.texels()) * per_texel];
+        for first in (0..source.texels()).step_by(chunk) {
+            let n = chunk.min(source.texels() - first);
+            let block = &mut buf[..n * per_texel];
+            source
+                .read_texels(first, block)
+                .map_err(SourceError::Values)?;
+            f(block);
+        }
+        Ok(())
+    }
+
     pub fn name(&self) -> &str {
         &self.name
+    }
+    /// The file it was opened from, if any.
+    pub fn path(&self) -> Option<&Path> {
+        self.path.as_deref()
+    }
+    /// Whether every value is held in memory (else read through a cache).
+    pub fn is_resident(&self) -> bool {
+        !matches!(self.values, Values::Cached(_))
+    }
+    /// The cache an out-of-core table reads through.
+    pub fn cache(&self) -> Option<&BlockCache> {
+        match &self.values {
+            Values::Cached(c) => Some(c),
+            _ => None,
+        }
+    }
+    /// The first block that could not be read while shading (the file changed after
+    /// opening): its texels shaded as 0, so a render that used it is wrong.
+    pub fn read_error(&self) -> Option<&str> {
+        self.cache().and_then(BlockCache::error)
     }
     pub fn width(&self) -> u32 {
         self.grid.width
@@ -111,24 +359,28 @@ impl BtfTable {
         &self.view_dirs
     }
     pub fn storage(&self) -> Storage {
-        match self.values {
+        match &self.values {
             Values::F16(_) => Storage::F16,
             Values::F32(_) => Storage::F32,
+            Values::Cached(c) => c.storage(),
         }
     }
-    /// Bytes of the values held.
+    /// Bytes of the values held in memory: all of them, or at most the cache's bound.
     pub fn bytes(&self) -> usize {
         match &self.values {
             Values::F16(v) => v.len() * 2,
             Values::F32(v) => v.len() * 4,
+            Values::Cached(c) => c.bytes() as usize,
         }
     }
-
-    fn rgb(&self, i: usize) -> DVec3 {
-        match &self.values {
-            Values::F16(v) => DVec3::new(v[i].to_f64(), v[i + 1].to_f64(), v[i + 2].to_f64()),
-            Values::F32(v) => DVec3::new(v[i] as f64, v[i + 1] as f64, v[i + 2] as f64),
-        }
+    /// Bytes of all the values in the precision held, resident or not.
+    pub fn value_bytes(&self) -> u64 {
+        let n = self.grid.width as u64 * self.grid.height as u64;
+        let size = match self.storage() {
+            Storage::F16 => 2,
+            Storage::F32 => 4,
+        };
+        n * (self.lights.len() * self.views.len() * 3) as u64 * size
     }
 
     /// BTF(t, wi, wo), RGB, for texel `t` (row-major), unit `wi`, `wo` in the tangent
@@ -137,7 +389,25 @@ impl BtfTable {
         if wi.z <= 0.0 || wo.z <= 0.0 {
             return DVec3::ZERO;
         }
-        let (nl, nv) = (self.lights.len(), self.views.len());
+        let n = self.lights.len() * self.views.len() * 3;
+        match &self.values {
+            Values::F16(v) => self.eval_values(TexelValues::F16(&v[t * n..][..n]), wi, wo),
+            Values::F32(v) => self.eval_values(TexelValues::F32(&v[t * n..][..n]), wi, wo),
+            Values::Cached(c) => match c.texel(t) {
+                Some((block, at)) => match &*block {
+                    Block::F16(v) => self.eval_values(TexelValues::F16(&v[at..][..n]), wi, wo),
+                    Block::F32(v) => self.eval_values(TexelValues::F32(&v[at..][..n]), wi, wo),
+                },
+                // Unreadable (kept in `read_error`, which the renderer reports).
+                None => DVec3::ZERO,
+            },
+        }
+    }
+
+    /// The interpolation over one texel's values (one routine for every way the
+    /// values are held, so they shade bit-identically).
+    fn eval_values(&self, values: TexelValues<'_>, wi: DVec3, wo: DVec3) -> DVec3 {
+        let nv = self.views.len();
         let vw = self.views.weights(wo);
         let mut rgb = DVec3::ZERO;
         for (l, wl) in self.lights.cosine_weights(wi) {
@@ -147,7 +417,7 @@ impl BtfTable {
             for &(v, wv) in &vw {
                 let w = wl * wv;
                 if w != 0.0 {
-                    rgb += w * self.rgb(((t * nl + l as usize) * nv + v as usize) * 3);
+                    rgb += w * values.rgb((l as usize * nv + v as usize) * 3);
                 }
             }
         }
@@ -165,9 +435,10 @@ impl BtfTable {
 
     /// The tables and values as they are held, for a device that uploads them
     /// (`gpu`): the texel grid, the light and view interpolation tables, and the
-    /// values `[texel][light][view][rgb]` as f16 bits or f32.
-    pub fn parts(&self) -> BtfTableParts<'_> {
-        BtfTableParts {
+    /// values `[texel][light][view][rgb]` as f16 bits or f32; None when the values
+    /// are not held in memory (`is_resident`).
+    pub fn parts(&self) -> Option<BtfTableParts<'_>> {
+        Some(BtfTableParts {
             width: self.grid.width,
             height: self.grid.height,
             lights: &self.lights,
@@ -175,8 +446,9 @@ impl BtfTable {
             values: match &self.values {
                 Values::F16(v) => BtfValues::F16(v),
                 Values::F32(v) => BtfValues::F32(v),
+                Values::Cached(_) => return None,
             },
-        }
+        })
     }
 }
 

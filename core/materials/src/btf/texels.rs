@@ -25,6 +25,15 @@ pub trait TexelSource: Sync {
     fn pairs(&self) -> usize {
         self.light_dirs().len() * self.view_dirs().len()
     }
+    /// Whether every value is known to be an f16 without reading it (an F16 file).
+    fn values_are_f16(&self) -> bool {
+        false
+    }
+    /// `read_texels` into f16 values, for a source that holds them so (an F16 file);
+    /// None for one that does not.
+    fn read_texels_f16(&self, _first: usize, _out: &mut [half::f16]) -> Option<Result<(), String>> {
+        None
+    }
 }
 
 impl TexelSource for Btf {

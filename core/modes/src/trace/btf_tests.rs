@@ -73,3 +73,87 @@ fn a_btf_of_a_lambertian_renders_like_the_brdf_at_any_incidence() {
         );
     }
 }
+
+/// A woven BTF read from disk through a cache of a few blocks (far smaller than its
+/// values, so the renderer's workers keep evicting and re-reading blocks) renders
+/// bit for bit like the same file held whole.
+#[test]
+fn an_out_of_core_btf_renders_bit_for_bit_like_the_btf_held_whole() {
+    use meso_materials::btf::file::{BtfPrecision, write_btf};
+    use meso_materials::btf::synth::{parse_recipe, synthesize};
+    use meso_materials::btf::table::{BtfTable, MemoryBound};
+    use std::sync::Arc;
+    let recipe = r#"
+version = 1
+name = "weave"
+width = 8
+height = 8
+direction_rings = [[0.0, 1], [30.0, 6], [60.0, 8]]
+detail = 4
+supersample = 1
+[mesostructure]
+kind = "weave"
+depth = 2.0
+threads = 4
+[[region]]
+name = "warp"
+[[region.lobe]]
+model = "lambertian"
+weight = [0.1, 0.2, 0.6]
+[[region]]
+name = "weft"
+[[region.lobe]]
+model = "ward"
+params = { ax = 0.3, ay = 0.1 }
+weight = [0.6, 0.5, 0.2]
+"#;
+    let setup =
+        parse_recipe(recipe, std::path::Path::new("."), "weave.toml").expect("valid recipe");
+    let btf = synthesize(
+        &setup,
+        &std::sync::atomic::AtomicBool::new(false),
+        &|_, _| {},
+    )
+    .expect("synthesis runs");
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("weave.btf");
+    write_btf(&path, &btf, BtfPrecision::F16).expect("write");
+    let texel_bytes = (btf.pairs() * 3 * 2) as u64;
+    let whole = BtfTable::open(&path, MemoryBound::default()).expect("opens");
+    // 8 resident blocks of one texel besides 4 workers' in flight; 64 texels.
+    let tight = MemoryBound {
+        max_bytes: 24 * texel_bytes,
+        block_bytes: texel_bytes,
+        threads: 4,
+    };
+    let cached = BtfTable::open(&path, tight).expect("opens");
+    assert!(whole.is_resident() && !cached.is_resident());
+    let light = DVec3::new(-1.0, 3.0, 0.5);
+    let lit = |table: &Arc<BtfTable>| {
+        let mut s = floor_scene(
+            Material::Btf {
+                table: Arc::clone(table),
+                uv_scale: DVec2::splat(2.0),
+            },
+            light,
+        );
+        (s.render.width, s.render.height) = (48, 32);
+        s
+    };
+    let cached = Arc::new(cached);
+    let want = render(&lit(&Arc::new(whole)), 2);
+    let got = render(&lit(&cached), 2);
+    let bits = |i: &Image| -> Vec<u32> {
+        i.pixels()
+            .iter()
+            .flat_map(|p| p.iter().map(|c| c.to_bits()))
+            .collect()
+    };
+    assert_eq!(bits(&got), bits(&want));
+    // Lit and textured: the image is not trivially equal.
+    let lit_values = want.pixels().iter().filter(|p| p[0] > 1e-3).count();
+    assert!(lit_values > 500, "{lit_values} lit pixels");
+    let cache = cached.cache().expect("cached");
+    assert!(cache.reads() > 8, "{} blocks read", cache.reads());
+    assert_eq!(cached.read_error(), None);
+}

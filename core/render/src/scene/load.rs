@@ -15,6 +15,7 @@ use super::{
     RenderSettings, Scene, TriangleMesh, extent_problem, file, mesh,
 };
 use crate::{Device, ModeKind};
+use meso_materials::btf::table::MemoryBound;
 use meso_materials::image::{self, Image};
 use meso_materials::rng::Sampler;
 
@@ -31,6 +32,8 @@ pub struct SceneError {
 pub(super) struct Ctx<'a> {
     pub file: &'a Path,
     pub text: &'a str,
+    /// How much of each `btf` material's values may be held in memory.
+    pub btf_memory: MemoryBound,
 }
 
 impl Ctx<'_> {
@@ -82,8 +85,16 @@ impl Ctx<'_> {
     }
 }
 
-/// Reads and checks a scene file; referenced files are relative to it.
+/// Reads and checks a scene file; referenced files are relative to it. Each `btf`
+/// material holds at most `BtfTable`'s default bound of values in memory.
 pub fn load_scene(path: &Path) -> Result<Scene, SceneError> {
+    load_scene_within(path, MemoryBound::default())
+}
+
+/// `load_scene`, each `btf` material holding at most `btf_memory` of its values in
+/// memory (larger ones are read from disk as they are shaded; `meso render
+/// --max-memory`).
+pub fn load_scene_within(path: &Path, btf_memory: MemoryBound) -> Result<Scene, SceneError> {
     let text = std::fs::read_to_string(path).map_err(|e| SceneError {
         file: path.to_path_buf(),
         line: None,
@@ -93,6 +104,7 @@ pub fn load_scene(path: &Path) -> Result<Scene, SceneError> {
     let ctx = Ctx {
         file: path,
         text: &text,
+        btf_memory,
     };
     let parsed: file::SceneFile = toml::from_str(&text).map_err(|e| {
         let line = e.span().and_then(|s| ctx.line_of(&s));

@@ -13,7 +13,7 @@ use toml::Spanned;
 use super::load::{Ctx, SceneError};
 use super::{Material, file};
 use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
-use meso_materials::btf::{self, table::BtfTable};
+use meso_materials::btf::table::{BtfTable, MemoryBound};
 use meso_materials::merl::{self, MerlBrdf};
 use meso_materials::spmm::pack;
 
@@ -50,7 +50,12 @@ pub fn material_from_table(
     table: &MaterialTable,
     folder: &Path,
 ) -> Result<Material, SceneError> {
-    build_material(&Ctx { file, text }, table_key, &table.0, folder)
+    let ctx = Ctx {
+        file,
+        text,
+        btf_memory: MemoryBound::default(),
+    };
+    build_material(&ctx, table_key, &table.0, folder)
 }
 
 /// `table`: the key of the material's table (`materials.cloth`), for errors.
@@ -132,15 +137,8 @@ pub(super) fn build_material(
             let Some(path) = &m.path else {
                 return ctx.err(&span, key("path"), "a `btf` material needs `path`");
             };
-            let btf = btf::file::read_btf(&folder.join(path.get_ref()))
+            let table = BtfTable::open(&folder.join(path.get_ref()), ctx.btf_memory)
                 .or_else(|e| ctx.err(&path.span(), key("path"), e.to_string()))?;
-            let table = BtfTable::new(&btf).or_else(|e| {
-                ctx.err(
-                    &path.span(),
-                    key("path"),
-                    format!("`{}`: {e}", path.get_ref().display()),
-                )
-            })?;
             Ok(Material::Btf {
                 table: Arc::new(table),
                 uv_scale: uv_scale_of(ctx, &key("uv_scale"), m.uv_scale.as_ref())?,

@@ -23,7 +23,7 @@ use glam::{DVec2, DVec3};
 
 use crate::{Device, ModeKind};
 pub use environment::Environment;
-pub use load::{SceneError, load_scene};
+pub use load::{SceneError, load_scene, load_scene_within};
 pub use material_file::{MaterialTable, material_from_table};
 pub use mesh::TriangleMesh;
 use meso_materials::brdf::AnalyticBrdf;

@@ -253,56 +253,26 @@ fn sample_peaks(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f32
 
 @compute @workgroup_size(64)
 fn render_biscale(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
-    let pixel = id.x + id.y * groups.x * 64u;
+    let pixel = pixel_of_invocation(id, groups);
     if pixel >= params.width * params.height {
         return;
     }
-    let x = pixel % params.width;
-    let y = pixel / params.width;
-    for (var l = 0u; l < MAX_LAYERS; l++) {
-        acc[l] = vec3<f32>(0.0);
-    }
-    counts = Counts(0u, 0u, 0u, 0u, 0u);
-    mask = vec2<u32>(0u);
-    uv_box = vec4<f32>(3.4e38, 3.4e38, -3.4e38, -3.4e38);
-    var rng = rng_for_sample(params.sampler, params.seed, params.sample_lo, params.sample_hi, pixel);
-
-    let jitter = rand2(&rng);
-    let sx = ((f32(x) + jitter.x) / f32(params.width)) * 2.0 - 1.0;
-    let sy = 1.0 - ((f32(y) + jitter.y) / f32(params.height)) * 2.0;
+    var rng = start_sample(pixel);
     var origin = params.cam_origin.xyz;
-    var dir = normalize(params.cam_forward.xyz + params.cam_right.xyz * (sx * params.cam_forward.w)
-        + params.cam_up.xyz * (sy * params.cam_right.w));
+    var dir = camera_dir(pixel, rand2(&rng));
     var throughput = vec3<f32>(1.0);
     let max_depth = min(params.max_depth, 64u);
     for (var depth = 0u; depth <= max_depth; depth++) {
         let hit = traverse(make_ray(origin, dir, 0.0, FAR), false);
         if hit.prim == NO_HIT {
-            switch params.background {
-                case ESCAPE_COLOR: {
-                    add_layer(pixel, LAYER_BACKGROUND, throughput);
-                }
-                case ESCAPE_IMAGE: {
-                    add_layer(pixel, LAYER_BACKGROUND, throughput * background_radiance(dir));
-                }
-                case ESCAPE_ENVIRONMENT: {
-                    add_layer(pixel, LAYER_ENVIRONMENT, throughput * env_radiance(dir));
-                }
-                default: {}
-            }
+            add_escape(pixel, throughput, dir);
             break;
         }
         let s = shading_at(hit.prim, origin, dir, hit.t);
-        let bit = s.material % 64u;
-        if bit < 32u {
-            mask.x |= 1u << bit;
-        } else {
-            mask.y |= 1u << (bit - 32u);
-        }
+        mark_material(s.material);
         let kind = material_kind(s.material);
         let wo = -dir;
-        let ap = abs(s.p);
-        let lift = s.p + s.n * (EPSILON_REL * max(max(max(ap.x, ap.y), ap.z), 1.0));
+        let lift = lifted(s);
         if kind == MATERIAL_MIRROR {
             if depth >= params.max_depth {
                 break;
@@ -315,24 +285,9 @@ fn render_biscale(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_wor
         }
         counts.shading += 1u;
         // The hit's barycentric coordinates, as `shading_at` finds them.
-        let p0 = tri_vertex(hit.prim, 0u);
-        let e1 = tri_vertex(hit.prim, 1u) - p0;
-        let e2 = tri_vertex(hit.prim, 2u) - p0;
-        let ep = origin + dir * hit.t - p0;
-        let d11 = dot(e1, e1);
-        let d12 = dot(e1, e2);
-        let d22 = dot(e2, e2);
-        let denom = d11 * d22 - d12 * d12;
-        var b1 = 0.0;
-        var b2 = 0.0;
-        if denom > 0.0 {
-            b1 = (d22 * dot(ep, e1) - d12 * dot(ep, e2)) / denom;
-            b2 = (d11 * dot(ep, e2) - d12 * dot(ep, e1)) / denom;
-        }
-        b1 = clamp(b1, 0.0, 1.0);
-        b2 = clamp(b2, 0.0, 1.0 - b1);
+        let b = barycentrics(hit.prim, origin + dir * hit.t);
         let t = hit.prim * TRI_WORDS;
-        let around = locate(tris[t + 10u], tris[t + 11u], b1, b2);
+        let around = locate(tris[t + 10u], tris[t + 11u], b.x, b.y);
         add_layer(pixel, LAYER_ENVIRONMENT, throughput * biscale_radiance(s, wo, around, &rng));
         sample_peaks(s, wo, lift, throughput, pixel, &rng);
         sample_lights(s, wo, lift, throughput, pixel, &rng);
@@ -340,24 +295,5 @@ fn render_biscale(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_wor
         break;
     }
 
-    let layers = min(params.layers, MAX_LAYERS);
-    for (var l = 0u; l < layers; l++) {
-        let at = (pixel * params.layers + l) * 3u;
-        frame[at] = acc[l].x;
-        frame[at + 1u] = acc[l].y;
-        frame[at + 2u] = acc[l].z;
-    }
-    let a = pixel * AUX_WORDS;
-    aux[a] = mask.x;
-    aux[a + 1u] = mask.y;
-    aux[a + 2u] = bitcast<u32>(uv_box.x);
-    aux[a + 3u] = bitcast<u32>(uv_box.y);
-    aux[a + 4u] = bitcast<u32>(uv_box.z);
-    aux[a + 5u] = bitcast<u32>(uv_box.w);
-    atomicAdd(&counters[COUNT_PRIMARY], 1u);
-    atomicAdd(&counters[COUNT_SHADOW], counts.shadow);
-    atomicAdd(&counters[COUNT_AMBIENT], counts.ambient);
-    atomicAdd(&counters[COUNT_SPECULAR], counts.specular);
-    atomicAdd(&counters[COUNT_SHADING], counts.shading);
-    atomicAdd(&counters[COUNT_ENVIRONMENT], counts.environment);
+    finish_sample(pixel);
 }

@@ -28,17 +28,12 @@ fn guide_albedo(s: Shading) -> vec3<f32> {
 
 @compute @workgroup_size(64)
 fn guides(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
-    let pixel = id.x + id.y * groups.x * 64u;
+    let pixel = pixel_of_invocation(id, groups);
     if pixel >= params.width * params.height {
         return;
     }
-    let x = pixel % params.width;
-    let y = pixel / params.width;
-    let sx = ((f32(x) + 0.5) / f32(params.width)) * 2.0 - 1.0;
-    let sy = 1.0 - ((f32(y) + 0.5) / f32(params.height)) * 2.0;
     let origin = params.cam_origin.xyz;
-    let dir = normalize(params.cam_forward.xyz + params.cam_right.xyz * (sx * params.cam_forward.w)
-        + params.cam_up.xyz * (sy * params.cam_right.w));
+    let dir = camera_dir(pixel, vec2<f32>(0.5));
     let hit = traverse(make_ray(origin, dir, 0.0, FAR), false);
     let at = pixel * GUIDE_FLOATS;
     var normal = vec3<f32>(0.0);

@@ -119,15 +119,12 @@ fn shade_vec(at: u32) -> vec3<f32> {
     return vec3<f32>(shade[at], shade[at + 1u], shade[at + 2u]);
 }
 
-// `trace::shading::shading_at`: interpolated normal turned to the viewer, tangent
-// along +u, for a hit at distance `t` on leaf primitive `prim`.
-fn shading_at(prim: u32, o: vec3<f32>, dir: vec3<f32>, t: f32) -> Shading {
+// The barycentric coordinates (of vertices 1 and 2) of point `p` on primitive `prim`,
+// clamped into the triangle.
+fn barycentrics(prim: u32, p: vec3<f32>) -> vec2<f32> {
     let p0 = tri_vertex(prim, 0u);
-    let p1 = tri_vertex(prim, 1u);
-    let p2 = tri_vertex(prim, 2u);
-    let p = o + dir * t;
-    let e1 = p1 - p0;
-    let e2 = p2 - p0;
+    let e1 = tri_vertex(prim, 1u) - p0;
+    let e2 = tri_vertex(prim, 2u) - p0;
     let ep = p - p0;
     let d11 = dot(e1, e1);
     let d12 = dot(e1, e2);
@@ -142,7 +139,20 @@ fn shading_at(prim: u32, o: vec3<f32>, dir: vec3<f32>, t: f32) -> Shading {
         b2 = (d11 * dp2 - d12 * dp1) / denom;
     }
     b1 = clamp(b1, 0.0, 1.0);
-    b2 = clamp(b2, 0.0, 1.0 - b1);
+    return vec2<f32>(b1, clamp(b2, 0.0, 1.0 - b1));
+}
+
+// `trace::shading::shading_at`: interpolated normal turned to the viewer, tangent
+// along +u, for a hit at distance `t` on leaf primitive `prim`.
+fn shading_at(prim: u32, o: vec3<f32>, dir: vec3<f32>, t: f32) -> Shading {
+    let p0 = tri_vertex(prim, 0u);
+    let p1 = tri_vertex(prim, 1u);
+    let p2 = tri_vertex(prim, 2u);
+    let e1 = p1 - p0;
+    let e2 = p2 - p0;
+    let b = barycentrics(prim, o + dir * t);
+    let b1 = b.x;
+    let b2 = b.y;
     let w0 = 1.0 - b1 - b2;
     let sp = p0 * w0 + p1 * b1 + p2 * b2;
     var ng = normalize_or(cross(e1, e2), vec3<f32>(0.0, 1.0, 0.0));
@@ -203,79 +213,69 @@ fn response(s: Shading, wi: vec3<f32>, wo: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(0.0);
 }
 
-@compute @workgroup_size(64)
-fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
-    // Rows of workgroups beyond 65,535 (core/gpu/src/kernel.rs, `groups`).
-    let pixel = id.x + id.y * groups.x * 64u;
-    if pixel >= params.width * params.height {
-        return;
-    }
+// The invocation's pixel: rows of workgroups beyond 65,535 (core/gpu/src/kernel.rs,
+// `groups`).
+fn pixel_of_invocation(id: vec3<u32>, groups: vec3<u32>) -> u32 {
+    return id.x + id.y * groups.x * 64u;
+}
+
+// The direction of the camera ray through `pixel` at `jitter` within it (0.5, 0.5: its
+// centre).
+fn camera_dir(pixel: u32, jitter: vec2<f32>) -> vec3<f32> {
     let x = pixel % params.width;
     let y = pixel / params.width;
+    let sx = ((f32(x) + jitter.x) / f32(params.width)) * 2.0 - 1.0;
+    let sy = 1.0 - ((f32(y) + jitter.y) / f32(params.height)) * 2.0;
+    return normalize(params.cam_forward.xyz + params.cam_right.xyz * (sx * params.cam_forward.w)
+        + params.cam_up.xyz * (sy * params.cam_right.w));
+}
+
+// A sample's state cleared (layers, counts, material mask, texture box) and its
+// random numbers.
+fn start_sample(pixel: u32) -> Rng {
     for (var l = 0u; l < MAX_LAYERS; l++) {
         acc[l] = vec3<f32>(0.0);
     }
     counts = Counts(0u, 0u, 0u, 0u, 0u);
     mask = vec2<u32>(0u);
     uv_box = vec4<f32>(3.4e38, 3.4e38, -3.4e38, -3.4e38);
-    var rng = rng_for_sample(params.sampler, params.seed, params.sample_lo, params.sample_hi, pixel);
+    return rng_for_sample(params.sampler, params.seed, params.sample_lo, params.sample_hi, pixel);
+}
 
-    let jitter = rand2(&rng);
-    let sx = ((f32(x) + jitter.x) / f32(params.width)) * 2.0 - 1.0;
-    let sy = 1.0 - ((f32(y) + jitter.y) / f32(params.height)) * 2.0;
-    var origin = params.cam_origin.xyz;
-    var dir = normalize(params.cam_forward.xyz + params.cam_right.xyz * (sx * params.cam_forward.w)
-        + params.cam_up.xyz * (sy * params.cam_right.w));
-    var throughput = vec3<f32>(1.0);
-    let max_depth = min(params.max_depth, 64u);
-    for (var depth = 0u; depth <= max_depth; depth++) {
-        let hit = traverse(make_ray(origin, dir, 0.0, FAR), false);
-        if hit.prim == NO_HIT {
-            switch params.background {
-                case ESCAPE_COLOR: {
-                    add_layer(pixel, LAYER_BACKGROUND, throughput);
-                }
-                case ESCAPE_IMAGE: {
-                    add_layer(pixel, LAYER_BACKGROUND, throughput * background_radiance(dir));
-                }
-                case ESCAPE_ENVIRONMENT: {
-                    add_layer(pixel, LAYER_ENVIRONMENT, throughput * env_radiance(dir));
-                }
-                default: {}
-            }
-            break;
+// What a ray along `dir` that leaves the scene adds (ESCAPE_*).
+fn add_escape(pixel: u32, throughput: vec3<f32>, dir: vec3<f32>) {
+    switch params.background {
+        case ESCAPE_COLOR: {
+            add_layer(pixel, LAYER_BACKGROUND, throughput);
         }
-        let s = shading_at(hit.prim, origin, dir, hit.t);
-        let bit = s.material % 64u;
-        if bit < 32u {
-            mask.x |= 1u << bit;
-        } else {
-            mask.y |= 1u << (bit - 32u);
+        case ESCAPE_IMAGE: {
+            add_layer(pixel, LAYER_BACKGROUND, throughput * background_radiance(dir));
         }
-        let kind = material_kind(s.material);
-        if kind == MATERIAL_SPMM {
-            uv_box = vec4<f32>(min(uv_box.xy, s.uv), max(uv_box.zw, s.uv));
+        case ESCAPE_ENVIRONMENT: {
+            add_layer(pixel, LAYER_ENVIRONMENT, throughput * env_radiance(dir));
         }
-        let wo = -dir;
-        let ap = abs(s.p);
-        let lift = s.p + s.n * (EPSILON_REL * max(max(max(ap.x, ap.y), ap.z), 1.0));
-        if kind == MATERIAL_MIRROR {
-            if depth >= params.max_depth {
-                break;
-            }
-            counts.specular += 1u;
-            throughput *= rgb_at(params.material_table + s.material * MATERIAL_WORDS + 4u);
-            dir = dir - 2.0 * dot(dir, s.n) * s.n;
-            origin = lift;
-            continue;
-        }
-        counts.shading += 1u;
-        sample_lights(s, wo, lift, throughput, pixel, &rng);
-        sample_ambient(s, wo, lift, throughput, pixel, &rng);
-        sample_environment(s, wo, lift, throughput, pixel, &rng);
-        break;
+        default: {}
     }
+}
 
+// Marks material `m` as shaded by this sample (the film's per-pixel mask).
+fn mark_material(m: u32) {
+    let bit = m % 64u;
+    if bit < 32u {
+        mask.x |= 1u << bit;
+    } else {
+        mask.y |= 1u << (bit - 32u);
+    }
+}
+
+// The hit point moved off the surface along its normal, where secondary rays start.
+fn lifted(s: Shading) -> vec3<f32> {
+    let ap = abs(s.p);
+    return s.p + s.n * (EPSILON_REL * max(max(max(ap.x, ap.y), ap.z), 1.0));
+}
+
+// Writes the sample's layers, marks and counts.
+fn finish_sample(pixel: u32) {
     let layers = min(params.layers, MAX_LAYERS);
     for (var l = 0u; l < layers; l++) {
         let at = (pixel * params.layers + l) * 3u;
@@ -296,4 +296,48 @@ fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups)
     atomicAdd(&counters[COUNT_SPECULAR], counts.specular);
     atomicAdd(&counters[COUNT_SHADING], counts.shading);
     atomicAdd(&counters[COUNT_ENVIRONMENT], counts.environment);
+}
+
+@compute @workgroup_size(64)
+fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    let pixel = pixel_of_invocation(id, groups);
+    if pixel >= params.width * params.height {
+        return;
+    }
+    var rng = start_sample(pixel);
+    var origin = params.cam_origin.xyz;
+    var dir = camera_dir(pixel, rand2(&rng));
+    var throughput = vec3<f32>(1.0);
+    let max_depth = min(params.max_depth, 64u);
+    for (var depth = 0u; depth <= max_depth; depth++) {
+        let hit = traverse(make_ray(origin, dir, 0.0, FAR), false);
+        if hit.prim == NO_HIT {
+            add_escape(pixel, throughput, dir);
+            break;
+        }
+        let s = shading_at(hit.prim, origin, dir, hit.t);
+        mark_material(s.material);
+        let kind = material_kind(s.material);
+        if kind == MATERIAL_SPMM {
+            uv_box = vec4<f32>(min(uv_box.xy, s.uv), max(uv_box.zw, s.uv));
+        }
+        let wo = -dir;
+        let lift = lifted(s);
+        if kind == MATERIAL_MIRROR {
+            if depth >= params.max_depth {
+                break;
+            }
+            counts.specular += 1u;
+            throughput *= rgb_at(params.material_table + s.material * MATERIAL_WORDS + 4u);
+            dir = dir - 2.0 * dot(dir, s.n) * s.n;
+            origin = lift;
+            continue;
+        }
+        counts.shading += 1u;
+        sample_lights(s, wo, lift, throughput, pixel, &rng);
+        sample_ambient(s, wo, lift, throughput, pixel, &rng);
+        sample_environment(s, wo, lift, throughput, pixel, &rng);
+        break;
+    }
+    finish_sample(pixel);
 }

@@ -211,7 +211,22 @@ pub fn tilted_spmm() -> Material {
 /// A `btf` material tabulating `albedo * brdf` on the Bonn 81 x 81 directions, 1 x 1
 /// texel, tiled by `uv_scale`.
 pub fn tabulated_btf(brdf: &AnalyticBrdf, albedo: DVec3, uv_scale: DVec2) -> Material {
-    let dirs = meso_materials::btf::directions::bonn81();
+    tabulated_btf_on(
+        brdf,
+        albedo,
+        uv_scale,
+        meso_materials::btf::directions::bonn81(),
+    )
+}
+
+/// `tabulated_btf` on the direction layout `dirs` (light and view alike), e.g.
+/// UBO2014's 151 directions.
+pub fn tabulated_btf_on(
+    brdf: &AnalyticBrdf,
+    albedo: DVec3,
+    uv_scale: DVec2,
+    dirs: Vec<DVec3>,
+) -> Material {
     let btf = meso_materials::btf::Btf::from_brdf(brdf, albedo, 1, 1, dirs.clone(), dirs)
         .expect("valid BTF");
     Material::Btf {

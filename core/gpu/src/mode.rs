@@ -641,6 +641,10 @@ impl RenderMode for GpuSpmmMode {
         self.denoise_on_device(image, denoiser, strength)
     }
 
+    fn prepare_denoiser(&self) {
+        self.make_denoiser_kernels();
+    }
+
     fn progress(&self) -> Progress {
         Progress {
             frames: self.core.frames,

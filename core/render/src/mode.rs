@@ -84,6 +84,11 @@ pub trait RenderMode: Send {
         let _ = (image, denoiser, strength);
         None
     }
+    /// Makes what `denoised_on_device` needs (its device kernels) ahead of its first
+    /// use: the studio calls it while the mode is prepared in the background, so the
+    /// first filtered frame does not wait for a shader compiler. A no-op where the
+    /// mode filters on the host.
+    fn prepare_denoiser(&self) {}
     fn progress(&self) -> Progress;
     /// Applies an edit and restarts only what it invalidates. An edit that brings
     /// what the mode cannot render is refused (`EditError::Unsupported`).

@@ -88,7 +88,11 @@ impl ModeMaker for CoreModes {
         };
         #[cfg(feature = "gpu")]
         let gpu = self.gpu.as_ref().map_or(gpu, GpuDevice::Shared);
-        meso_modes::create_on(gpu, kind, device, scene, width, height, prepare)
+        let mode = meso_modes::create_on(gpu, kind, device, scene, width, height, prepare)?;
+        // The viewport filters the first frames: a GPU mode's filter kernels are made
+        // here, while the mode is prepared off the UI's and the render's path.
+        mode.prepare_denoiser();
+        Ok(mode)
     }
 }
 

@@ -29,6 +29,26 @@ impl Denoising {
 pub(super) type SharedDenoising = Mutex<Denoising>;
 
 impl GpuSpmmMode {
+    /// Makes the guides' and the filter's kernels now (`RenderMode::prepare_denoiser`).
+    pub(super) fn make_denoiser_kernels(&self) {
+        let Ok(mut state) = self.denoising.lock() else {
+            return;
+        };
+        let ctx = &self.ctx;
+        state
+            .guides_kernel
+            .get_or_insert_with(|| Kernel::new(ctx, &shaders::integrator(), "guides", &SLOTS));
+        state.filter.get_or_insert_with(|| DeviceDenoiser::new(ctx));
+    }
+
+    /// Whether the denoiser's kernels are made (tests).
+    #[cfg(test)]
+    pub(crate) fn denoiser_kernels_made(&self) -> bool {
+        self.denoising
+            .lock()
+            .is_ok_and(|s| s.guides_kernel.is_some() && s.filter.is_some())
+    }
+
     /// The guides of the current view, traced on the device the first time they are
     /// asked for since the last edit.
     fn device_guides(&self, state: &mut Denoising) -> Result<wgpu::Buffer, GpuError> {

@@ -263,3 +263,17 @@ fn the_gpu_mode_filters_its_frame_on_the_device_without_a_read_back() {
         .expect("guides");
     assert_eq!(gpu.guides(Pass::Frame).expect("guides"), fresh);
 }
+
+#[test]
+fn the_denoiser_kernels_are_made_ahead_when_asked() {
+    let mut gpu = gpu_mode(test_scene("default.toml"), 8);
+    assert!(!gpu.denoiser_kernels_made(), "made before anyone asked");
+    gpu.prepare_denoiser();
+    assert!(gpu.denoiser_kernels_made());
+    run_frames(&mut gpu, 1, |_, _| {});
+    let image = gpu.image_on_device().expect("on the device");
+    assert!(
+        gpu.denoised_on_device(image.as_ref(), &Denoiser::for_samples(1), 1.0)
+            .is_some()
+    );
+}

@@ -325,6 +325,10 @@ impl RenderMode for GpuBiscaleMode {
         self.device.denoised_on_device(image, denoiser, strength)
     }
 
+    fn prepare_denoiser(&self) {
+        self.device.prepare_denoiser();
+    }
+
     fn progress(&self) -> Progress {
         self.device.progress()
     }

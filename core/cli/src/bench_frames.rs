@@ -130,12 +130,10 @@ fn viewport_picture(mode: &dyn meso_render::RenderMode, read_back: bool) {
         let _ = mode.image();
         return;
     };
-    let samples = mode.progress().min_samples;
-    let strength = meso_render::denoise::viewport_strength(samples);
-    let denoiser = meso_render::Denoiser::for_samples(samples);
-    let picture = (strength > 0.0)
-        .then(|| mode.denoised_on_device(image.as_ref(), &denoiser, strength))
-        .flatten()
+    let picture = meso_render::denoise::viewport_filter(mode.progress().min_samples)
+        .and_then(|(denoiser, strength)| {
+            mode.denoised_on_device(image.as_ref(), &denoiser, strength)
+        })
         .unwrap_or(image);
     let _ = picture.wait();
 }

@@ -217,12 +217,10 @@ impl Words {
     /// lights, views, values_at, f16, light_table, view_table, uv_scale x, y]` (the
     /// direction tables as the residual's), the values `[texel][light][view][rgb]`
     /// as they are held: f16 two to a word (low half first) or f32. Returns the
-    /// header's offset.
-    /// Out-of-core tables never get here: `GpuSpmmMode::supports` refuses them.
-    pub fn push_btf(&mut self, table: &BtfTable, uv_scale: glam::DVec2) -> u32 {
-        let p = table
-            .parts()
-            .expect("GpuSpmmMode::supports refuses BTFs not held in memory");
+    /// header's offset, or `None` for a table read from disk block by block (it has
+    /// no values in memory to upload; `GpuSpmmMode::supports` refuses those by name).
+    pub fn push_btf(&mut self, table: &BtfTable, uv_scale: glam::DVec2) -> Option<u32> {
+        let p = table.parts()?;
         let start = self.words.len();
         let (values_at, half) = match p.values {
             BtfValues::F16(v) => (self.push_halves(v.iter().copied()), 1),
@@ -243,7 +241,7 @@ impl Words {
             f(uv_scale.y),
         ]);
         self.bytes.btf_tables += 4 * (self.words.len() - start) as u64;
-        at
+        Some(at)
     }
 
     /// A MERL table as `shaders/merl.wgsl` reads it: a header of offsets (the table,

@@ -89,6 +89,14 @@ pub fn viewport_strength(samples: u32) -> f32 {
     }
 }
 
+/// What the studio's viewport filters a frame of `samples` samples per pixel with: the
+/// denoiser for that many samples and the blend's strength, or `None` once the blend
+/// has faded out.
+pub fn viewport_filter(samples: u32) -> Option<(Denoiser, f32)> {
+    let strength = viewport_strength(samples);
+    (strength > 0.0).then(|| (Denoiser::for_samples(samples), strength))
+}
+
 /// The B3-spline's 5 taps along one axis; a pass applies it along both.
 const KERNEL: [f32; 5] = [1.0 / 16.0, 1.0 / 4.0, 3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0];
 

@@ -386,29 +386,27 @@ impl Denoising {
         out: &Publisher,
     ) {
         let samples = m.progress().min_samples;
-        let strength = denoise::viewport_strength(samples);
         let on_device = m.image_on_device();
-        let filter = self.on && strength > 0.0 && !partial;
+        let filter = denoise::viewport_filter(samples).filter(|_| self.on && !partial);
         // A GPU mode filters on its device: the frame and its picture stay there.
-        if filter && let Some(estimate) = &on_device {
-            let denoiser = Denoiser::for_samples(samples);
-            if let Some(picture) = m.denoised_on_device(estimate.as_ref(), &denoiser, strength) {
-                let estimate = Picture::Device(Arc::clone(estimate));
-                let picture = Some(Picture::Device(picture));
-                let frame = Frame {
-                    shown_samples: Some(samples),
-                    ..frame_with(m, stats, version, estimate, picture)
-                };
-                return out.frame(frame, false);
-            }
+        if let (Some((denoiser, strength)), Some(estimate)) = (&filter, &on_device)
+            && let Some(picture) = m.denoised_on_device(estimate.as_ref(), denoiser, *strength)
+        {
+            let estimate = Picture::Device(Arc::clone(estimate));
+            let picture = Some(Picture::Device(picture));
+            let frame = Frame {
+                shown_samples: Some(samples),
+                ..frame_with(m, stats, version, estimate, picture)
+            };
+            return out.frame(frame, false);
         }
-        if !filter || self.guides == Some(None) {
+        let Some((denoiser, strength)) = filter.filter(|_| self.guides != Some(None)) else {
             let estimate = match on_device {
                 Some(d) => Picture::Device(d),
                 None => Picture::Host(Arc::new(m.image())),
             };
             return out.frame(frame_with(m, stats, version, estimate, None), false);
-        }
+        };
         let image = Arc::new(m.image());
         let quick = !out.has_filtered(version);
         out.frame(
@@ -429,12 +427,12 @@ impl Denoising {
                 if stop() {
                     return None;
                 }
-                let d = Denoiser::for_samples(samples).apply_halved(&image, &guides.halved())?;
+                let d = denoiser.apply_halved(&image, &guides.halved())?;
                 Some(denoise::blend(&image, &d, strength))
             }));
         }
         stages.push(Box::new(move |stop: &mut dyn FnMut() -> bool| {
-            let d = Denoiser::for_samples(samples).apply_unless(&image, &guides, stop)?;
+            let d = denoiser.apply_unless(&image, &guides, stop)?;
             Some(denoise::blend(&image, &d, strength))
         }));
         self.thread.submit(Job {

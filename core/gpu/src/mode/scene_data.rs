@@ -167,12 +167,16 @@ impl SceneData {
                     rec[4..7].copy_from_slice(&[f(tint.x), f(tint.y), f(tint.z)]);
                 }
                 Material::Btf { table, uv_scale } => {
-                    if reach[i].as_ref().is_some_and(|r| r.contains(&true)) {
-                        rec[0] = 4;
-                        rec[1] = words.push_btf(table, *uv_scale);
-                    } else {
-                        // No mesh carries it: nothing uploaded, a record of no kind.
-                        rec[0] = u32::MAX;
+                    // Uploaded where a mesh carries it and its values are in memory
+                    // (`supports` refuses an out-of-core table before this); else
+                    // nothing is uploaded: a record of no kind.
+                    let reached = reach[i].as_ref().is_some_and(|r| r.contains(&true));
+                    match reached.then(|| words.push_btf(table, *uv_scale)).flatten() {
+                        Some(at) => {
+                            rec[0] = 4;
+                            rec[1] = at;
+                        }
+                        None => rec[0] = u32::MAX,
                     }
                 }
             }

@@ -609,7 +609,8 @@ fn fuzz_fit_models() {
 }
 
 /// Bonn's UBO2014 files: the reference fixtures (DFMF in half floats and f32 with
-/// two colour models, FMF with dynamic-range reduction, and Meso's own export).
+/// two colour models, FMF with dynamic-range reduction, Meso's own export, PVF with
+/// either side over the texels and in the old layout, full and sparse BDI).
 #[test]
 fn fuzz_ubo2014_files() {
     let seeds: Vec<Vec<u8>> = [
@@ -617,6 +618,11 @@ fn fuzz_ubo2014_files() {
         "dfmf_logyuv.btf",
         "fmf_drr.btf",
         "meso_export.btf",
+        "pvf_texels.btf",
+        "pvf_lights.btf",
+        "pvf_old.btf",
+        "bdi_full.btf",
+        "bdi_sparse.btf",
     ]
     .iter()
     .map(|p| std::fs::read(root().join("reference/ubo").join(p)).expect("fixture"))

@@ -345,6 +345,7 @@ fn ubo2014_info(path: &Path, as_json: bool) -> Result<(), CliError> {
             "light_dirs_deg": deg(&h.light_angles), "view_dirs_deg": deg(&h.view_angles),
             "color_model": h.color_model, "cosine_flag": h.cosine_flag,
             "components": f.components(),
+            "storage": f.storage(),
             "measurement_setup": h.measurement_setup,
             "max_import_texels": max_texels,
         }));
@@ -353,12 +354,8 @@ fn ubo2014_info(path: &Path, as_json: bool) -> Result<(), CliError> {
     println!("setup        {}", h.measurement_setup);
     println!("texels       {} x {}", h.width, h.height);
     println!("directions   {nl} light x {nv} view");
-    println!(
-        "factors      components per factorisation {:?}, colour model {}, cosine flag {}",
-        f.components(),
-        h.color_model,
-        u8::from(h.cosine_flag)
-    );
+    println!("storage      {}", f.storage());
+    println!("cosine flag  {}", u8::from(h.cosine_flag));
     println!("import       at most {max_texels} texels at once (--texels X,Y,W,H)");
     Ok(())
 }

@@ -3,10 +3,12 @@
 //! The layout (docs/formats/ubo.md) was taken from Bonn's own readers, btflib (MATLAB)
 //! and the `btf_extractor` Python package; the code is Meso's own.
 //!
-//! `Ubo2014::open` parses the header and the pair-side factors (U, small) and records
-//! where each channel's texel-side factors (S x V, large) start; `read_texels`
-//! reconstructs a rectangle of texels from those on demand, so a 400 x 400 x 151 x
-//! 151 file is never expanded whole. `write_dfmf` writes Meso's BTF as `!DFMF08FCR`.
+//! `Ubo2014::open` parses the header and the small side of the file (DFMF and FMF:
+//! the pair-side factors U; PVF: each view's side over the lights, in `pvf`; BDI: where
+//! each chunk of texels starts, in `bdi`) and records where the texel side starts;
+//! `read_texels` reconstructs a rectangle of texels from it on demand, so a 400 x 400 x
+//! 151 x 151 file is never expanded whole. `write_dfmf` writes Meso's BTF as
+//! `!DFMF08FCR`.
 
 use std::fs::File;
 use std::io::{self, BufReader, Read, Seek, SeekFrom, Write};
@@ -19,6 +21,9 @@ use super::crop::{self, CropError, TexelRect};
 use super::{Btf, BtfError, MAX_SIDE};
 use crate::atomic::{AtomicWriteError, write_atomic};
 
+mod bdi;
+mod pvf;
+
 /// The kinds of Bonn BTF file, told apart by their signature.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kind {
@@ -27,10 +32,11 @@ pub enum Kind {
     /// Full matrix factorisation: one for all channels; `extended` adds a header byte
     /// (dynamic-range reduction, height map).
     Fmf { extended: bool },
-    /// Per-view factorisation (recognised, not read).
+    /// Per-view factorisation: one PCA per view direction.
     Pvf,
-    /// Bonn's uncompressed chunked format (recognised, not read).
-    Bdi,
+    /// Bonn's directional images in chunks of scan lines; `header_flag` (the `!` at
+    /// the end of the signature) adds a compression byte, else the chunks are bzip2.
+    Bdi { header_flag: bool },
 }
 
 /// Every signature Bonn's readers accept, with what follows it: rotations when the
@@ -44,8 +50,8 @@ pub const SIGNATURES: [(&str, Kind); 10] = [
     ("!FMF06FC", Kind::Fmf { extended: false }),
     ("!PVF06FCR", Kind::Pvf),
     ("!PVF06FC", Kind::Pvf),
-    ("!BDIF06R2!", Kind::Bdi),
-    ("!BDIF06R2", Kind::Bdi),
+    ("!BDIF06R2!", Kind::Bdi { header_flag: true }),
+    ("!BDIF06R2", Kind::Bdi { header_flag: false }),
 ];
 
 /// The longest signature `head` starts with.
@@ -177,11 +183,21 @@ struct Plane {
     sxv_offset: u64,
 }
 
+/// What follows the header: where the values are and the small factors read.
+enum Body {
+    /// DFMF (one plane per channel) or FMF (one plane).
+    Factors(Vec<Plane>),
+    /// PVF: one factorisation per view.
+    PerView(pvf::PerView),
+    /// BDI: the values themselves, in chunks of scan lines.
+    Chunks(bdi::Chunks),
+}
+
 /// An open UBO2014 file.
 pub struct Ubo2014<R> {
     source: R,
     header: Header,
-    planes: Vec<Plane>,
+    body: Body,
 }
 
 /// A reader that knows the file's length and refuses to read past it.
@@ -290,6 +306,12 @@ fn to_f32(raw: &[u8], scalar: u8) -> Vec<f32> {
     }
 }
 
+/// The file's texel index of Meso's texel (x, y): the file counts rows from the
+/// bottom of the image (btf_extractor flips them on load; Meso follows it).
+fn file_texel(header: &Header, x: u32, y: u32) -> usize {
+    (header.height - 1 - y) as usize * header.width as usize + x as usize
+}
+
 /// Unit vector of (theta, phi) in radians, as btflib's `sph2cart2`.
 fn direction(a: [f32; 2]) -> DVec3 {
     let (t, p) = (f64::from(a[0]), f64::from(a[1]));
@@ -304,29 +326,65 @@ fn angles(d: DVec3) -> [f32; 2] {
     [d.x.hypot(d.y).atan2(d.z) as f32, d.y.atan2(d.x) as f32]
 }
 
-fn read_header<R: Read + Seek>(
+impl Header {
+    /// A header with nothing read yet: RGB, no cosine in the values, no meta data.
+    fn empty(signature: &'static str, kind: Kind) -> Self {
+        Header {
+            signature,
+            kind,
+            version: 0,
+            measurement_setup: String::new(),
+            image_sensor: String::new(),
+            light_source: String::new(),
+            ppmm: 0.0,
+            rgb_scale: [1.0; 3],
+            cosine_flag: false,
+            xml: String::new(),
+            channels: vec!["R".into(), "G".into(), "B".into()],
+            light_angles: Vec::new(),
+            view_angles: Vec::new(),
+            width: 0,
+            height: 0,
+            rotations: 0,
+            color_model: 0,
+            color_mean: [0.0; 3],
+            color_transform: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            dynamic_range_reduction: false,
+        }
+    }
+}
+
+/// Bonn's common header after the signature (btflib's read_common_header): meta data,
+/// sampling, extent and, for a signature ending in `R`, the rotations.
+fn read_common<R: Read + Seek>(
     c: &mut Cursor<'_, R>,
-    signature: &'static str,
-    kind: Kind,
-) -> Result<Header, UboErrorKind> {
-    c.skip(signature.len() as u64, "the signature")?;
-    // The meta-data block (btflib's read_meta_data).
+    header: &mut Header,
+) -> Result<(), UboErrorKind> {
+    read_meta(c, header)?;
+    read_sampling(c, header)?;
+    read_extent(c, header)?;
+    if header.signature.ends_with('R') {
+        header.rotations = skip_rotations(c)?;
+    }
+    Ok(())
+}
+
+/// The meta-data block (btflib's read_meta_data).
+fn read_meta<R: Read + Seek>(c: &mut Cursor<'_, R>, h: &mut Header) -> Result<(), UboErrorKind> {
     let start = c.pos;
     let declared = c.u32("the meta-data size")?;
-    let version = c.u32("the meta-data version")?;
-    let measurement_setup = c.text(80, "the measurement setup")?;
-    let image_sensor = c.text(80, "the image sensor")?;
-    let light_source = c.text(80, "the light source")?;
-    let ppmm = c.f32("ppmm")?;
-    let rgb_scale = c.f32s::<3>("the RGB scale factors")?;
-    let cosine_flag = version > 1 && c.u32("the cosine flag")? != 0;
-    let xml = if version > 2 {
+    h.version = c.u32("the meta-data version")?;
+    h.measurement_setup = c.text(80, "the measurement setup")?;
+    h.image_sensor = c.text(80, "the image sensor")?;
+    h.light_source = c.text(80, "the light source")?;
+    h.ppmm = c.f32("ppmm")?;
+    h.rgb_scale = c.f32s::<3>("the RGB scale factors")?;
+    h.cosine_flag = h.version > 1 && c.u32("the cosine flag")? != 0;
+    if h.version > 2 {
         let n = c.u32("the XML length")?;
-        c.text(n, "the XML string")?
-    } else {
-        String::new()
-    };
-    let channels = if version > 3 {
+        h.xml = c.text(n, "the XML string")?;
+    }
+    if h.version > 3 {
         let n = c.u32("the channel count")?;
         if n != 3 {
             return Err(c.field(
@@ -335,22 +393,27 @@ fn read_header<R: Read + Seek>(
                 "Meso reads 3 colour channels (no multispectral BTFs)",
             ));
         }
-        (0..n)
+        h.channels = (0..n)
             .map(|k| {
                 let len = c.u32(&format!("channel {k}'s name length"))?;
                 c.text(len, &format!("channel {k}'s name"))
             })
-            .collect::<Result<_, _>>()?
-    } else {
-        vec!["R".into(), "G".into(), "B".into()]
-    };
+            .collect::<Result<_, _>>()?;
+    }
     if c.pos - start != u64::from(declared) {
         return Err(UboErrorKind::HeaderSize {
             declared,
             read: c.pos - start,
         });
     }
-    // The sampling: every view with its light list (btflib's read_bidir_sampling).
+    Ok(())
+}
+
+/// The sampling: every view with its light list (btflib's read_bidir_sampling).
+fn read_sampling<R: Read + Seek>(
+    c: &mut Cursor<'_, R>,
+    h: &mut Header,
+) -> Result<(), UboErrorKind> {
     let views = c.u32("the view count")?;
     if views == 0 {
         return Err(c.field("the view count", 0, "must be at least 1"));
@@ -387,39 +450,36 @@ fn read_header<R: Read + Seek>(
             )?;
         }
     }
-    let width = c.u32("the width")?;
-    check_side(c, "the width", width)?;
-    let height = c.u32("the height")?;
-    check_side(c, "the height", height)?;
-    let rotations = if signature.ends_with('R') {
-        let n = c.u32("the rotation count")?;
-        c.skip(u64::from(n) * 36, "the rotations")?;
-        n
-    } else {
-        0
-    };
-    let mut header = Header {
-        signature,
-        kind,
-        version,
-        measurement_setup,
-        image_sensor,
-        light_source,
-        ppmm,
-        rgb_scale,
-        cosine_flag,
-        xml,
-        channels,
-        light_angles,
-        view_angles,
-        width,
-        height,
-        rotations,
-        color_model: 0,
-        color_mean: [0.0; 3],
-        color_transform: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-        dynamic_range_reduction: false,
-    };
+    h.light_angles = light_angles;
+    h.view_angles = view_angles;
+    Ok(())
+}
+
+/// Width and height in texels.
+fn read_extent<R: Read + Seek>(c: &mut Cursor<'_, R>, h: &mut Header) -> Result<(), UboErrorKind> {
+    h.width = c.u32("the width")?;
+    check_side(c, "the width", h.width)?;
+    h.height = c.u32("the height")?;
+    check_side(c, "the height", h.height)?;
+    Ok(())
+}
+
+/// The rotation count and the 3 x 3 rotations, which Meso does not use.
+fn skip_rotations<R: Read + Seek>(c: &mut Cursor<'_, R>) -> Result<u32, UboErrorKind> {
+    let n = c.u32("the rotation count")?;
+    c.skip(u64::from(n) * 36, "the rotations")?;
+    Ok(n)
+}
+
+/// The header of a DFMF or FMF file: the common header and the factorisation's preamble.
+fn read_header<R: Read + Seek>(
+    c: &mut Cursor<'_, R>,
+    signature: &'static str,
+    kind: Kind,
+) -> Result<Header, UboErrorKind> {
+    c.skip(signature.len() as u64, "the signature")?;
+    let mut header = Header::empty(signature, kind);
+    read_common(c, &mut header)?;
     match kind {
         Kind::Dfmf => {
             c.u32("the largest component count")?;
@@ -547,6 +607,34 @@ fn read_scalar<R: Read + Seek>(c: &mut Cursor<'_, R>, part: &str) -> Result<u8, 
     Ok(s)
 }
 
+/// The factor planes of a DFMF (one per channel) or FMF (one for all) file.
+fn read_planes<R: Read + Seek>(
+    c: &mut Cursor<'_, R>,
+    header: &Header,
+) -> Result<Vec<Plane>, UboErrorKind> {
+    let pairs = (header.light_angles.len() * header.view_angles.len()) as u64;
+    let cols = u64::from(header.width) * u64::from(header.height);
+    if header.kind == Kind::Dfmf {
+        (0..3)
+            .map(|ch| {
+                let name = format!("channel {ch}");
+                let scalar = read_scalar(c, &format!("{name}'s scalar size"))?;
+                read_plane(c, &name, scalar, pairs, cols)
+            })
+            .collect()
+    } else {
+        c.u32("the largest component count")?;
+        let scalar = read_scalar(c, "the scalar size")?;
+        Ok(vec![read_plane(
+            c,
+            "the factorisation",
+            scalar,
+            3 * pairs,
+            cols,
+        )?])
+    }
+}
+
 impl Ubo2014<BufReader<File>> {
     /// Opens a file (header and U factors; S x V stays on disk).
     pub fn open_path(path: &Path) -> Result<Self, UboError> {
@@ -573,61 +661,36 @@ impl<R: Read + Seek> Ubo2014<R> {
                 found: String::from_utf8_lossy(&head).into_owned(),
             });
         };
-        match kind {
-            Kind::Pvf => {
-                return Err(UboErrorKind::Unsupported {
-                    signature,
-                    what: "PVF (per-view factorisation)",
-                });
-            }
-            Kind::Bdi => {
-                return Err(UboErrorKind::Unsupported {
-                    signature,
-                    what: "BDI (uncompressed chunks)",
-                });
-            }
-            _ => {}
-        }
         let mut c = Cursor {
             src: &mut source,
             pos: 0,
             len,
         };
-        let header = read_header(&mut c, signature, kind)?;
-        let pairs = (header.light_angles.len() * header.view_angles.len()) as u64;
-        let cols = u64::from(header.width) * u64::from(header.height);
-        let mut planes = Vec::new();
-        match kind {
-            Kind::Dfmf => {
-                for ch in 0..3 {
-                    let name = format!("channel {ch}");
-                    let scalar = read_scalar(&mut c, &format!("{name}'s scalar size"))?;
-                    planes.push(read_plane(&mut c, &name, scalar, pairs, cols)?);
+        let (header, body) = match kind {
+            Kind::Dfmf | Kind::Fmf { .. } => {
+                let header = read_header(&mut c, signature, kind)?;
+                let planes = read_planes(&mut c, &header)?;
+                if c.pos != len {
+                    return Err(UboErrorKind::Trailing {
+                        end: c.pos,
+                        extra: len - c.pos,
+                    });
                 }
+                (header, Body::Factors(planes))
             }
-            Kind::Fmf { .. } => {
-                c.u32("the largest component count")?;
-                let scalar = read_scalar(&mut c, "the scalar size")?;
-                planes.push(read_plane(
-                    &mut c,
-                    "the factorisation",
-                    scalar,
-                    3 * pairs,
-                    cols,
-                )?);
+            Kind::Pvf => {
+                let (header, body) = pvf::read(&mut c, signature)?;
+                (header, Body::PerView(body))
             }
-            Kind::Pvf | Kind::Bdi => unreachable!("refused above"),
-        }
-        if c.pos != len {
-            return Err(UboErrorKind::Trailing {
-                end: c.pos,
-                extra: len - c.pos,
-            });
-        }
+            Kind::Bdi { header_flag } => {
+                let (header, body) = bdi::read(&mut c, signature, header_flag)?;
+                (header, Body::Chunks(body))
+            }
+        };
         Ok(Self {
             source,
             header,
-            planes,
+            body,
         })
     }
 
@@ -648,25 +711,51 @@ impl<R: Read + Seek> Ubo2014<R> {
             .map(|&a| direction(a))
             .collect()
     }
-    /// Components per factorisation (one per channel for DFMF, one for FMF).
+    /// Components per factorisation: one per channel for DFMF, one for FMF, one per
+    /// view for PVF, none for BDI (which stores the values).
     pub fn components(&self) -> Vec<usize> {
-        self.planes.iter().map(|p| p.components).collect()
+        match &self.body {
+            Body::Factors(planes) => planes.iter().map(|p| p.components).collect(),
+            Body::PerView(p) => p.components(),
+            Body::Chunks(_) => Vec::new(),
+        }
+    }
+
+    /// How the values are stored, in a line for `meso btf info`.
+    pub fn storage(&self) -> String {
+        match &self.body {
+            Body::Factors(planes) => format!(
+                "{} factorisation{} ({} components), colour model {}",
+                planes.len(),
+                if planes.len() == 1 { "" } else { "s" },
+                planes
+                    .iter()
+                    .map(|p| p.components.to_string())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                self.header.color_model
+            ),
+            Body::PerView(p) => p.describe(),
+            Body::Chunks(c) => c.describe(&self.header),
+        }
     }
 
     /// S x V rows of the texels in `rect` (Meso rows, top first) for each plane.
-    fn read_sxv(&mut self, rect: TexelRect) -> Result<Vec<Vec<f32>>, UboErrorKind> {
-        let (w, h) = (u64::from(self.header.width), u64::from(self.header.height));
-        let mut out = Vec::with_capacity(self.planes.len());
-        for p in &self.planes {
+    fn read_sxv(
+        source: &mut R,
+        header: &Header,
+        planes: &[Plane],
+        rect: TexelRect,
+    ) -> Result<Vec<Vec<f32>>, UboErrorKind> {
+        let mut out = Vec::with_capacity(planes.len());
+        for p in planes {
             let (k, s) = (p.components as u64, scalar_bytes(p.scalar));
             let mut values = Vec::with_capacity(rect.texels() * p.components);
             let mut raw = vec![0u8; (u64::from(rect.width) * k * s) as usize];
             for y in rect.y..rect.y + rect.height {
-                // The file stores the bottom row first (btf_extractor flips it on load).
-                let file_row = h - 1 - u64::from(y);
-                let at = p.sxv_offset + (file_row * w + u64::from(rect.x)) * k * s;
-                self.source.seek(SeekFrom::Start(at))?;
-                self.source.read_exact(&mut raw)?;
+                let at = p.sxv_offset + (file_texel(header, rect.x, y) as u64) * k * s;
+                source.seek(SeekFrom::Start(at))?;
+                source.read_exact(&mut raw)?;
                 values.extend(to_f32(&raw, p.scalar));
             }
             out.push(values);
@@ -674,35 +763,26 @@ impl<R: Read + Seek> Ubo2014<R> {
         Ok(out)
     }
 
-    /// The values of the texels in `rect`, reconstructed from the factors, in Meso's
-    /// order (texel-major, then light, view, RGB; see `Btf`), RGB after the colour
-    /// model and dynamic-range reduction are undone, the light's cosine included.
-    pub fn read_texels(&mut self, rect: TexelRect) -> Result<Vec<f32>, UboErrorKind> {
-        rect.check_inside(self.header.width, self.header.height)?;
-        let (nl, nv) = (
-            self.header.light_angles.len(),
-            self.header.view_angles.len(),
-        );
-        crop::check_budget(rect.texels() as u64, (nl * nv) as u64)?;
-        let sxv = self.read_sxv(rect)?;
-        let planes = &self.planes;
-        let header = &self.header;
-        let cosines: Vec<f32> = self
-            .light_dirs()
-            .iter()
-            .map(|d| if header.cosine_flag { 1.0 } else { d.z as f32 })
-            .collect();
+    /// The stored channels of the texels in `rect` from DFMF or FMF factors, in Meso's
+    /// order (texel, light, view, channel).
+    fn read_factors(
+        source: &mut R,
+        header: &Header,
+        planes: &[Plane],
+        rect: TexelRect,
+    ) -> Result<Vec<f32>, UboErrorKind> {
+        let (nl, nv) = (header.light_angles.len(), header.view_angles.len());
+        let sxv = Self::read_sxv(source, header, planes, rect)?;
         let fmf = matches!(header.kind, Kind::Fmf { .. });
         let mut data = vec![0.0f32; rect.texels() * nl * nv * 3];
         data.par_chunks_mut(nl * nv * 3)
             .enumerate()
             .for_each(|(t, out)| {
-                for (l, &cos) in cosines.iter().enumerate() {
+                for l in 0..nl {
                     for v in 0..nv {
                         // Bonn's pair index: light fastest.
                         let pair = l + nl * v;
-                        let mut raw = [0.0f32; 3];
-                        for (ch, r) in raw.iter_mut().enumerate() {
+                        for ch in 0..3 {
                             let (plane, row) = if fmf {
                                 (&planes[0], ch + 3 * pair)
                             } else {
@@ -711,16 +791,46 @@ impl<R: Read + Seek> Ubo2014<R> {
                             let k = plane.components;
                             let u = &plane.u[row * k..(row + 1) * k];
                             let sv = &sxv[if fmf { 0 } else { ch }][t * k..(t + 1) * k];
-                            *r = u.iter().zip(sv).map(|(a, b)| a * b).sum();
-                        }
-                        let rgb = to_rgb(header, raw);
-                        let i = (l * nv + v) * 3;
-                        for ch in 0..3 {
-                            out[i + ch] = rgb[ch] * cos;
+                            out[(l * nv + v) * 3 + ch] = u.iter().zip(sv).map(|(a, b)| a * b).sum();
                         }
                     }
                 }
             });
+        Ok(data)
+    }
+
+    /// The values of the texels in `rect`, in Meso's order (texel-major, then light,
+    /// view, RGB; see `Btf`), RGB after the colour model and dynamic-range reduction
+    /// are undone, the light's cosine included.
+    pub fn read_texels(&mut self, rect: TexelRect) -> Result<Vec<f32>, UboErrorKind> {
+        rect.check_inside(self.header.width, self.header.height)?;
+        let (nl, nv) = (
+            self.header.light_angles.len(),
+            self.header.view_angles.len(),
+        );
+        crop::check_budget(rect.texels() as u64, (nl * nv) as u64)?;
+        let header = &self.header;
+        let mut data = match &self.body {
+            Body::Factors(planes) => Self::read_factors(&mut self.source, header, planes, rect)?,
+            Body::PerView(p) => p.read_texels(&mut self.source, header, rect)?,
+            Body::Chunks(c) => c.read_texels(&mut self.source, header, rect)?,
+        };
+        let cosines: Vec<f32> = self
+            .light_dirs()
+            .iter()
+            .map(|d| if header.cosine_flag { 1.0 } else { d.z as f32 })
+            .collect();
+        data.par_chunks_mut(nl * nv * 3).for_each(|texel| {
+            for (l, &cos) in cosines.iter().enumerate() {
+                for v in 0..nv {
+                    let i = (l * nv + v) * 3;
+                    let rgb = to_rgb(header, [texel[i], texel[i + 1], texel[i + 2]]);
+                    for ch in 0..3 {
+                        texel[i + ch] = rgb[ch] * cos;
+                    }
+                }
+            }
+        });
         Ok(data)
     }
 

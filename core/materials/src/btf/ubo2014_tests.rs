@@ -85,18 +85,69 @@ fn reference_files_read_as_btf_extractor_reads_them() {
     assert!(!f.header().cosine_flag);
 }
 
+/// The PVF and BDI fixtures (make_pvf_bdi_fixtures.py) and what btflib's decoder
+/// returns for them (checked against btflib itself under Octave: btflib_values.m).
+const PVF_BDI: [&str; 5] = [
+    "pvf_texels.btf",
+    "pvf_lights.btf",
+    "pvf_old.btf",
+    "bdi_full.btf",
+    "bdi_sparse.btf",
+];
+
+#[test]
+fn pvf_and_bdi_files_read_as_btflib_reads_them() {
+    let text = std::fs::read_to_string(reference("expected_pvf_bdi.json")).expect("json");
+    let want: serde_json::Value = serde_json::from_str(&text).expect("json");
+    let mut unmasked = 0;
+    for name in PVF_BDI {
+        let btf = import_path(&reference(name), name, None).expect(name);
+        assert_eq!(
+            (btf.width(), btf.height(), btf.pairs()),
+            (3, 2, 9),
+            "{name}"
+        );
+        let want = &want[name];
+        for l in 0..3 {
+            // btflib divides the light's cosine out; Meso's values include it.
+            let cos = btf.light_dirs()[l].z;
+            for v in 0..3 {
+                for y in 0..2 {
+                    for x in 0..3 {
+                        // btflib's row y is the file's; Meso's row 0 is the file's last.
+                        let got = btf.value((1 - y) * 3 + x, l, v);
+                        for c in 0..3 {
+                            let w = want[l][v][y][x][c].as_f64().expect("number") * cos;
+                            let g = f64::from(got[c]);
+                            assert!(
+                                (g - w).abs() <= 1e-6 * w.abs().max(1.0),
+                                "{name}: light {l} view {v} btflib row {y} column {x} channel {c}: {g} vs {w}"
+                            );
+                            unmasked += usize::from(w == 0.0);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    // bdi_sparse.btf leaves 2 of its 6 texels out of the mask.
+    assert_eq!(unmasked, 2 * 27);
+}
+
 #[test]
 fn texel_blocks_are_the_whole_tables_rectangles() {
-    let mut f = Ubo2014::open_path(&reference("dfmf_rgb.btf")).expect("open");
-    let whole = f.to_btf("w", "", None).expect("whole");
-    let rect = TexelRect::parse("1,1,2,1").expect("rect");
-    let part = f.to_btf("p", "", Some(rect)).expect("part");
-    assert_eq!((part.width(), part.height()), (2, 1));
-    for x in 0..2 {
-        assert_eq!(part.texel(x), whole.texel(3 + 1 + x));
+    for name in ["dfmf_rgb.btf", "fmf_drr.btf"].iter().chain(&PVF_BDI) {
+        let mut f = Ubo2014::open_path(&reference(name)).expect("open");
+        let whole = f.to_btf("w", "", None).expect("whole");
+        let rect = TexelRect::parse("1,1,2,1").expect("rect");
+        let part = f.to_btf("p", "", Some(rect)).expect("part");
+        assert_eq!((part.width(), part.height()), (2, 1));
+        for x in 0..2 {
+            assert_eq!(part.texel(x), whole.texel(3 + 1 + x), "{name}");
+        }
+        let e = f.read_texels(TexelRect::parse("2,0,2,1").expect("rect"));
+        assert!(e.expect_err("outside").to_string().contains("3x2"));
     }
-    let e = f.read_texels(TexelRect::parse("2,0,2,1").expect("rect"));
-    assert!(e.expect_err("outside").to_string().contains("3x2"));
 }
 
 #[test]
@@ -218,7 +269,7 @@ fn damaged_files_are_refused_with_the_place_named() {
         }
     };
     check(b"PK\x03\x04", &["signature", "PK"]);
-    check(b"!PVF06FCR....", &["PVF", "not read"]);
+    check(b"!PVF06FCR....", &["meta-data version", "ends at byte"]);
     check(
         &good[..good.len() - 2],
         &["channel 2's factors", "ends at byte"],
@@ -283,4 +334,105 @@ fn out_of_range_values_are_refused_before_writing() {
     let path = dir.path().join("x.btf");
     assert!(write_dfmf(&path, &b).is_err());
     assert!(!path.exists(), "nothing is written");
+}
+
+/// `bytes` with the u32 at `at` replaced by `v`.
+fn patched(bytes: &[u8], at: usize, v: u32) -> Vec<u8> {
+    let mut b = bytes.to_vec();
+    b[at..at + 4].copy_from_slice(&v.to_le_bytes());
+    b
+}
+
+/// Where the common header of a fixture written by make_pvf_bdi_fixtures.py ends.
+fn after_common(bytes: &[u8], signature: &str) -> usize {
+    let meta = u32::from_le_bytes(
+        bytes[signature.len()..signature.len() + 4]
+            .try_into()
+            .expect("4"),
+    );
+    // 3 views, each 8 + 4 + 3 x 8 bytes; width and height.
+    signature.len() + meta as usize + 4 + 3 * 36 + 8
+}
+
+#[test]
+fn damaged_pvf_files_are_refused_with_the_place_named() {
+    let good = std::fs::read(reference("pvf_lights.btf")).expect("fixture");
+    assert!(decode(&good).is_ok());
+    let check = |bytes: &[u8], needles: &[&str]| {
+        let e = decode(bytes).expect_err("must fail").to_string();
+        for n in needles {
+            assert!(e.contains(n), "`{e}` should mention `{n}`");
+        }
+    };
+    // `!PVF06FC`: no rotations; then the largest component count and the slot count.
+    let slots_at = after_common(&good, "!PVF06FC") + 4;
+    check(
+        &patched(&good, slots_at, 2),
+        &["view-slot count", "3 views"],
+    );
+    let slot0 = slots_at + 4;
+    // Dimension 5 fits neither layout.
+    check(
+        &patched(&good, slot0 + 9, 5),
+        &["view 0's factorisation's dimension", "5 (with 3 weights)"],
+    );
+    // A view whose sides differ from view 0's: view 1 says (channel, light) rows with
+    // texel weights.
+    let k = 2;
+    let slot_bytes = 13 + 4 * (k + 18 + 18 * k + 3 * k);
+    let slot1 = slot0 + slot_bytes;
+    let mut b = patched(&good, slot1 + 5, 6);
+    b = patched(&b, slot1 + 9, 9);
+    check(
+        &b,
+        &["view 1's factorisation's dimension", "same sides as view 0"],
+    );
+    // A huge component count: refused before anything is allocated.
+    check(
+        &patched(&good, slot0 + 1, u32::MAX),
+        &["view 0's factorisation", "ends at byte"],
+    );
+    check(
+        &good[..good.len() - 1],
+        &["view 2's factorisation", "ends at byte"],
+    );
+    check(
+        &patched(&good, slot0 + 1, 0),
+        &["component count", "at least 1"],
+    );
+}
+
+#[test]
+fn damaged_bdi_files_are_refused_with_the_place_named() {
+    let good = std::fs::read(reference("bdi_full.btf")).expect("fixture");
+    assert!(decode(&good).is_ok());
+    let check = |bytes: &[u8], needles: &[&str]| {
+        let e = decode(bytes).expect_err("must fail").to_string();
+        for n in needles {
+            assert!(e.contains(n), "`{e}` should mention `{n}`");
+        }
+    };
+    let lines_at = after_common(&good, "!BDIF06R2!");
+    check(
+        &patched(&good, lines_at, 0),
+        &["scan lines per chunk", "at least 1"],
+    );
+    let mut b = good.clone();
+    b[lines_at + 4] = 1;
+    check(&b, &["bzip2-compressed BDI", "not read"]);
+    b[lines_at + 4] = 7;
+    check(&b, &["compression", "= 7"]);
+    // Without the trailing `!` btflib takes the chunks to be bzip2-compressed.
+    let mut b = good.clone();
+    b.remove(lines_at + 4);
+    b.remove(9);
+    check(&b, &["`!BDIF06R2`", "bzip2"]);
+    // Mask (6 bytes), no rotations (4), then chunk 0's byte count: one texel short.
+    let chunk0 = lines_at + 5 + 6 + 4;
+    let texel = 3 * 2 * 9;
+    check(
+        &patched(&good, chunk0, (3 * texel - 1) as u32),
+        &["chunk 0's byte count", "162 bytes"],
+    );
+    check(&good[..good.len() - 1], &["chunk 1", "ends at byte"]);
 }

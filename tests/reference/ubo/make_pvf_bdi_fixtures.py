@@ -29,6 +29,8 @@ import sys
 
 import numpy as np
 
+from bonn_header import meta_block, sampling
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 LIGHTS = [(0.0, 0.0), (0.5, 1.0), (1.0, 4.0)]  # (theta, phi) radians
@@ -36,32 +38,6 @@ VIEWS = [(0.0, 0.0), (0.7, 2.0), (1.2, 5.5)]
 NL, NV = len(LIGHTS), len(VIEWS)
 W, H = 3, 2
 DTYPE = {2: "<f2", 4: "<f4", 8: "<f8"}
-
-
-def meta_block(version, cosine_flag):
-    body = struct.pack("<I", version)
-    for text in (b"reference", b"", b""):
-        body += text.ljust(80, b"\0")
-    body += struct.pack("<f3f", 2.5, 1.0, 1.0, 1.0)
-    if version > 1:
-        body += struct.pack("<I", cosine_flag)
-    if version > 2:
-        xml = b"<measurement/>"
-        body += struct.pack("<I", len(xml)) + xml
-    if version > 3:
-        body += struct.pack("<I", 3)
-        for c in ("R", "G", "B"):
-            body += struct.pack("<I", len(c)) + c.encode()
-    return struct.pack("<I", 4 + len(body)) + body
-
-
-def sampling():
-    out = struct.pack("<I", NV)
-    for v in VIEWS:
-        out += struct.pack("<2f", *v) + struct.pack("<I", NL)
-        for l in LIGHTS:
-            out += struct.pack("<2f", *l)
-    return out
 
 
 def rotations(n):
@@ -118,7 +94,7 @@ def pvf(path, signature, header, slots, texel_weights):
 def bdi(path, cosine_flag, lines, mask):
     """mask[x, y]; btflib reads it as width x height, the byte for (x, y) at y + H x."""
     rng = np.random.default_rng(len(path) + 7)
-    out = b"!BDIF06R2!" + meta_block(4, cosine_flag) + sampling()
+    out = b"!BDIF06R2!" + meta_block(4, cosine_flag) + sampling(LIGHTS, VIEWS)
     compression = 0 if mask.all() else 2
     out += struct.pack("<III", W, H, lines) + struct.pack("<B", compression)
     out += mask.astype(np.uint8).tobytes()  # C order of [x, y]: y fastest
@@ -147,7 +123,7 @@ def main():
     common = lambda version, cosine, sig_r: (
         # btflib's read_common_header calls an undefined `read_matrix` when a file has
         # rotations, so the PVF fixtures carry a rotation count of 0.
-        meta_block(version, cosine) + sampling() + struct.pack("<II", W, H) + (rotations(0) if sig_r else b"")
+        meta_block(version, cosine) + sampling(LIGHTS, VIEWS) + struct.pack("<II", W, H) + (rotations(0) if sig_r else b"")
     )
     expected = {}
     a = pvf(
@@ -166,7 +142,7 @@ def main():
         False,
     )
     expected["pvf_lights.btf"] = btflib_values(a, False)
-    old = struct.pack("<iIIII", 301074, 2, W, H, NV) + sampling()
+    old = struct.pack("<iIIII", 301074, 2, W, H, NV) + sampling(LIGHTS, VIEWS)
     a = pvf(os.path.join(HERE, "pvf_old.btf"), b"!PVF06FCR", old, [(2, 2)] * NV, True)
     expected["pvf_old.btf"] = btflib_values(a, False)
     a = bdi(os.path.join(HERE, "bdi_full.btf"), 1, 1, np.ones((W, H), bool))

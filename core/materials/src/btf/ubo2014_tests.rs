@@ -258,16 +258,18 @@ fn colour_models_are_undone_as_btflib_does() {
     assert!(e.contains("colour model") && e.contains("= 2"), "{e}");
 }
 
+/// Asserts `decode` refuses `bytes` with a message holding every needle.
+fn check(bytes: &[u8], needles: &[&str]) {
+    let e = decode(bytes).expect_err("must fail").to_string();
+    for n in needles {
+        assert!(e.contains(n), "`{e}` should mention `{n}`");
+    }
+}
+
 #[test]
 fn damaged_files_are_refused_with_the_place_named() {
     let good = tiny(0);
     assert!(decode(&good).is_ok());
-    let check = |bytes: &[u8], needles: &[&str]| {
-        let e = decode(bytes).expect_err("must fail").to_string();
-        for n in needles {
-            assert!(e.contains(n), "`{e}` should mention `{n}`");
-        }
-    };
     check(b"PK\x03\x04", &["signature", "PK"]);
     check(b"!PVF06FCR....", &["meta-data version", "ends at byte"]);
     check(
@@ -358,12 +360,6 @@ fn after_common(bytes: &[u8], signature: &str) -> usize {
 fn damaged_pvf_files_are_refused_with_the_place_named() {
     let good = std::fs::read(reference("pvf_lights.btf")).expect("fixture");
     assert!(decode(&good).is_ok());
-    let check = |bytes: &[u8], needles: &[&str]| {
-        let e = decode(bytes).expect_err("must fail").to_string();
-        for n in needles {
-            assert!(e.contains(n), "`{e}` should mention `{n}`");
-        }
-    };
     // `!PVF06FC`: no rotations; then the largest component count and the slot count.
     let slots_at = after_common(&good, "!PVF06FC") + 4;
     check(
@@ -406,12 +402,6 @@ fn damaged_pvf_files_are_refused_with_the_place_named() {
 fn damaged_bdi_files_are_refused_with_the_place_named() {
     let good = std::fs::read(reference("bdi_full.btf")).expect("fixture");
     assert!(decode(&good).is_ok());
-    let check = |bytes: &[u8], needles: &[&str]| {
-        let e = decode(bytes).expect_err("must fail").to_string();
-        for n in needles {
-            assert!(e.contains(n), "`{e}` should mention `{n}`");
-        }
-    };
     let lines_at = after_common(&good, "!BDIF06R2!");
     check(
         &patched(&good, lines_at, 0),

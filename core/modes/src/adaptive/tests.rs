@@ -312,6 +312,15 @@ fn point_lights_ambient_occlusion_and_mirrors_converge_to_the_brute_force() {
 }
 
 #[test]
+fn forty_lights_converge_to_the_brute_force() {
+    // Point lights and small one-sided area lights, above the spmm mode's threshold
+    // for stochastic light selection.
+    let scene = meso_render::scene::test_scenes::many_lights_scene(40);
+    AdaptiveMode::supports(&scene).expect("every light is rendered");
+    converges_like_the_brute_force(&scene, "forty lights");
+}
+
+#[test]
 fn a_camera_edit_restarts_and_an_emission_edit_keeps_the_samples() {
     use meso_render::{Invalidation, SceneEdit};
     let scene = merl_test_scene();

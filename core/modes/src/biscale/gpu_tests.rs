@@ -336,6 +336,7 @@ fn an_spmm_pack_gives_the_cpus_image() {
     // The leather's basis rows are on the device (views x cells per basis).
     let row = u64::from(s.view_res * s.view_res * s.local_res * s.local_res) * 4;
     assert!(table_bytes(&mode) > row, "{} bytes", table_bytes(&mode));
+    eprintln!("default scene: biscale_tables {} bytes", table_bytes(&mode));
     agrees("default scene under the map", &scene, &mut mode, 48, 16, &s);
 }
 

@@ -35,6 +35,14 @@ const TABLE_GRAY: u32 = 1u;
 const TABLE_RGB: u32 = 2u;
 // A `btf` material: each cell's response at one jittered direction (`shade_untabulated`).
 const TABLE_CELLS: u32 = 3u;
+// An SPMM pack: [clusters, terms], per cluster [basis rows' offset (NO_ROWS: not
+// uploaded), bases, residual rows' offset (NO_ROWS: none)], then per cluster its
+// basis rows [basis][view][M] and residual rows [term][view][channel][M]. The texel's
+// cluster, weights and PCA coefficients are the pack the material record points at in
+// `data` (spmm.wgsl's header), the GPU spmm mode's own upload.
+const TABLE_SPMM: u32 = 4u;
+const NO_ROWS: u32 = 0xffffffffu;
+const SPMM_CLUSTER_WORDS: u32 = 3u;
 
 const LEAF_BIT: u32 = 0x80000000u;
 // `refine::MAX_DEPTH` + 1 steps.
@@ -172,6 +180,74 @@ fn pick_view(wo: vec3<f32>, res: u32, u: f32) -> u32 {
     return y * res + x;
 }
 
+// Eq. 3 for an SPMM texel (`BtfTable::shade`, `BtfTable::Spmm`): per local cell, L*
+// times the texel's weighted basis rows of its cluster for `view`, plus the residual's
+// mean row and its components' rows times the texel's coefficients (the first
+// MOVING_NPCA while the camera moves). Texels of a cluster not uploaded, or of a pack
+// no mesh carries, are dark (no ray reaches them).
+fn biscale_spmm(s: Shading, at: u32, view: u32, a: Around, cells: u32) -> vec3<f32> {
+    let rec = params.material_table + s.material * MATERIAL_WORDS;
+    if data[rec] != MATERIAL_SPMM {
+        return vec3<f32>(0.0);
+    }
+    let m = data[rec + 1u];
+    let t = spmm_texel_at(m, s.uv);
+    let c = data[data[m + SPMM_TEXEL_CLUSTER] + t];
+    if c >= bis(at) {
+        return vec3<f32>(0.0);
+    }
+    let entry = at + 2u + c * SPMM_CLUSTER_WORDS;
+    let bases = bis(entry);
+    if bases == NO_ROWS {
+        return vec3<f32>(0.0);
+    }
+    let basis_count = bis(entry + 1u);
+    let vc = bis(BIS_VIEW_RES) * bis(BIS_VIEW_RES);
+    let offsets = data[m + SPMM_OFFSETS];
+    let first = data[offsets + t];
+    let last = min(data[offsets + t + 1u], first + 1024u);
+    // The residual where the pack's upload has one for this cluster (the record's
+    // flag; a view that hides a cluster's residual leaves its cells unset).
+    var residual = bis(entry + 2u);
+    let k = min(data[m + SPMM_K], 256u);
+    var terms = min(bis(at + 1u), k);
+    if params.moving != 0u {
+        terms = min(terms, MOVING_NPCA);
+    }
+    let cells_at = data[m + SPMM_CLUSTER_CELLS];
+    if data[rec + 2u] == 0u || data[m + SPMM_HAS_RESIDUAL] == 0u || data[cells_at + c] == NO_CLUSTER {
+        residual = NO_ROWS;
+    }
+    let coef = data[m + SPMM_COEFFICIENTS] + t * k;
+    let stride = vc * cells;
+    var out = vec3<f32>(0.0);
+    for (var cell = 0u; cell < cells; cell++) {
+        let l = lstar_at(a, cell, cells);
+        var sum = vec3<f32>(0.0);
+        for (var i = first; i < last; i++) {
+            let j = data[data[m + SPMM_BASIS] + i];
+            if j < basis_count {
+                let w = rgb_at(data[m + SPMM_RGB] + 3u * i);
+                sum += w * bis_f(bases + j * stride + view * cells + cell);
+            }
+        }
+        out += sum * l;
+        if residual != NO_ROWS {
+            var e = vec3<f32>(0.0);
+            for (var term = 0u; term <= terms; term++) {
+                var x = 1.0;
+                if term > 0u {
+                    x = f32_at(coef + term - 1u);
+                }
+                let row = residual + (term * vc + view) * 3u * cells + cell;
+                e += x * vec3<f32>(bis_f(row), bis_f(row + cells), bis_f(row + 2u * cells));
+            }
+            out += e * l;
+        }
+    }
+    return out;
+}
+
 // Eq. 3 at the hit: the tabulated row of the view (or, for a `btf` material, the
 // response at a jittered direction per cell) dotted with L*, RGB.
 fn biscale_radiance(s: Shading, wo: vec3<f32>, a: Around, rng: ptr<function, Rng>) -> vec3<f32> {
@@ -200,6 +276,8 @@ fn biscale_radiance(s: Shading, wo: vec3<f32>, a: Around, rng: ptr<function, Rng
         if kind == TABLE_GRAY {
             out *= vec3<f32>(bis_f(at), bis_f(at + 1u), bis_f(at + 2u));
         }
+    } else if kind == TABLE_SPMM {
+        out = biscale_spmm(s, at, pick_view(lo, bis(BIS_VIEW_RES), u_view), a, cells);
     } else if kind == TABLE_CELLS {
         let res = max(bis(BIS_LOCAL_RES), 1u);
         for (var m = 0u; m < cells; m++) {

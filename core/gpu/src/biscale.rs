@@ -17,6 +17,12 @@ const TABLE_NONE: u32 = 0;
 const TABLE_GRAY: u32 = 1;
 const TABLE_RGB: u32 = 2;
 const TABLE_CELLS: u32 = 3;
+const TABLE_SPMM: u32 = 4;
+/// An SPMM cluster with no rows on the device (no ray reaches it).
+const NO_ROWS: u32 = u32::MAX;
+/// Words of one cluster's entry in an SPMM table: basis rows' offset, bases, residual
+/// rows' offset.
+const SPMM_CLUSTER_WORDS: usize = 3;
 /// The shader's bound on local cells (32 x 32, `BiscaleSettings::problem`'s largest).
 const MAX_CELLS: u32 = 1024;
 
@@ -32,6 +38,24 @@ pub enum BiscaleTable<'a> {
     /// Each cell's response at one jittered direction, evaluated by the device's own
     /// material code (`btf` materials, which have no table on the CPU either).
     Cells,
+    /// An SPMM pack: per cluster its rows (none for a cluster no ray reaches, which
+    /// then costs nothing); the texels' weights, clusters and PCA coefficients are
+    /// the pack the GPU spmm mode uploads for its own shading (the material record's).
+    Spmm {
+        /// Per cluster of the pack; `None`: not uploaded.
+        clusters: &'a [Option<SpmmRows<'a>>],
+        /// The residual's PCA terms tabulated (0 without a residual in use).
+        terms: u32,
+    },
+}
+
+/// One SPMM cluster's biscale rows.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SpmmRows<'a> {
+    /// [basis][view][M], one tabulated row per basis function of the cluster.
+    pub bases: &'a [f32],
+    /// [term (mean, then the components)][view][channel][M]; empty without a residual.
+    pub residual: &'a [f32],
 }
 
 /// The CPU's preparation, as the device reads it.
@@ -173,6 +197,10 @@ impl BiscaleBlock {
                     TABLE_RGB
                 }
                 BiscaleTable::Cells => TABLE_CELLS,
+                BiscaleTable::Spmm { clusters, terms } => {
+                    encode_spmm(&mut w, k, clusters, *terms, views * m)?;
+                    TABLE_SPMM
+                }
             };
             let slot = table_start + 2 * k;
             w[slot] = kind;
@@ -203,6 +231,47 @@ impl BiscaleBlock {
         }
         Ok(Self { words: w, bytes })
     }
+}
+
+/// An SPMM table: the cluster count and the terms, per cluster its entry
+/// (`SPMM_CLUSTER_WORDS`, offsets from the biscale words' start), then the rows.
+/// `row` is one row's length, views x M.
+fn encode_spmm(
+    w: &mut Vec<u32>,
+    material: usize,
+    clusters: &[Option<SpmmRows>],
+    terms: u32,
+    row: usize,
+) -> Result<(), String> {
+    let head = w.len();
+    w.push(clusters.len() as u32);
+    w.push(terms);
+    w.resize(w.len() + SPMM_CLUSTER_WORDS * clusters.len(), NO_ROWS);
+    let residual_len = (1 + terms as usize) * 3 * row;
+    for (c, rows) in clusters.iter().enumerate() {
+        let Some(rows) = rows else { continue };
+        if rows.bases.len() % row != 0 {
+            return Err(format!(
+                "material {material}'s cluster {c} has {} basis values, not a multiple of {row}",
+                rows.bases.len()
+            ));
+        }
+        if !rows.residual.is_empty() && rows.residual.len() != residual_len {
+            return Err(format!(
+                "material {material}'s cluster {c} has {} residual values, not {residual_len}",
+                rows.residual.len()
+            ));
+        }
+        let entry = head + 2 + SPMM_CLUSTER_WORDS * c;
+        w[entry] = w.len() as u32;
+        w[entry + 1] = (rows.bases.len() / row) as u32;
+        w.extend(rows.bases.iter().map(|&v| bits(v)));
+        if !rows.residual.is_empty() {
+            w[entry + 2] = w.len() as u32;
+            w.extend(rows.residual.iter().map(|&v| bits(v)));
+        }
+    }
+    Ok(())
 }
 
 fn check_rows(material: usize, got: usize, want: usize) -> Result<(), String> {
@@ -278,5 +347,63 @@ mod tests {
         assert!(err(&[LEAF_BIT], &[[0, 1, 2]], &lstar[1..], &gray).contains("multiple"));
         let short = [BiscaleTable::Rgb { rows: &rows }];
         assert!(err(&[LEAF_BIT], &[[0, 1, 2]], &lstar, &short).contains("not 12"));
+    }
+
+    /// An SPMM table: a cluster not uploaded has no rows and its entry says so; a
+    /// cluster's rows land where its entry points; rows of the wrong size are refused.
+    #[test]
+    fn spmm_rows_go_up_for_the_clusters_uploaded_only() {
+        let lstar = vec![0.0f32; 3 * 3 * 4];
+        // One view, four cells: a row is 4 values; two bases, one residual term.
+        let bases: Vec<f32> = (0..8).map(|v| v as f32).collect();
+        let residual: Vec<f32> = (0..2 * 3 * 4).map(|v| 100.0 + v as f32).collect();
+        let clusters = [
+            None,
+            Some(SpmmRows {
+                bases: &bases,
+                residual: &residual,
+            }),
+        ];
+        let tables = [BiscaleTable::Spmm {
+            clusters: &clusters,
+            terms: 1,
+        }];
+        let b = BiscaleBlock::encode(&inputs(&[LEAF_BIT], &[[0, 1, 2]], &lstar, &tables))
+            .expect("valid");
+        let w = &b.words;
+        let table = w[9] as usize;
+        assert_eq!(w[table], TABLE_SPMM);
+        let at = w[table + 1] as usize;
+        assert_eq!(&w[at..at + 2], &[2, 1]);
+        assert_eq!(&w[at + 2..at + 5], &[NO_ROWS, NO_ROWS, NO_ROWS]);
+        let entry = &w[at + 5..at + 8];
+        assert_eq!(entry[1], 2, "two bases");
+        assert_eq!(f32::from_bits(w[entry[0] as usize + 5]), 5.0);
+        assert_eq!(f32::from_bits(w[entry[2] as usize + 7]), 107.0);
+        // The header, the entries and exactly the one cluster's rows.
+        let words = 2 + 2 * 3 + bases.len() + residual.len();
+        assert_eq!(b.bytes.tables, 4 * (2 + words) as u64);
+        let short = [Some(SpmmRows {
+            bases: &bases[1..],
+            residual: &[],
+        })];
+        let bad = [BiscaleTable::Spmm {
+            clusters: &short,
+            terms: 0,
+        }];
+        let e = BiscaleBlock::encode(&inputs(&[LEAF_BIT], &[[0, 1, 2]], &lstar, &bad))
+            .expect_err("refused");
+        assert!(e.contains("not a multiple of 4"), "{e}");
+        let wrong = [Some(SpmmRows {
+            bases: &bases,
+            residual: &residual[3..],
+        })];
+        let bad = [BiscaleTable::Spmm {
+            clusters: &wrong,
+            terms: 1,
+        }];
+        let e = BiscaleBlock::encode(&inputs(&[LEAF_BIT], &[[0, 1, 2]], &lstar, &bad))
+            .expect_err("refused");
+        assert!(e.contains("not 24"), "{e}");
     }
 }

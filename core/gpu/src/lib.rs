@@ -25,10 +25,11 @@ mod mode;
 mod reach;
 mod shaders;
 
-pub use biscale::{BiscaleBlock, BiscaleBytes, BiscaleInputs, BiscaleTable, LEAF_BIT};
+pub use biscale::{BiscaleBlock, BiscaleBytes, BiscaleInputs, BiscaleTable, LEAF_BIT, SpmmRows};
 pub use context::{GpuContext, GpuError, Sharing, hardware_adapter, is_hardware};
 pub use display::{DeviceImage, DisplayTexture};
 pub use mode::{DeviceBytes, GpuSpmmMode};
+pub use reach::{Reach, reachable_clusters};
 
 #[cfg(test)]
 mod film_tests;

@@ -10,10 +10,10 @@ use meso_render::scene::{Material, Scene};
 /// Per material: `Some(used clusters)` for an SPMM pack, `Some([carried])` for a
 /// `btf` table (uploaded whole, or not at all if no mesh carries it), `None` for
 /// other kinds.
-pub(super) type Reach = Vec<Option<Vec<bool>>>;
+pub type Reach = Vec<Option<Vec<bool>>>;
 
 /// The clusters each SPMM pack of `scene` can be shaded at.
-pub(super) fn reachable_clusters(scene: &Scene) -> Reach {
+pub fn reachable_clusters(scene: &Scene) -> Reach {
     scene
         .materials
         .iter()

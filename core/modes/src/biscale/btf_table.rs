@@ -49,6 +49,29 @@ pub struct SpmmTable {
     k: usize,
 }
 
+impl SpmmTable {
+    /// The pack's clusters.
+    pub fn clusters(&self) -> usize {
+        self.bases.len()
+    }
+
+    /// Cluster `c`'s basis rows, [basis][view][M].
+    pub fn basis_rows(&self, c: usize) -> &[f32] {
+        self.bases.get(c).map_or(&[], Vec::as_slice)
+    }
+
+    /// Cluster `c`'s residual rows, [term][view][channel][M]; empty without a
+    /// residual in use.
+    pub fn residual_rows(&self, c: usize) -> &[f32] {
+        self.residual.get(c).map_or(&[], Vec::as_slice)
+    }
+
+    /// The residual's PCA terms tabulated (0 without a residual in use).
+    pub fn terms(&self) -> usize {
+        if self.residual.is_empty() { 0 } else { self.k }
+    }
+}
+
 /// How a pixel's view direction reads the tabulated views.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ViewLookup {

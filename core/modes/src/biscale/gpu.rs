@@ -13,20 +13,23 @@
 //! stochastically (the CPU's nearest-view shortcut while the camera moves is not
 //! needed on the device), and above 16 lights the device's stochastic light selection
 //! is used (the CPU biscale mode samples every light); both have the same expectation.
-//! SPMM packs are refused: their tables (bases per cluster x views x cells, the
-//! residual's terms) are not uploaded.
+//! SPMM packs: their biscale tables (per cluster, basis rows and the residual's
+//! terms, views x cells) go up for the clusters a ray can reach; the texels' clusters,
+//! weights and PCA coefficients are read from the pack the device half uploads for
+//! its own shading, not uploaded twice.
 
 use std::sync::Arc;
 use std::time::Instant;
 
-use meso_gpu::{BiscaleBlock, BiscaleInputs, BiscaleTable as DeviceTable, GpuContext, GpuSpmmMode};
+use meso_gpu::{
+    BiscaleBlock, BiscaleInputs, BiscaleTable as DeviceTable, GpuContext, GpuSpmmMode, SpmmRows,
+};
 use meso_materials::image::Image;
 use meso_render::geometry::SceneBvh;
 use meso_render::scene::{Environment, Material, RenderSettings, Scene};
 use meso_render::{
     Device, Diagnostic, Diagnostics, EditError, FrameStats, ImageOnDevice, Invalidation, ModeError,
-    ModeKind, Pass, PreparationReport, Prepare, Progress, RenderMode, SceneEdit, Unrenderable,
-    Unsupported,
+    ModeKind, Pass, PreparationReport, Prepare, Progress, RenderMode, SceneEdit, Unsupported,
 };
 
 use super::BiscaleSettings;
@@ -53,39 +56,27 @@ pub struct GpuBiscaleMode {
     light_change_ms: f64,
 }
 
+/// The device half's refusal (it names the spmm mode) as this mode's.
+fn for_this_mode(u: Unsupported) -> Unsupported {
+    Unsupported {
+        mode: ModeKind::Biscale,
+        ..u
+    }
+}
+
 /// A device-side refusal of the CPU's preparation (a broken invariant, named).
 fn upload_error(e: String) -> ModeError {
     ModeError::Size(format!("biscale upload: {e}"))
 }
 
 impl GpuBiscaleMode {
-    /// What the device cannot render: SPMM packs (their biscale tables are not
-    /// uploaded). Analytic BRDFs and MERL tables read their tables, `btf` materials
-    /// are evaluated per cell by the device's material code, mirrors reflect the ray.
+    /// What the device cannot render: what its device half cannot shade (a `btf`
+    /// table read from disk, which has no values in memory to upload), named for this
+    /// mode. Analytic BRDFs, MERL tables and SPMM packs read their tables (a pack's
+    /// texel weights are the device half's own upload), `btf` materials are evaluated
+    /// per cell by the device's material code, mirrors reflect the ray.
     pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
-        let parts = scene
-            .materials
-            .iter()
-            .enumerate()
-            .filter(|(_, m)| !Self::shades(m))
-            .map(|(index, m)| Unrenderable::Material {
-                index,
-                name: scene.material_name(index),
-                kind: m.kind_name(),
-            })
-            .collect();
-        Unsupported::check(ModeKind::Biscale, Device::Gpu, parts)
-    }
-
-    /// Exhaustive, so a new material kind must say whether the device shades it.
-    fn shades(m: &Material) -> bool {
-        match m {
-            Material::Brdf { .. }
-            | Material::Merl { .. }
-            | Material::Btf { .. }
-            | Material::Mirror { .. } => true,
-            Material::Spmm { .. } => false,
-        }
+        GpuSpmmMode::supports(scene).map_err(for_this_mode)
     }
 
     /// Prepares `scene` on `ctx` with the default settings.
@@ -255,18 +246,47 @@ fn encode(
     lstar: Option<&[f32]>,
     split: Option<&EnvironmentSplit>,
 ) -> Result<BiscaleBlock, String> {
+    // An SPMM pack's rows go up for the clusters a ray can reach, as its pack does
+    // for the GPU spmm mode's shading (`reachable_clusters`); a pack no mesh carries
+    // has none.
+    let reach = meso_gpu::reachable_clusters(scene);
+    let spmm_rows: Vec<Option<Vec<Option<SpmmRows>>>> = tables
+        .iter()
+        .zip(&reach)
+        .map(|(t, used)| match (t, used) {
+            (Some(BtfTable::Spmm(t)), Some(used)) if used.contains(&true) => Some(
+                (0..t.clusters())
+                    .map(|c| {
+                        used.get(c).copied().unwrap_or(false).then(|| SpmmRows {
+                            bases: t.basis_rows(c),
+                            residual: t.residual_rows(c),
+                        })
+                    })
+                    .collect(),
+            ),
+            _ => None,
+        })
+        .collect();
     let device_tables: Vec<DeviceTable> = scene
         .materials
         .iter()
         .zip(tables)
-        .map(|(m, t)| match (m, t) {
+        .zip(&spmm_rows)
+        .map(|((m, t), rows)| match (m, t) {
+            (_, Some(BtfTable::Spmm(t))) => match rows {
+                Some(clusters) => DeviceTable::Spmm {
+                    clusters,
+                    terms: t.terms() as u32,
+                },
+                None => DeviceTable::None,
+            },
             (_, Some(BtfTable::Brdf { rows, albedo })) => DeviceTable::Gray {
                 rows,
                 albedo: *albedo,
             },
             (_, Some(BtfTable::Rgb { rows })) => DeviceTable::Rgb { rows },
             (Material::Btf { .. }, _) => DeviceTable::Cells,
-            // Mirrors (the ray is followed); SPMM packs are refused before.
+            // Mirrors (the ray is followed).
             _ => DeviceTable::None,
         })
         .collect();
@@ -373,25 +393,27 @@ impl RenderMode for GpuBiscaleMode {
     fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
         match edit {
             SceneEdit::Material { index, material } => {
-                // A material that does not exist is the device half's error to name.
-                if !Self::shades(&material) && index < self.scene().materials.len() {
-                    let name = self.scene().material_name(index);
-                    return Err(Unsupported {
-                        mode: ModeKind::Biscale,
-                        device: Device::Gpu,
-                        parts: vec![Unrenderable::Material {
-                            index,
-                            name,
-                            kind: material.kind_name(),
-                        }],
-                    }
-                    .into());
-                }
+                let previous = self.scene().materials.get(index).cloned();
                 let before = self.tables.get(index).and_then(Option::as_ref);
                 let table = self.tab.table_reusing(before, &material);
-                let invalidation = self.device.apply(SceneEdit::Material { index, material })?;
-                self.tables[index] = table;
-                self.upload()?;
+                // The device half refuses what it cannot shade, named for this mode.
+                let invalidation = (self.device)
+                    .apply(SceneEdit::Material { index, material })
+                    .map_err(|e| match e {
+                        EditError::Unsupported(u) => EditError::Unsupported(for_this_mode(u)),
+                        e => e,
+                    })?;
+                let table_before = std::mem::replace(&mut self.tables[index], table);
+                if let Err(e) = self.upload() {
+                    // The new tables do not fit: the material goes back as it was on
+                    // the device too, so the words and the materials agree.
+                    self.tables[index] = table_before;
+                    if let Some(m) = previous {
+                        self.device
+                            .apply(SceneEdit::Material { index, material: m })?;
+                    }
+                    return Err(e);
+                }
                 Ok(invalidation)
             }
             edit @ SceneEdit::Meshes(_) => {

@@ -273,9 +273,10 @@ fn camera_and_environment_edits_give_the_cpus_image() {
 }
 
 /// A material edit to an analytic BRDF (a gray table on the device) gives the CPU's
-/// image; SPMM packs are refused by name, the scene left as it was.
+/// image, and so does an SPMM pack put on the bunny (it was refused by name before
+/// the device read packs' biscale tables).
 #[test]
-fn material_edits_are_uploaded_or_refused_by_name() {
+fn material_edits_are_uploaded() {
     let cache = tempfile::tempdir().expect("a temporary folder");
     let s = settings(cache.path());
     let scene = bunny();
@@ -295,18 +296,161 @@ fn material_edits_are_uploaded_or_refused_by_name() {
     .expect("a BRDF on the device");
     agrees("merl_bunny, BRDF floor", &edited, &mut mode, 32, 8, &s);
     let pack = meso_render::scene::test_scenes::tilted_spmm();
-    let err = mode
+    let bunny = scene.meshes[0].material;
+    mode.apply(SceneEdit::Material {
+        index: bunny,
+        material: pack.clone(),
+    })
+    .expect("a pack on the device");
+    edited.materials[bunny] = pack;
+    GpuBiscaleMode::supports(&edited).expect("packs are rendered");
+    agrees("merl_bunny, tilted pack", &edited, &mut mode, 32, 8, &s);
+}
+
+/// The default scene (the leather pack on the bunny, a Lambertian floor, an area
+/// light, the ambient term) under the studio map, so the pack's biscale tables light
+/// the bunny: its image is the CPU's.
+fn leather_bunny() -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/scenes/default.toml");
+    let mut scene = load_scene(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    scene.environment = bunny().environment;
+    let bunny = scene.meshes[0].material;
+    assert!(
+        matches!(scene.materials[bunny], Material::Spmm { .. }),
+        "the default scene's bunny wears a pack"
+    );
+    scene
+}
+
+/// Bytes of the biscale tables on the device.
+fn table_bytes(mode: &GpuBiscaleMode) -> u64 {
+    mode.device_mode().biscale_bytes().tables
+}
+
+#[test]
+fn an_spmm_pack_gives_the_cpus_image() {
+    let cache = tempfile::tempdir().expect("a temporary folder");
+    let s = settings(cache.path());
+    let scene = leather_bunny();
+    let mut mode = gpu(scene.clone(), 48, &s);
+    // The leather's basis rows are on the device (views x cells per basis).
+    let row = u64::from(s.view_res * s.view_res * s.local_res * s.local_res) * 4;
+    assert!(table_bytes(&mode) > row, "{} bytes", table_bytes(&mode));
+    eprintln!("default scene: biscale_tables {} bytes", table_bytes(&mode));
+    agrees("default scene under the map", &scene, &mut mode, 48, 16, &s);
+}
+
+/// The leather's precomputed part alone (no peaks, lights or ambient term), the floor
+/// in leather too with texels several pixels wide, so each pixel shows one texel's
+/// cluster and weights rather than the grain's average (which a wrong cluster index
+/// keeps within the noise on the bunny, whose texels are far below a pixel).
+#[test]
+fn the_precomputed_part_of_a_pack_is_the_cpus() {
+    let cache = tempfile::tempdir().expect("a temporary folder");
+    let s = BiscaleSettings {
+        traced_share: 0.0,
+        ..settings(cache.path())
+    };
+    let mut scene = leather_bunny();
+    scene.lights.clear();
+    scene.ambient = None;
+    let (bunny, floor) = (scene.meshes[0].material, scene.meshes[1].material);
+    let Material::Spmm { material, .. } = &scene.materials[bunny] else {
+        panic!("a pack");
+    };
+    scene.materials[floor] = Material::Spmm {
+        material: material.clone(),
+        uv_scale: glam::DVec2::splat(0.125),
+        residual: true,
+        npca: 0,
+    };
+    let mut mode = gpu(scene.clone(), 32, &s);
+    agrees("leather, precomputed part", &scene, &mut mode, 32, 32, &s);
+}
+
+/// A pack with a residual (the woven cloth of tests/scenes/biscale.toml, its mean and
+/// six components) on the floor, texels several pixels wide, in the precomputed part
+/// alone where the only noise is the jitter and the view pick: the residual's rows
+/// times each texel's own coefficients, as on the CPU (on the bunny, where a pixel
+/// averages many texels, coefficients read one term off stay within the noise).
+#[test]
+fn an_spmm_residual_in_the_precomputed_part_is_the_cpus() {
+    let cache = tempfile::tempdir().expect("a temporary folder");
+    let s = BiscaleSettings {
+        traced_share: 0.0,
+        ..settings(cache.path())
+    };
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/scenes/biscale.toml");
+    let cloth = load_scene(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let Material::Spmm {
+        material, residual, ..
+    } = &cloth.materials[cloth.meshes[0].material]
+    else {
+        panic!("biscale.toml's bunny wears a pack");
+    };
+    assert!(*residual && material.npca() > 6, "a residual in use");
+    let mut scene = leather_bunny();
+    scene.lights.clear();
+    scene.ambient = None;
+    let floor = scene.meshes[1].material;
+    scene.materials[floor] = Material::Spmm {
+        material: material.clone(),
+        uv_scale: glam::DVec2::splat(0.125),
+        residual: true,
+        npca: 6,
+    };
+    let mut mode = gpu(scene.clone(), 32, &s);
+    agrees("woven cloth floor, residual", &scene, &mut mode, 32, 32, &s);
+}
+
+/// Edits of the pack: its weights scaled (the same bases, new texel weights on the
+/// device), then the floor made a pack too; each gives the CPU's image of the
+/// edited scene.
+#[test]
+fn spmm_pack_edits_give_the_cpus_image() {
+    let cache = tempfile::tempdir().expect("a temporary folder");
+    let s = settings(cache.path());
+    let scene = leather_bunny();
+    let (bunny, floor_index) = (scene.meshes[0].material, scene.meshes[1].material);
+    let mut mode = gpu(scene.clone(), 32, &s);
+    run_frames(&mut mode, 2, |_, _| {});
+    let mut edited = scene.clone();
+    let Material::Spmm { material, .. } = &mut edited.materials[bunny] else {
+        panic!("a pack");
+    };
+    let scaled = material
+        .with_weight_scale(
+            &meso_materials::spmm::WeightTarget::cluster(0),
+            [2.0, 0.5, 1.0],
+        )
+        .expect("a weight edit");
+    *material = std::sync::Arc::new(scaled);
+    let before = mean(&mode.image());
+    let inv = mode
         .apply(SceneEdit::Material {
-            index: 0,
-            material: pack.clone(),
+            index: bunny,
+            material: edited.materials[bunny].clone(),
         })
-        .expect_err("refused");
-    assert!(err.to_string().contains("(spmm)"), "{err}");
-    assert!(matches!(mode.scene().materials[0], Material::Merl { .. }));
-    let mut with_pack = edited;
-    with_pack.materials[0] = pack;
-    let err = GpuBiscaleMode::supports(&with_pack).expect_err("refused");
-    assert!(err.to_string().contains("(spmm)"), "{err}");
+        .expect("a weight edit on the device");
+    assert_ne!(inv, Invalidation::Nothing, "the bunny's pixels restart");
+    let (m_gpu, _) = agrees("leather, cluster 0 scaled", &edited, &mut mode, 32, 8, &s);
+    assert!((m_gpu / before - 1.0).abs() > 1e-3, "the edit shows");
+    let floor = match &edited.materials[bunny] {
+        Material::Spmm { material, .. } => Material::Spmm {
+            material: material.clone(),
+            uv_scale: glam::DVec2::splat(3.0),
+            residual: true,
+            npca: 0,
+        },
+        _ => unreachable!("a pack"),
+    };
+    edited.materials[floor_index] = floor.clone();
+    mode.apply(SceneEdit::Material {
+        index: floor_index,
+        material: floor,
+    })
+    .expect("a pack on the floor");
+    agrees("leather on the floor too", &edited, &mut mode, 32, 8, &s);
 }
 
 /// New meshes (the bunny moved along the floor) run the precomputation again: the

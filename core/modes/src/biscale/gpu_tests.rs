@@ -549,3 +549,56 @@ fn the_first_frames_are_denoised_on_the_device() {
     assert!(guides.depth.iter().any(|d| d.is_finite()));
     assert!(guides.albedo.iter().flatten().all(|v| v.is_finite()));
 }
+
+/// A point light, the ambient term and a mirror on top of the MERL bunny's area light
+/// and map: the lights the device traces with the GPU spmm mode's estimators, and the
+/// mirror's bounce into the precomputed part.
+#[test]
+fn point_lights_ambient_occlusion_and_a_mirror_give_the_cpus_image() {
+    let cache = tempfile::tempdir().expect("a temporary folder");
+    let s = settings(cache.path());
+    let mut scene = bunny();
+    scene.lights.push(meso_render::scene::Light::Point {
+        position: DVec3::new(0.8, 1.4, 1.0),
+        intensity: DVec3::new(1.5, 1.2, 1.0),
+    });
+    scene.ambient = Some(meso_render::scene::Ambient {
+        radiance: DVec3::splat(0.3),
+        radius: 0.5,
+    });
+    scene.materials.push(Material::Mirror {
+        reflectance: DVec3::new(0.9, 0.85, 0.8),
+    });
+    scene.material_names.push("chrome".into());
+    let mirror = scene.materials.len() - 1;
+    // Upright behind the bunny, facing the camera.
+    scene.meshes.push(meso_render::scene::mesh::quad(
+        DVec3::new(-1.0, 0.0, -0.6),
+        DVec3::new(2.0, 0.0, 0.0),
+        DVec3::new(0.0, 1.2, 0.0),
+        mirror,
+    ));
+    let mut mode = gpu(scene.clone(), 32, &s);
+    agrees(
+        "merl_bunny with a point light, ambient occlusion and a mirror",
+        &scene,
+        &mut mode,
+        32,
+        16,
+        &s,
+    );
+    let run = run_frames(&mut mode, 1, |_, _| {});
+    let rays = run.counters.rays;
+    assert!(rays.specular > 0 && rays.ambient > 0, "{rays:?}");
+}
+
+/// Forty lights: the device selects among them stochastically (as the GPU and CPU spmm
+/// modes do above 16), the CPU biscale mode samples every one.
+#[test]
+fn forty_lights_give_the_cpus_image() {
+    let cache = tempfile::tempdir().expect("a temporary folder");
+    let s = settings(cache.path());
+    let scene = meso_render::scene::test_scenes::many_lights_scene(40);
+    let mut mode = gpu(scene.clone(), 32, &s);
+    agrees("forty lights", &scene, &mut mode, 32, 64, &s);
+}

@@ -27,6 +27,7 @@ use meso_render::film::{EMPTY_UV_BOX, material_bit};
 use meso_render::geometry::Hit;
 use meso_render::geometry::SceneBvh;
 use meso_render::layers::{self, AMBIENT, ENVIRONMENT, LightTarget};
+use meso_render::light_selection::{LightSampling, LightSelection, ShadingPoint};
 use meso_render::progressive::{Edited, Progressive};
 use meso_render::scene::{Environment, Light, Material, Scene};
 use meso_render::shading::{Shaders, Shading, dpdu, tangent_frame, visible_light_point};
@@ -71,9 +72,21 @@ pub struct BiscaleMode {
     shaders: Shaders,
     /// Per light, the film layer its samples go to and their factor.
     light_targets: Vec<LightTarget>,
+    /// Above `MANY_LIGHTS` lights, the spmm mode's stochastic selection among them
+    /// (`LightSelection::add_chosen_lights`); `None`: every light is sampled.
+    light_selection: Option<LightSelection>,
     /// Per pixel, whether the frame under way has its samples already (a preview's
     /// pixels, the rows of a frame an edit stopped); empty between frames.
     done_early: Vec<bool>,
+}
+
+/// The spmm mode's selection table when `lights` are too many to sample each.
+fn selection(lights: &[Light]) -> Option<LightSelection> {
+    if LightSampling::Auto.stochastic(lights.len()) {
+        LightSelection::new(lights)
+    } else {
+        None
+    }
 }
 
 /// Pixels of a frame rendered between two questions to its `stop` (rows of them).
@@ -181,6 +194,7 @@ impl BiscaleMode {
             frame_ms: 0.0,
             shaders: Shaders::new(&core.scene.materials),
             light_targets: core.layers.light_targets(&core.scene),
+            light_selection: selection(&core.scene.lights),
             done_early: Vec::new(),
             core,
         };
@@ -511,10 +525,9 @@ impl BiscaleMode {
 
     /// What is traced at `hit` rather than precomputed: the environment's brightest
     /// pixels (one direction drawn from them, `peaks.rs`), and the lights and the
-    /// ambient term exactly as the spmm mode traces them on its per-light path (one
-    /// shadow ray to each point light, `light_samples` to each area light; one ambient
-    /// ray), through the shading core. Every light is sampled, however many: unbiased,
-    /// and slower than the spmm mode's selection above `MANY_LIGHTS`.
+    /// ambient term as the spmm mode traces them (one shadow ray to each point light,
+    /// `light_samples` to each area light, or above `MANY_LIGHTS` lights the spmm
+    /// mode's stochastic selection; one ambient ray), through the shading core.
     fn trace_exact(
         &self,
         hit: &Hit,
@@ -546,21 +559,41 @@ impl BiscaleMode {
             }
         }
         let n = scene.render.light_samples;
-        for (k, light) in scene.lights.iter().enumerate() {
-            let points = rng.next_2d_set(n);
-            let (count, share) = match light {
-                Light::Point { .. } => (1, 1.0),
-                Light::Area { .. } => (n, 1.0 / f64::from(n)),
+        if let Some(selection) = &self.light_selection {
+            let at = ShadingPoint {
+                s: &s,
+                wo,
+                lift,
+                material: &material,
+                throughput: DVec3::ONE,
             };
-            for r in 0..count {
-                let at = (&s, lift);
-                let bvh = &self.core.bvh;
-                if let Some((wi, falloff)) =
-                    visible_light_point(bvh, light, points.get(r), at, &mut rays.shadow)
-                {
-                    let target = self.light_targets[k];
-                    out[target.layer] +=
-                        material.response(&s, wi, wo) * (falloff * share) * target.factor;
+            let bvh = &self.core.bvh;
+            selection.add_chosen_lights(
+                &at,
+                n,
+                bvh,
+                &self.light_targets,
+                rng,
+                &mut rays.shadow,
+                out,
+            );
+        } else {
+            for (k, light) in scene.lights.iter().enumerate() {
+                let points = rng.next_2d_set(n);
+                let (count, share) = match light {
+                    Light::Point { .. } => (1, 1.0),
+                    Light::Area { .. } => (n, 1.0 / f64::from(n)),
+                };
+                for r in 0..count {
+                    let at = (&s, lift);
+                    let bvh = &self.core.bvh;
+                    if let Some((wi, falloff)) =
+                        visible_light_point(bvh, light, points.get(r), at, &mut rays.shadow)
+                    {
+                        let target = self.light_targets[k];
+                        out[target.layer] +=
+                            material.response(&s, wi, wo) * (falloff * share) * target.factor;
+                    }
                 }
             }
         }
@@ -692,6 +725,7 @@ impl RenderMode for BiscaleMode {
                     self.relight();
                 }
                 self.light_targets = self.core.layers.light_targets(&self.core.scene);
+                self.light_selection = selection(&self.core.scene.lights);
                 if invalidation != Invalidation::Nothing {
                     // A restarted layer must get this frame's samples everywhere.
                     self.done_early.clear();

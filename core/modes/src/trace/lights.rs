@@ -3,7 +3,7 @@
 //! to each of `light_samples` points drawn uniformly on its area (in the area measure:
 //! A L_e f cos_i cos_l / r^2, each weighted 1 / light_samples); above, `LIGHT_SAMPLES x
 //! light_samples` lights per shading point chosen by resampling
-//! (`light_selection.rs`). Ambient occlusion: one ray limited to the ambient radius
+//! (`light_selection.rs`, shared with the biscale mode). Ambient occlusion: one ray limited to the ambient radius
 //! (pi L_a V f per cosine-distributed sample). Each adds to its light's film layer.
 //! On MERL materials each area light also gets a material sample, and the two are
 //! combined by MIS (power heuristic) on the per-light path; the many-light path keeps
@@ -14,32 +14,9 @@ use glam::DVec3;
 use super::{Path, SpmmMode};
 use meso_render::geometry::hit_parallelogram;
 use meso_render::layers::AMBIENT;
-use meso_render::light_selection::{CANDIDATES, LIGHT_SAMPLES, LightSelection};
+use meso_render::light_selection::{LightSelection, ShadingPoint};
 use meso_render::scene::Light;
 use meso_render::shading::{Shading, power_heuristic, visible_light_point};
-
-/// A point on a light seen from a shading point, unshadowed.
-#[derive(Clone, Copy, Default)]
-struct LightPoint {
-    light: usize,
-    q: DVec3,
-    wi: DVec3,
-    /// `1 / r^2` (point) or `cos_l / r^2` (area, per unit area); zero if the light
-    /// cannot reach the point (behind it, or below the surface).
-    falloff: f64,
-}
-
-/// A candidate of the stochastic path (`sample_chosen_lights`).
-#[derive(Clone, Copy, Default)]
-struct Candidate {
-    light: usize,
-    q: DVec3,
-    to: DVec3,
-    d2: f64,
-    falloff: f64,
-    pmf: f64,
-    w: f64,
-}
 
 impl SpmmMode {
     /// One shadow ray to each point light and `light_samples` to each area light, or
@@ -169,13 +146,8 @@ impl SpmmMode {
             throughput * self.shaded(s).response(s, wi, wo) * (weight / pdf) * target.factor;
     }
 
-    /// `LIGHT_SAMPLES` lights, each kept from `CANDIDATES` drawn by power by
-    /// resampled importance sampling (Talbot et al. 2005) towards the unshadowed
-    /// `emission x falloff` (zero behind a one-sided area light or below the surface,
-    /// where the contribution is zero too, so the estimate stays unbiased):
-    /// `f(y) / target(y) x mean_j(target_j / p_j)` with one shadow ray to `y`.
-    /// Draws `LIGHT_SAMPLES x (CANDIDATES + 1)` dimensions whatever it finds (a
-    /// candidate's light and point from one: 32, 16 and 16 bits).
+    /// `LIGHT_SAMPLES x light_samples` lights chosen by resampling
+    /// (`LightSelection::add_chosen_lights`, shared with the biscale mode).
     fn sample_chosen_lights(
         &self,
         sel: &LightSelection,
@@ -185,88 +157,23 @@ impl SpmmMode {
         throughput: DVec3,
         path: &mut Path,
     ) {
-        // `light_samples` times the selections, each weighted by its share.
-        let selections = LIGHT_SAMPLES * self.core.scene.render.light_samples as usize;
-        for _ in 0..selections {
-            // Per candidate: light, point, to, r^2, falloff, pmf, weight target / p_src.
-            let mut candidates = [Candidate::default(); CANDIDATES];
-            let mut total = 0.0;
-            for c in &mut candidates {
-                let [u_light, u_x, u_y] = path.rng.next_32_16_16();
-                let (k, pmf) = sel.table.sample(u_light);
-                let l = &sel.lights[k];
-                let q = l.origin + l.edge_u * u_x + l.edge_v * u_y;
-                let to = q - s.p;
-                let d2 = to.length_squared();
-                // Zero below the surface and behind a one-sided area light, where the
-                // contribution is zero too.
-                let cos_l = if l.normal == DVec3::ZERO {
-                    1.0
-                } else {
-                    -to.dot(l.normal) / d2.sqrt()
-                };
-                let falloff = if to.dot(s.n) > 0.0 && cos_l > 0.0 {
-                    cos_l / d2
-                } else {
-                    0.0
-                };
-                let w = l.w_scale * falloff;
-                if w.is_finite() {
-                    total += w;
-                }
-                *c = Candidate {
-                    light: k,
-                    q,
-                    to,
-                    d2,
-                    falloff,
-                    pmf,
-                    w,
-                };
-            }
-            let pick = path.rng.next() * total;
-            if !(total > 0.0 && total.is_finite()) {
-                continue;
-            }
-            let mut acc = 0.0;
-            let mut chosen = None;
-            for c in &candidates {
-                if !(c.w > 0.0 && c.w.is_finite()) {
-                    continue;
-                }
-                acc += c.w;
-                chosen = Some(*c);
-                if pick < acc {
-                    break;
-                }
-            }
-            let Some(c) = chosen else {
-                continue;
-            };
-            // target(y) = w(y) p_src(y), p_src per light or per unit area; the estimate
-            // is f(y) / target(y) x total / M.
-            let target = c.w * c.pmf * sel.lights[c.light].inv_area;
-            let lp = LightPoint {
-                light: c.light,
-                q: c.q,
-                wi: c.to / c.d2.sqrt(),
-                falloff: c.falloff,
-            };
-            path.counts.shadow += 1;
-            if self
-                .core
-                .bvh
-                .occluded(lift, lp.wi, 0.0, (lp.q - lift).length() * (1.0 - 1e-6))
-            {
-                continue;
-            }
-            let t = self.light_targets[lp.light];
-            let weight = total / (CANDIDATES as f64 * target * selections as f64);
-            path.out[t.layer] += throughput
-                * self.shaded(s).response(s, lp.wi, wo)
-                * (lp.falloff * weight)
-                * t.factor;
-        }
+        let material = self.shaded(s);
+        let at = ShadingPoint {
+            s,
+            wo,
+            lift,
+            material: &material,
+            throughput,
+        };
+        sel.add_chosen_lights(
+            &at,
+            self.core.scene.render.light_samples,
+            &self.core.bvh,
+            &self.light_targets,
+            path.rng,
+            &mut path.counts.shadow,
+            path.out,
+        );
     }
 
     /// One ambient-occlusion ray (eq. 6-7). Draws its two numbers whether or not the

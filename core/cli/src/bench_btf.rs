@@ -116,7 +116,11 @@ pub fn run(args: &BtfArgs) -> Result<(), CliError> {
             return Err(bad(anyhow!(
                 "{name}: with --max-memory {} the btf materials are {} (a bound below the BTF's values is needed)",
                 args.max_memory,
-                if tables.iter().all(|t| t.is_resident()) { "held whole" } else { "out of core" }
+                if tables.iter().all(|t| t.is_resident()) {
+                    "held whole"
+                } else {
+                    "out of core"
+                }
             )));
         }
         let (w, h) = args
@@ -171,7 +175,11 @@ pub fn run(args: &BtfArgs) -> Result<(), CliError> {
                 v.best_s,
                 v.best_s / whole_s,
                 v.prepare_s,
-                if lookups == 0 { 100.0 } else { 100.0 * s.hits as f64 / lookups as f64 },
+                if lookups == 0 {
+                    100.0
+                } else {
+                    100.0 * s.hits as f64 / lookups as f64
+                },
                 s.bytes_read as f64 / frames / 1e6,
                 s.read_seconds / frames,
                 cache_bytes / 1_000_000,

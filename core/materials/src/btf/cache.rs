@@ -21,9 +21,15 @@ use half::f16;
 use super::table::Storage;
 use super::texels::TexelSource;
 
-/// Block size aimed at: large enough that a miss is one efficient read, small enough
-/// that a tight bound still holds many blocks (a Bonn 81 x 81 texel is 39 KB as f16).
-pub const BLOCK_BYTES: u64 = 256 << 10;
+/// Default block size: one row (a Bonn 81-view row is 486 bytes as f16, a UBO2014
+/// 151-view row 906), so that a lookup reads only the row an interpolation weight
+/// needs. A render sees every texel under lights that move little from frame to frame
+/// and under the directions its material samples draw at random: the rows it reads
+/// again are a small part of the BTF, larger blocks fill the bound with rows it does
+/// not read again (`meso bench btf`, docs/performance.md: at a 256 MB bound on a 2.6
+/// GB BTF, 6-texel blocks of 236 KB made frames 33 times slower than in memory,
+/// 4 KB blocks 2.6 times, single rows 2.6 to 5 times with the fewest bytes read).
+pub const BLOCK_BYTES: u64 = 512;
 /// Bytes each resident block costs besides its values: its slot, its `Arc` and the
 /// allocator's headers (an estimate on the high side, so that the bound holds).
 pub const BLOCK_OVERHEAD: u64 = 128;

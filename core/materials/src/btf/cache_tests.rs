@@ -303,14 +303,15 @@ fn shapes_keep_resident_and_in_flight_blocks_within_the_bound() {
     // Bonn 81 x 81 as f16: 486-byte rows, 81 a texel; 256x256 texels; 256 MiB; 16 workers.
     let rows = 65536 * 81;
     // Blocks of whole texels (a source that reads texels): 6 texels of 39366 bytes.
-    let shape = CacheShape::fit(486, 81, rows, 256 << 20, BLOCK_BYTES, 16).expect("fits");
+    let shape = CacheShape::fit(486, 81, rows, 256 << 20, 256 << 10, 16).expect("fits");
     assert_eq!(shape.rows_per_block, 6 * 81);
     assert!(shape.bytes(486, rows, 16) <= 256 << 20);
     assert_eq!(shape.shards, MAX_SHARDS);
-    // Blocks of rows: the same bytes, 539 rows; one row: the index is counted too.
-    let shape = CacheShape::fit(486, 1, rows, 256 << 20, BLOCK_BYTES, 16).expect("fits");
+    // Blocks of rows: the same bytes, 539 rows; by default one row, and the index
+    // is counted too.
+    let shape = CacheShape::fit(486, 1, rows, 256 << 20, 256 << 10, 16).expect("fits");
     assert_eq!(shape.rows_per_block, 539);
-    let shape = CacheShape::fit(486, 1, rows, 256 << 20, 486, 16).expect("fits");
+    let shape = CacheShape::fit(486, 1, rows, 256 << 20, BLOCK_BYTES, 16).expect("fits");
     assert_eq!(shape.rows_per_block, 1);
     let bytes = shape.bytes(486, rows, 16);
     assert!(bytes <= 256 << 20 && bytes > 255 << 20, "{bytes}");

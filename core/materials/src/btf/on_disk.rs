@@ -569,11 +569,19 @@ mod tests {
                 let want = &whole.data()[first * row..(first + count) * row];
                 let mut out = vec![0.0f32; count * row];
                 disk.read_rows(first, &mut out).expect("rows");
-                assert!(out.iter().zip(want).all(|(a, b)| a.to_bits() == b.to_bits()));
+                assert!(
+                    out.iter()
+                        .zip(want)
+                        .all(|(a, b)| a.to_bits() == b.to_bits())
+                );
                 // The default reader (through whole texels) agrees.
                 let mut via = vec![0.0f32; count * row];
                 whole.read_rows(first, &mut via).expect("rows");
-                assert!(via.iter().zip(want).all(|(a, b)| a.to_bits() == b.to_bits()));
+                assert!(
+                    via.iter()
+                        .zip(want)
+                        .all(|(a, b)| a.to_bits() == b.to_bits())
+                );
                 let mut halves = vec![half::f16::ZERO; count * row];
                 match TexelSource::read_rows_f16(&disk, first, &mut halves) {
                     Some(r) => {
@@ -585,9 +593,16 @@ mod tests {
                 }
             }
             let mut past = vec![0.0f32; 2 * row];
-            let e = disk.read_rows(rows - 1, &mut past).expect_err("past the end");
-            assert!(e.contains(&format!("rows {}..{}", rows - 1, rows + 1)), "{e}");
-            let e = whole.read_rows(rows - 1, &mut past).expect_err("past the end");
+            let e = disk
+                .read_rows(rows - 1, &mut past)
+                .expect_err("past the end");
+            assert!(
+                e.contains(&format!("rows {}..{}", rows - 1, rows + 1)),
+                "{e}"
+            );
+            let e = whole
+                .read_rows(rows - 1, &mut past)
+                .expect_err("past the end");
             assert!(e.contains("rows"), "{e}");
         }
     }

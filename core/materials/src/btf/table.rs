@@ -68,7 +68,10 @@ const SCAN_BYTES: usize = 16 << 20;
 /// How much of a BTF's values `BtfTable::open` may hold: values up to `max_bytes`
 /// (in the precision held) are held whole, larger ones through a cache of blocks of
 /// about `block_bytes` whose resident blocks and those in flight in `threads`
-/// shading workers stay within `max_bytes`.
+/// shading workers (with the blocks' overhead and the index) stay within
+/// `max_bytes`. Blocks smaller than a texel are runs of rows (one texel's values for
+/// one light) where the source reads rows (a file), else one texel; larger ones are
+/// whole texels.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct MemoryBound {
     pub max_bytes: u64,

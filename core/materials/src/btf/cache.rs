@@ -26,9 +26,10 @@ use super::texels::TexelSource;
 /// needs. A render sees every texel under lights that move little from frame to frame
 /// and under the directions its material samples draw at random: the rows it reads
 /// again are a small part of the BTF, larger blocks fill the bound with rows it does
-/// not read again (`meso bench btf`, docs/performance.md: at a 256 MB bound on a 2.6
-/// GB BTF, 6-texel blocks of 236 KB made frames 33 times slower than in memory,
-/// 4 KB blocks 2.6 times, single rows 2.6 to 5 times with the fewest bytes read).
+/// not read again (`meso bench btf`, docs/performance.md: on a 2.6 GB BTF, 6-texel
+/// blocks of 236 KB made frames 27 to 48 times slower than in memory at bounds of 64
+/// MB to 1 GB, single rows 1.4 to 2.5 times, reading 4 to 7 MB a frame instead of 1.6
+/// GB; 4 KB blocks as fast at 256 MB and 1 GB, 5 times slower at 64 MB).
 pub const BLOCK_BYTES: u64 = 512;
 /// Bytes each resident block costs besides its values: its slot, its `Arc` and the
 /// allocator's headers (an estimate on the high side, so that the bound holds).

@@ -106,7 +106,7 @@ fn a_small_zip_claiming_a_large_btf_is_refused_before_the_btf_is_allocated() {
     assert!(zip.len() < 4 << 20, "{} bytes", zip.len());
     // The claims are within the import's own bounds: only decoding can refuse them.
     assert!(crop::check_budget(330 * 330, 81 * 81).is_ok());
-    assert!(330 * 330 * 6561 * 3 * 4 <= ubo2003::DEFAULT_MAX_IMPORT_BYTES);
+    const { assert!(330 * 330 * 6561 * 3 * 4 <= ubo2003::DEFAULT_MAX_IMPORT_BYTES) };
     LARGEST.with(|l| l.set(0));
     let e = ubo2003::read_zip(Cursor::new(zip), "x", "t", None).expect_err("refused");
     let largest = LARGEST.with(Cell::get);

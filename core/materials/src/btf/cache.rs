@@ -2,10 +2,9 @@
 //! `BtfTable` shades a BTF whose values exceed its memory bound. A block is a run of
 //! rows, a row being one texel's values for one light (`V * 3`: what one light of an
 //! interpolation reads); a source that reads only whole texels gets blocks of whole
-//! texels. Renderers look texels
-//! up from every rayon worker at once, so the cache is split into shards (a block's
-//! shard is its number modulo the shard count, so neighbouring blocks, which
-//! neighbouring pixels want, land on different locks), each a small mutex-guarded clock
+//! texels. Renderers look rows up from every rayon worker at once, so the cache is
+//! split into shards (a block's shard is its number modulo the shard count, so
+//! neighbouring blocks land on different locks), each a small mutex-guarded clock
 //! (second-chance) ring: a hit is one lock, one array index and a reference-count
 //! increment; a miss reads the block outside the lock (positioned reads, no shared
 //! cursor) and inserts it, evicting the first block whose reference bit is clear.

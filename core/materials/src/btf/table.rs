@@ -10,8 +10,9 @@
 //! (a 64x64 x 81x81 BTF: 161 MB instead of 322 MB); otherwise as f32.
 //!
 //! `BtfTable::open` reads a `.btf` within a memory bound: values that fit are held
-//! whole, as `new` holds them; larger ones stay on disk and are read a block of texels
-//! at a time through a bounded cache (`cache.rs`), in the same precision, so both
+//! whole, as `new` holds them; larger ones stay on disk and are read a block of rows
+//! (one texel's values for one light) at a time through a bounded cache (`cache.rs`),
+//! in the same precision, so both
 //! shade bit-identically. Opening scans every value once either way (finite, and for
 //! an F32 file whether all are f16), so a bad value is refused before shading starts.
 

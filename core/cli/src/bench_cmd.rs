@@ -39,6 +39,8 @@ pub enum BenchCommand {
     Frames(crate::bench_frames::FramesArgs),
     /// Edit-to-frame time of each edit kind as the studio renders, without a window.
     Edits(crate::bench_edits::EditsArgs),
+    /// A scene's btf materials rendered held whole and out of core, side by side.
+    Btf(crate::bench_btf::BtfArgs),
 }
 
 #[derive(Args, Debug)]
@@ -72,6 +74,7 @@ pub fn run(command: BenchCommand) -> Result<(), CliError> {
         BenchCommand::Stroke(args) => crate::bench_stroke::run(&args),
         BenchCommand::Frames(args) => crate::bench_frames::run(&args),
         BenchCommand::Edits(args) => crate::bench_edits::run(&args),
+        BenchCommand::Btf(args) => crate::bench_btf::run(&args),
     }
 }
 

@@ -46,6 +46,10 @@ pub enum BtfCommand {
         /// Keep only these texels: X,Y,WIDTH,HEIGHT, row 0 the top row.
         #[arg(long, value_name = "X,Y,W,H")]
         texels: Option<String>,
+        /// Most bytes of values (as f32) a UBO2003/ATRIUM zip import builds (`2GB`,
+        /// `6GB`; powers of 1024); default 8GB, the most any import builds.
+        #[arg(long, default_value = "8GB")]
+        max_memory: String,
         #[arg(long)]
         f32: bool,
         #[arg(long)]
@@ -115,9 +119,22 @@ pub fn run(command: BtfCommand) -> Result<(), CliError> {
             output,
             name,
             texels,
+            max_memory,
             f32,
             json,
-        } => import_cmd(&path, &output, name, texels.as_deref(), f32, json),
+        } => {
+            let max_bytes = meso_fit::memory::parse_bytes(&max_memory)
+                .map_err(|e| CliError::bad_input(anyhow!("--max-memory {e}")))?;
+            import_cmd(
+                &path,
+                &output,
+                name,
+                texels.as_deref(),
+                max_bytes,
+                f32,
+                json,
+            )
+        }
         BtfCommand::Export {
             file,
             format: ExportFormat::Ubo2014,
@@ -236,6 +253,7 @@ fn import_cmd(
     output: &Path,
     name: Option<String>,
     texels: Option<&str>,
+    max_bytes: u64,
     force_f32: bool,
     as_json: bool,
 ) -> Result<(), CliError> {
@@ -262,7 +280,9 @@ fn import_cmd(
                 None => b,
             }
         }
-        Source::Zip => ubo2003::import_zip(path, &name, rect).map_err(CliError::bad_input)?,
+        Source::Zip => {
+            ubo2003::import_zip(path, &name, rect, max_bytes).map_err(CliError::bad_input)?
+        }
         Source::Ubo2014 => ubo2014::import_path(path, &name, rect).map_err(CliError::bad_input)?,
     };
     let bytes = write(output, &b, force_f32)?;

@@ -2,6 +2,7 @@
 //! `error:` line on failure and exits 2 for bad input or usage, 1 for anything else;
 //! `--json` prints exactly one JSON object on stdout.
 
+mod bench_btf;
 mod bench_cmd;
 mod bench_edits;
 mod bench_frames;

@@ -325,3 +325,77 @@ fn bench_edits_times_each_kind_the_scene_has_and_names_what_it_skips() {
         &["--edits"],
     );
 }
+
+/// `meso bench btf`: the scene's BTF whole and through caches of rows and of whole
+/// texels, the same image bits from each, the caches' counters reported; a bound that
+/// holds the BTF whole is exit 2 (nothing to compare).
+#[test]
+fn bench_btf_compares_the_caches_with_the_whole_table() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let recipe = dir.path().join("weave.toml");
+    std::fs::write(&recipe, crate::btf_fit::SMALL_BTF_RECIPE).expect("write recipe");
+    let btf = dir.path().join("weave.btf");
+    assert_ok(&meso(
+        &[
+            "btf",
+            "synth",
+            recipe.to_str().expect("utf-8"),
+            "-o",
+            btf.to_str().expect("utf-8"),
+        ],
+        "",
+    ));
+    let grazing = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../tests/scenes/fit_grazing.toml"
+    ))
+    .expect("scene");
+    let scene = dir.path().join("btf.toml");
+    std::fs::write(
+        &scene,
+        grazing.replace(
+            "kind = \"spmm\"\npack = \"../../materials/leather.spmm\"",
+            "kind = \"btf\"\npath = \"weave.btf\"",
+        ),
+    )
+    .expect("write scene");
+    let bench = |bound: &str| {
+        meso_with_env(
+            &[
+                "bench",
+                "btf",
+                scene.to_str().expect("utf-8"),
+                "--size",
+                "24",
+                "--frames",
+                "2",
+                "--rounds",
+                "1",
+                "--max-memory",
+                bound,
+                "--block-bytes",
+                "8B,486B",
+                "--json",
+            ],
+            &[("RAYON_NUM_THREADS", "2")],
+        )
+    };
+    // 36 texels of 81 pairs as f16 (17.5 KB): 16 KB holds it out of core.
+    let o = bench("16KB");
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    let variants = v["variants"].as_array().expect("variants");
+    assert_eq!(variants.len(), 3, "{v}");
+    // 8-byte blocks are single rows (54 bytes); 486-byte ones whole texels.
+    let rows: Vec<_> = variants.iter().map(|r| r["block_rows"].as_u64()).collect();
+    assert_eq!(rows, [None, Some(1), Some(9)], "{v}");
+    for r in variants {
+        assert_eq!(r["bit_identical"], true, "{r}");
+    }
+    for r in &variants[1..] {
+        assert!(r["blocks_read"].as_u64() > Some(0), "{r}");
+        assert!(r["bytes_read"].as_u64() > Some(0), "{r}");
+        assert!(r["cache_bytes"].as_u64() <= Some(16 << 10), "{r}");
+    }
+    assert_bad_input(&bench("1GB"), &["held whole", "--max-memory"]);
+}

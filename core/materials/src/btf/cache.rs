@@ -1,8 +1,10 @@
-//! A bounded cache of a `.btf`'s texel blocks, read on demand from disk: how a
-//! `BtfTable` shades a BTF whose values exceed its memory bound. Renderers look texels
-//! up from every rayon worker at once, so the cache is split into shards (a block's
-//! shard is its number modulo the shard count, so neighbouring blocks, which
-//! neighbouring pixels want, land on different locks), each a small mutex-guarded clock
+//! A bounded cache of a `.btf`'s value blocks, read on demand from disk: how a
+//! `BtfTable` shades a BTF whose values exceed its memory bound. A block is a run of
+//! rows, a row being one texel's values for one light (`V * 3`: what one light of an
+//! interpolation reads); a source that reads only whole texels gets blocks of whole
+//! texels. Renderers look rows up from every rayon worker at once, so the cache is
+//! split into shards (a block's shard is its number modulo the shard count, so
+//! neighbouring blocks land on different locks), each a small mutex-guarded clock
 //! (second-chance) ring: a hit is one lock, one array index and a reference-count
 //! increment; a miss reads the block outside the lock (positioned reads, no shared
 //! cursor) and inserts it, evicting the first block whose reference bit is clear.
@@ -18,9 +20,21 @@ use half::f16;
 use super::table::Storage;
 use super::texels::TexelSource;
 
-/// Block size aimed at: large enough that a miss is one efficient read, small enough
-/// that a tight bound still holds many blocks (a Bonn 81 x 81 texel is 39 KB as f16).
-pub const BLOCK_BYTES: u64 = 256 << 10;
+/// Default block size: one row (a Bonn 81-view row is 486 bytes as f16, a UBO2014
+/// 151-view row 906), so that a lookup reads only the row an interpolation weight
+/// needs. A render sees every texel under lights that move little from frame to frame
+/// and under the directions its material samples draw at random: the rows it reads
+/// again are a small part of the BTF, larger blocks fill the bound with rows it does
+/// not read again (`meso bench btf`, docs/performance.md: on a 2.6 GB BTF, 6-texel
+/// blocks of 236 KB made frames 27 to 48 times slower than in memory at bounds of 64
+/// MB to 1 GB, single rows 1.4 to 2.5 times, reading 4 to 7 MB a frame instead of 1.6
+/// GB; 4 KB blocks as fast at 256 MB and 1 GB, 5 times slower at 64 MB).
+pub const BLOCK_BYTES: u64 = 512;
+/// Bytes each resident block costs besides its values: its slot, its `Arc` and the
+/// allocator's headers (an estimate on the high side, so that the bound holds).
+pub const BLOCK_OVERHEAD: u64 = 128;
+/// Bytes of the index per block of the BTF (resident or not).
+const INDEX_BYTES: u64 = 4;
 /// Most shards: beyond the worker count, more shards only cost memory.
 const MAX_SHARDS: usize = 64;
 /// Blocks each worker may hold beyond the resident set: one it reads (with its f32
@@ -38,54 +52,65 @@ pub enum Block {
     F32(Box<[f32]>),
 }
 
-/// How a cache is laid out: texels per block, resident blocks, shards.
+/// How a cache is laid out: rows per block, resident blocks, shards.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct CacheShape {
-    pub texels_per_block: usize,
+    pub rows_per_block: usize,
     pub shards: usize,
     pub blocks_per_shard: usize,
 }
 
 impl CacheShape {
-    /// The shape that keeps resident and in-flight blocks within `max_bytes` for
-    /// `threads` workers, blocks of at most about `block_bytes` (at least one texel),
-    /// or why no cache fits: the bound must hold one block besides the workers'.
+    /// The shape that keeps resident and in-flight blocks, their overhead and the
+    /// index within `max_bytes` for `threads` workers, blocks of at most about
+    /// `block_bytes` made of whole units of `unit_rows` rows of `row_bytes` each (at
+    /// least one unit), or why no cache fits: the bound must hold one block besides
+    /// the workers' and the index.
     pub fn fit(
-        texel_bytes: u64,
-        texels: usize,
+        row_bytes: u64,
+        unit_rows: usize,
+        rows: usize,
         max_bytes: u64,
         block_bytes: u64,
         threads: usize,
     ) -> Result<Self, String> {
+        let unit_rows = unit_rows.clamp(1, rows.max(1));
+        let unit_bytes = row_bytes.max(1) * unit_rows as u64;
+        let units = rows.div_ceil(unit_rows) as u64;
+        let workers = TRANSIENT_BLOCKS_PER_THREAD * threads.max(1) as u64;
         // Under a tight bound, smaller blocks, so that a few stay resident besides
-        // the workers' (down to one texel).
-        let target = block_bytes
-            .min(max_bytes / (TRANSIENT_BLOCKS_PER_THREAD * threads.max(1) as u64 + MIN_RESIDENT));
-        let texels_per_block = (target / texel_bytes.max(1)).clamp(1, texels as u64) as usize;
-        let block = texels_per_block as u64 * texel_bytes;
-        let transient = TRANSIENT_BLOCKS_PER_THREAD * threads.max(1) as u64 * block;
-        let resident = max_bytes.saturating_sub(transient) / block;
-        let total_blocks = texels.div_ceil(texels_per_block) as u64;
+        // the workers' (down to one unit).
+        let target = block_bytes.min(max_bytes / (workers + MIN_RESIDENT));
+        let units_per_block = (target / unit_bytes).clamp(1, units.max(1));
+        let rows_per_block = (units_per_block as usize * unit_rows).min(rows.max(1));
+        let block = rows_per_block as u64 * row_bytes.max(1);
+        let total_blocks = rows.div_ceil(rows_per_block) as u64;
+        let index = (total_blocks + MAX_SHARDS as u64) * INDEX_BYTES;
+        let transient = workers * block;
+        let resident = max_bytes.saturating_sub(transient + index) / (block + BLOCK_OVERHEAD);
         if resident == 0 {
             return Err(format!(
-                "a bound of {max_bytes} bytes holds no block of {block} bytes besides {transient} bytes in flight for {threads} threads: at least {} bytes are needed",
-                transient + block
+                "a bound of {max_bytes} bytes holds no block of {block} bytes besides {transient} bytes in flight for {threads} threads and an index of {index} bytes: at least {} bytes are needed",
+                transient + index + block + BLOCK_OVERHEAD
             ));
         }
         let resident = resident.min(total_blocks);
         let shards = (resident as usize).min(MAX_SHARDS);
         Ok(Self {
-            texels_per_block,
+            rows_per_block,
             shards,
             blocks_per_shard: resident as usize / shards,
         })
     }
 
-    /// Bytes the cache may hold at once, resident and in flight.
-    pub fn bytes(&self, texel_bytes: u64, threads: usize) -> u64 {
-        let block = self.texels_per_block as u64 * texel_bytes;
-        (self.shards * self.blocks_per_shard) as u64 * block
+    /// Bytes the cache may hold at once: resident blocks with their overhead, blocks
+    /// in flight, and the index over all `rows`.
+    pub fn bytes(&self, row_bytes: u64, rows: usize, threads: usize) -> u64 {
+        let block = self.rows_per_block as u64 * row_bytes;
+        let index = (rows.div_ceil(self.rows_per_block) + MAX_SHARDS) as u64 * INDEX_BYTES;
+        (self.shards * self.blocks_per_shard) as u64 * (block + BLOCK_OVERHEAD)
             + TRANSIENT_BLOCKS_PER_THREAD * threads.max(1) as u64 * block
+            + index
     }
 }
 
@@ -103,6 +128,8 @@ struct Shard {
     slots: Vec<Slot>,
     index: Vec<u32>,
     hand: usize,
+    /// Lookups that found their block resident.
+    hits: u64,
 }
 
 impl Shard {
@@ -150,16 +177,34 @@ impl Shard {
 /// values computed on demand (`meso report fit`'s pack tabulated at a BTF's pairs).
 pub type BlockSource = Box<dyn TexelSource + Send>;
 
-/// A bounded, thread-safe cache of one BTF's texel blocks (see the module comment).
+/// What a cache has done so far (`BlockCache::stats`), for reports and benchmarks.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CacheStats {
+    /// Lookups that found their block resident.
+    pub hits: u64,
+    /// Blocks read from the source (misses; a block two workers missed at once is
+    /// read twice and counted twice).
+    pub reads: u64,
+    /// Bytes of values those reads delivered, in the precision held.
+    pub bytes_read: u64,
+    /// Seconds the workers spent in those reads, summed over the workers.
+    pub read_seconds: f64,
+}
+
+/// A bounded, thread-safe cache of one BTF's value blocks (see the module comment).
 pub struct BlockCache {
     source: BlockSource,
     storage: Storage,
     shape: CacheShape,
     threads: usize,
-    values_per_texel: usize,
+    /// Values per row: `V * 3`.
+    values_per_row: usize,
+    rows: usize,
     shards: Box<[Mutex<Shard>]>,
     /// Blocks read from disk, for tests and reports (misses, re-reads after eviction).
     reads: AtomicU64,
+    bytes_read: AtomicU64,
+    read_nanos: AtomicU64,
     /// The first read that failed after opening (the file changed under the render):
     /// its texels shade as 0 and whoever rendered reports it (`BtfTable::read_error`).
     error: OnceLock<String>,
@@ -179,8 +224,9 @@ impl BlockCache {
     /// A cache of `source`'s values in `storage` precision laid out as `shape` (for
     /// `threads` workers, see `CacheShape::fit`).
     pub fn new(source: BlockSource, storage: Storage, shape: CacheShape, threads: usize) -> Self {
-        let values_per_texel = source.pairs() * 3;
-        let blocks = source.texels().div_ceil(shape.texels_per_block);
+        let values_per_row = source.view_dirs().len() * 3;
+        let rows = source.texels() * source.light_dirs().len();
+        let blocks = rows.div_ceil(shape.rows_per_block);
         let per_shard_numbers = blocks.div_ceil(shape.shards);
         let shards = (0..shape.shards)
             .map(|_| {
@@ -188,6 +234,7 @@ impl BlockCache {
                     slots: Vec::with_capacity(shape.blocks_per_shard),
                     index: vec![ABSENT; per_shard_numbers],
                     hand: 0,
+                    hits: 0,
                 })
             })
             .collect();
@@ -196,9 +243,12 @@ impl BlockCache {
             storage,
             shape,
             threads,
-            values_per_texel,
+            values_per_row,
+            rows,
             shards,
             reads: AtomicU64::new(0),
+            bytes_read: AtomicU64::new(0),
+            read_nanos: AtomicU64::new(0),
             error: OnceLock::new(),
         }
     }
@@ -209,36 +259,61 @@ impl BlockCache {
     pub fn storage(&self) -> Storage {
         self.storage
     }
-    /// Most bytes of values the cache holds at once, resident and in flight.
-    pub fn bytes(&self) -> u64 {
-        let size = match self.storage {
+    fn value_size(&self) -> u64 {
+        match self.storage {
             Storage::F16 => 2,
             Storage::F32 => 4,
-        };
-        self.shape
-            .bytes(self.values_per_texel as u64 * size, self.threads)
+        }
+    }
+    /// Most bytes the cache holds at once: resident and in-flight values, the
+    /// resident blocks' overhead and the index.
+    pub fn bytes(&self) -> u64 {
+        self.shape.bytes(
+            self.values_per_row as u64 * self.value_size(),
+            self.rows,
+            self.threads,
+        )
     }
     /// Blocks read from disk so far.
     pub fn reads(&self) -> u64 {
         self.reads.load(Ordering::Relaxed)
     }
+    /// Hits, reads, bytes read and time reading so far.
+    pub fn stats(&self) -> CacheStats {
+        let hits = self
+            .shards
+            .iter()
+            .map(|s| s.lock().unwrap_or_else(PoisonError::into_inner).hits)
+            .sum();
+        CacheStats {
+            hits,
+            reads: self.reads(),
+            bytes_read: self.bytes_read.load(Ordering::Relaxed),
+            read_seconds: self.read_nanos.load(Ordering::Relaxed) as f64 * 1e-9,
+        }
+    }
     pub fn error(&self) -> Option<&str> {
         self.error.get().map(String::as_str)
     }
 
-    /// Texel `t`'s block and where in it the texel begins (in values), or None when
-    /// the block cannot be read (the error is kept, see `error`).
-    pub fn texel(&self, t: usize) -> Option<(Arc<Block>, usize)> {
-        let block = t / self.shape.texels_per_block;
-        let offset = (t - block * self.shape.texels_per_block) * self.values_per_texel;
+    /// Row `r`'s block (row `t * L + l`: texel `t`'s values for light `l`) and where
+    /// in it the row begins (in values), or None when the block cannot be read (the
+    /// error is kept, see `error`).
+    pub fn row(&self, r: usize) -> Option<(Arc<Block>, usize)> {
+        let block = r / self.shape.rows_per_block;
+        let offset = (r - block * self.shape.rows_per_block) * self.values_per_row;
         let (shard, local) = (block % self.shape.shards, block / self.shape.shards);
         let lock = || {
             self.shards[shard]
                 .lock()
                 .unwrap_or_else(PoisonError::into_inner)
         };
-        if let Some(values) = lock().get(local) {
-            return Some((values, offset));
+        {
+            let mut s = lock();
+            if let Some(values) = s.get(local) {
+                s.hits += 1;
+                return Some((values, offset));
+            }
         }
         let values = Arc::new(self.read(block)?);
         let mut s = lock();
@@ -251,17 +326,23 @@ impl BlockCache {
     }
 
     fn read(&self, block: usize) -> Option<Block> {
-        let first = block * self.shape.texels_per_block;
-        let count = self
-            .shape
-            .texels_per_block
-            .min(self.source.texels() - first);
+        let start = std::time::Instant::now();
+        let first = block * self.shape.rows_per_block;
+        let count = self.shape.rows_per_block.min(self.rows - first);
+        let n = count * self.values_per_row;
         self.reads.fetch_add(1, Ordering::Relaxed);
+        let done = |block: Block| {
+            self.bytes_read
+                .fetch_add(n as u64 * self.value_size(), Ordering::Relaxed);
+            self.read_nanos
+                .fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
+            Some(block)
+        };
         if self.storage == Storage::F16 {
             // An F16 file: its values as stored, no f32 buffer.
-            let mut halves = vec![f16::ZERO; count * self.values_per_texel];
-            match self.source.read_texels_f16(first, &mut halves) {
-                Some(Ok(())) => return Some(Block::F16(halves.into_boxed_slice())),
+            let mut halves = vec![f16::ZERO; n];
+            match self.source.read_rows_f16(first, &mut halves) {
+                Some(Ok(())) => return done(Block::F16(halves.into_boxed_slice())),
                 Some(Err(e)) => {
                     let _ = self.error.set(e);
                     return None;
@@ -269,12 +350,12 @@ impl BlockCache {
                 None => {}
             }
         }
-        let mut values = vec![0.0f32; count * self.values_per_texel];
-        if let Err(e) = self.source.read_texels(first, &mut values) {
+        let mut values = vec![0.0f32; n];
+        if let Err(e) = self.source.read_rows(first, &mut values) {
             let _ = self.error.set(e);
             return None;
         }
-        Some(match self.storage {
+        done(match self.storage {
             // Exact: the table is F16 only when every value is an f16.
             Storage::F16 => Block::F16(values.iter().map(|&x| f16::from_f32(x)).collect()),
             Storage::F32 => Block::F32(values.into_boxed_slice()),

@@ -47,11 +47,26 @@ weight = [0.7, 0.6, 0.5]
 }
 
 /// A bound that leaves the cache 4 blocks of 2 texels (the BTF has 32 blocks) besides
-/// 2 workers' blocks in flight.
+/// 2 workers' blocks in flight, the blocks' overhead and the index.
 fn tight(texel_bytes: u64) -> MemoryBound {
     let block = 2 * texel_bytes;
     MemoryBound {
-        max_bytes: (TRANSIENT_BLOCKS_PER_THREAD * 2 + 4) * block,
+        max_bytes: (TRANSIENT_BLOCKS_PER_THREAD * 2 + 4) * block
+            + 4 * BLOCK_OVERHEAD
+            + (32 + MAX_SHARDS as u64) * INDEX_BYTES,
+        block_bytes: block,
+        threads: 2,
+    }
+}
+
+/// A bound that leaves the cache 6 blocks of 5 rows (texel x light; a texel has 12)
+/// besides 2 workers' blocks in flight: blocks smaller than a texel are runs of rows.
+fn rows_tight(row_bytes: u64, rows: usize) -> MemoryBound {
+    let block = 5 * row_bytes;
+    MemoryBound {
+        max_bytes: (TRANSIENT_BLOCKS_PER_THREAD * 2 + 6) * block
+            + 6 * BLOCK_OVERHEAD
+            + (rows.div_ceil(5) + MAX_SHARDS) as u64 * INDEX_BYTES,
         block_bytes: block,
         threads: 2,
     }
@@ -116,7 +131,7 @@ fn out_of_core_values_equal_the_in_memory_table_at_every_pair() {
         assert_eq!((whole.storage(), table.storage()), (storage, storage));
         assert_eq!(table.value_bytes(), whole.bytes() as u64);
         let cache = table.cache().expect("cached");
-        assert_eq!(cache.shape().texels_per_block, 2);
+        assert_eq!(cache.shape().rows_per_block, 2 * source.light_dirs().len());
         assert_eq!(cache.shape().shards * cache.shape().blocks_per_shard, 4);
         assert!(table.bytes() < whole.bytes() / 2, "{} bytes", table.bytes());
         for (t, wi, wo) in sweep(source, 0) {
@@ -133,6 +148,31 @@ fn out_of_core_values_equal_the_in_memory_table_at_every_pair() {
         }
         // Two sweeps of 32 blocks through 4 slots: nearly every visit is a miss.
         assert!(cache.reads() >= 60, "{} reads", cache.reads());
+        assert_eq!(table.read_error(), None);
+
+        // Blocks of 5 rows, which straddle texels: the same values again.
+        let rows = source.texels() * source.light_dirs().len();
+        let row_bytes = texel_bytes / source.light_dirs().len() as u64;
+        let table = BtfTable::open(&path, rows_tight(row_bytes, rows)).expect("opens");
+        let cache = table.cache().expect("cached");
+        assert_eq!(cache.shape().rows_per_block, 5);
+        assert_eq!(cache.shape().shards * cache.shape().blocks_per_shard, 6);
+        assert!(cache.bytes() <= rows_tight(row_bytes, rows).max_bytes);
+        for (t, wi, wo) in sweep(source, 3) {
+            let (a, b) = (table.eval_texel(t, wi, wo), whole.eval_texel(t, wi, wo));
+            assert_eq!(
+                a.to_array().map(f64::to_bits),
+                b.to_array().map(f64::to_bits)
+            );
+        }
+        for t in 0..source.texels() {
+            for (wi, wo) in between() {
+                assert_eq!(table.eval_texel(t, wi, wo), whole.eval_texel(t, wi, wo));
+            }
+        }
+        let stats = cache.stats();
+        assert!(stats.hits > 0 && stats.reads > 100, "{stats:?}");
+        assert!(stats.bytes_read <= stats.reads * 5 * row_bytes, "{stats:?}");
         assert_eq!(table.read_error(), None);
     }
 }
@@ -203,7 +243,9 @@ fn bad_files_and_bounds_are_refused_naming_the_file_and_the_place() {
     let texel_bytes = (btf.pairs() * 3 * 4) as u64;
     // One worker's blocks in flight and two resident: less than the 16 texels.
     let bound = MemoryBound {
-        max_bytes: (TRANSIENT_BLOCKS_PER_THREAD + 2) * texel_bytes,
+        max_bytes: (TRANSIENT_BLOCKS_PER_THREAD + 2) * texel_bytes
+            + 2 * BLOCK_OVERHEAD
+            + (16 + MAX_SHARDS as u64) * INDEX_BYTES,
         block_bytes: texel_bytes,
         threads: 1,
     };
@@ -258,17 +300,31 @@ fn bad_files_and_bounds_are_refused_naming_the_file_and_the_place() {
 
 #[test]
 fn shapes_keep_resident_and_in_flight_blocks_within_the_bound() {
-    // 39366-byte texels (Bonn 81 x 81, f16), 256 MiB, 16 workers.
-    let shape = CacheShape::fit(39366, 65536, 256 << 20, BLOCK_BYTES, 16).expect("fits");
-    assert_eq!(shape.texels_per_block, 6);
-    assert!(shape.bytes(39366, 16) <= 256 << 20);
+    // Bonn 81 x 81 as f16: 486-byte rows, 81 a texel; 256x256 texels; 256 MiB; 16 workers.
+    let rows = 65536 * 81;
+    // Blocks of whole texels (a source that reads texels): 6 texels of 39366 bytes.
+    let shape = CacheShape::fit(486, 81, rows, 256 << 20, 256 << 10, 16).expect("fits");
+    assert_eq!(shape.rows_per_block, 6 * 81);
+    assert!(shape.bytes(486, rows, 16) <= 256 << 20);
     assert_eq!(shape.shards, MAX_SHARDS);
-    // A texel larger than a block is a block by itself.
-    let shape = CacheShape::fit(1 << 20, 100, 64 << 20, BLOCK_BYTES, 2).expect("fits");
-    assert_eq!(shape.texels_per_block, 1);
-    assert_eq!(shape.shards * shape.blocks_per_shard, 56);
+    // Blocks of rows: the same bytes, 539 rows; by default one row, and the index
+    // is counted too.
+    let shape = CacheShape::fit(486, 1, rows, 256 << 20, 256 << 10, 16).expect("fits");
+    assert_eq!(shape.rows_per_block, 539);
+    let shape = CacheShape::fit(486, 1, rows, 256 << 20, BLOCK_BYTES, 16).expect("fits");
+    assert_eq!(shape.rows_per_block, 1);
+    let bytes = shape.bytes(486, rows, 16);
+    assert!(bytes <= 256 << 20 && bytes > 255 << 20, "{bytes}");
+    let resident = (shape.shards * shape.blocks_per_shard) as u64;
+    // 21 MB of index and 128 bytes a block besides the values.
+    assert!(resident * 486 < (256 << 20) - rows as u64 * 4 - resident * BLOCK_OVERHEAD);
+    // A unit larger than a block is a block by itself.
+    let shape = CacheShape::fit(1 << 20, 1, 100, 64 << 20, BLOCK_BYTES, 2).expect("fits");
+    assert_eq!(shape.rows_per_block, 1);
+    assert_eq!(shape.shards * shape.blocks_per_shard, 55);
     // Never more blocks resident than the BTF has.
-    let shape = CacheShape::fit(1000, 10, 1 << 30, 2000, 1).expect("fits");
+    let shape = CacheShape::fit(1000, 1, 10, 1 << 30, 2000, 1).expect("fits");
     assert_eq!(shape.shards * shape.blocks_per_shard, 5);
-    assert!(CacheShape::fit(1000, 10, 3999, 1000, 1).is_err());
+    let e = CacheShape::fit(1000, 1, 10, 3999, 1000, 1).expect_err("no room");
+    assert!(e.contains("at least") && e.contains("index"), "{e}");
 }

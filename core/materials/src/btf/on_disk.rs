@@ -318,19 +318,63 @@ impl OnDiskBtf {
     /// Reads texels `first..` into `out` (see `TexelSource::read_texels`) and checks
     /// every value finite, naming the first that is not.
     pub fn read_block(&self, first: usize, out: &mut [f32]) -> Result<(), BtfFileError> {
-        let at = |kind: BtfFileErrorKind| BtfFileError::at(&self.path, kind);
         let per_texel = self.pairs() * 3;
-        let count = out.len() / per_texel.max(1);
-        if !out.len().is_multiple_of(per_texel) || first + count > self.texels() {
-            return Err(at(invalid(format!(
-                "texels {first}..{}: outside the {} texels of the file",
-                first + out.len().div_ceil(per_texel),
-                self.texels()
-            ))
-            .into()));
+        self.check_run("texels", first, out.len(), per_texel, self.texels())?;
+        self.read_values(first * per_texel, out)
+    }
+
+    /// Reads rows `first..` into `out` (see `TexelSource::read_rows`: a row is one
+    /// texel's values for one light), checked as `read_block` checks them.
+    pub fn read_rows_f32(&self, first: usize, out: &mut [f32]) -> Result<(), BtfFileError> {
+        let row = self.view_dirs.len() * 3;
+        let rows = self.texels() * self.light_dirs.len();
+        self.check_run("rows", first, out.len(), row, rows)?;
+        self.read_values(first * row, out)
+    }
+
+    /// Whether `len` values from unit `first` on are whole units of `unit` values
+    /// within the file's `units`; else an error naming the run.
+    fn check_run(
+        &self,
+        what: &str,
+        first: usize,
+        len: usize,
+        unit: usize,
+        units: usize,
+    ) -> Result<(), BtfFileError> {
+        let count = len / unit.max(1);
+        if unit == 0 || !len.is_multiple_of(unit) || first + count > units {
+            return Err(BtfFileError::at(
+                &self.path,
+                BtfFileErrorKind::from(invalid(format!(
+                    "{what} {first}..{}: outside the {units} {what} of the file",
+                    first + len.div_ceil(unit.max(1))
+                ))),
+            ));
         }
+        Ok(())
+    }
+
+    /// The error for value `i` (counted from the first of the file) that is not finite.
+    fn non_finite(&self, i: usize, value: f32) -> BtfFileError {
+        let (l, v) = (self.light_dirs.len(), self.view_dirs.len());
+        BtfFileError::at(
+            &self.path,
+            BtfFileErrorKind::from(BtfError::NonFinite {
+                texel: i / (l * v * 3),
+                light: i / (v * 3) % l,
+                view: i / 3 % v,
+                channel: i % 3,
+                value,
+            }),
+        )
+    }
+
+    /// Reads values `first..` (counted from the file's first) into `out`, checked finite.
+    fn read_values(&self, first: usize, out: &mut [f32]) -> Result<(), BtfFileError> {
+        let at = |kind: BtfFileErrorKind| BtfFileError::at(&self.path, kind);
         let size = self.elem.bytes();
-        let offset = self.values_at + (first * per_texel * size) as u64;
+        let offset = self.values_at + (first * size) as u64;
         // Read in slices of at most 4 MiB so the byte buffer stays small next to `out`.
         let chunk_values = (4 << 20) / size;
         let mut bytes = vec![0u8; chunk_values.min(out.len()) * size];
@@ -352,15 +396,7 @@ impl OnDiskBtf {
             }
         }
         if let Some(i) = out.iter().position(|x| !x.is_finite()) {
-            let (l, v) = (self.light_dirs.len(), self.view_dirs.len());
-            return Err(at(BtfError::NonFinite {
-                texel: first + i / per_texel,
-                light: i / (v * 3) % l,
-                view: i / 3 % v,
-                channel: i % 3,
-                value: out[i],
-            }
-            .into()));
+            return Err(self.non_finite(first + i, out[i]));
         }
         Ok(())
     }
@@ -375,43 +411,54 @@ impl OnDiskBtf {
         first: usize,
         out: &mut [half::f16],
     ) -> Option<Result<(), BtfFileError>> {
+        let per_texel = self.pairs() * 3;
+        let run = self.check_run("texels", first, out.len(), per_texel, self.texels());
+        self.read_values_f16(run.map(|()| first * per_texel), out)
+    }
+
+    /// `read_rows_f32` into f16 values as stored; None for an F32 file.
+    pub fn read_rows_f16(
+        &self,
+        first: usize,
+        out: &mut [half::f16],
+    ) -> Option<Result<(), BtfFileError>> {
+        let row = self.view_dirs.len() * 3;
+        let rows = self.texels() * self.light_dirs.len();
+        let run = self.check_run("rows", first, out.len(), row, rows);
+        self.read_values_f16(run.map(|()| first * row), out)
+    }
+
+    /// Values `first..` of an F16 file as stored, checked finite; None for an F32 file.
+    fn read_values_f16(
+        &self,
+        first: Result<usize, BtfFileError>,
+        out: &mut [half::f16],
+    ) -> Option<Result<(), BtfFileError>> {
         if self.elem != Elem::F16 {
             return None;
         }
-        let at = |kind: BtfFileErrorKind| BtfFileError::at(&self.path, kind);
-        let per_texel = self.pairs() * 3;
-        let count = out.len() / per_texel.max(1);
-        if !out.len().is_multiple_of(per_texel) || first + count > self.texels() {
-            return Some(Err(at(invalid(format!(
-                "texels {first}..{}: outside the {} texels of the file",
-                first + out.len().div_ceil(per_texel),
-                self.texels()
-            ))
-            .into())));
-        }
-        let offset = self.values_at + (first * per_texel * 2) as u64;
+        let first = match first {
+            Ok(first) => first,
+            Err(e) => return Some(Err(e)),
+        };
+        let offset = self.values_at + (first * 2) as u64;
         let chunk_values = 2 << 20;
         let mut bytes = vec![0u8; chunk_values.min(out.len()) * 2];
         for (i, part) in out.chunks_mut(chunk_values).enumerate() {
             let buf = &mut bytes[..part.len() * 2];
             let pos = offset + (i * chunk_values * 2) as u64;
             if let Err(e) = read_at(&self.file, buf, pos) {
-                return Some(Err(at(ContainerError::Io(e).into())));
+                return Some(Err(BtfFileError::at(
+                    &self.path,
+                    BtfFileErrorKind::from(ContainerError::Io(e)),
+                )));
             }
             for (o, c) in part.iter_mut().zip(buf.chunks_exact(2)) {
                 *o = half::f16::from_le_bytes([c[0], c[1]]);
             }
         }
         if let Some(i) = out.iter().position(|x| !x.is_finite()) {
-            let (l, v) = (self.light_dirs.len(), self.view_dirs.len());
-            return Some(Err(at(BtfError::NonFinite {
-                texel: first + i / per_texel,
-                light: i / (v * 3) % l,
-                view: i / 3 % v,
-                channel: i % 3,
-                value: out[i].to_f32(),
-            }
-            .into())));
+            return Some(Err(self.non_finite(first + i, out[i].to_f32())));
         }
         Some(Ok(()))
     }
@@ -442,6 +489,15 @@ impl TexelSource for OnDiskBtf {
     fn read_texels_f16(&self, first: usize, out: &mut [half::f16]) -> Option<Result<(), String>> {
         self.read_block_f16(first, out)
             .map(|r| r.map_err(|e| e.to_string()))
+    }
+    fn reads_rows(&self) -> bool {
+        true
+    }
+    fn read_rows(&self, first: usize, out: &mut [f32]) -> Result<(), String> {
+        self.read_rows_f32(first, out).map_err(|e| e.to_string())
+    }
+    fn read_rows_f16(&self, first: usize, out: &mut [half::f16]) -> Option<Result<(), String>> {
+        OnDiskBtf::read_rows_f16(self, first, out).map(|r| r.map_err(|e| e.to_string()))
     }
 }
 
@@ -496,6 +552,62 @@ mod tests {
     }
 
     #[test]
+    fn rows_equal_the_whole_file_and_the_default_row_reader() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let btf = small(3, 2);
+        let (nl, row) = (btf.light_dirs().len(), btf.view_dirs().len() * 3);
+        let rows = btf.texels() * nl;
+        for precision in [BtfPrecision::F32, BtfPrecision::F16] {
+            let path = dir.path().join("r.btf");
+            write_btf(&path, &btf, precision).expect("write");
+            let whole = crate::btf::file::read_btf(&path).expect("read");
+            let disk = OnDiskBtf::open(&path).expect("open");
+            assert!(disk.reads_rows() && !whole.reads_rows());
+            // Runs of 3 rows across texel boundaries, the last one short.
+            for first in (0..rows).step_by(3) {
+                let count = 3.min(rows - first);
+                let want = &whole.data()[first * row..(first + count) * row];
+                let mut out = vec![0.0f32; count * row];
+                disk.read_rows(first, &mut out).expect("rows");
+                assert!(
+                    out.iter()
+                        .zip(want)
+                        .all(|(a, b)| a.to_bits() == b.to_bits())
+                );
+                // The default reader (through whole texels) agrees.
+                let mut via = vec![0.0f32; count * row];
+                whole.read_rows(first, &mut via).expect("rows");
+                assert!(
+                    via.iter()
+                        .zip(want)
+                        .all(|(a, b)| a.to_bits() == b.to_bits())
+                );
+                let mut halves = vec![half::f16::ZERO; count * row];
+                match TexelSource::read_rows_f16(&disk, first, &mut halves) {
+                    Some(r) => {
+                        r.expect("f16 rows");
+                        assert_eq!(precision, BtfPrecision::F16);
+                        assert!(halves.iter().zip(want).all(|(a, b)| a.to_f32() == *b));
+                    }
+                    None => assert_eq!(precision, BtfPrecision::F32),
+                }
+            }
+            let mut past = vec![0.0f32; 2 * row];
+            let e = disk
+                .read_rows(rows - 1, &mut past)
+                .expect_err("past the end");
+            assert!(
+                e.contains(&format!("rows {}..{}", rows - 1, rows + 1)),
+                "{e}"
+            );
+            let e = whole
+                .read_rows(rows - 1, &mut past)
+                .expect_err("past the end");
+            assert!(e.contains("rows"), "{e}");
+        }
+    }
+
+    #[test]
     fn damaged_files_are_refused_naming_the_part() {
         let dir = tempfile::tempdir().expect("temp dir");
         let path = dir.path().join("a.btf");
@@ -519,6 +631,13 @@ mod tests {
         let per = disk.pairs() * 3;
         let mut out = vec![0.0f32; 4 * per];
         let e = disk.read_texels(0, &mut out).expect_err("NaN");
+        assert!(e.contains("texel 3") && e.contains("not finite"), "{e}");
+        // Read as rows (the last row of texel 3), named the same way.
+        let row = disk.view_dirs().len() * 3;
+        let mut last = vec![0.0f32; row];
+        let e = disk
+            .read_rows(4 * disk.light_dirs().len() - 1, &mut last)
+            .expect_err("NaN");
         assert!(e.contains("texel 3") && e.contains("not finite"), "{e}");
         // Not a container at all.
         std::fs::write(&path, b"hello").expect("write");

@@ -10,8 +10,9 @@
 //! (a 64x64 x 81x81 BTF: 161 MB instead of 322 MB); otherwise as f32.
 //!
 //! `BtfTable::open` reads a `.btf` within a memory bound: values that fit are held
-//! whole, as `new` holds them; larger ones stay on disk and are read a block of texels
-//! at a time through a bounded cache (`cache.rs`), in the same precision, so both
+//! whole, as `new` holds them; larger ones stay on disk and are read a block of rows
+//! (one texel's values for one light) at a time through a bounded cache (`cache.rs`),
+//! in the same precision, so both
 //! shade bit-identically. Opening scans every value once either way (finite, and for
 //! an F32 file whether all are f16), so a bad value is refused before shading starts.
 
@@ -44,7 +45,7 @@ enum Values {
     Cached(Arc<BlockCache>),
 }
 
-/// One texel's values: `L * V * 3`, light-major then view, RGB.
+/// One row of a texel's values (one light): `V * 3`, view-major, RGB.
 enum TexelValues<'a> {
     F16(&'a [f16]),
     F32(&'a [f32]),
@@ -68,7 +69,10 @@ const SCAN_BYTES: usize = 16 << 20;
 /// How much of a BTF's values `BtfTable::open` may hold: values up to `max_bytes`
 /// (in the precision held) are held whole, larger ones through a cache of blocks of
 /// about `block_bytes` whose resident blocks and those in flight in `threads`
-/// shading workers stay within `max_bytes`.
+/// shading workers (with the blocks' overhead and the index) stay within
+/// `max_bytes`. Blocks smaller than a texel are runs of rows (one texel's values for
+/// one light) where the source reads rows (a file), else one texel; larger ones are
+/// whole texels.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct MemoryBound {
     pub max_bytes: u64,
@@ -271,9 +275,17 @@ impl BtfTable {
                 })?;
                 Values::F16(halves)
             } else {
+                // Blocks of rows where the source reads rows (a file) and blocks smaller
+                // than a texel are asked for, else whole texels.
+                let lights = source.light_dirs().len();
                 let shape = CacheShape::fit(
-                    per_texel as u64 * size,
-                    source.texels(),
+                    (source.view_dirs().len() * 3) as u64 * size,
+                    if source.reads_rows() && bound.block_bytes < per_texel as u64 * size {
+                        1
+                    } else {
+                        lights
+                    },
+                    source.texels() * lights,
                     bound.max_bytes,
                     bound.block_bytes,
                     bound.threads,
@@ -385,39 +397,43 @@ impl BtfTable {
 
     /// BTF(t, wi, wo), RGB, for texel `t` (row-major), unit `wi`, `wo` in the tangent
     /// frame; 0 unless both lie above the surface.
+    ///
+    /// One routine for every way the values are held, so they shade bit-identically:
+    /// each light of the interpolation reads its row of the texel (`V * 3` values),
+    /// from memory or through the cache (at most 3 rows, not the whole texel).
     pub fn eval_texel(&self, t: usize, wi: DVec3, wo: DVec3) -> DVec3 {
         if wi.z <= 0.0 || wo.z <= 0.0 {
             return DVec3::ZERO;
         }
-        let n = self.lights.len() * self.views.len() * 3;
-        match &self.values {
-            Values::F16(v) => self.eval_values(TexelValues::F16(&v[t * n..][..n]), wi, wo),
-            Values::F32(v) => self.eval_values(TexelValues::F32(&v[t * n..][..n]), wi, wo),
-            Values::Cached(c) => match c.texel(t) {
-                Some((block, at)) => match &*block {
-                    Block::F16(v) => self.eval_values(TexelValues::F16(&v[at..][..n]), wi, wo),
-                    Block::F32(v) => self.eval_values(TexelValues::F32(&v[at..][..n]), wi, wo),
-                },
-                // Unreadable (kept in `read_error`, which the renderer reports).
-                None => DVec3::ZERO,
-            },
-        }
-    }
-
-    /// The interpolation over one texel's values (one routine for every way the
-    /// values are held, so they shade bit-identically).
-    fn eval_values(&self, values: TexelValues<'_>, wi: DVec3, wo: DVec3) -> DVec3 {
-        let nv = self.views.len();
+        let (nl, nv) = (self.lights.len(), self.views.len());
+        let row_len = nv * 3;
         let vw = self.views.weights(wo);
         let mut rgb = DVec3::ZERO;
         for (l, wl) in self.lights.cosine_weights(wi) {
             if wl == 0.0 {
                 continue;
             }
+            let row = t * nl + l as usize;
+            let held;
+            let values = match &self.values {
+                Values::F16(v) => TexelValues::F16(&v[row * row_len..][..row_len]),
+                Values::F32(v) => TexelValues::F32(&v[row * row_len..][..row_len]),
+                Values::Cached(c) => match c.row(row) {
+                    Some((block, at)) => {
+                        held = block;
+                        match &*held {
+                            Block::F16(v) => TexelValues::F16(&v[at..][..row_len]),
+                            Block::F32(v) => TexelValues::F32(&v[at..][..row_len]),
+                        }
+                    }
+                    // Unreadable (kept in `read_error`, which the renderer reports).
+                    None => return DVec3::ZERO,
+                },
+            };
             for &(v, wv) in &vw {
                 let w = wl * wv;
                 if w != 0.0 {
-                    rgb += w * values.rgb((l as usize * nv + v as usize) * 3);
+                    rgb += w * values.rgb(v as usize * 3);
                 }
             }
         }

@@ -34,6 +34,40 @@ pub trait TexelSource: Sync {
     fn read_texels_f16(&self, _first: usize, _out: &mut [half::f16]) -> Option<Result<(), String>> {
         None
     }
+    /// Whether `read_rows` reads only the rows asked for (a file: one positioned read),
+    /// so that a cache may hold blocks of single rows; a source that computes whole
+    /// texels (the default `read_rows`) keeps the cache's blocks whole texels.
+    fn reads_rows(&self) -> bool {
+        false
+    }
+    /// Fills `out` with rows from `first` on, a row being one texel's values for one
+    /// light (`V * 3`, row `t * L + l`; `out.len()` a multiple of `V * 3`). By default
+    /// through `read_texels` of the texels they lie in.
+    fn read_rows(&self, first: usize, out: &mut [f32]) -> Result<(), String> {
+        let row = self.view_dirs().len() * 3;
+        let lights = self.light_dirs().len();
+        let count = out.len() / row.max(1);
+        let rows = self.texels() * lights;
+        if row == 0 || !out.len().is_multiple_of(row) || first + count > rows {
+            return Err(format!(
+                "rows {first}..{}: outside the {rows} rows (texel x light) of the BTF",
+                first + out.len().div_ceil(row.max(1))
+            ));
+        }
+        if count == 0 {
+            return Ok(());
+        }
+        let (t0, t1) = (first / lights, (first + count - 1) / lights + 1);
+        let mut texels = vec![0.0f32; (t1 - t0) * lights * row];
+        self.read_texels(t0, &mut texels)?;
+        let skip = (first - t0 * lights) * row;
+        out.copy_from_slice(&texels[skip..skip + out.len()]);
+        Ok(())
+    }
+    /// `read_rows` into f16 values, for a source that holds them so; None otherwise.
+    fn read_rows_f16(&self, _first: usize, _out: &mut [half::f16]) -> Option<Result<(), String>> {
+        None
+    }
 }
 
 impl TexelSource for Btf {

@@ -1,10 +1,13 @@
-//! UBO2003 and ATRIUM BTFs (University of Bonn): zip archives of rectified JPEG images,
-//! one per light and view direction, named by the directions' angles in whole degrees,
+//! UBO2003 and ATRIUM BTFs (University of Bonn): zip archives of rectified images, one
+//! per light and view direction, named by the directions' angles in whole degrees,
 //! `tl015 pl060 tv030 pv120.jpg` (theta and phi of the light, then of the view), in any
-//! folder of the archive. The archive is read directly: entries are listed, grouped
-//! into a light set and a view set (each sorted by theta, then phi: the database's
-//! ring order), checked complete, and decoded in batches straight into the BTF, so
-//! memory holds the BTF and one batch of images. Format: docs/formats/ubo.md.
+//! folder of the archive: 8-bit sRGB JPEGs, or for ATRIUM's HDR archives linear
+//! Radiance RGBE images (`.hdr`). The archive is read directly: entries are listed,
+//! grouped into a light set and a view set (each sorted by theta, then phi: the
+//! database's ring order), checked complete, decoded in batches (each image held as
+//! its kept texels, in the entry's own precision: 8-bit codes or f32) and only then
+//! put into the BTF, so memory follows what has been decoded and a damaged archive is
+//! refused before the BTF is allocated. Format: docs/formats/ubo.md.
 
 use std::io::{Read, Seek};
 use std::path::{Path, PathBuf};
@@ -16,8 +19,12 @@ use rayon::prelude::*;
 use super::crop::{self, CropError, TexelRect};
 use super::{Btf, BtfError, MAX_SIDE, directions};
 
-/// Largest JPEG entry read (the database's are well under 1 MB).
+/// Largest image entry read (the database's JPEGs are well under 1 MB; an 800 x 800
+/// RGBE image is 2.6 MB).
 const MAX_ENTRY_BYTES: u64 = 64 << 20;
+/// `import_zip`'s default bound on the BTF it builds: the values as f32, as many as an
+/// import builds at most (`crop::MAX_IMPORT_VALUES`, 8 GiB).
+pub const DEFAULT_MAX_IMPORT_BYTES: u64 = crop::MAX_IMPORT_VALUES * 4;
 /// Images decoded at once.
 const BATCH: usize = 64;
 
@@ -37,11 +44,33 @@ pub enum ZipImportErrorKind {
     #[error("entry {index}: {problem}")]
     Entry { index: usize, problem: String },
     #[error(
-        "entry `{entry}`: a JPEG named `tlTTT plPPP tvTTT pvPPP.jpg` (whole degrees) was expected: {problem}"
+        "entry `{entry}`: an image named `tlTTT plPPP tvTTT pvPPP.jpg` or `.hdr` (whole degrees) was expected: {problem}"
     )]
     Name { entry: String, problem: String },
-    #[error("no `tl.. pl.. tv.. pv...jpg` images in the archive")]
+    #[error("no `tl.. pl.. tv.. pv...jpg` or `.hdr` images in the archive")]
     Empty,
+    #[error(
+        "entry `{second}` is a {second_kind} but `{first}` is a {first_kind}: an archive holds one kind of image"
+    )]
+    Mixed {
+        first: String,
+        first_kind: ImageKind,
+        second: String,
+        second_kind: ImageKind,
+    },
+    #[error(
+        "`{entry}` is {w}x{h}, so the BTF would hold {texels} texels x {pairs} direction pairs x 3 values = {bytes} bytes as f32, more than the import's bound of {max_bytes} bytes (--max-memory); keep fewer texels with --texels X,Y,W,H (at most {max_texels} texels) or raise the bound"
+    )]
+    OverBound {
+        entry: String,
+        w: u32,
+        h: u32,
+        texels: u64,
+        pairs: u64,
+        bytes: u64,
+        max_bytes: u64,
+        max_texels: u64,
+    },
     #[error("`{first}` and `{second}` both give light ({0}, {1}) deg with view ({2}, {3}) deg", angles[0], angles[1], angles[2], angles[3])]
     Duplicate {
         first: String,
@@ -64,7 +93,7 @@ pub enum ZipImportErrorKind {
     )]
     EntryTooLarge { entry: String, size: u64 },
     #[error("entry `{entry}`: {problem}")]
-    Jpeg { entry: String, problem: String },
+    Image { entry: String, problem: String },
     #[error(
         "entry `{entry}` is {found_w}x{found_h}, but `{first}` is {w}x{h}: all images must have one size"
     )]
@@ -82,15 +111,41 @@ pub enum ZipImportErrorKind {
     Btf(#[from] BtfError),
 }
 
+/// What an archive's images are.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ImageKind {
+    /// 8-bit sRGB JPEG (UBO2003, ATRIUM).
+    Jpeg,
+    /// Radiance RGBE, linear (ATRIUM's HDR archives).
+    RadianceHdr,
+}
+
+impl std::fmt::Display for ImageKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            ImageKind::Jpeg => "JPEG",
+            ImageKind::RadianceHdr => "Radiance HDR image",
+        })
+    }
+}
+
 /// The angles `[theta_l, phi_l, theta_v, phi_v]` in degrees of an entry's file name
-/// (the part after the last `/`), or why it is not one. `Ok(None)`: not a JPEG.
+/// (the part after the last `/`), or why it is not one. `Ok(None)`: not an image.
 pub fn parse_name(entry: &str) -> Result<Option<[u32; 4]>, String> {
+    Ok(parse_entry(entry)?.map(|(angles, _)| angles))
+}
+
+/// `parse_name` and the kind of image the name's extension gives.
+pub fn parse_entry(entry: &str) -> Result<Option<([u32; 4], ImageKind)>, String> {
     let file = entry.rsplit('/').next().unwrap_or(entry);
     let lower = file.to_ascii_lowercase();
-    let Some(stem) = lower
-        .strip_suffix(".jpg")
-        .or_else(|| lower.strip_suffix(".jpeg"))
-    else {
+    let Some((stem, kind)) = [
+        (".jpg", ImageKind::Jpeg),
+        (".jpeg", ImageKind::Jpeg),
+        (".hdr", ImageKind::RadianceHdr),
+    ]
+    .into_iter()
+    .find_map(|(ext, kind)| lower.strip_suffix(ext).map(|stem| (stem, kind))) else {
         return Ok(None);
     };
     let parts: Vec<&str> = stem.split_whitespace().collect();
@@ -125,7 +180,7 @@ pub fn parse_name(entry: &str) -> Result<Option<[u32; 4]>, String> {
     for t in [0, 2] {
         out[t + 1] = if out[t] == 0 { 0 } else { out[t + 1] % 360 };
     }
-    Ok(Some(out))
+    Ok(Some((out, kind)))
 }
 
 /// One listed image.
@@ -135,14 +190,107 @@ struct Listed {
     angles: [u32; 4],
 }
 
-fn jpeg_reader(bytes: &[u8]) -> ImageReader<std::io::Cursor<&[u8]>> {
-    let mut reader = ImageReader::with_format(std::io::Cursor::new(bytes), ImageFormat::Jpeg);
+/// One decoded image's kept texels (row-major within the crop), in the entry's
+/// precision: 8-bit sRGB codes (JPEG) or linear f32 (RGBE).
+enum Decoded {
+    Codes(Vec<[u8; 3]>),
+    Linear(Vec<[f32; 3]>),
+}
+
+fn image_reader(bytes: &[u8], format: ImageFormat) -> ImageReader<std::io::Cursor<&[u8]>> {
+    let mut reader = ImageReader::with_format(std::io::Cursor::new(bytes), format);
     let mut limits = Limits::default();
     limits.max_image_width = Some(MAX_SIDE);
     limits.max_image_height = Some(MAX_SIDE);
     limits.max_alloc = Some(512 << 20);
     reader.limits(limits);
     reader
+}
+
+/// A Radiance file's bytes as the `image` crate's decoder reads them, and whether its
+/// rows are then bottom-up. The decoder reads the standard resolution line `-Y H +X W`
+/// (rows top-down); ATRIUM's HDR images say `+X N -Y N`, which btf_extractor reads by
+/// rewriting it to `-Y N +X N` and turning the rows upside down: done the same way
+/// here, for square images only (the only ones seen); any other line is refused.
+fn radiance_rows(bytes: &[u8]) -> Result<(std::borrow::Cow<'_, [u8]>, bool), String> {
+    let header_end = bytes
+        .windows(2)
+        .position(|w| w == b"\n\n")
+        .filter(|&p| p < 64 << 10)
+        .ok_or("no end of the Radiance header (an empty line) in its first 64 KiB")?
+        + 2;
+    let line_end = bytes[header_end..]
+        .iter()
+        .take(256)
+        .position(|&b| b == b'\n')
+        .ok_or("no resolution line after the Radiance header")?
+        + header_end;
+    let line = String::from_utf8_lossy(&bytes[header_end..line_end]);
+    let fields: Vec<&str> = line.split_whitespace().collect();
+    match fields[..] {
+        ["-Y", _, "+X", _] => Ok((bytes.into(), false)),
+        ["+X", w, "-Y", h] if w == h => {
+            let mut fixed = bytes[..header_end].to_vec();
+            fixed.extend_from_slice(format!("-Y {h} +X {w}").as_bytes());
+            fixed.extend_from_slice(&bytes[line_end..]);
+            Ok((fixed.into(), true))
+        }
+        _ => Err(format!(
+            "resolution line `{}`: only `-Y H +X W` and ATRIUM's `+X N -Y N` are read",
+            line.trim()
+        )),
+    }
+}
+
+/// Decodes one image entry whole: its size, and its texels of `rect` (None: only the
+/// size), or why not (naming nothing: the caller names the entry).
+fn decode(
+    bytes: &[u8],
+    kind: ImageKind,
+    rect: Option<TexelRect>,
+) -> Result<((u32, u32), Option<Decoded>), String> {
+    match kind {
+        ImageKind::Jpeg => {
+            let img = image_reader(bytes, ImageFormat::Jpeg)
+                .decode()
+                .map_err(|e| e.to_string())?
+                .into_rgb8();
+            let size = (img.width(), img.height());
+            let kept = rect
+                .filter(|r| r.check_inside(size.0, size.1).is_ok())
+                .map(|r| {
+                    let mut px = Vec::with_capacity(r.texels());
+                    for y in r.y..r.y + r.height {
+                        for x in r.x..r.x + r.width {
+                            px.push(img.get_pixel(x, y).0);
+                        }
+                    }
+                    Decoded::Codes(px)
+                });
+            Ok((size, kept))
+        }
+        ImageKind::RadianceHdr => {
+            let (fixed, bottom_up) = radiance_rows(bytes)?;
+            let img = image_reader(&fixed, ImageFormat::Hdr)
+                .decode()
+                .map_err(|e| e.to_string())?
+                .into_rgb32f();
+            let size = (img.width(), img.height());
+            let kept = rect
+                .filter(|r| r.check_inside(size.0, size.1).is_ok())
+                .map(|r| {
+                    let mut px = Vec::with_capacity(r.texels());
+                    for y in r.y..r.y + r.height {
+                        let row = if bottom_up { size.1 - 1 - y } else { y };
+                        for x in r.x..r.x + r.width {
+                            px.push(img.get_pixel(x, row).0);
+                        }
+                    }
+                    Decoded::Linear(px)
+                });
+            Ok((size, kept))
+        }
+    }
 }
 
 /// Reads entry `index` whole, refusing more than `MAX_ENTRY_BYTES`.
@@ -152,7 +300,7 @@ fn entry_bytes<R: Read + Seek>(
 ) -> Result<Vec<u8>, ZipImportErrorKind> {
     let file = zip
         .by_index(l.index)
-        .map_err(|e| ZipImportErrorKind::Jpeg {
+        .map_err(|e| ZipImportErrorKind::Image {
             entry: l.name.clone(),
             problem: e.to_string(),
         })?;
@@ -165,7 +313,7 @@ fn entry_bytes<R: Read + Seek>(
     let mut bytes = Vec::new();
     file.take(MAX_ENTRY_BYTES + 1)
         .read_to_end(&mut bytes)
-        .map_err(|e| ZipImportErrorKind::Jpeg {
+        .map_err(|e| ZipImportErrorKind::Image {
             entry: l.name.clone(),
             problem: format!("cannot decompress: {e}"),
         })?;
@@ -178,8 +326,15 @@ fn entry_bytes<R: Read + Seek>(
     Ok(bytes)
 }
 
-/// Imports the archive at `path` (texels of `rect`, default all) as a BTF named `name`.
-pub fn import_zip(path: &Path, name: &str, rect: Option<TexelRect>) -> Result<Btf, ZipImportError> {
+/// Imports the archive at `path` (texels of `rect`, default all) as a BTF named `name`,
+/// its values (as f32) within `max_bytes` (`DEFAULT_MAX_IMPORT_BYTES` for no more
+/// than any import builds).
+pub fn import_zip(
+    path: &Path,
+    name: &str,
+    rect: Option<TexelRect>,
+    max_bytes: u64,
+) -> Result<Btf, ZipImportError> {
     let at = |kind: ZipImportErrorKind| ZipImportError {
         path: path.to_path_buf(),
         kind: Box::new(kind),
@@ -190,19 +345,39 @@ pub fn import_zip(path: &Path, name: &str, rect: Option<TexelRect>) -> Result<Bt
         path.display(),
         rect.map(|r| format!(", texels {r}")).unwrap_or_default()
     );
-    read_zip(std::io::BufReader::new(file), name, &provenance, rect).map_err(at)
+    read_zip_within(
+        std::io::BufReader::new(file),
+        name,
+        &provenance,
+        rect,
+        max_bytes,
+    )
+    .map_err(at)
 }
 
-/// Imports a UBO2003/ATRIUM archive from any reader (see `import_zip`).
+/// Imports a UBO2003/ATRIUM archive from any reader (see `import_zip`), within
+/// `DEFAULT_MAX_IMPORT_BYTES`.
 pub fn read_zip<R: Read + Seek>(
     reader: R,
     name: &str,
     provenance: &str,
     rect: Option<TexelRect>,
 ) -> Result<Btf, ZipImportErrorKind> {
+    read_zip_within(reader, name, provenance, rect, DEFAULT_MAX_IMPORT_BYTES)
+}
+
+/// `read_zip` with the BTF's values (as f32) bounded by `max_bytes`.
+pub fn read_zip_within<R: Read + Seek>(
+    reader: R,
+    name: &str,
+    provenance: &str,
+    rect: Option<TexelRect>,
+    max_bytes: u64,
+) -> Result<Btf, ZipImportErrorKind> {
     let mut zip =
         zip::ZipArchive::new(reader).map_err(|e| ZipImportErrorKind::Zip(e.to_string()))?;
     let mut listed = Vec::new();
+    let mut kind: Option<(ImageKind, String)> = None;
     for index in 0..zip.len() {
         let entry = zip
             .name_for_index(index)
@@ -218,19 +393,33 @@ pub fn read_zip<R: Read + Seek>(
         if entry.ends_with('/') {
             continue;
         }
-        match parse_name(&entry) {
-            Ok(Some(angles)) => listed.push(Listed {
-                index,
-                name: entry,
-                angles,
-            }),
+        match parse_entry(&entry) {
+            Ok(Some((angles, k))) => {
+                match &kind {
+                    None => kind = Some((k, entry.clone())),
+                    Some((first_kind, first)) if *first_kind != k => {
+                        return Err(ZipImportErrorKind::Mixed {
+                            first: first.clone(),
+                            first_kind: *first_kind,
+                            second: entry,
+                            second_kind: k,
+                        });
+                    }
+                    Some(_) => {}
+                }
+                listed.push(Listed {
+                    index,
+                    name: entry,
+                    angles,
+                })
+            }
             Ok(None) => {}
             Err(problem) => return Err(ZipImportErrorKind::Name { entry, problem }),
         }
     }
-    if listed.is_empty() {
+    let Some((kind, _)) = kind else {
         return Err(ZipImportErrorKind::Empty);
-    }
+    };
     // Light and view sets, each in ring order (theta, then phi).
     let set = |pick: fn(&[u32; 4]) -> [u32; 2]| {
         let mut s: Vec<[u32; 2]> = listed.iter().map(|l| pick(&l.angles)).collect();
@@ -269,70 +458,96 @@ pub fn read_zip<R: Read + Seek>(
         });
     }
     let order: Vec<&Listed> = slot.iter().map(|s| &listed[s.expect("complete")]).collect();
-    // The first image's size fixes the grid; check the crop and the budget before
-    // allocating the BTF.
-    // It is decoded whole, so a size only its header claims is refused by the decoder.
+    // The first image's size fixes the grid; the crop and the bounds are checked
+    // before anything else is decoded. It is decoded whole, so a size only its
+    // header claims is refused by the decoder.
     let first = order[0];
-    let (w, h) = jpeg_reader(&entry_bytes(&mut zip, first)?)
-        .decode()
-        .map(|img| (img.width(), img.height()))
-        .map_err(|e| ZipImportErrorKind::Jpeg {
+    let (w, h) = decode(&entry_bytes(&mut zip, first)?, kind, None)
+        .map_err(|problem| ZipImportErrorKind::Image {
             entry: first.name.clone(),
-            problem: e.to_string(),
-        })?;
+            problem,
+        })?
+        .0;
     let rect = rect.unwrap_or(TexelRect::full(w, h));
     rect.check_inside(w, h)?;
     let pairs = nl * nv;
     crop::check_budget(rect.texels() as u64, pairs as u64)?;
-    let lut: Vec<f32> = (0..=255u8)
-        .map(|v| crate::image::srgb_decode(f32::from(v) / 255.0))
-        .collect();
-    let mut data = vec![0.0f32; rect.texels() * pairs * 3];
-    for (b, batch) in order.chunks(BATCH).enumerate() {
+    let bytes = rect.texels() as u64 * pairs as u64 * 3 * 4;
+    if bytes > max_bytes {
+        return Err(ZipImportErrorKind::OverBound {
+            entry: first.name.clone(),
+            w,
+            h,
+            texels: rect.texels() as u64,
+            pairs: pairs as u64,
+            bytes,
+            max_bytes,
+            max_texels: max_bytes / (pairs as u64 * 12),
+        });
+    }
+    // Every image decoded (each held as its kept texels, 3 bytes or 12 a texel) before
+    // the BTF is allocated: an entry that does not decode is refused while memory
+    // holds only the images before it, whatever sizes the entries claim.
+    let mut images: Vec<Decoded> = Vec::with_capacity(order.len());
+    for batch in order.chunks(BATCH) {
         let raw: Vec<Vec<u8>> = batch
             .iter()
             .map(|l| entry_bytes(&mut zip, l))
             .collect::<Result<_, _>>()?;
-        let decoded: Vec<Vec<[f32; 3]>> = raw
+        let decoded: Vec<Decoded> = raw
             .par_iter()
             .zip(batch.par_iter())
             .map(|(bytes, l)| {
-                let jpeg = |problem: String| ZipImportErrorKind::Jpeg {
-                    entry: l.name.clone(),
-                    problem,
-                };
-                let img = jpeg_reader(bytes)
-                    .decode()
-                    .map_err(|e| jpeg(e.to_string()))?
-                    .to_rgb8();
-                if (img.width(), img.height()) != (w, h) {
-                    return Err(ZipImportErrorKind::Size {
+                let ((iw, ih), kept) = decode(bytes, kind, Some(rect)).map_err(|problem| {
+                    ZipImportErrorKind::Image {
                         entry: l.name.clone(),
-                        found_w: img.width(),
-                        found_h: img.height(),
+                        problem,
+                    }
+                })?;
+                match kept {
+                    Some(kept) if (iw, ih) == (w, h) => Ok(kept),
+                    _ => Err(ZipImportErrorKind::Size {
+                        entry: l.name.clone(),
+                        found_w: iw,
+                        found_h: ih,
                         first: first.name.clone(),
                         w,
                         h,
-                    });
+                    }),
                 }
-                let mut px = Vec::with_capacity(rect.texels());
-                for y in rect.y..rect.y + rect.height {
-                    for x in rect.x..rect.x + rect.width {
-                        px.push(img.get_pixel(x, y).0.map(|c| lut[usize::from(c)]));
-                    }
-                }
-                Ok(px)
             })
             .collect::<Result<_, _>>()?;
-        let base = b * BATCH;
+        images.extend(decoded);
+    }
+    let lut: Vec<f32> = (0..=255u8)
+        .map(|v| crate::image::srgb_decode(f32::from(v) / 255.0))
+        .collect();
+    // Zeroed pages are not resident until written, so the BTF's memory grows as the
+    // batches fill it while theirs is freed.
+    let mut data = vec![0.0f32; rect.texels() * pairs * 3];
+    let mut images = images.into_iter();
+    let mut base = 0;
+    loop {
+        let batch: Vec<Decoded> = images.by_ref().take(BATCH).collect();
+        if batch.is_empty() {
+            break;
+        }
         data.par_chunks_mut(pairs * 3)
             .enumerate()
             .for_each(|(t, out)| {
-                for (k, img) in decoded.iter().enumerate() {
-                    let p = base + k;
-                    out[p * 3..p * 3 + 3].copy_from_slice(&img[t]);
+                for (k, img) in batch.iter().enumerate() {
+                    let p = (base + k) * 3;
+                    match img {
+                        Decoded::Codes(px) => {
+                            for c in 0..3 {
+                                out[p + c] = lut[usize::from(px[t][c])];
+                            }
+                        }
+                        Decoded::Linear(px) => out[p..p + 3].copy_from_slice(&px[t]),
+                    }
                 }
             });
+        base += batch.len();
     }
     let dirs = |s: &[[u32; 2]]| -> Vec<DVec3> {
         s.iter()

@@ -3,8 +3,9 @@
 //! scene's); `--json` reports time, frames,
 //! the mode and device, its counters (samples, shading points, rays by kind), rays
 //! per second, the preparation's stages, the film's bytes and dropped non-finite
-//! samples. `--max-memory` bounds each `btf` material's values held in memory: a
-//! larger BTF is shaded from blocks read from its file through a bounded cache.
+//! samples. `--max-memory` bounds the scene's `btf` materials' values held in memory
+//! (an equal share each): a larger BTF is shaded from blocks read from its file
+//! through a bounded cache.
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -50,9 +51,10 @@ pub struct RenderArgs {
     /// by normal, depth and albedo). Off by default: the image is the estimate itself.
     #[arg(long)]
     denoise: bool,
-    /// Most bytes of each `btf` material's values held in memory (`256MB`, `4GB`;
-    /// powers of 1024): a BTF within it is held whole, a larger one is read from its
-    /// file as it is shaded, through a cache of this size (CPU modes; the GPU refuses
+    /// Most bytes of the scene's `btf` materials' values held in memory (`256MB`,
+    /// `4GB`; powers of 1024), an equal share each: a BTF within its share is held
+    /// whole, a larger one is read from its file as it is shaded, through a cache of
+    /// that size (CPU modes; the GPU refuses
     /// it). Images are the same either way.
     #[arg(long, default_value_t = default_max_memory())]
     max_memory: String,

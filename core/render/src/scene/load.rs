@@ -32,7 +32,8 @@ pub struct SceneError {
 pub(super) struct Ctx<'a> {
     pub file: &'a Path,
     pub text: &'a str,
-    /// How much of each `btf` material's values may be held in memory.
+    /// How much of a `btf` material's values may be held in memory (the scene's
+    /// bound, then each material's share of it).
     pub btf_memory: MemoryBound,
 }
 
@@ -85,15 +86,15 @@ impl Ctx<'_> {
     }
 }
 
-/// Reads and checks a scene file; referenced files are relative to it. Each `btf`
-/// material holds at most `BtfTable`'s default bound of values in memory.
+/// Reads and checks a scene file; referenced files are relative to it. The `btf`
+/// materials hold at most `BtfTable`'s default bound of values in memory, together.
 pub fn load_scene(path: &Path) -> Result<Scene, SceneError> {
     load_scene_within(path, MemoryBound::default())
 }
 
-/// `load_scene`, each `btf` material holding at most `btf_memory` of its values in
-/// memory (larger ones are read from disk as they are shaded; `meso render
-/// --max-memory`).
+/// `load_scene`, the `btf` materials holding at most `btf_memory` of their values in
+/// memory together, an equal share each (a larger one is read from disk as it is
+/// shaded; `meso render --max-memory`).
 pub fn load_scene_within(path: &Path, btf_memory: MemoryBound) -> Result<Scene, SceneError> {
     let text = std::fs::read_to_string(path).map_err(|e| SceneError {
         file: path.to_path_buf(),
@@ -266,6 +267,22 @@ fn materials(
     f: &file::SceneFile,
     folder: &Path,
 ) -> Result<(Vec<String>, Vec<Material>), SceneError> {
+    // The bound is the scene's: its `btf` materials share it equally, so together
+    // they hold at most the bound whatever their number (one smaller than its share
+    // is held whole and leaves the rest of its share unused).
+    let btfs = f
+        .materials
+        .values()
+        .filter(|m| m.get_ref().kind.get_ref() == "btf")
+        .count()
+        .max(1) as u64;
+    let ctx = &Ctx {
+        btf_memory: MemoryBound {
+            max_bytes: ctx.btf_memory.max_bytes / btfs,
+            ..ctx.btf_memory
+        },
+        ..*ctx
+    };
     let mut material_names = Vec::new();
     let mut materials = Vec::new();
     for (name, m) in &f.materials {

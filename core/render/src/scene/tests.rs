@@ -658,3 +658,47 @@ fn btf_materials_load_tiled_and_bad_ones_name_the_material() {
         }
     }
 }
+
+/// `load_scene_within`'s bound is the scene's: two `btf` materials share it, each
+/// held whole only if its value bytes fit its half.
+#[test]
+fn btf_materials_share_the_scenes_memory_bound() {
+    let dir = setup();
+    let dirs = meso_materials::btf::directions::bonn81();
+    let lambert = AnalyticBrdf::with_defaults(BrdfModel::Lambertian);
+    let btf =
+        meso_materials::btf::Btf::from_brdf(&lambert, DVec3::splat(0.5), 4, 4, dirs.clone(), dirs)
+            .expect("valid BTF");
+    meso_materials::btf::file::write_btf(
+        &dir.path().join("lambert.btf"),
+        &btf,
+        meso_materials::btf::file::BtfPrecision::F32,
+    )
+    .expect("write BTF");
+    let velvet = "[materials.velvet]\nkind = \"btf\"\npath = \"lambert.btf\"\n";
+    let one = EXAMPLE.replace("[materials.chrome]", &format!("{velvet}[materials.chrome]"));
+    let two = EXAMPLE.replace(
+        "[materials.chrome]",
+        &format!(
+            "{velvet}{}[materials.chrome]",
+            velvet.replace("velvet", "suede")
+        ),
+    );
+    let bytes = 16 * 81 * 81 * 3 * 4;
+    let bound = meso_materials::btf::table::MemoryBound::new(bytes + bytes / 2);
+    let held_whole = |text: &str| -> Vec<bool> {
+        let s = load_scene_within(&write(dir.path(), text), bound).expect("valid scene");
+        s.materials
+            .iter()
+            .filter_map(|m| match m {
+                Material::Btf { table, .. } => {
+                    assert_eq!(table.value_bytes(), bytes);
+                    Some(table.cache().is_none())
+                }
+                _ => None,
+            })
+            .collect()
+    };
+    assert_eq!(held_whole(&one), [true]);
+    assert_eq!(held_whole(&two), [false, false]);
+}

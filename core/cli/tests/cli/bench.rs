@@ -332,33 +332,7 @@ fn bench_edits_times_each_kind_the_scene_has_and_names_what_it_skips() {
 #[test]
 fn bench_btf_compares_the_caches_with_the_whole_table() {
     let dir = tempfile::tempdir().expect("temp dir");
-    let recipe = dir.path().join("weave.toml");
-    std::fs::write(&recipe, crate::btf_fit::SMALL_BTF_RECIPE).expect("write recipe");
-    let btf = dir.path().join("weave.btf");
-    assert_ok(&meso(
-        &[
-            "btf",
-            "synth",
-            recipe.to_str().expect("utf-8"),
-            "-o",
-            btf.to_str().expect("utf-8"),
-        ],
-        "",
-    ));
-    let grazing = std::fs::read_to_string(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../tests/scenes/fit_grazing.toml"
-    ))
-    .expect("scene");
-    let scene = dir.path().join("btf.toml");
-    std::fs::write(
-        &scene,
-        grazing.replace(
-            "kind = \"spmm\"\npack = \"../../materials/leather.spmm\"",
-            "kind = \"btf\"\npath = \"weave.btf\"",
-        ),
-    )
-    .expect("write scene");
+    let scene = crate::render::btf_grazing_scene(dir.path());
     let bench = |bound: &str| {
         meso_with_env(
             &[

@@ -384,15 +384,12 @@ fn render_on_the_gpu_reports_device_memory_and_no_adapter_is_exit_2() {
     assert!(out.exists());
 }
 
-/// `meso render --max-memory`: a `btf` material larger than the bound is shaded from
-/// its file through the bounded cache and gives the same image bytes as held whole;
-/// a bound too small for the cache or not a byte count is exit 2 naming it.
-#[test]
-fn render_reads_a_btf_larger_than_max_memory_from_disk_with_the_same_image() {
-    let dir = tempfile::tempdir().expect("temp dir");
-    let recipe = dir.path().join("weave.toml");
+/// `fit_grazing.toml` with its pack replaced by a small synthesized `btf` material
+/// (`weave.btf`, 36 texels on the Bonn layout), written in `dir`; the scene's path.
+pub(crate) fn btf_grazing_scene(dir: &std::path::Path) -> std::path::PathBuf {
+    let recipe = dir.join("weave.toml");
     std::fs::write(&recipe, crate::btf_fit::SMALL_BTF_RECIPE).expect("write recipe");
-    let btf = dir.path().join("weave.btf");
+    let btf = dir.join("weave.btf");
     assert_ok(&meso(
         &[
             "btf",
@@ -408,7 +405,7 @@ fn render_reads_a_btf_larger_than_max_memory_from_disk_with_the_same_image() {
         "/../../tests/scenes/fit_grazing.toml"
     ))
     .expect("scene");
-    let scene = dir.path().join("btf.toml");
+    let scene = dir.join("btf.toml");
     std::fs::write(
         &scene,
         grazing.replace(
@@ -417,6 +414,16 @@ fn render_reads_a_btf_larger_than_max_memory_from_disk_with_the_same_image() {
         ),
     )
     .expect("write scene");
+    scene
+}
+
+/// `meso render --max-memory`: a `btf` material larger than the bound is shaded from
+/// its file through the bounded cache and gives the same image bytes as held whole;
+/// a bound too small for the cache or not a byte count is exit 2 naming it.
+#[test]
+fn render_reads_a_btf_larger_than_max_memory_from_disk_with_the_same_image() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = crate::render::btf_grazing_scene(dir.path());
     let render = |name: &str, bound: &str| {
         let out = dir.path().join(name);
         let o = meso_with_env(

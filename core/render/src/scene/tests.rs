@@ -573,20 +573,32 @@ fn light_samples_are_read_and_a_count_out_of_range_is_named() {
     }
 }
 
-#[test]
-fn btf_materials_load_tiled_and_bad_ones_name_the_material() {
-    let dir = setup();
+/// `lambert.btf` in `dir`: a grey Lambertian tabulated on `side` x `side` texels and
+/// the Bonn directions, stored as f32.
+fn write_lambert_btf(dir: &Path, side: u32) {
     let dirs = meso_materials::btf::directions::bonn81();
     let lambert = AnalyticBrdf::with_defaults(BrdfModel::Lambertian);
-    let btf =
-        meso_materials::btf::Btf::from_brdf(&lambert, DVec3::splat(0.5), 2, 2, dirs.clone(), dirs)
-            .expect("valid BTF");
+    let btf = meso_materials::btf::Btf::from_brdf(
+        &lambert,
+        DVec3::splat(0.5),
+        side,
+        side,
+        dirs.clone(),
+        dirs,
+    )
+    .expect("valid BTF");
     meso_materials::btf::file::write_btf(
-        &dir.path().join("lambert.btf"),
+        &dir.join("lambert.btf"),
         &btf,
         meso_materials::btf::file::BtfPrecision::F32,
     )
     .expect("write BTF");
+}
+
+#[test]
+fn btf_materials_load_tiled_and_bad_ones_name_the_material() {
+    let dir = setup();
+    write_lambert_btf(dir.path(), 2);
     let with_btf = |table: &str| {
         EXAMPLE.replace(
             "[materials.chrome]",
@@ -664,17 +676,7 @@ fn btf_materials_load_tiled_and_bad_ones_name_the_material() {
 #[test]
 fn btf_materials_share_the_scenes_memory_bound() {
     let dir = setup();
-    let dirs = meso_materials::btf::directions::bonn81();
-    let lambert = AnalyticBrdf::with_defaults(BrdfModel::Lambertian);
-    let btf =
-        meso_materials::btf::Btf::from_brdf(&lambert, DVec3::splat(0.5), 4, 4, dirs.clone(), dirs)
-            .expect("valid BTF");
-    meso_materials::btf::file::write_btf(
-        &dir.path().join("lambert.btf"),
-        &btf,
-        meso_materials::btf::file::BtfPrecision::F32,
-    )
-    .expect("write BTF");
+    write_lambert_btf(dir.path(), 4);
     let velvet = "[materials.velvet]\nkind = \"btf\"\npath = \"lambert.btf\"\n";
     let one = EXAMPLE.replace("[materials.chrome]", &format!("{velvet}[materials.chrome]"));
     let two = EXAMPLE.replace(

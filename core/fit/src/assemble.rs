@@ -39,6 +39,28 @@ pub(crate) struct Tables {
 }
 
 impl Tables {
+    /// Moves the model's tables (clusters, peaks, residual means and components) out,
+    /// leaving this with the small fields only (names, grid, settings, the model's
+    /// hash): what a merge compares across parts, so it holds the tables once.
+    pub fn take_model(&mut self) -> Tables {
+        Tables {
+            name: self.name.clone(),
+            provenance: self.provenance.clone(),
+            width: self.width,
+            height: self.height,
+            light_dirs: self.light_dirs.clone(),
+            view_dirs: self.view_dirs.clone(),
+            settings: self.settings.clone(),
+            clusters: std::mem::take(&mut self.clusters),
+            peaks: std::mem::take(&mut self.peaks),
+            cluster_components: std::mem::take(&mut self.cluster_components),
+            mean: std::mem::take(&mut self.mean),
+            components: std::mem::take(&mut self.components),
+            seconds: self.seconds,
+            model_hash: self.model_hash,
+        }
+    }
+
     pub fn new(
         model: &Model,
         (name, provenance): (&str, &str),

@@ -376,17 +376,32 @@ pub fn fit_part_from(
 }
 
 /// Merges the part files at `paths` (every shard of one fit, in any order) into the
-/// pack the unsharded fit makes.
+/// pack the unsharded fit makes. Parts are read one at a time and keep their texel
+/// fits only: the model's tables, the same in every part (their hash is checked), are
+/// held once, so memory is the fits plus one part's tables however many shards.
 pub fn merge(paths: &[PathBuf]) -> Result<FitOutput, MergeFailure> {
-    let parts = paths
-        .iter()
-        .map(|p| Part::read(p).map(|part| (p.clone(), part)))
-        .collect::<Result<Vec<_>, _>>()?;
-    merge_parts(parts)
+    let mut tables = None;
+    let mut parts = Vec::with_capacity(paths.len());
+    for path in paths {
+        let mut part = Part::read(path)?;
+        let model = part.tables.take_model();
+        tables.get_or_insert(model);
+        parts.push((path.clone(), part));
+    }
+    assemble_parts(parts, tables)
 }
 
 /// `merge` of parts already read (with the paths their messages name).
 pub fn merge_parts(parts: Vec<(PathBuf, Part)>) -> Result<FitOutput, MergeFailure> {
+    assemble_parts(parts, None)
+}
+
+/// Checks the parts belong together and assembles the pack, with the model's tables
+/// taken from `tables` or else from the first shard.
+fn assemble_parts(
+    parts: Vec<(PathBuf, Part)>,
+    tables: Option<assemble::Tables>,
+) -> Result<FitOutput, MergeFailure> {
     let parts = part::check_parts(parts)?;
     let seconds: f64 = parts.iter().map(|(_, p)| p.texel_seconds).sum();
     let mut parts = parts.into_iter().map(|(_, p)| p);
@@ -396,7 +411,8 @@ pub fn merge_parts(parts: Vec<(PathBuf, Part)>) -> Result<FitOutput, MergeFailur
     for p in parts {
         first.fits.extend(p.fits);
     }
-    Ok(assemble::assemble(&first.tables, &first.fits, seconds)?)
+    let tables = tables.unwrap_or(first.tables);
+    Ok(assemble::assemble(&tables, &first.fits, seconds)?)
 }
 
 /// Why a merge failed: the parts (named), or the assembly of the pack.

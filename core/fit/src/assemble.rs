@@ -50,7 +50,7 @@ impl Tables {
             height: self.height,
             light_dirs: self.light_dirs.clone(),
             view_dirs: self.view_dirs.clone(),
-            settings: self.settings.clone(),
+            settings: self.settings,
             clusters: std::mem::take(&mut self.clusters),
             peaks: std::mem::take(&mut self.peaks),
             cluster_components: std::mem::take(&mut self.cluster_components),

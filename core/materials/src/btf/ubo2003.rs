@@ -242,6 +242,26 @@ fn radiance_rows(bytes: &[u8]) -> Result<(std::borrow::Cow<'_, [u8]>, bool), Str
     }
 }
 
+/// The pixels of `rect` (row-major) of an image of `size` read by `pixel(x, row)`,
+/// rows counted from the bottom when `bottom_up`; `None` without a rect or when it
+/// does not fit (the caller reports the size).
+fn kept_texels<P>(
+    size: (u32, u32),
+    rect: Option<TexelRect>,
+    bottom_up: bool,
+    pixel: impl Fn(u32, u32) -> P,
+) -> Option<Vec<P>> {
+    let r = rect.filter(|r| r.check_inside(size.0, size.1).is_ok())?;
+    let mut px = Vec::with_capacity(r.texels());
+    for y in r.y..r.y + r.height {
+        let row = if bottom_up { size.1 - 1 - y } else { y };
+        for x in r.x..r.x + r.width {
+            px.push(pixel(x, row));
+        }
+    }
+    Some(px)
+}
+
 /// Decodes one image entry whole: its size, and its texels of `rect` (None: only the
 /// size), or why not (naming nothing: the caller names the entry).
 fn decode(
@@ -256,18 +276,8 @@ fn decode(
                 .map_err(|e| e.to_string())?
                 .into_rgb8();
             let size = (img.width(), img.height());
-            let kept = rect
-                .filter(|r| r.check_inside(size.0, size.1).is_ok())
-                .map(|r| {
-                    let mut px = Vec::with_capacity(r.texels());
-                    for y in r.y..r.y + r.height {
-                        for x in r.x..r.x + r.width {
-                            px.push(img.get_pixel(x, y).0);
-                        }
-                    }
-                    Decoded::Codes(px)
-                });
-            Ok((size, kept))
+            let kept = kept_texels(size, rect, false, |x, y| img.get_pixel(x, y).0);
+            Ok((size, kept.map(Decoded::Codes)))
         }
         ImageKind::RadianceHdr => {
             let (fixed, bottom_up) = radiance_rows(bytes)?;
@@ -276,19 +286,8 @@ fn decode(
                 .map_err(|e| e.to_string())?
                 .into_rgb32f();
             let size = (img.width(), img.height());
-            let kept = rect
-                .filter(|r| r.check_inside(size.0, size.1).is_ok())
-                .map(|r| {
-                    let mut px = Vec::with_capacity(r.texels());
-                    for y in r.y..r.y + r.height {
-                        let row = if bottom_up { size.1 - 1 - y } else { y };
-                        for x in r.x..r.x + r.width {
-                            px.push(img.get_pixel(x, row).0);
-                        }
-                    }
-                    Decoded::Linear(px)
-                });
-            Ok((size, kept))
+            let kept = kept_texels(size, rect, bottom_up, |x, y| img.get_pixel(x, y).0);
+            Ok((size, kept.map(Decoded::Linear)))
         }
     }
 }

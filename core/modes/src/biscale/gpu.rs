@@ -34,8 +34,7 @@ use meso_render::{
 
 use super::BiscaleSettings;
 use super::btf_table::{BtfTable, Tabulation};
-use super::hemisphere::HemisphereGrid;
-use super::mode::{per_vertex, split_lighting};
+use super::mode::{per_vertex, precompute_and_tabulate, split_lighting};
 use super::peaks::EnvironmentSplit;
 use super::precompute::{Precomputed, precompute};
 use super::refine::FlatQuadtrees;
@@ -113,26 +112,8 @@ impl GpuBiscaleMode {
         Self::supports(&scene)?;
         let mut report = PreparationReport::default();
         let bvh = prepare.bvh(&scene.meshes, &mut report)?;
-        let pre = precompute(&scene.meshes, &bvh, &settings, &prepare)?;
-        report.record("refinement", pre.stats.refine_seconds);
-        if pre.stats.from_cache {
-            report.record("cache", pre.stats.cache_seconds);
-        } else {
-            report.record("visibility", pre.stats.visibility_seconds);
-            report.record("binning", pre.stats.binning_seconds);
-            report.record("biclustering", pre.stats.biclustering_seconds);
-        }
-        let tab = Tabulation {
-            local: HemisphereGrid::new(settings.local_res),
-            views: HemisphereGrid::new(settings.view_res),
-        };
-        let start = Instant::now();
-        let mut tables = Vec::with_capacity(scene.materials.len());
-        for (i, m) in scene.materials.iter().enumerate() {
-            prepare.report("tables", i as f32 / scene.materials.len().max(1) as f32)?;
-            tables.push(tab.table(m));
-        }
-        report.record_since("tables", start);
+        let (pre, tab, tables) =
+            precompute_and_tabulate(&scene, &bvh, &settings, &prepare, &mut report)?;
         prepare.report("lighting", 0.0)?;
         let start = Instant::now();
         let quadtrees = pre

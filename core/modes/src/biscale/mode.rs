@@ -33,7 +33,8 @@ use meso_render::scene::{Environment, Light, Material, Scene};
 use meso_render::shading::{Shaders, Shading, dpdu, tangent_frame, visible_light_point};
 use meso_render::{
     Counters, Device, Diagnostic, Diagnostics, EditError, Film, FrameStats, Invalidation,
-    ModeError, ModeKind, Pass, Prepare, Progress, RayCounts, RenderMode, SceneEdit, Unsupported,
+    ModeError, ModeKind, Pass, PreparationReport, Prepare, Progress, RayCounts, RenderMode,
+    SceneEdit, Unsupported,
 };
 
 /// Which representation of the transfer gives L* (the report compares them).
@@ -78,6 +79,40 @@ pub struct BiscaleMode {
     /// Per pixel, whether the frame under way has its samples already (a preview's
     /// pixels, the rows of a frame an edit stopped); empty between frames.
     done_early: Vec<bool>,
+}
+
+/// The precomputation (refinement, visibility, binning, biclustering, or the cache)
+/// and each material's table at the cells x views, their stages recorded in `report`:
+/// the preparation the CPU and the GPU biscale modes share.
+pub(super) fn precompute_and_tabulate(
+    scene: &Scene,
+    bvh: &SceneBvh,
+    settings: &BiscaleSettings,
+    prepare: &Prepare,
+    report: &mut PreparationReport,
+) -> Result<(Precomputed, Tabulation, Vec<Option<BtfTable>>), ModeError> {
+    let pre = precompute(&scene.meshes, bvh, settings, prepare)?;
+    report.record("refinement", pre.stats.refine_seconds);
+    if pre.stats.from_cache {
+        report.record("cache", pre.stats.cache_seconds);
+    } else {
+        report.record("visibility", pre.stats.visibility_seconds);
+        report.record("binning", pre.stats.binning_seconds);
+        report.record("biclustering", pre.stats.biclustering_seconds);
+    }
+    let tab = Tabulation {
+        local: HemisphereGrid::new(settings.local_res),
+        views: HemisphereGrid::new(settings.view_res),
+    };
+    prepare.report("tables", 0.0)?;
+    let start = Instant::now();
+    let mut tables = Vec::with_capacity(scene.materials.len());
+    for (i, m) in scene.materials.iter().enumerate() {
+        prepare.report("tables", i as f32 / scene.materials.len().max(1) as f32)?;
+        tables.push(tab.table(m));
+    }
+    report.record_since("tables", start);
+    Ok((pre, tab, tables))
 }
 
 /// The spmm mode's selection table when `lights` are too many to sample each.
@@ -160,27 +195,7 @@ impl BiscaleMode {
         }
         let mut core = Progressive::prepare(scene, width, height, &prepare, Self::supports)?;
         let (scene, bvh, report) = (&core.scene, &core.bvh, &mut core.preparation);
-        let pre = precompute(&scene.meshes, bvh, &settings, &prepare)?;
-        report.record("refinement", pre.stats.refine_seconds);
-        if pre.stats.from_cache {
-            report.record("cache", pre.stats.cache_seconds);
-        } else {
-            report.record("visibility", pre.stats.visibility_seconds);
-            report.record("binning", pre.stats.binning_seconds);
-            report.record("biclustering", pre.stats.biclustering_seconds);
-        }
-        let tab = Tabulation {
-            local: HemisphereGrid::new(settings.local_res),
-            views: HemisphereGrid::new(settings.view_res),
-        };
-        prepare.report("tables", 0.0)?;
-        let start = Instant::now();
-        let mut tables = Vec::with_capacity(scene.materials.len());
-        for (i, m) in scene.materials.iter().enumerate() {
-            prepare.report("tables", i as f32 / scene.materials.len().max(1) as f32)?;
-            tables.push(tab.table(m));
-        }
-        report.record_since("tables", start);
+        let (pre, tab, tables) = precompute_and_tabulate(scene, bvh, &settings, &prepare, report)?;
         let mut mode = Self {
             settings,
             tab,

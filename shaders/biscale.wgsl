@@ -336,42 +336,18 @@ fn render_biscale(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_wor
         return;
     }
     var rng = start_sample(pixel);
-    var origin = params.cam_origin.xyz;
-    var dir = camera_dir(pixel, rand2(&rng));
-    var throughput = vec3<f32>(1.0);
-    let max_depth = min(params.max_depth, 64u);
-    for (var depth = 0u; depth <= max_depth; depth++) {
-        let hit = traverse(make_ray(origin, dir, 0.0, FAR), false);
-        if hit.prim == NO_HIT {
-            add_escape(pixel, throughput, dir);
-            break;
-        }
-        let s = shading_at(hit.prim, origin, dir, hit.t);
-        mark_material(s.material);
-        let kind = material_kind(s.material);
-        let wo = -dir;
-        let lift = lifted(s);
-        if kind == MATERIAL_MIRROR {
-            if depth >= params.max_depth {
-                break;
-            }
-            counts.specular += 1u;
-            throughput *= rgb_at(params.material_table + s.material * MATERIAL_WORDS + 4u);
-            dir = dir - 2.0 * dot(dir, s.n) * s.n;
-            origin = lift;
-            continue;
-        }
-        counts.shading += 1u;
+    let r = first_surface(pixel, &rng);
+    if r.found {
+        let wo = -r.dir;
+        let lift = lifted(r.s);
         // The hit's barycentric coordinates, as `shading_at` finds them.
-        let b = barycentrics(hit.prim, origin + dir * hit.t);
-        let t = hit.prim * TRI_WORDS;
+        let b = barycentrics(r.prim, r.origin + r.dir * r.t);
+        let t = r.prim * TRI_WORDS;
         let around = locate(tris[t + 10u], tris[t + 11u], b.x, b.y);
-        add_layer(pixel, LAYER_ENVIRONMENT, throughput * biscale_radiance(s, wo, around, &rng));
-        sample_peaks(s, wo, lift, throughput, pixel, &rng);
-        sample_lights(s, wo, lift, throughput, pixel, &rng);
-        sample_ambient(s, wo, lift, throughput, pixel, &rng);
-        break;
+        add_layer(pixel, LAYER_ENVIRONMENT, r.throughput * biscale_radiance(r.s, wo, around, &rng));
+        sample_peaks(r.s, wo, lift, r.throughput, pixel, &rng);
+        sample_lights(r.s, wo, lift, r.throughput, pixel, &rng);
+        sample_ambient(r.s, wo, lift, r.throughput, pixel, &rng);
     }
-
-    finish_sample(pixel);
+    finish_sample(pixel, 1u);
 }

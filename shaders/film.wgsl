@@ -14,7 +14,8 @@ struct FilmParams {
     active_layers: u32,
     // restart: 1 restarts every pixel, 0 only those flagged in `flags`.
     all: u32,
-    pad0: u32,
+    // Words per pixel of `aux`.
+    aux_words: u32,
     pad1: u32,
     pad2: u32,
     // resolve: the weight of each layer (its emission), rgb.
@@ -22,9 +23,10 @@ struct FilmParams {
 }
 
 @group(0) @binding(0) var<uniform> params: FilmParams;
-// One sample: per pixel, per layer, RGB (integrator.wgsl's `frame`).
+// One dispatch's samples: per pixel, per layer, the RGB sum (integrator.wgsl's `frame`).
 @group(0) @binding(1) var<storage, read> frame: array<f32>;
-// One sample: per pixel the material mask and texture-coordinate box (its `aux`).
+// Per pixel the material mask, texture-coordinate box and sample count of the
+// dispatch (its `aux`, `params.aux_words` apart).
 @group(0) @binding(2) var<storage, read> aux: array<u32>;
 @group(0) @binding(3) var<storage, read_write> sums: array<vec4<f32>>;
 // Per pixel: the two words of the material mask, then the box (f32 bits).
@@ -38,7 +40,7 @@ struct FilmParams {
 
 const MAX_LAYERS: u32 = 19u;
 const MARK_WORDS: u32 = 6u;
-const AUX_WORDS: u32 = 6u;
+const AUX_SAMPLES: u32 = 6u;
 // f32 infinity as bits (WGSL has no infinity literal): the empty box's bounds.
 const POS_INF: u32 = 0x7f800000u;
 const NEG_INF: u32 = 0xff800000u;
@@ -63,6 +65,12 @@ fn accumulate(@builtin(global_invocation_id) id: vec3<u32>) {
     if p >= pixels() {
         return;
     }
+    let a = p * params.aux_words;
+    // The adaptive mode's frames shade some pixels, each with its own count.
+    let samples = aux[a + AUX_SAMPLES];
+    if samples == 0u {
+        return;
+    }
     let n = min(params.layers, MAX_LAYERS);
     for (var l = 0u; l < n; l++) {
         if (params.active_layers & (1u << l)) == 0u {
@@ -72,12 +80,11 @@ fn accumulate(@builtin(global_invocation_id) id: vec3<u32>) {
         let v = vec3<f32>(frame[at], frame[at + 1u], frame[at + 2u]);
         if finite(v.x) && finite(v.y) && finite(v.z) {
             let i = l * pixels() + p;
-            sums[i] = sums[i] + vec4<f32>(v, 1.0);
+            sums[i] = sums[i] + vec4<f32>(v, f32(samples));
         } else {
-            atomicAdd(&stats[0], 1u);
+            atomicAdd(&stats[0], samples);
         }
     }
-    let a = p * AUX_WORDS;
     let m = p * MARK_WORDS;
     marks[m] = marks[m] | aux[a];
     marks[m + 1u] = marks[m + 1u] | aux[a + 1u];

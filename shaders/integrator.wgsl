@@ -32,7 +32,8 @@ struct Params {
     sampler: u32,
     // Where the biscale words start in `env` (biscale.wgsl); 0 for the spmm mode.
     biscale: u32,
-    pad1: u32,
+    // Words per pixel of `aux` (the film's, core/gpu/src/film.rs).
+    aux_words: u32,
     pad2: u32,
     cam_origin: vec4<f32>,
     // w: half the image plane's width at distance 1.
@@ -40,6 +41,8 @@ struct Params {
     // w: half its height.
     cam_right: vec4<f32>,
     cam_up: vec4<f32>,
+    // Each layer's weight (its emission, RGB): the adaptive mode's luminance moments.
+    weights: array<vec4<f32>, 19>,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -49,8 +52,10 @@ struct Params {
 @group(0) @binding(4) var<storage, read> data: array<u32>;
 // Per pixel, per layer, RGB of this dispatch's sample.
 @group(0) @binding(5) var<storage, read_write> frame: array<f32>;
-// Per pixel: the materials shaded (two words of the 64-bit mask) and the box of the
-// SPMM texture coordinates shaded (min u, min v, max u, max v as f32 bits).
+// Per pixel (`params.aux_words` apart): the materials shaded (two words of the 64-bit
+// mask), the box of the SPMM texture coordinates shaded (min u, min v, max u, max v as
+// f32 bits) and the samples the dispatch added (AUX_SAMPLES); the adaptive mode keeps
+// its plan's words after them (adaptive.wgsl).
 @group(0) @binding(6) var<storage, read_write> aux: array<u32>;
 @group(0) @binding(7) var<storage, read_write> counters: array<atomic<u32>>;
 // The environment map, its sampling tables and the background image (environment.wgsl).
@@ -59,7 +64,7 @@ struct Params {
 const MAX_LAYERS: u32 = 19u;
 const LAYER_BACKGROUND: u32 = 0u;
 const LAYER_AMBIENT: u32 = 1u;
-const AUX_WORDS: u32 = 6u;
+const AUX_SAMPLES: u32 = 6u;
 const SHADE_FLOATS: u32 = 16u;
 const MATERIAL_WORDS: u32 = 8u;
 const MATERIAL_BRDF: u32 = 0u;
@@ -274,8 +279,8 @@ fn lifted(s: Shading) -> vec3<f32> {
     return s.p + s.n * (EPSILON_REL * max(max(max(ap.x, ap.y), ap.z), 1.0));
 }
 
-// Writes the sample's layers, marks and counts.
-fn finish_sample(pixel: u32) {
+// Writes the dispatch's layers (the sum of its `samples` samples), marks and counts.
+fn finish_sample(pixel: u32, samples: u32) {
     let layers = min(params.layers, MAX_LAYERS);
     for (var l = 0u; l < layers; l++) {
         let at = (pixel * params.layers + l) * 3u;
@@ -283,14 +288,15 @@ fn finish_sample(pixel: u32) {
         frame[at + 1u] = acc[l].y;
         frame[at + 2u] = acc[l].z;
     }
-    let a = pixel * AUX_WORDS;
+    let a = pixel * params.aux_words;
     aux[a] = mask.x;
     aux[a + 1u] = mask.y;
     aux[a + 2u] = bitcast<u32>(uv_box.x);
     aux[a + 3u] = bitcast<u32>(uv_box.y);
     aux[a + 4u] = bitcast<u32>(uv_box.z);
     aux[a + 5u] = bitcast<u32>(uv_box.w);
-    atomicAdd(&counters[COUNT_PRIMARY], 1u);
+    aux[a + AUX_SAMPLES] = samples;
+    atomicAdd(&counters[COUNT_PRIMARY], samples);
     atomicAdd(&counters[COUNT_SHADOW], counts.shadow);
     atomicAdd(&counters[COUNT_AMBIENT], counts.ambient);
     atomicAdd(&counters[COUNT_SPECULAR], counts.specular);
@@ -298,15 +304,24 @@ fn finish_sample(pixel: u32) {
     atomicAdd(&counters[COUNT_ENVIRONMENT], counts.environment);
 }
 
-@compute @workgroup_size(64)
-fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
-    let pixel = pixel_of_invocation(id, groups);
-    if pixel >= params.width * params.height {
-        return;
-    }
-    var rng = start_sample(pixel);
+// What a camera ray found past the mirrors: the first other surface, with the ray
+// that reached it and the mirrors' reflectance along the way.
+struct Reached {
+    found: bool,
+    s: Shading,
+    prim: u32,
+    t: f32,
+    origin: vec3<f32>,
+    dir: vec3<f32>,
+    throughput: vec3<f32>,
+}
+
+// The jittered camera ray through `pixel`, followed through perfect mirrors up to the
+// scene's depth to the first other surface (marked, its texture coordinate boxed); a
+// ray that leaves the scene adds what it sees there.
+fn first_surface(pixel: u32, rng: ptr<function, Rng>) -> Reached {
     var origin = params.cam_origin.xyz;
-    var dir = camera_dir(pixel, rand2(&rng));
+    var dir = camera_dir(pixel, rand2(rng));
     var throughput = vec3<f32>(1.0);
     let max_depth = min(params.max_depth, 64u);
     for (var depth = 0u; depth <= max_depth; depth++) {
@@ -321,8 +336,6 @@ fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups)
         if kind == MATERIAL_SPMM {
             uv_box = vec4<f32>(min(uv_box.xy, s.uv), max(uv_box.zw, s.uv));
         }
-        let wo = -dir;
-        let lift = lifted(s);
         if kind == MATERIAL_MIRROR {
             if depth >= params.max_depth {
                 break;
@@ -330,14 +343,36 @@ fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups)
             counts.specular += 1u;
             throughput *= rgb_at(params.material_table + s.material * MATERIAL_WORDS + 4u);
             dir = dir - 2.0 * dot(dir, s.n) * s.n;
-            origin = lift;
+            origin = lifted(s);
             continue;
         }
         counts.shading += 1u;
-        sample_lights(s, wo, lift, throughput, pixel, &rng);
-        sample_ambient(s, wo, lift, throughput, pixel, &rng);
-        sample_environment(s, wo, lift, throughput, pixel, &rng);
-        break;
+        return Reached(true, s, hit.prim, hit.t, origin, dir, throughput);
     }
-    finish_sample(pixel);
+    return Reached(false, Shading(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), vec2<f32>(0.0), 0u), NO_HIT, 0.0, origin, dir, throughput);
+}
+
+// One sample of the spmm estimator at `pixel`: the lights, the ambient term and the
+// environment at the first surface past the mirrors, into `acc`.
+fn spmm_sample(pixel: u32, rng: ptr<function, Rng>) {
+    let r = first_surface(pixel, rng);
+    if !r.found {
+        return;
+    }
+    let wo = -r.dir;
+    let lift = lifted(r.s);
+    sample_lights(r.s, wo, lift, r.throughput, pixel, rng);
+    sample_ambient(r.s, wo, lift, r.throughput, pixel, rng);
+    sample_environment(r.s, wo, lift, r.throughput, pixel, rng);
+}
+
+@compute @workgroup_size(64)
+fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    let pixel = pixel_of_invocation(id, groups);
+    if pixel >= params.width * params.height {
+        return;
+    }
+    var rng = start_sample(pixel);
+    spmm_sample(pixel, &rng);
+    finish_sample(pixel, 1u);
 }

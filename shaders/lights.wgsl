@@ -82,7 +82,9 @@ fn sample_lights(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f3
         sample_chosen_lights(s, wo, lift, throughput, pixel, rng);
         return;
     }
-    let count = min(params.lights, 16u);
+    // Every light: up to 16 in the spmm and biscale modes (above, they choose), any
+    // number in the adaptive mode, which takes each once per sample as its CPU mode.
+    let count = params.lights;
     // Area lights meet a material sample by MIS at MERL surfaces, whose measured lobes
     // can be far narrower than a light (`SpmmMode::area_light_mis`).
     let mis = material_kind(s.material) == MATERIAL_MERL;

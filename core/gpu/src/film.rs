@@ -18,8 +18,12 @@ use super::kernel::{self, Kernel, Slot};
 use super::{GpuContext, GpuError, shaders};
 use meso_render::film::{LayeredFilm, UvBox};
 
-/// Words per pixel of the one-sample `aux` buffer (`shaders/integrator.wgsl`).
-pub(super) const AUX_WORDS: usize = 6;
+/// Words per pixel of the `aux` buffer of the spmm and biscale modes
+/// (`shaders/integrator.wgsl`: the marks and the dispatch's sample count).
+pub(super) const AUX_WORDS: usize = 7;
+/// Words per pixel of the adaptive mode's `aux`: the plan's words after those
+/// (`shaders/adaptive.wgsl`).
+pub(super) const ADAPTIVE_AUX_WORDS: usize = 13;
 const MARK_WORDS: u64 = 6;
 /// Bytes per layer and pixel of the sums (RGB and the count).
 const SUM_BYTES: u64 = 16;
@@ -36,7 +40,8 @@ struct FilmParams {
     layers: u32,
     active: u32,
     all: u32,
-    pad: [u32; 3],
+    aux_words: u32,
+    pad: [u32; 2],
     weights: [[f32; 4]; 32],
 }
 
@@ -71,6 +76,8 @@ pub(super) struct DeviceFilm {
     width: u32,
     height: u32,
     layers: usize,
+    /// Words per pixel of `aux` (`AUX_WORDS` or `ADAPTIVE_AUX_WORDS`).
+    aux_words: usize,
     /// One sample's layers (pixel-major, RGB f32) and per-pixel marks: the
     /// integrator's output, the accumulation's input.
     pub frame: wgpu::Buffer,
@@ -89,10 +96,10 @@ pub(super) struct DeviceFilm {
 }
 
 /// Bytes a `width` x `height` film with `layers` layers holds on the device.
-pub(super) fn bytes_for(width: u32, height: u32, layers: usize) -> u64 {
+pub(super) fn bytes_for(width: u32, height: u32, layers: usize, aux_words: usize) -> u64 {
     let pixels = u64::from(width) * u64::from(height);
     // Sums; marks, flags and the resolved image; one sample's layers and aux.
-    pixels * (layers as u64 * (SUM_BYTES + 12) + MARK_WORDS * 4 + 4 + 16 + AUX_WORDS as u64 * 4)
+    pixels * (layers as u64 * (SUM_BYTES + 12) + MARK_WORDS * 4 + 4 + 16 + aux_words as u64 * 4)
 }
 
 /// The largest single buffer of such a film (its sums), which the device's buffer
@@ -103,12 +110,17 @@ pub(super) fn largest_buffer(width: u32, height: u32, layers: usize) -> u64 {
 
 /// A film's per-pixel buffers at `width` x `height` with `layers` layers: one sample's
 /// layers and aux words, the sums, the marks, the restart flags, the resolved image.
-fn pixel_buffers(ctx: &GpuContext, width: u32, height: u32, layers: usize) -> [wgpu::Buffer; 6] {
+fn pixel_buffers(
+    ctx: &GpuContext,
+    (width, height): (u32, u32),
+    layers: usize,
+    aux_words: usize,
+) -> [wgpu::Buffer; 6] {
     let pixels = u64::from(width) * u64::from(height);
     let layers = layers as u64;
     [
         kernel::zeroed(ctx, "frame", pixels * layers * 12),
-        kernel::zeroed(ctx, "aux", pixels * AUX_WORDS as u64 * 4),
+        kernel::zeroed(ctx, "aux", pixels * aux_words as u64 * 4),
         kernel::zeroed(ctx, "film sums", pixels * layers * SUM_BYTES),
         kernel::zeroed(ctx, "film marks", pixels * MARK_WORDS * 4),
         kernel::zeroed(ctx, "film flags", pixels * 4),
@@ -117,7 +129,18 @@ fn pixel_buffers(ctx: &GpuContext, width: u32, height: u32, layers: usize) -> [w
 }
 
 impl DeviceFilm {
+    #[cfg(test)]
     pub fn new(ctx: &GpuContext, width: u32, height: u32, layers: usize) -> Self {
+        Self::with_aux(ctx, (width, height), layers, AUX_WORDS)
+    }
+
+    /// A film whose `aux` buffer has `aux_words` words per pixel.
+    pub fn with_aux(
+        ctx: &GpuContext,
+        (width, height): (u32, u32),
+        layers: usize,
+        aux_words: usize,
+    ) -> Self {
         let source = shaders::module(&[shaders::FILM]);
         let kernel = |entry| Kernel::new(ctx, &source, entry, &SLOTS);
         let kernels = Kernels {
@@ -132,7 +155,8 @@ impl DeviceFilm {
             bytemuck::bytes_of(&FilmParams::zeroed()),
         );
         let stats = kernel::zeroed(ctx, "film stats", 8);
-        let [frame, aux, sums, marks, flags, image] = pixel_buffers(ctx, width, height, layers);
+        let [frame, aux, sums, marks, flags, image] =
+            pixel_buffers(ctx, (width, height), layers, aux_words);
         let binds = Self::bind(
             ctx,
             &kernels,
@@ -143,6 +167,7 @@ impl DeviceFilm {
             width,
             height,
             layers,
+            aux_words,
             frame,
             aux,
             sums,
@@ -196,6 +221,11 @@ impl DeviceFilm {
         self.width
     }
 
+    /// Words per pixel of `aux`.
+    pub fn aux_words(&self) -> usize {
+        self.aux_words
+    }
+
     pub fn height(&self) -> u32 {
         self.height
     }
@@ -206,7 +236,7 @@ impl DeviceFilm {
 
     /// Bytes the film's buffers hold on the device.
     pub fn bytes(&self) -> u64 {
-        bytes_for(self.width, self.height, self.layers)
+        bytes_for(self.width, self.height, self.layers, self.aux_words)
     }
 
     /// Writes the parameters every film pass of the next submission reads: the
@@ -218,6 +248,7 @@ impl DeviceFilm {
             layers: self.layers as u32,
             active: active.iter().fold(0, |m, &l| m | (1u32 << l)),
             all: u32::from(all),
+            aux_words: self.aux_words as u32,
             ..FilmParams::zeroed()
         };
         let max = f64::from(f32::MAX);
@@ -341,7 +372,7 @@ impl DeviceFilm {
         // The kernels, the parameters and the counts stay; the per-pixel buffers go.
         [
             self.frame, self.aux, self.sums, self.marks, self.flags, self.image,
-        ] = pixel_buffers(&self.ctx, width, height, self.layers);
+        ] = pixel_buffers(&self.ctx, (width, height), self.layers, self.aux_words);
         (self.width, self.height) = (width, height);
         self.rebind();
         self.reset();

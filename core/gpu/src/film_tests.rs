@@ -70,7 +70,8 @@ fn add(host: &mut Film, device: &DeviceFilm, sample: &Sample, active: &[usize]) 
         .zip(&sample.boxes)
         .flat_map(|(m, b)| {
             let words = [*m as u32, (*m >> 32) as u32];
-            words.into_iter().chain(b.map(f32::to_bits))
+            // One sample each.
+            words.into_iter().chain(b.map(f32::to_bits)).chain([1])
         })
         .collect();
     assert_eq!(aux.len(), sample.masks.len() * AUX_WORDS);
@@ -192,10 +193,13 @@ fn f32_sums_stay_within_1e_4_of_f64_after_10000_samples() {
     let mut device = DeviceFilm::new(context(), w, h, 1);
     let mut sums = vec![[0f64; 3]; pixels];
     let mut s = SampleStream::new(&[5]);
-    let zero = vec![0u32; pixels * AUX_WORDS];
+    // No marks, one sample each.
+    let one_sample: Vec<u32> = (0..pixels * AUX_WORDS)
+        .map(|i| u32::from(i % AUX_WORDS == AUX_WORDS - 1))
+        .collect();
     context()
         .queue
-        .write_buffer(&device.aux, 0, bytemuck::cast_slice(&zero));
+        .write_buffer(&device.aux, 0, bytemuck::cast_slice(&one_sample));
     for _ in 0..10_000 {
         let rgb: Vec<[f32; 3]> = (0..pixels)
             .map(|p| {

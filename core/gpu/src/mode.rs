@@ -5,6 +5,7 @@
 //! invalidation); a frame reads back only its counters. Geometry (BVH nodes and
 //! triangles), the prepared SPMM data, BRDFs, materials and lights live on the device.
 
+mod adaptive;
 mod biscale;
 mod denoising;
 mod edit;
@@ -48,8 +49,9 @@ use resources::Resources;
 use scene_data::{LIGHT_WORDS, SceneData, light_capacity, light_table};
 
 /// Counter slots of `shaders/integrator.wgsl` (two traversal overflows, then rays;
-/// the last is the environment's, `shaders/environment.wgsl`).
-const COUNTERS: usize = 8;
+/// the environment's, `shaders/environment.wgsl`; the adaptive mode's dropped
+/// samples, `shaders/adaptive_render.wgsl`).
+const COUNTERS: usize = 9;
 
 /// Device memory by kind, in bytes.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
@@ -114,11 +116,15 @@ struct Params {
     sampler: u32,
     /// Where the biscale words start in `env` (`shaders/biscale.wgsl`; 0 otherwise).
     biscale: u32,
-    pad: [u32; 2],
+    /// Words per pixel of the film's `aux` buffer.
+    aux_words: u32,
+    pad: u32,
     cam_origin: [f32; 4],
     cam_forward: [f32; 4],
     cam_right: [f32; 4],
     cam_up: [f32; 4],
+    /// Each layer's weight (the adaptive mode's luminance moments).
+    weights: [[f32; 4]; MAX_LAYERS],
 }
 
 /// The `spmm` mode on a wgpu device.
@@ -144,6 +150,16 @@ pub struct GpuSpmmMode {
     all_clusters: bool,
     /// The biscale mode's words (`mode/biscale.rs`), appended to `env_words`.
     biscale: Option<super::biscale::BiscaleBlock>,
+    /// The adaptive mode's plan and state (`mode/adaptive.rs`).
+    adaptive: Option<super::adaptive::AdaptiveDevice>,
+}
+
+/// Which frames a device mode renders.
+enum Frames {
+    Spmm,
+    /// The biscale mode's: its BVH (built by the CPU's preparation) and words.
+    Biscale(Box<(SceneBvh, super::biscale::BiscaleBlock)>),
+    Adaptive(super::adaptive::AdaptiveKnobs),
 }
 
 const SLOTS: [Slot; 9] = [
@@ -204,7 +220,7 @@ impl GpuSpmmMode {
         height: u32,
         prepare: Prepare,
     ) -> Result<Self, ModeError> {
-        Self::prepare_with(ctx, scene, (width, height), prepare, false, None)
+        Self::prepare_with(ctx, scene, (width, height), prepare, false, Frames::Spmm)
     }
 
     /// `prepare`, with every cluster of every pack uploaded when `all_clusters` (the
@@ -217,18 +233,17 @@ impl GpuSpmmMode {
         prepare: Prepare,
         all_clusters: bool,
     ) -> Result<Self, ModeError> {
-        Self::prepare_with(ctx, scene, size, prepare, all_clusters, None)
+        Self::prepare_with(ctx, scene, size, prepare, all_clusters, Frames::Spmm)
     }
 
-    /// `prepare_uploading`, rendering the biscale mode's frames when `biscale` is
-    /// given (its BVH, built by the CPU's preparation, and its words).
+    /// `prepare_uploading`, rendering `frames`.
     fn prepare_with(
         ctx: GpuContext,
         scene: Scene,
         (width, height): (u32, u32),
         prepare: Prepare,
         all_clusters: bool,
-        biscale: Option<(SceneBvh, super::biscale::BiscaleBlock)>,
+        frames: Frames,
     ) -> Result<Self, ModeError> {
         if let Some(p) = RenderSettings::size_problem(width, height) {
             return Err(ModeError::Size(p));
@@ -244,9 +259,15 @@ impl GpuSpmmMode {
             return Err(ModeError::Size(p));
         }
         let mut report = PreparationReport::default();
-        let (bvh, biscale) = match biscale {
-            Some((bvh, block)) => (bvh, Some(block)),
-            None => (prepare.bvh(&scene.meshes, &mut report)?, None),
+        let (bvh, biscale, knobs) = match frames {
+            Frames::Biscale(b) => {
+                let (bvh, block) = *b;
+                (bvh, Some(block), None)
+            }
+            Frames::Spmm => (prepare.bvh(&scene.meshes, &mut report)?, None, None),
+            Frames::Adaptive(knobs) => {
+                (prepare.bvh(&scene.meshes, &mut report)?, None, Some(knobs))
+            }
         };
         prepare.report("materials", 0.0)?;
         let start = Instant::now();
@@ -269,11 +290,23 @@ impl GpuSpmmMode {
         report.record_since("environment", start);
         prepare.report("device", 0.0)?;
         let start = Instant::now();
-        let kernel = match biscale {
-            Some(_) => Kernel::new(&ctx, &shaders::biscale(), "render_biscale", &SLOTS),
-            None => Kernel::new(&ctx, &shaders::integrator(), "render", &SLOTS),
+        let (kernel, aux_words) = match (&biscale, knobs) {
+            (Some(_), _) => (
+                Kernel::new(&ctx, &shaders::biscale(), "render_biscale", &SLOTS),
+                film::AUX_WORDS,
+            ),
+            (None, Some(_)) => (
+                Kernel::new(&ctx, &shaders::adaptive(), "render_adaptive", &SLOTS),
+                film::ADAPTIVE_AUX_WORDS,
+            ),
+            (None, None) => (
+                Kernel::new(&ctx, &shaders::integrator(), "render", &SLOTS),
+                film::AUX_WORDS,
+            ),
         };
-        let film = DeviceFilm::new(&ctx, width, height, layer_count);
+        let film = DeviceFilm::with_aux(&ctx, (width, height), layer_count, aux_words);
+        let adaptive =
+            knobs.map(|k| super::adaptive::AdaptiveDevice::new(&ctx, (width, height), k));
         let res = Resources::upload(
             &ctx,
             &kernel,
@@ -300,6 +333,7 @@ impl GpuSpmmMode {
             all_clusters,
             denoising: Default::default(),
             biscale,
+            adaptive,
         })
     }
 
@@ -316,7 +350,7 @@ impl GpuSpmmMode {
             environment: self.res.env.size(),
             merl_tables: d.merl_tables,
             btf_tables: d.btf_tables,
-            film: self.core.film.bytes(),
+            film: self.core.film.bytes() + self.adaptive.as_ref().map_or(0, |a| a.bytes()),
         }
     }
 
@@ -359,19 +393,40 @@ impl GpuSpmmMode {
                 .ambient
                 .map_or(-1.0, |a| a.radius.min(3.0e38) as f32),
             materials: self.core.scene.materials.len() as u32,
-            stochastic: u32::from(LightSampling::Auto.stochastic(self.core.scene.lights.len())),
+            // The adaptive mode takes every light once per sample, as its CPU mode.
+            stochastic: u32::from(
+                self.adaptive.is_none()
+                    && LightSampling::Auto.stochastic(self.core.scene.lights.len()),
+            ),
             light_samples: self.core.scene.render.light_samples,
             sampler: match self.core.scene.render.sampler {
                 Sampler::Sobol => 0,
                 Sampler::Independent => 1,
             },
             biscale: self.biscale_at(),
-            pad: [0; 2],
+            aux_words: self.core.film.aux_words() as u32,
+            pad: 0,
             cam_origin: v4(cam.position, 0.0),
             cam_forward: v4(forward, half_w),
             cam_right: v4(right, half_h),
             cam_up: v4(up, 0.0),
+            weights: self.layer_weights(),
         }
+    }
+
+    /// Each active layer's weight (its emission) as f32, zero for the others.
+    fn layer_weights(&self) -> [[f32; 4]; MAX_LAYERS] {
+        let scene = &self.core.scene;
+        let weights = self.core.layers.weights(scene);
+        let mut out = [[0.0; 4]; MAX_LAYERS];
+        let max = f64::from(f32::MAX);
+        for l in self.core.layers.active(scene) {
+            if let (Some(w), Some(o)) = (weights.get(l), out.get_mut(l)) {
+                let w = w.clamp(DVec3::splat(-max), DVec3::splat(max));
+                *o = [w.x as f32, w.y as f32, w.z as f32, 0.0];
+            }
+        }
+        out
     }
 
     /// `count` samples per pixel from sample index `first`: per sample a dispatch of
@@ -436,15 +491,23 @@ impl GpuSpmmMode {
             .fold(0, |m, (i, _)| m | material_bit(i))
     }
 
-    /// The film resolved on the device (`None` once the device failed).
+    /// The film resolved on the device (`None` once the device failed); the adaptive
+    /// mode's up-sampled from its sites.
     fn device_image(&self) -> Option<DeviceImage> {
         if self.failure.is_some() {
             return None;
         }
-        Some(self.core.film.resolve(
+        let image = self.core.film.resolve(
             &self.core.layers.active(&self.core.scene),
             &self.core.layers.weights(&self.core.scene),
-        ))
+        );
+        if let Some(a) = &self.adaptive
+            && a.has_pass
+            && self.core.frames > 0
+        {
+            a.upsample(&image, &self.core.film.aux);
+        }
+        Some(image)
     }
 
     /// The pixels an edit restarted; a device that failed while they were found
@@ -462,6 +525,9 @@ impl GpuSpmmMode {
     fn restart_all(&mut self) -> Invalidation {
         self.core.film.reset();
         self.core.restart_counters();
+        if let Some(a) = &self.adaptive {
+            a.restart_samples();
+        }
         Invalidation::All
     }
 
@@ -597,8 +663,11 @@ impl RenderMode for GpuSpmmMode {
         if self.failure.is_some() {
             return Some(FrameStats::default());
         }
-        let counters = match self.render_samples(self.core.next_sample, self.core.samples_per_frame)
-        {
+        let rendered = match self.adaptive {
+            Some(_) => self.render_adaptive_frame(),
+            None => self.render_samples(self.core.next_sample, self.core.samples_per_frame),
+        };
+        let counters = match rendered {
             Ok(c) => c,
             Err(e) => {
                 self.failure = Some(e);
@@ -649,7 +718,7 @@ impl RenderMode for GpuSpmmMode {
         Progress {
             frames: self.core.frames,
             min_samples: self.core.film.min_samples(),
-            dropped: self.core.film.dropped(),
+            dropped: self.core.film.dropped() + self.adaptive_dropped(),
             width: self.core.film.width(),
             height: self.core.film.height(),
             film_bytes: self.core.film.bytes(),

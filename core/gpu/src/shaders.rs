@@ -18,6 +18,8 @@ pub(super) const DISPLAY: &str = include_str!("../../../shaders/display.wgsl");
 pub(super) const GUIDES: &str = include_str!("../../../shaders/guides.wgsl");
 pub(super) const DENOISE: &str = include_str!("../../../shaders/denoise.wgsl");
 pub(super) const BISCALE: &str = include_str!("../../../shaders/biscale.wgsl");
+pub(super) const ADAPTIVE: &str = include_str!("../../../shaders/adaptive.wgsl");
+pub(super) const ADAPTIVE_RENDER: &str = include_str!("../../../shaders/adaptive_render.wgsl");
 
 /// The test kernels: evaluations of BRDFs and SPMM texels, and primary-ray hits.
 #[cfg(test)]
@@ -69,6 +71,24 @@ pub(super) fn biscale() -> String {
     module(&[
         INTEGRATOR,
         BISCALE,
+        SAMPLER,
+        TRAVERSAL,
+        BRDF,
+        SPMM,
+        LIGHTS,
+        ENVIRONMENT,
+        MERL,
+        CDF,
+        BTF_TABLE,
+    ])
+}
+
+/// The adaptive mode's samples: the integrator's module with `render_adaptive`
+/// after it (its plan and up-sampling are `ADAPTIVE`'s module of their own).
+pub(super) fn adaptive() -> String {
+    module(&[
+        INTEGRATOR,
+        ADAPTIVE_RENDER,
         SAMPLER,
         TRAVERSAL,
         BRDF,

@@ -8,7 +8,12 @@ pub mod adaptive;
 pub mod biscale;
 pub mod trace;
 
+#[cfg(all(test, feature = "gpu"))]
+mod gpu_test_support;
+
 use crate::adaptive::AdaptiveMode;
+#[cfg(feature = "gpu")]
+use crate::adaptive::GpuAdaptiveMode;
 use crate::biscale::BiscaleMode;
 #[cfg(feature = "gpu")]
 use crate::biscale::GpuBiscaleMode;
@@ -83,6 +88,13 @@ pub const MODES: &[ModeEntry] = &[
                 scene, width, height, prepare,
             )?))
         },
+    },
+    #[cfg(feature = "gpu")]
+    ModeEntry {
+        kind: ModeKind::Adaptive,
+        device: Device::Gpu,
+        supports: GpuAdaptiveMode::supports,
+        create: create_gpu_adaptive,
     },
 ];
 
@@ -182,6 +194,25 @@ fn create_gpu_biscale(
     )?))
 }
 
+#[cfg(feature = "gpu")]
+fn create_gpu_adaptive(
+    gpu: GpuDevice,
+    scene: Scene,
+    width: u32,
+    height: u32,
+    prepare: Prepare,
+) -> Result<Box<dyn RenderMode>, ModeError> {
+    // As for spmm: the scene is judged before a device is looked for.
+    GpuAdaptiveMode::supports(&scene)?;
+    Ok(Box::new(GpuAdaptiveMode::new(
+        context(gpu)?,
+        scene,
+        width,
+        height,
+        prepare,
+    )?))
+}
+
 /// The device `gpu` names: the shared one, or one of the mode's own.
 #[cfg(feature = "gpu")]
 fn context(gpu: GpuDevice) -> Result<GpuContext, ModeError> {
@@ -204,9 +235,10 @@ mod tests {
     #[test]
     fn modes_not_built_say_so() {
         let scene = edit_test_scene();
-        let mut missing = vec![(ModeKind::Adaptive, Device::Gpu)];
+        let mut missing = Vec::new();
         if !cfg!(feature = "gpu") {
             missing.push((ModeKind::Biscale, Device::Gpu));
+            missing.push((ModeKind::Adaptive, Device::Gpu));
         }
         for (kind, device) in missing {
             let err = create(kind, device, scene.clone(), 8, 8, Prepare::quietly())
@@ -219,6 +251,10 @@ mod tests {
         assert_eq!(is_built(ModeKind::Spmm, Device::Gpu), cfg!(feature = "gpu"));
         assert_eq!(
             is_built(ModeKind::Biscale, Device::Gpu),
+            cfg!(feature = "gpu")
+        );
+        assert_eq!(
+            is_built(ModeKind::Adaptive, Device::Gpu),
             cfg!(feature = "gpu")
         );
     }

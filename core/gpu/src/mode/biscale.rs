@@ -37,7 +37,7 @@ impl GpuSpmmMode {
             (width, height),
             prepare,
             false,
-            Some((bvh, block)),
+            Frames::Biscale(Box::new((bvh, block))),
         )
     }
 

@@ -61,6 +61,7 @@ impl GpuSpmmMode {
             }
             Edited::Camera | Edited::LightSamples => self.restart_all(),
             Edited::Resized => {
+                self.resize_adaptive();
                 self.rebind();
                 self.restart_all()
             }

@@ -5,7 +5,7 @@
 //! how many samples to take. `wavelet` (eq. 7, the 95th percentile), `bandwidth`
 //! (materials, environment, area lights), `operators` (Fig. 4, eq. 3-6, 9-11),
 //! `gbuffer`, `upsample` (section 3.2), `preconvolved` (section 2.5), `mode` (the
-//! `RenderMode`). No multi-sample anti-aliasing levels, no textures.
+//! `RenderMode`; with the `gpu` feature `mode/gpu.rs`, its frames on a wgpu device). No multi-sample anti-aliasing levels, no textures.
 
 pub mod allocation;
 pub mod bandwidth;
@@ -17,7 +17,11 @@ pub mod preconvolved;
 pub mod upsample;
 pub mod wavelet;
 
+#[cfg(all(test, feature = "gpu"))]
+mod gpu_tests;
 #[cfg(test)]
 mod tests;
 
+#[cfg(feature = "gpu")]
+pub use mode::GpuAdaptiveMode;
 pub use mode::{AdaptiveMode, AdaptiveOptions, Buffers, Plan};

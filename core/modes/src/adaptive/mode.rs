@@ -112,11 +112,15 @@ fn material_bandwidth(m: &Material) -> Option<Arc<MaterialBandwidth>> {
 }
 
 mod frame;
+#[cfg(feature = "gpu")]
+mod gpu;
 mod pass;
 #[cfg(test)]
 mod tests;
 
 pub use frame::Plan;
+#[cfg(feature = "gpu")]
+pub use gpu::GpuAdaptiveMode;
 pub use pass::Buffers;
 use pass::PassProgress;
 
@@ -357,7 +361,8 @@ impl AdaptiveMode {
     /// material whose lobes became markedly sharper (its mean peak rate up by more
     /// than a quarter) restarts the pass, so its detail is not up-sampled from sites
     /// placed for the softer one; otherwise the buffers stand until the next pass.
-    fn take_analyses(&mut self) {
+    /// True if the pass should run again (the GPU mode's cue: it keeps its own).
+    pub(super) fn take_analyses(&mut self) -> bool {
         let mut sharper = false;
         for a in std::mem::take(&mut self.analysing) {
             if !a.thread.is_finished() {
@@ -385,6 +390,7 @@ impl AdaptiveMode {
         if sharper && self.buffers.is_some() {
             self.restart_all();
         }
+        sharper
     }
 
     /// Starts analysing material `index` as the scene has it now, or marks the

@@ -6,25 +6,17 @@
 //! WGPU_BACKEND=vulkan) and fail without one, naming the cause.
 
 use std::path::Path;
-use std::sync::OnceLock;
 
 use glam::DVec3;
-use meso_gpu::GpuContext;
-use meso_materials::image::Image;
 use meso_render::scene::{Environment, Material, Scene, load_scene};
 use meso_render::{Invalidation, Prepare, RenderMode, SceneEdit, run_frames};
 
 use super::{BiscaleMode, BiscaleSettings, GpuBiscaleMode};
 use crate::REFERENCE_SEED_XOR;
-
-fn context() -> &'static GpuContext {
-    static CONTEXT: OnceLock<GpuContext> = OnceLock::new();
-    CONTEXT.get_or_init(|| {
-        GpuContext::new().unwrap_or_else(|e| {
-            panic!("the GPU tests need a wgpu adapter (CI: lavapipe, WGPU_BACKEND=vulkan): {e}")
-        })
-    })
-}
+use crate::gpu_test_support::{
+    MeanOf, agrees as agrees_with, context, mean, merl_bunny,
+    merl_bunny_with_point_light_ambient_and_mirror,
+};
 
 /// Small resolutions so lavapipe and a debug build take seconds; one cache for every
 /// mode of a test, so the CPU and the GPU use the very same precomputation.
@@ -38,32 +30,6 @@ fn settings(cache: &Path) -> BiscaleSettings {
         cache_dir: Some(cache.to_path_buf()),
         ..BiscaleSettings::default()
     }
-}
-
-/// The MERL bunny on its MERL floor under the studio map and one area light.
-fn bunny() -> Scene {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/scenes/merl_bunny.toml");
-    load_scene(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
-}
-
-fn rmse(a: &Image, b: &Image) -> f64 {
-    let n = a.pixels().len() as f64 * 3.0;
-    let sum: f64 = a
-        .pixels()
-        .iter()
-        .zip(b.pixels())
-        .flat_map(|(p, q)| (0..3).map(move |c| (f64::from(p[c]) - f64::from(q[c])).powi(2)))
-        .sum();
-    (sum / n).sqrt()
-}
-
-fn mean(a: &Image) -> f64 {
-    a.pixels()
-        .iter()
-        .flatten()
-        .map(|&v| f64::from(v))
-        .sum::<f64>()
-        / (a.pixels().len() * 3) as f64
 }
 
 fn cpu(scene: Scene, size: u32, s: &BiscaleSettings) -> BiscaleMode {
@@ -98,44 +64,27 @@ fn agrees(
     run_frames(&mut reference, 16 * frames, |_, _| {});
     let reference = reference.image();
     let mut same = cpu(scene.clone(), size, s);
-    run_frames(&mut same, frames, |_, _| {});
-    let run = run_frames(gpu, frames, |_, _| {});
-    let image = gpu.image();
-    assert!(
-        image.pixels().iter().flatten().all(|v| v.is_finite()),
-        "{what}: non-finite pixels"
+    let agreed = agrees_with(
+        what,
+        (gpu, &mut same),
+        &reference,
+        frames,
+        size,
+        MeanOf::Converged,
     );
-    assert_eq!(run.dropped, 0, "{what}: non-finite samples");
     assert_eq!(
         gpu.device_mode().overflows(),
         (0, 0),
         "{what}: traversal overflows"
     );
-    let (e_gpu, e_cpu) = (rmse(&image, &reference), rmse(&same.image(), &reference));
-    let (m_gpu, m_ref) = (mean(&image), mean(&reference));
-    eprintln!(
-        "{what}: {size}x{size}, {frames} frames: RMSE gpu {e_gpu:.5}, cpu {e_cpu:.5} (ratio {:.3}); mean gpu {m_gpu:.5}, cpu {:.5}, reference {m_ref:.5} ({:+.2}%)",
-        e_gpu / e_cpu,
-        mean(&same.image()),
-        100.0 * (m_gpu / m_ref - 1.0)
-    );
-    assert!(
-        e_gpu <= 1.25 * e_cpu + 0.002 * m_ref,
-        "{what}: GPU RMSE {e_gpu} against the CPU's {e_cpu}"
-    );
-    let standard_error = e_cpu / f64::from(size);
-    assert!(
-        (m_gpu - m_ref).abs() <= 0.02 * m_ref + 4.0 * standard_error,
-        "{what}: mean {m_gpu} against {m_ref} (standard error {standard_error})"
-    );
-    (m_gpu, m_ref)
+    agreed
 }
 
 #[test]
 fn the_gpu_biscale_image_is_the_cpus() {
     let cache = tempfile::tempdir().expect("a temporary folder");
     let s = settings(cache.path());
-    let scene = bunny();
+    let scene = merl_bunny();
     let mut mode = gpu(scene.clone(), 48, &s);
     assert_eq!(
         (mode.kind(), mode.device()),
@@ -170,7 +119,7 @@ fn the_gpu_biscale_image_is_the_cpus() {
 fn the_gpu_environment_layer_is_the_cpus() {
     let cache = tempfile::tempdir().expect("a temporary folder");
     let s = settings(cache.path());
-    let mut scene = bunny();
+    let mut scene = merl_bunny();
     scene.lights.clear();
     scene.ambient = None;
     let mut mode = gpu(scene.clone(), 32, &s);
@@ -195,7 +144,7 @@ fn the_gpu_environment_layer_is_the_cpus() {
 fn a_light_edit_changes_only_the_lights_layer() {
     let cache = tempfile::tempdir().expect("a temporary folder");
     let s = settings(cache.path());
-    let scene = bunny();
+    let scene = merl_bunny();
     let mut mode = gpu(scene.clone(), 32, &s);
     run_frames(&mut mode, 4, |_, _| {});
     let before = mode.image();
@@ -247,7 +196,7 @@ fn a_light_edit_changes_only_the_lights_layer() {
 fn camera_and_environment_edits_give_the_cpus_image() {
     let cache = tempfile::tempdir().expect("a temporary folder");
     let s = settings(cache.path());
-    let scene = bunny();
+    let scene = merl_bunny();
     let mut mode = gpu(scene.clone(), 32, &s);
     run_frames(&mut mode, 2, |_, _| {});
     let mut edited = scene.clone();
@@ -279,7 +228,7 @@ fn camera_and_environment_edits_give_the_cpus_image() {
 fn material_edits_are_uploaded() {
     let cache = tempfile::tempdir().expect("a temporary folder");
     let s = settings(cache.path());
-    let scene = bunny();
+    let scene = merl_bunny();
     let mut mode = gpu(scene.clone(), 32, &s);
     let plastic = Material::Brdf {
         brdf: meso_materials::brdf::AnalyticBrdf::with_defaults(
@@ -310,10 +259,10 @@ fn material_edits_are_uploaded() {
 /// The default scene (the leather pack on the bunny, a Lambertian floor, an area
 /// light, the ambient term) under the studio map, so the pack's biscale tables light
 /// the bunny: its image is the CPU's.
-fn leather_bunny() -> Scene {
+fn leather_merl_bunny() -> Scene {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/scenes/default.toml");
     let mut scene = load_scene(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    scene.environment = bunny().environment;
+    scene.environment = merl_bunny().environment;
     let bunny = scene.meshes[0].material;
     assert!(
         matches!(scene.materials[bunny], Material::Spmm { .. }),
@@ -331,7 +280,7 @@ fn table_bytes(mode: &GpuBiscaleMode) -> u64 {
 fn an_spmm_pack_gives_the_cpus_image() {
     let cache = tempfile::tempdir().expect("a temporary folder");
     let s = settings(cache.path());
-    let scene = leather_bunny();
+    let scene = leather_merl_bunny();
     let mut mode = gpu(scene.clone(), 48, &s);
     // The leather's basis rows are on the device (views x cells per basis).
     let row = u64::from(s.view_res * s.view_res * s.local_res * s.local_res) * 4;
@@ -351,7 +300,7 @@ fn the_precomputed_part_of_a_pack_is_the_cpus() {
         traced_share: 0.0,
         ..settings(cache.path())
     };
-    let mut scene = leather_bunny();
+    let mut scene = leather_merl_bunny();
     scene.lights.clear();
     scene.ambient = None;
     let (bunny, floor) = (scene.meshes[0].material, scene.meshes[1].material);
@@ -389,7 +338,7 @@ fn an_spmm_residual_in_the_precomputed_part_is_the_cpus() {
         panic!("biscale.toml's bunny wears a pack");
     };
     assert!(*residual && material.npca() > 6, "a residual in use");
-    let mut scene = leather_bunny();
+    let mut scene = leather_merl_bunny();
     scene.lights.clear();
     scene.ambient = None;
     let floor = scene.meshes[1].material;
@@ -410,7 +359,7 @@ fn an_spmm_residual_in_the_precomputed_part_is_the_cpus() {
 fn spmm_pack_edits_give_the_cpus_image() {
     let cache = tempfile::tempdir().expect("a temporary folder");
     let s = settings(cache.path());
-    let scene = leather_bunny();
+    let scene = leather_merl_bunny();
     let (bunny, floor_index) = (scene.meshes[0].material, scene.meshes[1].material);
     let mut mode = gpu(scene.clone(), 32, &s);
     run_frames(&mut mode, 2, |_, _| {});
@@ -459,7 +408,7 @@ fn spmm_pack_edits_give_the_cpus_image() {
 fn a_mesh_edit_precomputes_again_and_gives_the_cpus_image() {
     let cache = tempfile::tempdir().expect("a temporary folder");
     let s = settings(cache.path());
-    let scene = bunny();
+    let scene = merl_bunny();
     let mut mode = gpu(scene.clone(), 24, &s);
     run_frames(&mut mode, 1, |_, _| {});
     let mut edited = scene.clone();
@@ -486,7 +435,7 @@ fn the_precomputed_part_is_the_cpus() {
         traced_share: 0.0,
         ..settings(cache.path())
     };
-    let mut scene = bunny();
+    let mut scene = merl_bunny();
     scene.lights.clear();
     scene.ambient = None;
     let mut mode = gpu(scene.clone(), 32, &s);
@@ -506,7 +455,7 @@ fn the_precomputed_part_is_the_cpus() {
 fn a_btf_floor_is_evaluated_per_cell_as_on_the_cpu() {
     let cache = tempfile::tempdir().expect("a temporary folder");
     let s = settings(cache.path());
-    let mut scene = bunny();
+    let mut scene = merl_bunny();
     scene.materials[1] = meso_render::scene::test_scenes::tabulated_btf(
         &meso_materials::brdf::AnalyticBrdf::with_defaults(
             meso_materials::brdf::BrdfModel::CookTorrance,
@@ -526,7 +475,7 @@ fn the_first_frames_are_denoised_on_the_device() {
     let cache = tempfile::tempdir().expect("temp dir");
     let s = settings(cache.path());
     let size = 24;
-    let mut g = gpu(bunny(), size, &s);
+    let mut g = gpu(merl_bunny(), size, &s);
     run_frames(&mut g, 1, |_, _| {});
     let denoiser = meso_render::Denoiser::for_samples(1);
     let estimate = g.image_on_device().expect("on the device");
@@ -557,27 +506,7 @@ fn the_first_frames_are_denoised_on_the_device() {
 fn point_lights_ambient_occlusion_and_a_mirror_give_the_cpus_image() {
     let cache = tempfile::tempdir().expect("a temporary folder");
     let s = settings(cache.path());
-    let mut scene = bunny();
-    scene.lights.push(meso_render::scene::Light::Point {
-        position: DVec3::new(0.8, 1.4, 1.0),
-        intensity: DVec3::new(1.5, 1.2, 1.0),
-    });
-    scene.ambient = Some(meso_render::scene::Ambient {
-        radiance: DVec3::splat(0.3),
-        radius: 0.5,
-    });
-    scene.materials.push(Material::Mirror {
-        reflectance: DVec3::new(0.9, 0.85, 0.8),
-    });
-    scene.material_names.push("chrome".into());
-    let mirror = scene.materials.len() - 1;
-    // Upright behind the bunny, facing the camera.
-    scene.meshes.push(meso_render::scene::mesh::quad(
-        DVec3::new(-1.0, 0.0, -0.6),
-        DVec3::new(2.0, 0.0, 0.0),
-        DVec3::new(0.0, 1.2, 0.0),
-        mirror,
-    ));
+    let scene = merl_bunny_with_point_light_ambient_and_mirror();
     let mut mode = gpu(scene.clone(), 32, &s);
     agrees(
         "merl_bunny with a point light, ambient occlusion and a mirror",

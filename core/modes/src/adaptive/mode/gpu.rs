@@ -1,0 +1,269 @@
+//! `GpuAdaptiveMode`: the adaptive mode with its frames on a wgpu device. After each
+//! restart the CPU mode's bandwidth pass (G-buffer, per-pixel analysis, guards,
+//! levels and predicted deviations: `pass.rs`) goes up once as `meso_gpu::PassPixel`s;
+//! from then on every frame stays on the device (`meso_gpu::GpuSpmmMode`'s adaptive
+//! frames, `shaders/adaptive.wgsl`): the pyramids, the plan (sites, the mean of their
+//! corrected deviations, dithered sample counts), the samples, the pixels' own
+//! counts and moments, and the up-sampling of the image. This lives here rather than
+//! in `meso-gpu` because the pass and the materials' bandwidths are this crate's.
+//!
+//! Differences from the CPU mode, by design: a sample is the GPU spmm mode's estimator
+//! (`spmm_sample`: its light selection and `light_samples`), with the CPU adaptive
+//! mode's expectation; the plan's arithmetic is f32 (a dithered count can differ by
+//! one at a rounding edge); no preview while the pass runs.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use meso_gpu::{AdaptiveKnobs, GpuContext, GpuSpmmMode, PassPixel};
+use meso_materials::image::Image;
+use meso_render::scene::Scene;
+use meso_render::{
+    Device, Diagnostic, Diagnostics, EditError, FrameStats, ImageOnDevice, Invalidation, ModeError,
+    ModeKind, Pass, Prepare, Progress, RenderMode, SceneEdit, Unsupported,
+};
+
+use super::{AdaptiveMode, AdaptiveOptions, Buffers};
+
+pub struct GpuAdaptiveMode {
+    /// The device half: skeleton, device film, geometry, lights, the frames.
+    device: GpuSpmmMode,
+    /// The CPU mode, for its bandwidth pass and the materials' bandwidths it reads
+    /// (its own frames never run).
+    cpu: AdaptiveMode,
+    /// Seconds the last bandwidth pass took on the CPU.
+    pass_seconds: f64,
+}
+
+/// The device half's refusal (it names the spmm mode) as this mode's.
+fn for_this_mode(u: Unsupported) -> Unsupported {
+    Unsupported {
+        mode: ModeKind::Adaptive,
+        ..u
+    }
+}
+
+/// What the frames read of a pass, per pixel.
+fn pass_pixels(b: &Buffers) -> Vec<PassPixel> {
+    let g = &b.guide;
+    (0..b.level.len())
+        .map(|i| PassPixel {
+            level: b.level[i],
+            sigma: b.sigma[i] as f32,
+            depth: g.depth[i] as f32,
+            normal_dir: [g.normal_dir[i].x as f32, g.normal_dir[i].y as f32],
+            cos_x: g.cos_x[i] as f32,
+        })
+        .collect()
+}
+
+impl GpuAdaptiveMode {
+    /// What the device cannot render: what its device half cannot shade (a `btf`
+    /// table read from disk, which has no values in memory to upload), named for this
+    /// mode.
+    pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
+        GpuSpmmMode::supports(scene).map_err(for_this_mode)?;
+        AdaptiveMode::supports(scene)
+    }
+
+    pub fn new(
+        ctx: GpuContext,
+        scene: Scene,
+        width: u32,
+        height: u32,
+        prepare: Prepare,
+    ) -> Result<Self, ModeError> {
+        Self::prepare(
+            ctx,
+            scene,
+            (width, height),
+            AdaptiveOptions::default(),
+            prepare,
+        )
+    }
+
+    pub fn prepare(
+        ctx: GpuContext,
+        scene: Scene,
+        (width, height): (u32, u32),
+        options: AdaptiveOptions,
+        prepare: Prepare,
+    ) -> Result<Self, ModeError> {
+        if options.preconvolved {
+            return Err(ModeError::Size(
+                "the pre-convolved variant of the adaptive mode runs on the CPU only".into(),
+            ));
+        }
+        Self::supports(&scene)?;
+        let cpu = AdaptiveMode::prepare_with(scene.clone(), width, height, prepare, options)?;
+        let o = cpu.options();
+        let knobs = AdaptiveKnobs {
+            mean_samples: o.mean_samples,
+            max_samples: o.max_samples,
+            min_share: o.min_share,
+            refine_frames: o.refine_frames,
+        };
+        let device = GpuSpmmMode::prepare_adaptive(ctx, scene, (width, height), prepare, knobs)?;
+        Ok(Self {
+            device,
+            cpu,
+            pass_seconds: 0.0,
+        })
+    }
+
+    /// The device half (device bytes, traversal overflows, own samples).
+    pub fn device_mode(&self) -> &GpuSpmmMode {
+        &self.device
+    }
+
+    /// The CPU mode whose pass the frames read.
+    pub fn cpu_mode(&self) -> &AdaptiveMode {
+        &self.cpu
+    }
+
+    /// Runs the bandwidth pass if the view has none (after a restart that needs one,
+    /// or a material analysis that came back markedly sharper) and gives it to the
+    /// device.
+    fn ensure_pass(&mut self) -> Result<(), EditError> {
+        if self.cpu.take_analyses() {
+            self.device.adaptive_restart(true);
+        }
+        if self.device.has_adaptive_pass() {
+            return Ok(());
+        }
+        let start = Instant::now();
+        let buffers = self.cpu.bandwidth_pass();
+        self.pass_seconds = start.elapsed().as_secs_f64();
+        self.device.adaptive_pass(&pass_pixels(&buffers))
+    }
+
+    fn summary(&self) -> String {
+        let inner = self.device.diagnostics().summary().unwrap_or_default();
+        format!(
+            "{inner} · adaptive: bandwidth pass {:.0} ms on the CPU",
+            self.pass_seconds * 1e3
+        )
+    }
+}
+
+impl RenderMode for GpuAdaptiveMode {
+    fn kind(&self) -> ModeKind {
+        ModeKind::Adaptive
+    }
+
+    fn device(&self) -> Device {
+        Device::Gpu
+    }
+
+    fn scene(&self) -> &Scene {
+        self.device.scene()
+    }
+
+    fn render(&mut self, pass: Pass, stop: Option<&mut dyn FnMut() -> bool>) -> Option<FrameStats> {
+        if pass != Pass::Frame {
+            return None;
+        }
+        let start = Instant::now();
+        if self.ensure_pass().is_err() {
+            // Only a pass of the wrong size is refused, which `ensure_pass` never
+            // makes: nothing is rendered rather than a wrong frame.
+            return Some(FrameStats::default());
+        }
+        let mut stats = self.device.render(pass, stop)?;
+        stats.seconds = start.elapsed().as_secs_f64();
+        Some(stats)
+    }
+
+    fn image(&self) -> Image {
+        self.device.image()
+    }
+
+    fn image_on_device(&self) -> Option<Arc<dyn ImageOnDevice>> {
+        self.device.image_on_device()
+    }
+
+    /// The device half's guides: what each pixel's centre ray first sees.
+    fn guides(&self, pass: Pass) -> Option<meso_render::Guides> {
+        self.device.guides(pass)
+    }
+
+    fn denoised_on_device(
+        &self,
+        image: &dyn ImageOnDevice,
+        denoiser: &meso_render::Denoiser,
+        strength: f32,
+    ) -> Option<Arc<dyn ImageOnDevice>> {
+        self.device.denoised_on_device(image, denoiser, strength)
+    }
+
+    fn prepare_denoiser(&self) {
+        self.device.prepare_denoiser();
+    }
+
+    fn progress(&self) -> Progress {
+        let p = self.device.progress();
+        Progress {
+            // After a frame every pixel has its own samples or up-sampled ones.
+            shows_every_pixel: p.frames > 0,
+            ..p
+        }
+    }
+
+    fn set_samples_per_frame(&mut self, samples: u32) {
+        self.device.set_samples_per_frame(samples);
+        self.cpu.set_samples_per_frame(samples);
+    }
+
+    fn failure(&self) -> Option<ModeError> {
+        self.device.failure()
+    }
+
+    fn diagnostics(&self) -> Diagnostics {
+        let mut list = self.device.diagnostics().0;
+        for d in &mut list {
+            match d {
+                Diagnostic::Preparation(p) => {
+                    let mut stages = self.cpu.core.preparation.stages.clone();
+                    stages.extend(p.stages.drain(..).filter(|s| s.name != "bvh"));
+                    p.stages = stages;
+                }
+                Diagnostic::Summary(s) => *s = self.summary(),
+                _ => {}
+            }
+        }
+        Diagnostics(list)
+    }
+
+    fn apply(&mut self, edit: SceneEdit) -> Result<Invalidation, EditError> {
+        // The frames shade the same still or moving: the device half never moves.
+        if let SceneEdit::Moving(_) = edit {
+            return self.cpu.apply(edit);
+        }
+        let new_pass = !matches!(
+            edit,
+            SceneEdit::Material { .. } | SceneEdit::LightSamples(_)
+        );
+        let device = self.device.apply(edit.clone()).map_err(|e| match e {
+            EditError::Unsupported(u) => EditError::Unsupported(for_this_mode(u)),
+            e => e,
+        })?;
+        // The CPU mode keeps the scene, BVH, emitters' and materials' bandwidths the
+        // pass reads; what it invalidates says what the frames restart.
+        match self.cpu.apply(edit)? {
+            Invalidation::Nothing if device == Invalidation::Nothing => {
+                // An emission edit re-weights the layers; the moments, of the old
+                // weights, start again.
+                self.device.adaptive_forget_moments();
+                Ok(Invalidation::Nothing)
+            }
+            // Light samples: the device half restarted its samples; the pass stands.
+            Invalidation::Nothing => Ok(device),
+            // Up-sampled pixels mix every layer and material: anything else restarts
+            // all, with a new pass unless only a material changed.
+            _ => {
+                self.device.adaptive_restart(new_pass);
+                Ok(Invalidation::All)
+            }
+        }
+    }
+}

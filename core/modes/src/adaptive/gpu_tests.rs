@@ -219,8 +219,8 @@ fn the_gpu_adaptive_image_is_the_cpus_on_packs_and_after_an_edit() {
 
 /// What the MERL bunny lacks of the light and material kinds: a point light, the
 /// ambient term, a mirror, and a `btf` table on the floor (a rough lobe: under the
-/// ambient term a sharp one is a heavy-tailed estimate, which both modes starve
-/// alike, the pass's strata missing its lobe).
+/// ambient term the default one, m = 0.3, is so heavy-tailed an estimate that both
+/// modes' means at a few frames sit far below the converged one, alike).
 #[test]
 fn point_lights_ambient_occlusion_a_mirror_and_a_btf_floor_give_the_cpus_image() {
     let size = 32;

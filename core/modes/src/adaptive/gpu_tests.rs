@@ -272,3 +272,32 @@ fn forty_lights_give_the_cpus_image() {
         MeanOf::CpuAtEqualFrames,
     );
 }
+
+/// A frame asked to stop at once leaves the bandwidth pass in steps of rows (the
+/// studio keeps responding during it); once done, the frame is the uninterrupted
+/// one's, bit for bit.
+#[test]
+fn a_stopped_pass_resumes_and_gives_the_uninterrupted_frame() {
+    let size = 48;
+    let scene = scene("merl_bunny.toml", size);
+    let mut whole = gpu(scene.clone(), size);
+    run_frames(&mut whole, 1, |_, _| {});
+    let mut stepped = gpu(scene, size);
+    let mut calls = 0;
+    loop {
+        calls += 1;
+        assert!(calls < 1000, "the pass never ends");
+        let stats = stepped
+            .render(meso_render::Pass::Frame, Some(&mut || true))
+            .expect("a frame's stats");
+        if stats.counters.samples > 0 {
+            break;
+        }
+    }
+    // 48 rows in steps of 2,048 pixels (42 rows), after the G-buffer's own step.
+    assert!(calls >= 3, "{calls} calls");
+    assert!(
+        whole.image().pixels() == stepped.image().pixels(),
+        "the stepped pass's frame differs"
+    );
+}

@@ -23,7 +23,8 @@ use meso_render::{
     ModeKind, Pass, Prepare, Progress, RenderMode, SceneEdit, Unsupported,
 };
 
-use super::{AdaptiveMode, AdaptiveOptions, Buffers};
+use super::pass::PassProgress;
+use super::{AdaptiveMode, AdaptiveOptions, Buffers, PASS_TILE_PIXELS};
 
 pub struct GpuAdaptiveMode {
     /// The device half: skeleton, device film, geometry, lights, the frames.
@@ -31,6 +32,9 @@ pub struct GpuAdaptiveMode {
     /// The CPU mode, for its bandwidth pass and the materials' bandwidths it reads
     /// (its own frames never run).
     cpu: AdaptiveMode,
+    /// A bandwidth pass under way, left by a frame that was asked to stop (the studio
+    /// keeps responding during a pass of a second or more).
+    pending: Option<PassProgress>,
     /// Seconds the last bandwidth pass took on the CPU.
     pass_seconds: f64,
 }
@@ -107,6 +111,7 @@ impl GpuAdaptiveMode {
         Ok(Self {
             device,
             cpu,
+            pending: None,
             pass_seconds: 0.0,
         })
     }
@@ -123,18 +128,41 @@ impl GpuAdaptiveMode {
 
     /// Runs the bandwidth pass if the view has none (after a restart that needs one,
     /// or a material analysis that came back markedly sharper) and gives it to the
-    /// device.
-    fn ensure_pass(&mut self) -> Result<(), EditError> {
+    /// device; true once it has one. Given `stop`, the pass goes in steps of rows as the
+    /// CPU mode's does, asked between them; a yes keeps the rest for the next call.
+    fn ensure_pass(
+        &mut self,
+        mut stop: Option<&mut dyn FnMut() -> bool>,
+    ) -> Result<bool, EditError> {
         if self.cpu.take_analyses() {
             self.device.adaptive_restart(true);
+            self.pending = None;
         }
         if self.device.has_adaptive_pass() {
-            return Ok(());
+            return Ok(true);
         }
-        let start = Instant::now();
-        let buffers = self.cpu.bandwidth_pass();
-        self.pass_seconds = start.elapsed().as_secs_f64();
-        self.device.adaptive_pass(&pass_pixels(&buffers))
+        let (w, h) = (self.cpu.width(), self.cpu.height());
+        let rows = match stop {
+            Some(_) => (PASS_TILE_PIXELS / w.max(1)).max(1),
+            None => h.max(1),
+        };
+        // Beginning (the G-buffer) is a step: every call moves the pass on.
+        let (mut pass, mut stepped) = match self.pending.take() {
+            Some(p) => (p, false),
+            None => (self.cpu.begin_pass(), true),
+        };
+        while (pass.per_pixel.len() as u32) < w * h {
+            if stepped && stop.as_mut().is_some_and(|s| s()) {
+                self.pending = Some(pass);
+                return Ok(false);
+            }
+            self.cpu.analyse_rows(&mut pass, rows);
+            stepped = true;
+        }
+        let buffers = self.cpu.finish_pass(pass);
+        self.pass_seconds = buffers.seconds;
+        self.device.adaptive_pass(&pass_pixels(&buffers))?;
+        Ok(true)
     }
 
     fn summary(&self) -> String {
@@ -164,12 +192,21 @@ impl RenderMode for GpuAdaptiveMode {
             return None;
         }
         let start = Instant::now();
-        if self.ensure_pass().is_err() {
+        match self.ensure_pass(stop) {
+            Ok(true) => {}
+            // Stopped within the pass: no samples yet, the rest at the next call.
+            Ok(false) => {
+                return Some(FrameStats {
+                    seconds: start.elapsed().as_secs_f64(),
+                    ..FrameStats::default()
+                });
+            }
             // Only a pass of the wrong size is refused, which `ensure_pass` never
             // makes: nothing is rendered rather than a wrong frame.
-            return Some(FrameStats::default());
+            Err(_) => return Some(FrameStats::default()),
         }
-        let mut stats = self.device.render(pass, stop)?;
+        // A frame is one plan and its samples' dispatches: it does not stop.
+        let mut stats = self.device.render(pass, None)?;
         stats.seconds = start.elapsed().as_secs_f64();
         Some(stats)
     }
@@ -262,6 +299,8 @@ impl RenderMode for GpuAdaptiveMode {
             // all, with a new pass unless only a material changed.
             _ => {
                 self.device.adaptive_restart(new_pass);
+                // A pass under way is of the scene before the edit.
+                self.pending = None;
                 Ok(Invalidation::All)
             }
         }

@@ -301,3 +301,50 @@ fn a_stopped_pass_resumes_and_gives_the_uninterrupted_frame() {
         "the stepped pass's frame differs"
     );
 }
+
+/// A camera or size edit takes the pass away (the next frame runs a new one for the
+/// new view); an emission edit keeps every sample.
+#[test]
+fn view_edits_run_a_new_pass_and_emission_edits_keep_the_samples() {
+    let size = 24;
+    let scene = scene("merl_bunny.toml", size);
+    let mut g = gpu(scene.clone(), size);
+    run_frames(&mut g, 2, |_, _| {});
+    let before = g.device_mode().adaptive_own_samples().expect("read back");
+    let mut light = scene.lights[0];
+    if let meso_render::scene::Light::Area { radiance, .. } = &mut light {
+        *radiance *= 2.0;
+    }
+    let kept = g
+        .apply(SceneEdit::Light { index: 0, light })
+        .expect("an emission edit");
+    assert_eq!(kept, meso_render::Invalidation::Nothing);
+    assert!(g.device_mode().has_adaptive_pass());
+    let after = g.device_mode().adaptive_own_samples().expect("read back");
+    assert_eq!(before, after, "an emission edit keeps every sample");
+    let mut camera = scene.camera;
+    camera.position.x += 0.2;
+    g.apply(SceneEdit::Camera(camera)).expect("a camera edit");
+    assert!(
+        !g.device_mode().has_adaptive_pass(),
+        "a new view needs a pass"
+    );
+    run_frames(&mut g, 1, |_, _| {});
+    assert!(g.device_mode().has_adaptive_pass());
+    g.apply(SceneEdit::Resize {
+        width: 16,
+        height: 12,
+    })
+    .expect("a resize");
+    assert!(
+        !g.device_mode().has_adaptive_pass(),
+        "a new size needs a pass"
+    );
+    run_frames(&mut g, 2, |_, _| {});
+    let image = g.image();
+    assert_eq!((image.width(), image.height()), (16, 12));
+    assert!(image.pixels().iter().flatten().all(|v| v.is_finite()));
+    let own = g.device_mode().adaptive_own_samples().expect("read back");
+    assert_eq!(own.len(), 16 * 12);
+    assert!(own.iter().sum::<u32>() > 0, "the new size renders");
+}

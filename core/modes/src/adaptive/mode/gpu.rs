@@ -8,8 +8,8 @@
 //! in `meso-gpu` because the pass and the materials' bandwidths are this crate's.
 //!
 //! Differences from the CPU mode, by design: a sample is the GPU spmm mode's estimator
-//! (`spmm_sample`: its light selection and `light_samples`), with the CPU adaptive
-//! mode's expectation; the plan's arithmetic is f32 (a dithered count can differ by
+//! (`spmm_sample`, every light taken once as here, `light_samples` points per area
+//! light), with the CPU adaptive mode's expectation; the plan's arithmetic is f32 (a dithered count can differ by
 //! one at a rounding edge); no preview while the pass runs.
 
 use std::sync::Arc;

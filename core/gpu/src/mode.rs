@@ -456,6 +456,17 @@ impl GpuSpmmMode {
             }
             ctx.queue.submit([enc.finish()]);
         }
+        let counters = self.read_counters()?;
+        Ok(Counters {
+            samples: u64::from(w) * u64::from(h) * u64::from(count),
+            ..counters
+        })
+    }
+
+    /// Reads back the frame's counters and the film's counts: the rays by kind (the
+    /// samples are the caller's to count) and the overflows, which it adds up.
+    fn read_counters(&mut self) -> Result<Counters, GpuError> {
+        let ctx = &self.ctx;
         let bytes = kernel::submit_and_read(
             ctx,
             kernel::encoder(ctx),
@@ -468,8 +479,11 @@ impl GpuSpmmMode {
         self.core.film.refresh(bytemuck::cast_slice(&bytes[1]));
         self.overflows[0] += u64::from(counters[0]);
         self.overflows[1] += u64::from(counters[1]);
+        if let Some(a) = &mut self.adaptive {
+            a.dropped += u64::from(counters[8]);
+        }
         Ok(Counters {
-            samples: u64::from(w) * u64::from(h) * u64::from(count),
+            samples: 0,
             shading_points: u64::from(counters[6]),
             rays: RayCounts {
                 primary: u64::from(counters[2]),

@@ -4,6 +4,41 @@
 //! `meso`, the studio and the reports ask it, never a mode's type directly. The GPU
 //! mode is built with the `gpu` feature.
 
+/// The `RenderMode` methods a GPU mode hands to its device half (`self.device`, a
+/// `meso_gpu::GpuSpmmMode`) as they are: the device, the scene, the guides and the
+/// denoiser.
+#[cfg(feature = "gpu")]
+macro_rules! device_half_methods {
+    () => {
+        fn device(&self) -> meso_render::Device {
+            meso_render::Device::Gpu
+        }
+
+        fn scene(&self) -> &meso_render::scene::Scene {
+            self.device.scene()
+        }
+
+        fn guides(&self, pass: meso_render::Pass) -> Option<meso_render::Guides> {
+            self.device.guides(pass)
+        }
+
+        fn denoised_on_device(
+            &self,
+            image: &dyn meso_render::ImageOnDevice,
+            denoiser: &meso_render::Denoiser,
+            strength: f32,
+        ) -> Option<std::sync::Arc<dyn meso_render::ImageOnDevice>> {
+            self.device.denoised_on_device(image, denoiser, strength)
+        }
+
+        fn prepare_denoiser(&self) {
+            self.device.prepare_denoiser();
+        }
+    };
+}
+#[cfg(feature = "gpu")]
+pub(crate) use device_half_methods;
+
 pub mod adaptive;
 pub mod biscale;
 pub mod trace;
@@ -62,7 +97,11 @@ pub const MODES: &[ModeEntry] = &[
         kind: ModeKind::Spmm,
         device: Device::Gpu,
         supports: GpuSpmmMode::supports,
-        create: create_gpu_spmm,
+        create: |gpu, scene, width, height, prepare| {
+            create_on_device(gpu, scene, GpuSpmmMode::supports, |ctx, scene| {
+                GpuSpmmMode::prepare(ctx, scene, width, height, prepare)
+            })
+        },
     },
     ModeEntry {
         kind: ModeKind::Biscale,
@@ -77,7 +116,11 @@ pub const MODES: &[ModeEntry] = &[
         kind: ModeKind::Biscale,
         device: Device::Gpu,
         supports: GpuBiscaleMode::supports,
-        create: create_gpu_biscale,
+        create: |gpu, scene, width, height, prepare| {
+            create_on_device(gpu, scene, GpuBiscaleMode::supports, |ctx, scene| {
+                GpuBiscaleMode::new(ctx, scene, width, height, prepare)
+            })
+        },
     },
     ModeEntry {
         kind: ModeKind::Adaptive,
@@ -94,7 +137,11 @@ pub const MODES: &[ModeEntry] = &[
         kind: ModeKind::Adaptive,
         device: Device::Gpu,
         supports: GpuAdaptiveMode::supports,
-        create: create_gpu_adaptive,
+        create: |gpu, scene, width, height, prepare| {
+            create_on_device(gpu, scene, GpuAdaptiveMode::supports, |ctx, scene| {
+                GpuAdaptiveMode::new(ctx, scene, width, height, prepare)
+            })
+        },
     },
 ];
 
@@ -155,62 +202,17 @@ pub fn create_on(
     (entry.create)(gpu, scene, width, height, prepare)
 }
 
+/// A GPU mode made by `make` on the device `gpu` names, once `supports` has judged
+/// the scene: a scene at fault is named whether or not this machine has an adapter.
 #[cfg(feature = "gpu")]
-fn create_gpu_spmm(
+fn create_on_device<M: RenderMode + 'static>(
     gpu: GpuDevice,
     scene: Scene,
-    width: u32,
-    height: u32,
-    prepare: Prepare,
+    supports: fn(&Scene) -> Result<(), Unsupported>,
+    make: impl FnOnce(GpuContext, Scene) -> Result<M, ModeError>,
 ) -> Result<Box<dyn RenderMode>, ModeError> {
-    // The scene is checked before a device is looked for, so a scene at fault is
-    // named whether or not this machine has an adapter.
-    GpuSpmmMode::supports(&scene)?;
-    Ok(Box::new(GpuSpmmMode::prepare(
-        context(gpu)?,
-        scene,
-        width,
-        height,
-        prepare,
-    )?))
-}
-
-#[cfg(feature = "gpu")]
-fn create_gpu_biscale(
-    gpu: GpuDevice,
-    scene: Scene,
-    width: u32,
-    height: u32,
-    prepare: Prepare,
-) -> Result<Box<dyn RenderMode>, ModeError> {
-    // As for spmm: the scene is judged before a device is looked for.
-    GpuBiscaleMode::supports(&scene)?;
-    Ok(Box::new(GpuBiscaleMode::new(
-        context(gpu)?,
-        scene,
-        width,
-        height,
-        prepare,
-    )?))
-}
-
-#[cfg(feature = "gpu")]
-fn create_gpu_adaptive(
-    gpu: GpuDevice,
-    scene: Scene,
-    width: u32,
-    height: u32,
-    prepare: Prepare,
-) -> Result<Box<dyn RenderMode>, ModeError> {
-    // As for spmm: the scene is judged before a device is looked for.
-    GpuAdaptiveMode::supports(&scene)?;
-    Ok(Box::new(GpuAdaptiveMode::new(
-        context(gpu)?,
-        scene,
-        width,
-        height,
-        prepare,
-    )?))
+    supports(&scene)?;
+    Ok(Box::new(make(context(gpu)?, scene)?))
 }
 
 /// The device `gpu` names: the shared one, or one of the mode's own.

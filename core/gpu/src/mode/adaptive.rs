@@ -150,32 +150,11 @@ impl GpuSpmmMode {
         let mut enc = kernel::encoder(ctx);
         self.core.film.record_min_samples(&mut enc);
         ctx.queue.submit([enc.finish()]);
-        let bytes = kernel::submit_and_read(
-            ctx,
-            kernel::encoder(ctx),
-            &[
-                (&self.res.counters, COUNTERS as u64 * 4),
-                (self.core.film.stats(), 8),
-            ],
-        )?;
-        let counters: &[u32] = bytemuck::cast_slice(&bytes[0]);
-        self.core.film.refresh(bytemuck::cast_slice(&bytes[1]));
-        self.overflows[0] += u64::from(counters[0]);
-        self.overflows[1] += u64::from(counters[1]);
-        let primary = u64::from(counters[2]);
-        if let Some(a) = &mut self.adaptive {
-            a.dropped += u64::from(counters[8]);
-        }
+        let counters = self.read_counters()?;
+        // A sample is a primary ray here: the counts are the plan's.
         Ok(Counters {
-            samples: primary,
-            shading_points: u64::from(counters[6]),
-            rays: RayCounts {
-                primary,
-                shadow: u64::from(counters[3]),
-                ambient: u64::from(counters[4]),
-                environment: u64::from(counters[7]),
-                specular: u64::from(counters[5]),
-            },
+            samples: counters.rays.primary,
+            ..counters
         })
     }
 }

@@ -348,3 +348,39 @@ fn view_edits_run_a_new_pass_and_emission_edits_keep_the_samples() {
     assert_eq!(own.len(), 16 * 12);
     assert!(own.iter().sum::<u32>() > 0, "the new size renders");
 }
+
+/// Before the first frame after a restart, a preview (the CPU mode's, one sample at
+/// each previewed pixel) stands for the image, on the host; the first frame replaces
+/// it with the device's.
+#[test]
+fn a_preview_stands_for_the_image_until_the_first_frame() {
+    let size = 32;
+    let scene = scene("merl_bunny.toml", size);
+    let mut g = gpu(scene.clone(), size);
+    let stats = g
+        .render(meso_render::Pass::Preview { stride: 4 }, None)
+        .expect("a preview");
+    assert_eq!(stats.counters.samples, 64, "one sample per 4 x 4 block");
+    assert!(g.image_on_device().is_none(), "the preview is on the host");
+    assert!(g.image().pixels().iter().flatten().any(|&v| v > 0.0));
+    // A second preview of the same restart changes nothing.
+    assert!(
+        g.render(meso_render::Pass::Preview { stride: 4 }, None)
+            .is_none()
+    );
+    run_frames(&mut g, 1, |_, _| {});
+    assert!(g.image_on_device().is_some(), "the device's frame");
+    assert!(
+        g.render(meso_render::Pass::Preview { stride: 4 }, None)
+            .is_none(),
+        "no preview once a frame is shown"
+    );
+    let mut camera = scene.camera;
+    camera.position.y += 0.1;
+    g.apply(SceneEdit::Camera(camera)).expect("a camera edit");
+    assert!(
+        g.render(meso_render::Pass::Preview { stride: 4 }, None)
+            .is_some(),
+        "a restart previews again"
+    );
+}

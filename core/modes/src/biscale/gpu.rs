@@ -28,8 +28,8 @@ use meso_materials::image::Image;
 use meso_render::geometry::SceneBvh;
 use meso_render::scene::{Environment, Material, RenderSettings, Scene};
 use meso_render::{
-    Device, Diagnostic, Diagnostics, EditError, FrameStats, ImageOnDevice, Invalidation, ModeError,
-    ModeKind, Pass, PreparationReport, Prepare, Progress, RenderMode, SceneEdit, Unsupported,
+    Diagnostic, Diagnostics, EditError, FrameStats, Invalidation, ModeError, ModeKind, Pass,
+    PreparationReport, Prepare, Progress, RenderMode, SceneEdit, Unsupported,
 };
 
 use super::BiscaleSettings;
@@ -291,43 +291,20 @@ impl RenderMode for GpuBiscaleMode {
         ModeKind::Biscale
     }
 
-    fn device(&self) -> Device {
-        Device::Gpu
-    }
-
-    fn scene(&self) -> &Scene {
-        self.device.scene()
-    }
-
     fn render(&mut self, pass: Pass, stop: Option<&mut dyn FnMut() -> bool>) -> Option<FrameStats> {
         self.device.render(pass, stop)
     }
+
+    // The device, the scene, the guides (what each pixel's centre ray first sees does
+    // not depend on how the environment is integrated) and the denoiser.
+    crate::device_half_methods!();
 
     fn image(&self) -> Image {
         self.device.image()
     }
 
-    fn image_on_device(&self) -> Option<Arc<dyn ImageOnDevice>> {
+    fn image_on_device(&self) -> Option<Arc<dyn meso_render::ImageOnDevice>> {
         self.device.image_on_device()
-    }
-
-    /// The device half's guides: what each pixel's centre ray first sees does not
-    /// depend on how the environment is integrated.
-    fn guides(&self, pass: Pass) -> Option<meso_render::Guides> {
-        self.device.guides(pass)
-    }
-
-    fn denoised_on_device(
-        &self,
-        image: &dyn ImageOnDevice,
-        denoiser: &meso_render::Denoiser,
-        strength: f32,
-    ) -> Option<Arc<dyn ImageOnDevice>> {
-        self.device.denoised_on_device(image, denoiser, strength)
-    }
-
-    fn prepare_denoiser(&self) {
-        self.device.prepare_denoiser();
     }
 
     fn progress(&self) -> Progress {

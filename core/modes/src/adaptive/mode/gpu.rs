@@ -12,15 +12,13 @@
 //! light), with the CPU adaptive mode's expectation; the plan's arithmetic is f32 (a dithered count can differ by
 //! one at a rounding edge); no preview while the pass runs.
 
-use std::sync::Arc;
 use std::time::Instant;
 
 use meso_gpu::{AdaptiveKnobs, GpuContext, GpuSpmmMode, PassPixel};
-use meso_materials::image::Image;
 use meso_render::scene::Scene;
 use meso_render::{
-    Device, Diagnostic, Diagnostics, EditError, FrameStats, ImageOnDevice, Invalidation, ModeError,
-    ModeKind, Pass, Prepare, Progress, RenderMode, SceneEdit, Unsupported,
+    Diagnostic, Diagnostics, EditError, FrameStats, Invalidation, ModeError, ModeKind, Pass,
+    Prepare, Progress, RenderMode, SceneEdit, Unsupported,
 };
 
 use super::pass::PassProgress;
@@ -137,6 +135,7 @@ impl GpuAdaptiveMode {
         if self.cpu.take_analyses() {
             self.device.adaptive_restart(true);
             self.pending = None;
+            self.cpu.preview = None;
         }
         if self.device.has_adaptive_pass() {
             return Ok(true);
@@ -165,6 +164,14 @@ impl GpuAdaptiveMode {
         Ok(true)
     }
 
+    /// The preview standing for the image (before the device's first frame).
+    fn preview(&self) -> Option<&meso_materials::image::Image> {
+        self.cpu
+            .preview
+            .as_ref()
+            .filter(|_| self.device.progress().frames == 0)
+    }
+
     fn summary(&self) -> String {
         let inner = self.device.diagnostics().summary().unwrap_or_default();
         format!(
@@ -179,17 +186,15 @@ impl RenderMode for GpuAdaptiveMode {
         ModeKind::Adaptive
     }
 
-    fn device(&self) -> Device {
-        Device::Gpu
-    }
-
-    fn scene(&self) -> &Scene {
-        self.device.scene()
-    }
-
     fn render(&mut self, pass: Pass, stop: Option<&mut dyn FnMut() -> bool>) -> Option<FrameStats> {
-        if pass != Pass::Frame {
-            return None;
+        if let Pass::Preview { stride } = pass {
+            // Before the device's first frame after a restart, the CPU mode's preview
+            // (one sample at each previewed pixel, kept apart from the film) stands for
+            // the image while the pass runs in steps.
+            return match self.device.progress().frames {
+                0 => self.cpu.render_preview_pass(stride),
+                _ => None,
+            };
         }
         let start = Instant::now();
         match self.ensure_pass(stop) {
@@ -211,30 +216,24 @@ impl RenderMode for GpuAdaptiveMode {
         Some(stats)
     }
 
-    fn image(&self) -> Image {
-        self.device.image()
+    // The device, the scene, the guides (what each pixel's centre ray first sees) and
+    // the denoiser.
+    crate::device_half_methods!();
+
+    /// The CPU mode's preview until the device's first frame after a restart, then the
+    /// device's image.
+    fn image(&self) -> meso_materials::image::Image {
+        match self.preview() {
+            Some(p) => p.clone(),
+            None => self.device.image(),
+        }
     }
 
-    fn image_on_device(&self) -> Option<Arc<dyn ImageOnDevice>> {
-        self.device.image_on_device()
-    }
-
-    /// The device half's guides: what each pixel's centre ray first sees.
-    fn guides(&self, pass: Pass) -> Option<meso_render::Guides> {
-        self.device.guides(pass)
-    }
-
-    fn denoised_on_device(
-        &self,
-        image: &dyn ImageOnDevice,
-        denoiser: &meso_render::Denoiser,
-        strength: f32,
-    ) -> Option<Arc<dyn ImageOnDevice>> {
-        self.device.denoised_on_device(image, denoiser, strength)
-    }
-
-    fn prepare_denoiser(&self) {
-        self.device.prepare_denoiser();
+    fn image_on_device(&self) -> Option<std::sync::Arc<dyn meso_render::ImageOnDevice>> {
+        match self.preview() {
+            Some(_) => None,
+            None => self.device.image_on_device(),
+        }
     }
 
     fn progress(&self) -> Progress {

@@ -102,10 +102,11 @@ pub(super) fn bytes_for(width: u32, height: u32, layers: usize, aux_words: usize
     pixels * (layers as u64 * (SUM_BYTES + 12) + MARK_WORDS * 4 + 4 + 16 + aux_words as u64 * 4)
 }
 
-/// The largest single buffer of such a film (its sums), which the device's buffer
-/// limit must hold.
-pub(super) fn largest_buffer(width: u32, height: u32, layers: usize) -> u64 {
-    u64::from(width) * u64::from(height) * layers as u64 * SUM_BYTES
+/// The largest single buffer of such a film (its sums, or the adaptive mode's `aux`
+/// words), which the device's buffer limit must hold.
+pub(super) fn largest_buffer(width: u32, height: u32, layers: usize, aux_words: usize) -> u64 {
+    let pixels = u64::from(width) * u64::from(height);
+    (pixels * layers as u64 * SUM_BYTES).max(pixels * aux_words as u64 * 4)
 }
 
 /// A film's per-pixel buffers at `width` x `height` with `layers` layers: one sample's

@@ -255,7 +255,11 @@ impl GpuSpmmMode {
             layer_count <= MAX_LAYERS,
             "render::layers bounds the layers"
         );
-        if let Some(p) = device_size_problem(&ctx, width, height, layer_count) {
+        let aux_words = match frames {
+            Frames::Adaptive(_) => film::ADAPTIVE_AUX_WORDS,
+            Frames::Spmm | Frames::Biscale(_) => film::AUX_WORDS,
+        };
+        if let Some(p) = device_size_problem(&ctx, (width, height), layer_count, aux_words) {
             return Err(ModeError::Size(p));
         }
         let mut report = PreparationReport::default();
@@ -290,19 +294,10 @@ impl GpuSpmmMode {
         report.record_since("environment", start);
         prepare.report("device", 0.0)?;
         let start = Instant::now();
-        let (kernel, aux_words) = match (&biscale, knobs) {
-            (Some(_), _) => (
-                Kernel::new(&ctx, &shaders::biscale(), "render_biscale", &SLOTS),
-                film::AUX_WORDS,
-            ),
-            (None, Some(_)) => (
-                Kernel::new(&ctx, &shaders::adaptive(), "render_adaptive", &SLOTS),
-                film::ADAPTIVE_AUX_WORDS,
-            ),
-            (None, None) => (
-                Kernel::new(&ctx, &shaders::integrator(), "render", &SLOTS),
-                film::AUX_WORDS,
-            ),
+        let kernel = match (&biscale, knobs) {
+            (Some(_), _) => Kernel::new(&ctx, &shaders::biscale(), "render_biscale", &SLOTS),
+            (None, Some(_)) => Kernel::new(&ctx, &shaders::adaptive(), "render_adaptive", &SLOTS),
+            (None, None) => Kernel::new(&ctx, &shaders::integrator(), "render", &SLOTS),
         };
         let film = DeviceFilm::with_aux(&ctx, (width, height), layer_count, aux_words);
         let adaptive =

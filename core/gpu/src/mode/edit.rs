@@ -30,7 +30,9 @@ impl GpuSpmmMode {
             } else {
                 meso_render::layers::SHARED_LIGHTS + 1
             };
-            if let Some(p) = device_size_problem(&self.ctx, w, h, layers) {
+            if let Some(p) =
+                device_size_problem(&self.ctx, (w, h), layers, self.core.film.aux_words())
+            {
                 return Err(EditError::Size(p));
             }
         }

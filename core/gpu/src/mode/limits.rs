@@ -4,15 +4,16 @@
 
 use super::*;
 
-/// Why the film's sums at `width` x `height` (its largest buffer) would not fit in one
-/// buffer of the device (`None` if they fit): refused before anything is allocated.
+/// Why the film's largest buffer at `width` x `height` (its sums, or an adaptive
+/// film's `aux` words) would not fit in one buffer of the device (`None` if it fits):
+/// refused before anything is allocated.
 pub(super) fn device_size_problem(
     ctx: &GpuContext,
-    width: u32,
-    height: u32,
+    (width, height): (u32, u32),
     layers: usize,
+    aux_words: usize,
 ) -> Option<String> {
-    let bytes = film::largest_buffer(width, height, layers);
+    let bytes = film::largest_buffer(width, height, layers, aux_words);
     too_large(
         ctx,
         bytes,
@@ -43,7 +44,12 @@ impl ProgressiveFilm for DeviceFilm {
         DeviceFilm::height(self)
     }
     fn resize_problem(&self, width: u32, height: u32) -> Result<(), EditError> {
-        match device_size_problem(self.context(), width, height, self.layers()) {
+        match device_size_problem(
+            self.context(),
+            (width, height),
+            self.layers(),
+            self.aux_words(),
+        ) {
             Some(p) => Err(EditError::Size(p)),
             None => Ok(()),
         }

@@ -133,3 +133,36 @@ fn a_material_edit_past_the_buffer_limit_is_refused_by_size() {
     assert!(gpu.failure().is_none());
     assert_eq!(gpu.progress().min_samples, 3);
 }
+
+/// The adaptive mode's film keeps 13 words a pixel in `aux`, more than the sums of a
+/// three-layer film: a device that holds the sums but not those words refuses the
+/// mode by size before anything is allocated, naming the bytes.
+#[test]
+fn an_adaptive_film_past_the_buffer_limit_is_refused_by_size() {
+    use crate::adaptive::AdaptiveKnobs;
+    use crate::film::{ADAPTIVE_AUX_WORDS, largest_buffer};
+    use meso_render::{ModeError, Prepare};
+    let mut scene = super::test_scene("env.toml");
+    scene.lights.clear();
+    let layers = meso_render::layers::Layers::new(&scene).layer_count(&scene);
+    let (w, h) = (64, 64);
+    let sums = largest_buffer(w, h, layers, 0);
+    let aux = u64::from(w * h) * ADAPTIVE_AUX_WORDS as u64 * 4;
+    assert!(
+        sums < aux,
+        "{layers} layers: {sums} bytes of sums, {aux} of aux words"
+    );
+    let knobs = AdaptiveKnobs {
+        mean_samples: 4.0,
+        max_samples: 256,
+        min_share: 0.125,
+        refine_frames: 2,
+    };
+    // The film is checked first: the limit is met there, whatever the other buffers.
+    let limited = context().with_buffer_limit(sums);
+    match crate::GpuSpmmMode::prepare_adaptive(limited, scene, (w, h), Prepare::quietly(), knobs) {
+        Err(ModeError::Size(p)) => assert!(p.contains(&aux.to_string()), "{p}"),
+        Err(e) => panic!("refused, but not by size: {e}"),
+        Ok(_) => panic!("an adaptive film past the limit was made"),
+    }
+}

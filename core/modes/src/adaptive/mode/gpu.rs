@@ -97,15 +97,22 @@ impl GpuAdaptiveMode {
             ));
         }
         Self::supports(&scene)?;
-        let cpu = AdaptiveMode::prepare_with(scene.clone(), width, height, prepare, options)?;
-        let o = cpu.options();
+        // The device half first: what does not fit on the device is refused before the
+        // CPU analyses the materials.
         let knobs = AdaptiveKnobs {
-            mean_samples: o.mean_samples,
-            max_samples: o.max_samples,
-            min_share: o.min_share,
-            refine_frames: o.refine_frames,
+            mean_samples: options.mean_samples,
+            max_samples: options.max_samples.max(1),
+            min_share: options.min_share,
+            refine_frames: options.refine_frames.max(1),
         };
-        let device = GpuSpmmMode::prepare_adaptive(ctx, scene, (width, height), prepare, knobs)?;
+        let device =
+            GpuSpmmMode::prepare_adaptive(ctx, scene.clone(), (width, height), prepare, knobs)?;
+        let cpu = AdaptiveMode::prepare_with(scene, width, height, prepare, options)?;
+        debug_assert_eq!(
+            (cpu.options().max_samples, cpu.options().refine_frames),
+            (knobs.max_samples, knobs.refine_frames),
+            "the CPU mode's knobs, as the device plans with them"
+        );
         Ok(Self {
             device,
             cpu,

@@ -364,7 +364,7 @@ impl AdaptiveDevice {
         }
     }
 
-    /// Per pixel its own sample count (read back: tests and progress).
+    /// Per pixel its own sample count (read back, for tests and reports).
     pub fn own_samples(&self) -> Result<Vec<u32>, super::GpuError> {
         let size = u64::from(self.pixels()) * STATE_WORDS * 4;
         let bytes = kernel::submit_and_read(

@@ -24,6 +24,11 @@ pub(super) const AUX_WORDS: usize = 7;
 /// Words per pixel of the adaptive mode's `aux`: the plan's words after those
 /// (`shaders/adaptive.wgsl`).
 pub(super) const ADAPTIVE_AUX_WORDS: usize = 13;
+/// The adaptive plan's words of a pixel the host reads back: the block deviation
+/// (negative off sites) and the samples planned (`shaders/adaptive.wgsl`).
+pub(super) const AUX_SIGMA: usize = 11;
+pub(super) const AUX_PLANNED: usize = 12;
+const _: () = assert!(AUX_SIGMA < ADAPTIVE_AUX_WORDS && AUX_PLANNED < ADAPTIVE_AUX_WORDS);
 const MARK_WORDS: u64 = 6;
 /// Bytes per layer and pixel of the sums (RGB and the count).
 const SUM_BYTES: u64 = 16;

@@ -8,6 +8,9 @@
 mod adaptive;
 mod biscale;
 mod denoising;
+
+#[cfg(test)]
+pub(crate) use adaptive::ADAPTIVE_CHUNK;
 mod edit;
 mod limits;
 mod resources;
@@ -409,11 +412,15 @@ impl GpuSpmmMode {
         }
     }
 
-    /// Each active layer's weight (its emission) as f32, zero for the others.
+    /// Each active layer's weight (its emission) as f32, zero for the others; only the
+    /// adaptive samples read them (all zero for the other frame kinds).
     fn layer_weights(&self) -> [[f32; 4]; MAX_LAYERS] {
+        let mut out = [[0.0; 4]; MAX_LAYERS];
+        if self.adaptive.is_none() {
+            return out;
+        }
         let scene = &self.core.scene;
         let weights = self.core.layers.weights(scene);
-        let mut out = [[0.0; 4]; MAX_LAYERS];
         let max = f64::from(f32::MAX);
         for l in self.core.layers.active(scene) {
             if let (Some(w), Some(o)) = (weights.get(l), out.get_mut(l)) {

@@ -48,12 +48,12 @@ fn from_disk(embedded: &str) -> String {
     embedded.to_string()
 }
 
-/// The integrator: one sample per pixel per dispatch (`render`), and the denoiser's
-/// guides (`guides`).
-pub(super) fn integrator() -> String {
+/// The integrator's module with the entry file `entry` after it: the parts every
+/// frame kind shares (sampler, traversal, materials, lights, environment).
+fn integrator_with(entry: &str) -> String {
     module(&[
         INTEGRATOR,
-        GUIDES,
+        entry,
         SAMPLER,
         TRAVERSAL,
         BRDF,
@@ -66,39 +66,21 @@ pub(super) fn integrator() -> String {
     ])
 }
 
+/// The integrator: one sample per pixel per dispatch (`render`), and the denoiser's
+/// guides (`guides`).
+pub(super) fn integrator() -> String {
+    integrator_with(GUIDES)
+}
+
 /// The biscale mode's frames: the integrator's module with `render_biscale` after it.
 pub(super) fn biscale() -> String {
-    module(&[
-        INTEGRATOR,
-        BISCALE,
-        SAMPLER,
-        TRAVERSAL,
-        BRDF,
-        SPMM,
-        LIGHTS,
-        ENVIRONMENT,
-        MERL,
-        CDF,
-        BTF_TABLE,
-    ])
+    integrator_with(BISCALE)
 }
 
 /// The adaptive mode's samples: the integrator's module with `render_adaptive`
 /// after it (its plan and up-sampling are `ADAPTIVE`'s module of their own).
 pub(super) fn adaptive() -> String {
-    module(&[
-        INTEGRATOR,
-        ADAPTIVE_RENDER,
-        SAMPLER,
-        TRAVERSAL,
-        BRDF,
-        SPMM,
-        LIGHTS,
-        ENVIRONMENT,
-        MERL,
-        CDF,
-        BTF_TABLE,
-    ])
+    integrator_with(ADAPTIVE_RENDER)
 }
 
 #[cfg(test)]
@@ -115,6 +97,35 @@ mod tests {
             super::SPMM.contains(&line),
             "shaders/spmm.wgsl lacks `{line}`"
         );
+    }
+
+    /// The adaptive frames' chunk of samples and `aux` words are the shaders' own.
+    #[test]
+    fn the_adaptive_constants_match_the_shaders() {
+        let lines = [
+            (
+                super::ADAPTIVE_RENDER,
+                format!(
+                    "const ADAPTIVE_CHUNK: u32 = {}u;",
+                    crate::mode::ADAPTIVE_CHUNK
+                ),
+            ),
+            (
+                super::ADAPTIVE,
+                format!("const AUX_SIGMA: u32 = {}u;", crate::film::AUX_SIGMA),
+            ),
+            (
+                super::ADAPTIVE,
+                format!("const AUX_PLANNED: u32 = {}u;", crate::film::AUX_PLANNED),
+            ),
+            (
+                super::ADAPTIVE_RENDER,
+                format!("const AUX_PLANNED: u32 = {}u;", crate::film::AUX_PLANNED),
+            ),
+        ];
+        for (source, line) in lines {
+            assert!(source.contains(&line), "an adaptive shader lacks `{line}`");
+        }
     }
 
     /// A moving camera keeps as many residual components on the device as on the CPU.

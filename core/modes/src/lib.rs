@@ -34,10 +34,47 @@ macro_rules! device_half_methods {
         fn prepare_denoiser(&self) {
             self.device.prepare_denoiser();
         }
+
+        fn failure(&self) -> Option<meso_render::ModeError> {
+            self.device.failure()
+        }
     };
 }
 #[cfg(feature = "gpu")]
 pub(crate) use device_half_methods;
+
+/// What a GPU mode's device half refuses (it names the spmm mode), named for `kind`.
+#[cfg(feature = "gpu")]
+pub(crate) fn refused_for(kind: ModeKind, u: Unsupported) -> Unsupported {
+    Unsupported { mode: kind, ..u }
+}
+
+/// An edit the device half refuses by what it cannot shade, named for `kind`; other
+/// errors as they are.
+#[cfg(feature = "gpu")]
+pub(crate) fn edit_refused_for(
+    kind: ModeKind,
+    e: meso_render::EditError,
+) -> meso_render::EditError {
+    match e {
+        meso_render::EditError::Unsupported(u) => {
+            meso_render::EditError::Unsupported(refused_for(kind, u))
+        }
+        e => e,
+    }
+}
+
+/// A GPU mode's preparation: the stages its CPU part ran (`cpu`), then the device
+/// half's (`device`) but its BVH, which the CPU part built or that duplicates it.
+#[cfg(feature = "gpu")]
+pub(crate) fn merge_preparation(
+    cpu: &meso_render::PreparationReport,
+    device: &mut meso_render::PreparationReport,
+) {
+    let mut stages = cpu.stages.clone();
+    stages.extend(device.stages.drain(..).filter(|s| s.name != "bvh"));
+    device.stages = stages;
+}
 
 pub mod adaptive;
 pub mod biscale;

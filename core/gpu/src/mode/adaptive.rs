@@ -7,7 +7,7 @@ use super::*;
 use crate::adaptive::{AdaptiveKnobs, PassPixel};
 
 /// Samples of a pixel per dispatch (`ADAPTIVE_CHUNK` of `shaders/adaptive_render.wgsl`).
-const CHUNK: u32 = 8;
+pub(crate) const ADAPTIVE_CHUNK: u32 = 8;
 
 impl GpuSpmmMode {
     /// The device half of the adaptive mode: `scene` on `ctx`, its frames planned by
@@ -91,10 +91,12 @@ impl GpuSpmmMode {
             &[(&self.core.film.aux, size)],
         )?;
         let aux: &[u32] = bytemuck::cast_slice(&bytes[0]);
-        // AUX_SIGMA (negative off sites) and AUX_PLANNED of `shaders/adaptive.wgsl`.
         Ok(aux
             .chunks_exact(words)
-            .map(|a| (f32::from_bits(a[11]) >= 0.0, a[12]))
+            .map(|a| {
+                let sigma = f32::from_bits(a[crate::film::AUX_SIGMA]);
+                (sigma >= 0.0, a[crate::film::AUX_PLANNED])
+            })
             .collect())
     }
 
@@ -135,7 +137,7 @@ impl GpuSpmmMode {
         // Up to the most samples the plan gives a pixel, in chunks; a pixel whose
         // samples are done leaves at once.
         a.prepare_commit(frame);
-        for first in (0..most).step_by(CHUNK as usize) {
+        for first in (0..most).step_by(ADAPTIVE_CHUNK as usize) {
             ctx.queue.write_buffer(
                 &self.res.params,
                 0,

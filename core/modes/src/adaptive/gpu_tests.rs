@@ -55,6 +55,27 @@ fn converged(scene: &Scene, size: u32, frames: u32) -> meso_materials::image::Im
     m.image()
 }
 
+/// `g`, made for `scene` or brought to it by an edit, after `frames` more frames
+/// against the spmm mode's converged image of `scene` (512 frames) and the CPU adaptive
+/// mode's at equal frames, by the GPU modes' rule; no traversal overflows.
+fn agrees_with_cpu(what: &str, g: &mut GpuAdaptiveMode, scene: &Scene, size: u32, frames: u32) {
+    let reference = converged(scene, size, 512);
+    let mut c = cpu(scene.clone(), size);
+    agrees(
+        what,
+        (g, &mut c),
+        &reference,
+        frames,
+        size,
+        MeanOf::CpuAtEqualFrames,
+    );
+    assert_eq!(
+        g.device_mode().overflows(),
+        (0, 0),
+        "{what}: traversal overflows"
+    );
+}
+
 /// The plans of the first frames: the sites (leaf corners of the level pyramid less
 /// the levels dropped so far, and pixels without parents at their depth) are the CPU
 /// `plan_frame`'s every frame, until the drops have made every pixel a site; the first frame's counts (the sites' deviations, their
@@ -161,18 +182,8 @@ fn the_gpu_adaptive_image_is_the_cpus_on_merl_tables() {
     let size = 32;
     let scene = scene("merl_bunny.toml", size);
     let frames = 8;
-    let reference = converged(&scene, size, 512);
     let mut g = gpu(scene.clone(), size);
-    let mut c = cpu(scene, size);
-    agrees(
-        "merl bunny",
-        (&mut g, &mut c),
-        &reference,
-        frames,
-        size,
-        MeanOf::CpuAtEqualFrames,
-    );
-    assert_eq!(g.device_mode().overflows(), (0, 0), "traversal overflows");
+    agrees_with_cpu("merl bunny", &mut g, &scene, size, frames);
 }
 
 /// The default scene (an SPMM pack, analytic BRDFs, an area light, the ambient term),
@@ -182,17 +193,8 @@ fn the_gpu_adaptive_image_is_the_cpus_on_packs_and_after_an_edit() {
     let size = 32;
     let scene = scene("default.toml", size);
     let frames = 8;
-    let reference = converged(&scene, size, 512);
     let mut g = gpu(scene.clone(), size);
-    let mut c = cpu(scene.clone(), size);
-    agrees(
-        "default scene",
-        (&mut g, &mut c),
-        &reference,
-        frames,
-        size,
-        MeanOf::CpuAtEqualFrames,
-    );
+    agrees_with_cpu("default scene", &mut g, &scene, size, frames);
     // A material edit: the first material turned into the second.
     let edited = {
         let mut s = scene.clone();
@@ -205,16 +207,7 @@ fn the_gpu_adaptive_image_is_the_cpus_on_packs_and_after_an_edit() {
     };
     g.apply(edit()).expect("the edit");
     assert!(g.device_mode().has_adaptive_pass(), "the pass stands");
-    let mut c = cpu(edited.clone(), size);
-    let reference = converged(&edited, size, 512);
-    agrees(
-        "default scene, edited",
-        (&mut g, &mut c),
-        &reference,
-        frames,
-        size,
-        MeanOf::CpuAtEqualFrames,
-    );
+    agrees_with_cpu("default scene, edited", &mut g, &edited, size, frames);
 }
 
 /// What the MERL bunny lacks of the light and material kinds: a point light, the
@@ -236,21 +229,17 @@ fn point_lights_ambient_occlusion_a_mirror_and_a_btf_floor_give_the_cpus_image()
         glam::DVec2::ONE,
     );
     let frames = 16;
-    let reference = converged(&scene, size, 512);
     let mut g = gpu(scene.clone(), size);
-    let mut c = cpu(scene, size);
-    agrees(
+    agrees_with_cpu(
         "merl bunny with a point light, ambient, a mirror and a btf floor",
-        (&mut g, &mut c),
-        &reference,
-        frames,
+        &mut g,
+        &scene,
         size,
-        MeanOf::CpuAtEqualFrames,
+        frames,
     );
     let run = run_frames(&mut g, 1, |_, _| {});
     let rays = run.counters.rays;
     assert!(rays.specular > 0 && rays.ambient > 0, "{rays:?}");
-    assert_eq!(g.device_mode().overflows(), (0, 0), "traversal overflows");
 }
 
 /// Forty lights: each sample takes every light once, as the CPU adaptive mode's (the
@@ -260,17 +249,8 @@ fn forty_lights_give_the_cpus_image() {
     let size = 24;
     let scene = meso_render::scene::test_scenes::many_lights_scene(40);
     let frames = 16;
-    let reference = converged(&scene, size, 512);
     let mut g = gpu(scene.clone(), size);
-    let mut c = cpu(scene, size);
-    agrees(
-        "forty lights",
-        (&mut g, &mut c),
-        &reference,
-        frames,
-        size,
-        MeanOf::CpuAtEqualFrames,
-    );
+    agrees_with_cpu("forty lights", &mut g, &scene, size, frames);
 }
 
 /// A frame asked to stop at once leaves the bandwidth pass in steps of rows (the

@@ -55,14 +55,6 @@ pub struct GpuBiscaleMode {
     light_change_ms: f64,
 }
 
-/// The device half's refusal (it names the spmm mode) as this mode's.
-fn for_this_mode(u: Unsupported) -> Unsupported {
-    Unsupported {
-        mode: ModeKind::Biscale,
-        ..u
-    }
-}
-
 /// A device-side refusal of the CPU's preparation (a broken invariant, named).
 fn upload_error(e: String) -> ModeError {
     ModeError::Size(format!("biscale upload: {e}"))
@@ -75,7 +67,7 @@ impl GpuBiscaleMode {
     /// texel weights are the device half's own upload), `btf` materials are evaluated
     /// per cell by the device's material code, mirrors reflect the ray.
     pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
-        GpuSpmmMode::supports(scene).map_err(for_this_mode)
+        GpuSpmmMode::supports(scene).map_err(|u| crate::refused_for(ModeKind::Biscale, u))
     }
 
     /// Prepares `scene` on `ctx` with the default settings.
@@ -315,19 +307,11 @@ impl RenderMode for GpuBiscaleMode {
         self.device.set_samples_per_frame(samples);
     }
 
-    fn failure(&self) -> Option<ModeError> {
-        self.device.failure()
-    }
-
     fn diagnostics(&self) -> Diagnostics {
         let mut list = self.device.diagnostics().0;
         for d in &mut list {
             match d {
-                Diagnostic::Preparation(p) => {
-                    let mut stages = self.preparation.stages.clone();
-                    stages.extend(p.stages.drain(..).filter(|s| s.name != "bvh"));
-                    p.stages = stages;
-                }
+                Diagnostic::Preparation(p) => crate::merge_preparation(&self.preparation, p),
                 Diagnostic::DeviceMemory(memory) => {
                     let b = self.device.biscale_bytes();
                     // The biscale words sit in the environment's buffer: shown apart.
@@ -357,10 +341,7 @@ impl RenderMode for GpuBiscaleMode {
                 // The device half refuses what it cannot shade, named for this mode.
                 let invalidation = (self.device)
                     .apply(SceneEdit::Material { index, material })
-                    .map_err(|e| match e {
-                        EditError::Unsupported(u) => EditError::Unsupported(for_this_mode(u)),
-                        e => e,
-                    })?;
+                    .map_err(|e| crate::edit_refused_for(ModeKind::Biscale, e))?;
                 let table_before = std::mem::replace(&mut self.tables[index], table);
                 if let Err(e) = self.upload() {
                     // The new tables do not fit: the material goes back as it was on

@@ -37,14 +37,6 @@ pub struct GpuAdaptiveMode {
     pass_seconds: f64,
 }
 
-/// The device half's refusal (it names the spmm mode) as this mode's.
-fn for_this_mode(u: Unsupported) -> Unsupported {
-    Unsupported {
-        mode: ModeKind::Adaptive,
-        ..u
-    }
-}
-
 /// What the frames read of a pass, per pixel.
 fn pass_pixels(b: &Buffers) -> Vec<PassPixel> {
     let g = &b.guide;
@@ -64,7 +56,7 @@ impl GpuAdaptiveMode {
     /// table read from disk, which has no values in memory to upload), named for this
     /// mode.
     pub fn supports(scene: &Scene) -> Result<(), Unsupported> {
-        GpuSpmmMode::supports(scene).map_err(for_this_mode)?;
+        GpuSpmmMode::supports(scene).map_err(|u| crate::refused_for(ModeKind::Adaptive, u))?;
         AdaptiveMode::supports(scene)
     }
 
@@ -257,18 +249,12 @@ impl RenderMode for GpuAdaptiveMode {
         self.cpu.set_samples_per_frame(samples);
     }
 
-    fn failure(&self) -> Option<ModeError> {
-        self.device.failure()
-    }
-
     fn diagnostics(&self) -> Diagnostics {
         let mut list = self.device.diagnostics().0;
         for d in &mut list {
             match d {
                 Diagnostic::Preparation(p) => {
-                    let mut stages = self.cpu.core.preparation.stages.clone();
-                    stages.extend(p.stages.drain(..).filter(|s| s.name != "bvh"));
-                    p.stages = stages;
+                    crate::merge_preparation(&self.cpu.core.preparation, p);
                 }
                 Diagnostic::Summary(s) => *s = self.summary(),
                 _ => {}
@@ -286,10 +272,8 @@ impl RenderMode for GpuAdaptiveMode {
             edit,
             SceneEdit::Material { .. } | SceneEdit::LightSamples(_)
         );
-        let device = self.device.apply(edit.clone()).map_err(|e| match e {
-            EditError::Unsupported(u) => EditError::Unsupported(for_this_mode(u)),
-            e => e,
-        })?;
+        let device = (self.device.apply(edit.clone()))
+            .map_err(|e| crate::edit_refused_for(ModeKind::Adaptive, e))?;
         // The CPU mode keeps the scene, BVH, emitters' and materials' bandwidths the
         // pass reads; what it invalidates says what the frames restart.
         match self.cpu.apply(edit)? {

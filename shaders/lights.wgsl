@@ -234,33 +234,36 @@ fn cosine_hemisphere(u: vec2<f32>) -> vec3<f32> {
     return vec3<f32>(r * cos(phi), r * sin(phi), sqrt(max(1.0 - u.x, 0.0)));
 }
 
+// The ambient term's direction for `u` (world) and its weight, f cos / pdf's 1 / pdf
+// (w <= 0: none): a pack draws from its texel's bases (and a defensive share), a table
+// from the defensive mixture, as the CPU; other materials a cosine direction.
+fn ambient_direction(s: Shading, wo: vec3<f32>, u: vec2<f32>) -> vec4<f32> {
+    let kind = material_kind(s.material);
+    if kind == MATERIAL_SPMM || kind == MATERIAL_BTF {
+        let m = material_sample(s, wo, u);
+        if !(m.w > 0.0) || dot(m.xyz, s.n) <= 0.0 {
+            return vec4<f32>(0.0);
+        }
+        return vec4<f32>(m.xyz, 1.0 / m.w);
+    }
+    let local = cosine_hemisphere(u);
+    if local.z <= 0.0 {
+        return vec4<f32>(0.0);
+    }
+    return vec4<f32>(s.t * local.x + s.b * local.y + s.n * local.z, PI / local.z);
+}
+
 fn sample_ambient(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f32>, pixel: u32, rng: ptr<function, Rng>) {
     let u = rand2(rng);
     if params.ambient_radius < 0.0 {
         return;
     }
-    var wi: vec3<f32>;
-    var weight: f32;
-    let kind = material_kind(s.material);
-    if kind == MATERIAL_SPMM || kind == MATERIAL_BTF {
-        // A pack draws from its texel's bases (and a defensive share), a table from
-        // the defensive mixture, as the CPU.
-        let m = material_sample(s, wo, u);
-        if !(m.w > 0.0) || dot(m.xyz, s.n) <= 0.0 {
-            return;
-        }
-        wi = m.xyz;
-        weight = 1.0 / m.w;
-    } else {
-        let local = cosine_hemisphere(u);
-        if local.z <= 0.0 {
-            return;
-        }
-        wi = s.t * local.x + s.b * local.y + s.n * local.z;
-        weight = PI / local.z;
+    let a = ambient_direction(s, wo, u);
+    if !(a.w > 0.0) {
+        return;
     }
     counts.ambient += 1u;
-    if !occluded(lift, wi, params.ambient_radius) {
-        add_layer(pixel, LAYER_AMBIENT, throughput * response(s, wi, wo) * weight);
+    if !occluded(lift, a.xyz, params.ambient_radius) {
+        add_layer(pixel, LAYER_AMBIENT, throughput * response(s, a.xyz, wo) * a.w);
     }
 }

@@ -83,10 +83,15 @@ struct Kernels {
 pub(super) struct AdaptiveDevice {
     ctx: GpuContext,
     kernels: Kernels,
+    /// The bandwidth pass's kernels, made with the first pass.
+    pub(super) pass_kernels: Option<super::adaptive_pass::PassKernels>,
+    /// A bandwidth pass under way on the device.
+    pub(super) pass: Option<super::adaptive_pass::DevicePass>,
     knobs: AdaptiveKnobs,
     width: u32,
     height: u32,
-    inputs: wgpu::Buffer,
+    /// Per pixel what the pass found (`INPUT_WORDS`), as the frames read it.
+    pub(super) inputs: wgpu::Buffer,
     mips: wgpu::Buffer,
     state: wgpu::Buffer,
     partials: wgpu::Buffer,
@@ -130,6 +135,8 @@ impl AdaptiveDevice {
         Self {
             ctx: ctx.clone(),
             kernels,
+            pass_kernels: None,
+            pass: None,
             knobs,
             width,
             height,
@@ -178,6 +185,7 @@ impl AdaptiveDevice {
             Self::buffers(&self.ctx, width, height);
         (self.width, self.height) = (width, height);
         self.has_pass = false;
+        self.pass = None;
     }
 
     fn pixels(&self) -> u32 {
@@ -262,6 +270,12 @@ impl AdaptiveDevice {
         self.ctx
             .queue
             .write_buffer(&self.inputs, 0, bytemuck::cast_slice(&words));
+        self.pass = None;
+        self.take_inputs(aux);
+    }
+
+    /// Builds the pyramids of the pass now in `inputs`; the frames plan with it.
+    pub fn take_inputs(&mut self, aux: &wgpu::Buffer) {
         self.run(
             &self.kernels.mip_base,
             self.params(0, 0, 1),
@@ -362,6 +376,27 @@ impl AdaptiveDevice {
                 self.pixels(),
             );
         }
+    }
+
+    /// What the pass found per pixel, as the frames read it (read back, for tests).
+    pub fn pass_pixels(&self) -> Result<Vec<PassPixel>, super::GpuError> {
+        let size = u64::from(self.pixels()) * INPUT_WORDS * 4;
+        let bytes = kernel::submit_and_read(
+            &self.ctx,
+            kernel::encoder(&self.ctx),
+            &[(&self.inputs, size)],
+        )?;
+        let words: &[u32] = bytemuck::cast_slice(&bytes[0]);
+        Ok(words
+            .chunks_exact(INPUT_WORDS as usize)
+            .map(|w| PassPixel {
+                level: w[0],
+                sigma: f32::from_bits(w[1]),
+                depth: f32::from_bits(w[2]),
+                normal_dir: [f32::from_bits(w[3]), f32::from_bits(w[4])],
+                cos_x: f32::from_bits(w[5]),
+            })
+            .collect())
     }
 
     /// Per pixel its own sample count (read back, for tests and reports).

@@ -257,6 +257,17 @@ pub(super) fn submit_and_read(
     read.finish(ctx)
 }
 
+/// Waits until the device has done the work submitted so far.
+pub(super) fn wait(ctx: &GpuContext) -> Result<(), GpuError> {
+    ctx.device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map_err(|e| ctx.lost(format!("waiting for the device: {e}")))?;
+    match ctx.failure() {
+        Some(e) => Err(e),
+        None => Ok(()),
+    }
+}
+
 pub(super) fn encoder(ctx: &GpuContext) -> wgpu::CommandEncoder {
     ctx.device
         .create_command_encoder(&wgpu::CommandEncoderDescriptor::default())

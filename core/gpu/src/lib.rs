@@ -7,12 +7,14 @@
 //! nodes as they are, the leaf-ordered triangles and their shading data), the
 //! environment map with its sampling tables and the background image
 //! (`environment.rs`), one compute dispatch with its buffers (`kernel.rs`), the film
-//! kept on the device (`film.rs`), the adaptive mode's plan and up-sampling (`adaptive.rs`), a resolved image and the texture a window shows it
+//! kept on the device (`film.rs`), the adaptive mode's plan and up-sampling (`adaptive.rs`) and its bandwidth pass
+//! (`adaptive_pass.rs`), a resolved image and the texture a window shows it
 //! in (`display.rs`), the viewport denoiser on the device (`denoise.rs`), and the mode
 //! itself (`mode.rs`). The CPU's
 //! `trace::SpmmMode` is the reference every part here is tested against.
 
 mod adaptive;
+mod adaptive_pass;
 mod biscale;
 mod context;
 mod data;
@@ -27,6 +29,7 @@ mod reach;
 mod shaders;
 
 pub use adaptive::{AdaptiveKnobs, PassPixel};
+pub use adaptive_pass::{PassRules, PassTables};
 pub use biscale::{BiscaleBlock, BiscaleBytes, BiscaleInputs, BiscaleTable, LEAF_BIT, SpmmRows};
 pub use context::{GpuContext, GpuError, Sharing, hardware_adapter, is_hardware};
 pub use display::{DeviceImage, DisplayTexture};

@@ -20,6 +20,7 @@ pub(super) const DENOISE: &str = include_str!("../../../shaders/denoise.wgsl");
 pub(super) const BISCALE: &str = include_str!("../../../shaders/biscale.wgsl");
 pub(super) const ADAPTIVE: &str = include_str!("../../../shaders/adaptive.wgsl");
 pub(super) const ADAPTIVE_RENDER: &str = include_str!("../../../shaders/adaptive_render.wgsl");
+pub(super) const ADAPTIVE_PASS: &str = include_str!("../../../shaders/adaptive_pass.wgsl");
 
 /// The test kernels: evaluations of BRDFs and SPMM texels, and primary-ray hits.
 #[cfg(test)]
@@ -81,6 +82,12 @@ pub(super) fn biscale() -> String {
 /// after it (its plan and up-sampling are `ADAPTIVE`'s module of their own).
 pub(super) fn adaptive() -> String {
     integrator_with(ADAPTIVE_RENDER)
+}
+
+/// The adaptive mode's bandwidth pass: the integrator's module with the pass's
+/// kernels after it (they shade as the samples do).
+pub(super) fn adaptive_pass() -> String {
+    integrator_with(ADAPTIVE_PASS)
 }
 
 #[cfg(test)]

@@ -5,6 +5,7 @@
 
 use super::*;
 use crate::adaptive::{AdaptiveKnobs, PassPixel};
+use crate::adaptive_pass::{DevicePass, PassKernels, PassTables};
 
 /// Samples of a pixel per dispatch (`ADAPTIVE_CHUNK` of `shaders/adaptive_render.wgsl`).
 pub(crate) const ADAPTIVE_CHUNK: u32 = 8;
@@ -50,6 +51,83 @@ impl GpuSpmmMode {
         Ok(())
     }
 
+    /// Starts a bandwidth pass on the device for the view as it is now: `tables` go up
+    /// and the G-buffer is traced; `continue_adaptive_pass` analyses the pixels. A
+    /// pass under way is dropped.
+    pub fn begin_adaptive_pass(&mut self, tables: &PassTables) -> Result<(), EditError> {
+        let (w, h) = (self.core.film.width(), self.core.film.height());
+        let counts = (
+            self.core.scene.materials.len(),
+            self.core.scene.lights.len(),
+        );
+        // The integrator's parameters of the view (the pass reads its camera,
+        // lights, layers' weights).
+        self.ctx.queue.write_buffer(
+            &self.res.params,
+            0,
+            bytemuck::bytes_of(&self.params(self.core.next_sample)),
+        );
+        let Some(a) = &mut self.adaptive else {
+            return Err(EditError::Size(
+                "this device mode renders spmm frames, not adaptive ones".into(),
+            ));
+        };
+        a.pass = None;
+        let kernels = a
+            .pass_kernels
+            .get_or_insert_with(|| PassKernels::new(&self.ctx));
+        let g = &self.res.geometry;
+        let scene = [
+            &self.res.params,
+            &g.nodes,
+            &g.tris,
+            &g.shade,
+            &self.res.data,
+            &self.core.film.aux,
+            &self.res.counters,
+            &self.res.env,
+        ];
+        let pass = DevicePass::begin(&self.ctx, kernels, tables, counts, scene, &a.inputs, w * h)
+            .map_err(EditError::Size)?;
+        a.pass = Some(pass);
+        Ok(())
+    }
+
+    /// Whether a bandwidth pass is under way on the device.
+    pub fn adaptive_pass_pending(&self) -> bool {
+        self.adaptive.as_ref().is_some_and(|a| a.pass.is_some())
+    }
+
+    /// Analyses up to `pixels` more pixels of the pass under way and waits for the
+    /// device; once every pixel is done, the pass is the frames' (its pyramids built,
+    /// every sample restarted) and this returns true. False with no pass under way.
+    pub fn continue_adaptive_pass(&mut self, pixels: u32) -> Result<bool, GpuError> {
+        let ctx = self.ctx.clone();
+        let aux = &self.core.film.aux;
+        let Some(a) = &mut self.adaptive else {
+            return Ok(false);
+        };
+        let (Some(pass), Some(kernels)) = (&mut a.pass, &a.pass_kernels) else {
+            return Ok(false);
+        };
+        let done = pass.advance(&ctx, kernels, pixels);
+        if done {
+            a.pass = None;
+            a.take_inputs(aux);
+            self.restart_all();
+        }
+        kernel::wait(&ctx)?;
+        Ok(done)
+    }
+
+    /// What the current pass found per pixel (read back, for tests).
+    pub fn adaptive_pass_pixels(&self) -> Result<Vec<PassPixel>, GpuError> {
+        match &self.adaptive {
+            Some(a) => a.pass_pixels(),
+            None => Ok(Vec::new()),
+        }
+    }
+
     /// Whether the adaptive frames have a bandwidth pass for the current view (a
     /// camera, size or geometry change, or `adaptive_restart`, takes it away).
     pub fn has_adaptive_pass(&self) -> bool {
@@ -61,6 +139,8 @@ impl GpuSpmmMode {
     pub fn adaptive_restart(&mut self, new_pass: bool) {
         if let Some(a) = &mut self.adaptive {
             a.has_pass &= !new_pass;
+            // A pass under way is of the scene before the edit.
+            a.pass = None;
         }
         self.restart_all();
     }

@@ -229,6 +229,12 @@ impl MaterialBandwidth {
         f64::from(self.rates[fixed.cell * GRID * GRID + at.pixel])
     }
 
+    /// The rates, `GRID`^2 per fixed direction (row-major by its cell), each over the
+    /// lobe's `GRID`^2 pixels.
+    pub fn rates(&self) -> &[f32] {
+        &self.rates
+    }
+
     /// The highest rate of the lobe of `fixed` (local, upper hemisphere).
     pub fn peak(&self, fixed: DVec3) -> f64 {
         let c = grid_cell(fixed);
@@ -301,6 +307,11 @@ impl EnvironmentBandwidth {
         f64::from(self.rates[(y * self.width + x) as usize])
     }
 
+    /// Width, height and rates per map pixel (row-major), in map space.
+    pub fn table(&self) -> (u32, u32, &[f32]) {
+        (self.width, self.height, &self.rates)
+    }
+
     /// The largest rate of the map (0 for a constant map).
     pub fn max(&self) -> f64 {
         self.rates.iter().copied().fold(0.0f32, f32::max) as f64
@@ -308,7 +319,7 @@ impl EnvironmentBandwidth {
 }
 
 /// Samples per side of an area light's image before padding.
-const LIGHT_RES: usize = 32;
+pub const LIGHT_RES: usize = 32;
 
 /// An area light's spatial bandwidth over its surface (samples per metre), on a
 /// `LIGHT_RES`^2 grid over (u, v) in [0, 1)^2.
@@ -339,6 +350,11 @@ impl LightBandwidth {
             })
             .collect();
         Some(Self { rates })
+    }
+
+    /// The rates, `LIGHT_RES`^2 over (u, v), row-major in v.
+    pub fn rates(&self) -> &[f32] {
+        &self.rates
     }
 
     /// The rate at light coordinates (u, v) in [0, 1)^2.

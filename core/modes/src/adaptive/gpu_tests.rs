@@ -1,6 +1,7 @@
-//! The adaptive mode on the GPU against the CPU adaptive mode: the device's plan of a
-//! frame against `plan_frame` on the same bandwidth pass, its up-sampling against
-//! `upsample`, and images by the GPU modes' rule (`gpu_test_support`, means against
+//! The adaptive mode on the GPU against the CPU adaptive mode: the device's bandwidth
+//! pass against the CPU's, the device's plan of a frame against `plan_frame` on the
+//! same bandwidth pass (the CPU's, uploaded), its up-sampling against `upsample`, and
+//! images by the GPU modes' rule (`gpu_test_support`, means against
 //! the CPU mode's at equal frames) on the MERL
 //! bunny (MERL tables, the environment, an area light) and on the default scene (an
 //! SPMM pack and analytic BRDFs under an area light with the ambient term). They need a
@@ -76,6 +77,117 @@ fn agrees_with_cpu(what: &str, g: &mut GpuAdaptiveMode, scene: &Scene, size: u32
     );
 }
 
+/// How far the device's pass is from the CPU's at one view: the share of pixels at
+/// another level, and of pixels whose deviation or guide differs beyond f32's noise.
+struct PassDifference {
+    levels: f64,
+    sigmas: f64,
+    guides: f64,
+}
+
+fn pass_difference(what: &str, g: &GpuAdaptiveMode) -> PassDifference {
+    let got = g.device_mode().adaptive_pass_pixels().expect("read back");
+    let want = g.cpu_mode().bandwidth_pass();
+    assert_eq!(got.len(), want.level.len(), "{what}: pixels");
+    let n = got.len() as f64;
+    let mean_sigma = want.sigma.iter().sum::<f64>() / n;
+    let (mut levels, mut sigmas, mut guides) = (0, 0, 0);
+    let mut rel: Vec<f64> = got
+        .iter()
+        .zip(&want.sigma)
+        .map(|(p, s)| (f64::from(p.sigma) - s).abs() / s.max(1e-3 * mean_sigma))
+        .collect();
+    rel.sort_by(f64::total_cmp);
+    let q = |f: f64| rel[((rel.len() - 1) as f64 * f) as usize];
+    eprintln!(
+        "{what}: sigma relative error 50% {:.1e}, 90% {:.1e}, 99% {:.1e}, 99.9% {:.1e}, max {:.1e}",
+        q(0.5),
+        q(0.9),
+        q(0.99),
+        q(0.999),
+        q(1.0)
+    );
+    for (i, p) in got.iter().enumerate() {
+        levels += usize::from(p.level != want.level[i]);
+        let sigma = want.sigma[i];
+        sigmas +=
+            usize::from((f64::from(p.sigma) - sigma).abs() > 1e-2 * sigma.max(1e-3 * mean_sigma));
+        let guide = &want.guide;
+        let depth = guide.depth[i];
+        let depth_ok = if depth.is_finite() {
+            (f64::from(p.depth) - depth).abs() <= 1e-4 * depth
+        } else {
+            p.depth.is_infinite()
+        };
+        let dir = guide.normal_dir[i];
+        let dir_ok = (f64::from(p.normal_dir[0]) - dir.x).abs() <= 1e-3
+            && (f64::from(p.normal_dir[1]) - dir.y).abs() <= 1e-3;
+        let cos_ok = (f64::from(p.cos_x) - guide.cos_x[i]).abs() <= 1e-4;
+        guides += usize::from(!(depth_ok && dir_ok && cos_ok));
+    }
+    let d = PassDifference {
+        levels: levels as f64 / n,
+        sigmas: sigmas as f64 / n,
+        guides: guides as f64 / n,
+    };
+    eprintln!(
+        "{what}: {:.2}% of pixels at another level, {:.2}% with another deviation, {:.2}% with another guide",
+        100.0 * d.levels,
+        100.0 * d.sigmas,
+        100.0 * d.guides
+    );
+    d
+}
+
+/// The device's bandwidth pass finds the CPU pass's levels, predicted deviations and
+/// up-sampling guides, on scenes of every material, light and escape kind: all but a
+/// few pixels where f32 puts a value on the other side of an edge (a level's bound,
+/// a guard's step).
+#[test]
+fn the_device_pass_finds_the_cpus_levels_deviations_and_guides() {
+    let btf_floor = {
+        let mut s = merl_bunny_with_point_light_ambient_and_mirror();
+        s.materials[1] = meso_render::scene::test_scenes::tabulated_btf(
+            &meso_materials::brdf::AnalyticBrdf::new(
+                meso_materials::brdf::BrdfModel::CookTorrance,
+                &[("m", 0.5), ("f0", 0.8)],
+            )
+            .expect("valid"),
+            DVec3::new(0.7, 0.4, 0.2),
+            glam::DVec2::ONE,
+        );
+        s
+    };
+    let cases = [
+        ("merl bunny", scene("merl_bunny.toml", 48), 48),
+        ("default scene", scene("default.toml", 48), 48),
+        ("point light, ambient, mirror, btf floor", btf_floor, 32),
+        (
+            "forty lights",
+            meso_render::scene::test_scenes::many_lights_scene(40),
+            24,
+        ),
+    ];
+    for (what, mut s, size) in cases {
+        s.render.width = size;
+        s.render.height = size;
+        let t = std::time::Instant::now();
+        let mut g = gpu(s, size);
+        eprintln!("{what}: prepared in {:.1} s", t.elapsed().as_secs_f64());
+        let t = std::time::Instant::now();
+        run_frames(&mut g, 1, |_, _| {});
+        eprintln!(
+            "{what}: pass and frame in {:.1} s ({})",
+            t.elapsed().as_secs_f64(),
+            g.diagnostics().summary().unwrap_or_default()
+        );
+        let d = pass_difference(what, &g);
+        assert!(d.levels <= 0.01, "{what}: levels");
+        assert!(d.sigmas <= 0.02, "{what}: deviations");
+        assert!(d.guides <= 0.001, "{what}: guides");
+    }
+}
+
 /// The plans of the first frames: the sites (leaf corners of the level pyramid less
 /// the levels dropped so far, and pixels without parents at their depth) are the CPU
 /// `plan_frame`'s every frame, until the drops have made every pixel a site; the first frame's counts (the sites' deviations, their
@@ -86,10 +198,8 @@ fn agrees_with_cpu(what: &str, g: &mut GpuAdaptiveMode, scene: &Scene, size: u32
 fn the_device_plans_frames_as_the_cpu_does() {
     let size = 64;
     let mut mode = gpu(scene("merl_bunny.toml", size), size);
-    let pass = {
-        run_frames(&mut mode, 1, |_, _| {});
-        mode.cpu_mode().bandwidth_pass()
-    };
+    let pass = mode.use_cpu_pass();
+    run_frames(&mut mode, 1, |_, _| {});
     let mut leaves = [0usize; 8];
     // Up to the frame whose drops leave every pixel a site (levels reach 7 here).
     for frame in 0..16 {
@@ -136,6 +246,7 @@ fn the_device_plans_frames_as_the_cpu_does() {
 fn the_device_upsamples_as_the_cpu_does() {
     let size = 40;
     let mut mode = gpu(scene("merl_bunny.toml", size), size);
+    let b = mode.use_cpu_pass();
     run_frames(&mut mode, 1, |_, _| {});
     let image = mode.image();
     let own = mode
@@ -143,7 +254,6 @@ fn the_device_upsamples_as_the_cpu_does() {
         .adaptive_own_samples()
         .expect("read back");
     let cpu = mode.cpu_mode();
-    let b = cpu.bandwidth_pass();
     let guide: &Guide = &b.guide;
     let top = cpu.top_level();
     // After the first frame no site was added by a refinement.

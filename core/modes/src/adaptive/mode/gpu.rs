@@ -1,43 +1,48 @@
-//! `GpuAdaptiveMode`: the adaptive mode with its frames on a wgpu device. After each
-//! restart the CPU mode's bandwidth pass (G-buffer, per-pixel analysis, guards,
-//! levels and predicted deviations: `pass.rs`) goes up once as `meso_gpu::PassPixel`s;
-//! from then on every frame stays on the device (`meso_gpu::GpuSpmmMode`'s adaptive
-//! frames, `shaders/adaptive.wgsl`): the pyramids, the plan (sites, the mean of their
-//! corrected deviations, dithered sample counts), the samples, the pixels' own
-//! counts and moments, and the up-sampling of the image. This lives here rather than
-//! in `meso-gpu` because the pass and the materials' bandwidths are this crate's.
+//! `GpuAdaptiveMode`: the adaptive mode on a wgpu device. After each restart that
+//! needs one, the bandwidth pass runs on the device (`meso_gpu::GpuSpmmMode`'s
+//! `begin_adaptive_pass`, `shaders/adaptive_pass.wgsl`: G-buffer, per-pixel analysis,
+//! guards, levels, predicted deviations and guides), reading the rate tables that
+//! the CPU mode's material, environment and light analyses made (`pass_tables`); then
+//! every frame stays on the device too (`shaders/adaptive.wgsl`): the pyramids, the
+//! plan (sites, the mean of their corrected deviations, dithered sample counts), the
+//! samples, the pixels' own counts and moments, and the up-sampling of the image.
+//! This lives here rather than in `meso-gpu` because the pass's rules and the
+//! materials' bandwidths are this crate's.
 //!
 //! Differences from the CPU mode, by design: a sample is the GPU spmm mode's estimator
 //! (`spmm_sample`, every light taken once as here, `light_samples` points per area
-//! light), with the CPU adaptive mode's expectation; the plan's arithmetic is f32 (a dithered count can differ by
-//! one at a rounding edge); no preview while the pass runs.
+//! light), with the CPU adaptive mode's expectation; the pass's and the plan's
+//! arithmetic is f32 (a level or a dithered count can differ where a value sits on an
+//! edge); eq. 9's sum, which only the CPU mode's overlays show, is not computed.
 
 use std::time::Instant;
 
-use meso_gpu::{AdaptiveKnobs, GpuContext, GpuSpmmMode, PassPixel};
+#[cfg(test)]
+use meso_gpu::PassPixel;
+use meso_gpu::{AdaptiveKnobs, GpuContext, GpuSpmmMode, PassTables};
 use meso_render::scene::Scene;
 use meso_render::{
     Diagnostic, Diagnostics, EditError, FrameStats, Invalidation, ModeError, ModeKind, Pass,
     Prepare, Progress, RenderMode, SceneEdit, Unsupported,
 };
 
-use super::pass::PassProgress;
-use super::{AdaptiveMode, AdaptiveOptions, Buffers, PASS_TILE_PIXELS};
+#[cfg(test)]
+use super::Buffers;
+use super::{AdaptiveMode, AdaptiveOptions, PASS_TILE_PIXELS};
 
 pub struct GpuAdaptiveMode {
     /// The device half: skeleton, device film, geometry, lights, the frames.
     device: GpuSpmmMode,
-    /// The CPU mode, for its bandwidth pass and the materials' bandwidths it reads
-    /// (its own frames never run).
+    /// The CPU mode, for the materials', environment's and lights' bandwidths the
+    /// pass reads, and for its preview (its own frames and pass never run).
     cpu: AdaptiveMode,
-    /// A bandwidth pass under way, left by a frame that was asked to stop (the studio
-    /// keeps responding during a pass of a second or more).
-    pending: Option<PassProgress>,
-    /// Seconds the last bandwidth pass took on the CPU.
+    /// Seconds the last bandwidth pass took on the device (its steps' wall time,
+    /// waits for the device included).
     pass_seconds: f64,
 }
 
 /// What the frames read of a pass, per pixel.
+#[cfg(test)]
 fn pass_pixels(b: &Buffers) -> Vec<PassPixel> {
     let g = &b.guide;
     (0..b.level.len())
@@ -89,6 +94,14 @@ impl GpuAdaptiveMode {
             ));
         }
         Self::supports(&scene)?;
+        if options.n_b > PassTables::MAX_N_B {
+            return Err(ModeError::Size(format!(
+                "the adaptive mode's bandwidth pass on the GPU takes at most {} directions \
+                 per emitter, not {}",
+                PassTables::MAX_N_B,
+                options.n_b
+            )));
+        }
         // The device half first: what does not fit on the device is refused before the
         // CPU analyses the materials.
         let knobs = AdaptiveKnobs {
@@ -108,7 +121,6 @@ impl GpuAdaptiveMode {
         Ok(Self {
             device,
             cpu,
-            pending: None,
             pass_seconds: 0.0,
         })
     }
@@ -123,44 +135,60 @@ impl GpuAdaptiveMode {
         &self.cpu
     }
 
-    /// Runs the bandwidth pass if the view has none (after a restart that needs one,
-    /// or a material analysis that came back markedly sharper) and gives it to the
-    /// device; true once it has one. Given `stop`, the pass goes in steps of rows as the
-    /// CPU mode's does, asked between them; a yes keeps the rest for the next call.
+    /// Runs the bandwidth pass on the device if the view has none (after a restart
+    /// that needs one, or a material analysis that came back markedly sharper); true
+    /// once the frames have one. Given `stop`, the pass goes in steps of rows, asked
+    /// between them (the studio keeps responding on a slow device); a yes keeps the
+    /// rest for the next call.
     fn ensure_pass(
         &mut self,
         mut stop: Option<&mut dyn FnMut() -> bool>,
     ) -> Result<bool, EditError> {
         if self.cpu.take_analyses() {
             self.device.adaptive_restart(true);
-            self.pending = None;
             self.cpu.preview = None;
         }
         if self.device.has_adaptive_pass() {
             return Ok(true);
         }
+        let start = Instant::now();
         let (w, h) = (self.cpu.width(), self.cpu.height());
-        let rows = match stop {
-            Some(_) => (PASS_TILE_PIXELS / w.max(1)).max(1),
-            None => h.max(1),
+        let pixels = match stop {
+            Some(_) => (PASS_TILE_PIXELS / w.max(1)).max(1) * w,
+            None => w * h,
         };
-        // Beginning (the G-buffer) is a step: every call moves the pass on.
-        let (mut pass, mut stepped) = match self.pending.take() {
-            Some(p) => (p, false),
-            None => (self.cpu.begin_pass(), true),
-        };
-        while (pass.per_pixel.len() as u32) < w * h {
-            if stepped && stop.as_mut().is_some_and(|s| s()) {
-                self.pending = Some(pass);
-                return Ok(false);
-            }
-            self.cpu.analyse_rows(&mut pass, rows);
+        // Beginning (the tables and the G-buffer) is a step: every call moves the pass on.
+        let mut stepped = false;
+        if !self.device.adaptive_pass_pending() {
+            let orders = self.cpu.strata_orders();
+            let tables = self.cpu.pass_tables(&orders);
+            self.device.begin_adaptive_pass(&tables)?;
+            self.pass_seconds = 0.0;
             stepped = true;
         }
-        let buffers = self.cpu.finish_pass(pass);
-        self.pass_seconds = buffers.seconds;
-        self.device.adaptive_pass(&pass_pixels(&buffers))?;
-        Ok(true)
+        let done = loop {
+            if stepped && stop.as_mut().is_some_and(|s| s()) {
+                break false;
+            }
+            match self.device.continue_adaptive_pass(pixels) {
+                Ok(true) => break true,
+                Ok(false) => stepped = true,
+                Err(e) => return Err(EditError::Size(e.to_string())),
+            }
+        };
+        self.pass_seconds += start.elapsed().as_secs_f64();
+        Ok(done)
+    }
+
+    /// Gives the frames the CPU mode's bandwidth pass instead of the device's (tests
+    /// that compare the frames' rules with the CPU's on one pass).
+    #[cfg(test)]
+    pub(crate) fn use_cpu_pass(&mut self) -> Buffers {
+        let buffers = self.cpu.bandwidth_pass();
+        self.device
+            .adaptive_pass(&pass_pixels(&buffers))
+            .expect("a pass of the image's size");
+        buffers
     }
 
     /// The preview standing for the image (before the device's first frame).
@@ -174,7 +202,7 @@ impl GpuAdaptiveMode {
     fn summary(&self) -> String {
         let inner = self.device.diagnostics().summary().unwrap_or_default();
         format!(
-            "{inner} · adaptive: bandwidth pass {:.0} ms on the CPU",
+            "{inner} · adaptive: bandwidth pass {:.0} ms on the device",
             self.pass_seconds * 1e3
         )
     }
@@ -288,9 +316,8 @@ impl RenderMode for GpuAdaptiveMode {
             // Up-sampled pixels mix every layer and material: anything else restarts
             // all, with a new pass unless only a material changed.
             _ => {
+                // A pass under way is of the scene before the edit: the device drops it.
                 self.device.adaptive_restart(new_pass);
-                // A pass under way is of the scene before the edit.
-                self.pending = None;
                 Ok(Invalidation::All)
             }
         }

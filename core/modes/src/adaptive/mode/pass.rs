@@ -95,6 +95,10 @@ pub const GUARD_RAYS: u32 = 4;
 /// stay finite).
 const FULL_RATE: f64 = 1e12;
 
+/// The radiance guard's floor: this share of the image's mean |radiance| (dark pixels'
+/// relative steps are noise).
+const DARK_SHARE: f64 = 1e-3;
+
 /// True if pixel (x, y)'s visible share differs from a 4-neighbour's by more than
 /// `VISIBILITY_STEP`.
 pub(super) fn visibility_edge(visible: &[f64], w: u32, h: u32, x: u32, y: u32) -> bool {
@@ -227,7 +231,8 @@ impl AdaptiveMode {
             .zip(&footprint)
             .map(|(p, f)| (p.moments.variance() + f).sqrt())
             .collect();
-        let dark = 1e-3 * mean.iter().map(|m| m.abs()).sum::<f64>() / mean.len().max(1) as f64;
+        let dark =
+            DARK_SHARE * mean.iter().map(|m| m.abs()).sum::<f64>() / mean.len().max(1) as f64;
         let level = rate
             .iter()
             .enumerate()
@@ -583,6 +588,51 @@ impl AdaptiveMode {
             if open {
                 *v += lambda;
             }
+        }
+    }
+}
+
+#[cfg(feature = "gpu")]
+impl AdaptiveMode {
+    /// What the device's bandwidth pass reads besides the scene: this pass's rules,
+    /// strata (`orders` from `strata_orders`) and the rate tables of the materials,
+    /// the environment and the lights.
+    pub(super) fn pass_tables<'a>(&'a self, orders: &'a StrataOrders) -> meso_gpu::PassTables<'a> {
+        let n_b = self.options.n_b;
+        let shift = Strata::new(self.core.scene.render.seed, n_b).shift;
+        let (fx, fy) = self.fov();
+        meso_gpu::PassTables {
+            n_b,
+            strata_shift: [shift.x, shift.y],
+            fov: [fx, fy],
+            rules: meso_gpu::PassRules {
+                guard_rays: GUARD_RAYS,
+                visibility_step: VISIBILITY_STEP,
+                radiance_step: RADIANCE_STEP,
+                full_rate: FULL_RATE,
+                min_cos: operators::MIN_COS,
+                depth_sigma: crate::adaptive::upsample::DEPTH_SIGMA,
+                dark_share: DARK_SHARE,
+                grid: crate::adaptive::bandwidth::GRID as u32,
+                light_res: crate::adaptive::bandwidth::LIGHT_RES as u32,
+            },
+            map_order: &orders.map,
+            light_orders: orders.lights.iter().map(Vec::as_slice).collect(),
+            material_rates: self
+                .materials
+                .iter()
+                .map(|m| m.as_deref().map(MaterialBandwidth::rates))
+                .collect(),
+            environment_rates: self
+                .env_bandwidth
+                .as_ref()
+                .filter(|_| self.core.scene.environment.is_some())
+                .map(EnvironmentBandwidth::table),
+            light_rates: self
+                .light_bandwidth
+                .iter()
+                .map(|b| b.as_ref().map(LightBandwidth::rates))
+                .collect(),
         }
     }
 }

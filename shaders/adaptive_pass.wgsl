@@ -8,16 +8,16 @@
 // frames read (adaptive.wgsl's `inputs`). Eq. 9's sum, which only the CPU mode's
 // overlays show, is not computed here.
 //
-// `frame` is bound to the pass's own scratch buffer: per pixel G_FLOATS (the hit's
-// primitive as bits, its distance, shading normal and point), then per pixel
-// RESULT_FLOATS (eq. 6's rate, the visible share, the estimator's mean and variance),
-// then one sum of |mean| per workgroup and their total.
+// The integrator's bindings serve the pass (the studio's device allows 8 storage
+// buffers a kernel): `frame` is bound to the pass's own buffer, which holds per pixel
+// G_FLOATS (the hit's primitive as bits, its distance, shading normal and point), then
+// per pixel RESULT_FLOATS (eq. 6's rate, the visible share, the estimator's mean and
+// variance), then one sum of |mean| per workgroup and their total, then the pass's
+// tables (core/gpu/src/adaptive_pass.rs `PassTables`: a header of the rules' constants
+// and the tables' offsets, relative to the header, then the tables); `aux` is bound to
+// the frames' inputs (adaptive.wgsl's `inputs`, INPUT_WORDS per pixel), which
+// `pass_finish` writes.
 
-// The pass's tables (core/gpu/src/adaptive_pass.rs `PassTables`): a header of the
-// rules' constants and the tables' offsets, then the tables.
-@group(0) @binding(9) var<storage, read> tables: array<u32>;
-// The frames' inputs per pixel (adaptive.wgsl `INPUT_WORDS`), written by `pass_finish`.
-@group(0) @binding(10) var<storage, read_write> pass_out: array<u32>;
 
 const H_N_B: u32 = 0u;
 const H_SHIFT: u32 = 1u;          // 2 floats: the strata's shift
@@ -49,13 +49,22 @@ const MAX_N_B: u32 = 64u;
 const PASS_LUMINANCE: vec3<f32> = vec3<f32>(0.2126, 0.7152, 0.0722);
 const PASS_INFINITY: u32 = 0x7f800000u;
 
+// Where the tables start in the pass's buffer: after the partials and their total.
+fn tables_at() -> u32 {
+    return partials_at() + (n_pixels() + 63u) / 64u + 1u;
+}
+
+fn tw(i: u32) -> u32 {
+    return bitcast<u32>(frame[tables_at() + i]);
+}
+
 fn tf(i: u32) -> f32 {
-    return bitcast<f32>(tables[i]);
+    return frame[tables_at() + i];
 }
 
 // n_b, as the host bounds it.
 fn strata_count() -> u32 {
-    return clamp(tables[H_N_B], 1u, MAX_N_B);
+    return clamp(tw(H_N_B), 1u, MAX_N_B);
 }
 
 fn n_pixels() -> u32 {
@@ -243,7 +252,7 @@ fn stratum(k: u32) -> vec2<f32> {
 // path, 1 a guard path found occluded, 2 one found open.
 fn bounce(at: PassPoint, li: vec3<f32>, l_in: vec2<f32>, d_light: f32, radiance: f32, weight: f32, guard: u32) -> f32 {
     let f = lum(response(at.s, at.s.t * li.x + at.s.b * li.y + at.s.n * li.z, at.wo));
-    let rho = bitcast<f32>(tables[at.rates + lobe_cell(li, at.grid) * at.grid * at.grid + at.at_lo]);
+    let rho = bitcast<f32>(tw(at.rates + lobe_cell(li, at.grid) * at.grid * at.grid + at.at_lo));
     let nu = abs(transport(reflect_bandwidth(transport(l_in, d_light), li.z, at.lo.z, at.curvature, rho), at.depth));
     let lambda = radiance * f * weight;
     sums.lambda += lambda;
@@ -258,7 +267,7 @@ fn bounce(at: PassPoint, li: vec3<f32>, l_in: vec2<f32>, d_light: f32, radiance:
 }
 
 fn guard_of(k: u32, open: bool) -> u32 {
-    if k >= tables[H_GUARD_RAYS] {
+    if k >= tw(H_GUARD_RAYS) {
         return 0u;
     }
     return select(1u, 2u, open);
@@ -281,13 +290,13 @@ fn drawn_direction(at: PassPoint, u: vec2<f32>) -> vec4<f32> {
 // The map's rate seen in world direction `d` (`EnvironmentBandwidth::rate`).
 fn env_rate(d: vec3<f32>) -> f32 {
     let m = rotate_about_y(d, env_f(ENV_COS), -env_f(ENV_SIN));
-    return tf(tables[H_ENV_RATES] + latlong_pixel(tables[H_ENV_WIDTH], tables[H_ENV_HEIGHT], m));
+    return tf(tw(H_ENV_RATES) + latlong_pixel(tw(H_ENV_WIDTH), tw(H_ENV_HEIGHT), m));
 }
 
 // `environment_paths`: the material's directions with the map's rates, and the map's
 // strategy at its own order of the strata.
 fn environment_paths(at: PassPoint) {
-    if tables[H_ENV_RATES] == NO_TABLE || env[ENV_LIGHTS] == 0u {
+    if tw(H_ENV_RATES) == NO_TABLE || env[ENV_LIGHTS] == 0u {
         return;
     }
     let n_b = strata_count();
@@ -300,7 +309,7 @@ fn environment_paths(at: PassPoint) {
         }
         let radiance = lum(env_radiance(m.xyz) * strength);
         var open = true;
-        if k < tables[H_GUARD_RAYS] {
+        if k < tw(H_GUARD_RAYS) {
             open = !occluded(at.lift, m.xyz, FAR);
         }
         let lambda = bounce(at, to_local(at.s, m.xyz), vec2<f32>(0.0, env_rate(m.xyz)), 0.0, radiance, 1.0 / m.w, guard_of(k, open));
@@ -309,7 +318,7 @@ fn environment_paths(at: PassPoint) {
         }
     }
     for (var k = 0u; k < n_b; k++) {
-        let e = env_sample(stratum(tables[tables[H_MAP_ORDER] + k]));
+        let e = env_sample(stratum(tw(tw(H_MAP_ORDER) + k)));
         if dot(e.dir, at.s.n) <= 0.0 || !(e.pdf > 0.0) {
             continue;
         }
@@ -328,7 +337,7 @@ fn environment_paths(at: PassPoint) {
 fn light_paths(at: PassPoint) {
     let n_b = strata_count();
     let merl = material_kind(at.s.material) == MATERIAL_MERL;
-    let res = tables[H_LIGHT_RES];
+    let res = tw(H_LIGHT_RES);
     for (var l = 0u; l < params.lights; l++) {
         let rec = params.light_table + l * LIGHT_WORDS;
         let emitted = lum(light_vec(rec + LIGHT_FACTOR) * params.weights[min(data[rec + LIGHT_LAYER], MAX_LAYERS - 1u)].xyz);
@@ -350,7 +359,7 @@ fn light_paths(at: PassPoint) {
             }
             continue;
         }
-        let rates = tables[tables[H_LIGHT_RATES] + l];
+        let rates = tw(tw(H_LIGHT_RATES) + l);
         if rates == NO_TABLE {
             continue;
         }
@@ -358,9 +367,9 @@ fn light_paths(at: PassPoint) {
         let edge_v = light_vec(rec + 7u);
         let c = cross(edge_u, edge_v);
         let area = length(c);
-        let order = tables[H_LIGHT_ORDERS] + l * n_b;
+        let order = tw(H_LIGHT_ORDERS) + l * n_b;
         for (var k = 0u; k < n_b; k++) {
-            let u = stratum(tables[order + k]);
+            let u = stratum(tw(order + k));
             let q = corner + edge_u * u.x + edge_v * u.y;
             let to = q - at.s.p;
             let d2 = dot(to, to);
@@ -373,7 +382,7 @@ fn light_paths(at: PassPoint) {
             }
             let falloff = cos_l * area / d2;
             var open = true;
-            if k < tables[H_GUARD_RAYS] {
+            if k < tw(H_GUARD_RAYS) {
                 open = !occluded(at.lift, wi, length(q - at.lift) * (1.0 - 1e-6));
             }
             let cell = min(u32(u.y * f32(res)), res - 1u) * res + min(u32(u.x * f32(res)), res - 1u);
@@ -437,7 +446,7 @@ fn write_results(pixel: u32, nu_a: f32, visible: f32, mean: f32, variance: f32) 
 // (`pixel_bandwidth`).
 @compute @workgroup_size(64)
 fn pass_analyse(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
-    let pixel = tables[H_FIRST] + pixel_of_invocation(id, groups);
+    let pixel = tw(H_FIRST) + pixel_of_invocation(id, groups);
     if pixel >= n_pixels() {
         return;
     }
@@ -466,13 +475,13 @@ fn pass_analyse(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workg
         write_results(pixel, full, 1.0, 0.0, 0.0);
         return;
     }
-    let rates = tables[tables[H_MATERIALS] + s.material];
+    let rates = tw(tw(H_MATERIALS) + s.material);
     let lo = to_local(s, -dir);
     if rates == NO_TABLE || lo.z <= 0.0 {
         write_results(pixel, 0.0, 1.0, 0.0, 0.0);
         return;
     }
-    let grid = tables[H_GRID];
+    let grid = tw(H_GRID);
     let at = PassPoint(s, -dir, lo, lifted(s), rates, lobe_pixel(lo, grid), curvature(pixel), g_depth(pixel), grid);
     sums = PathSums(0.0, vec2<f32>(0.0), 0.0, 0.0);
     let n_b = strata_count();
@@ -627,10 +636,10 @@ fn pass_finish(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgr
         cos_x = abs(dot(n, camera_dir(pixel, vec2<f32>(0.5))));
     }
     let out = pixel * PASS_INPUT_WORDS;
-    pass_out[out] = level;
-    pass_out[out + 1u] = bitcast<u32>(sigma);
-    pass_out[out + 2u] = bitcast<u32>(depth);
-    pass_out[out + 3u] = bitcast<u32>(normal_dir.x);
-    pass_out[out + 4u] = bitcast<u32>(normal_dir.y);
-    pass_out[out + 5u] = bitcast<u32>(cos_x);
+    aux[out] = level;
+    aux[out + 1u] = bitcast<u32>(sigma);
+    aux[out + 2u] = bitcast<u32>(depth);
+    aux[out + 3u] = bitcast<u32>(normal_dir.x);
+    aux[out + 4u] = bitcast<u32>(normal_dir.y);
+    aux[out + 5u] = bitcast<u32>(cos_x);
 }

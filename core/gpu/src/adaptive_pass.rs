@@ -7,7 +7,7 @@
 //! `PassTables`, since the bandwidth analysis of materials is the CPU mode's.
 
 use super::GpuContext;
-use super::kernel::{self, Kernel, Slot};
+use super::kernel::{self, Kernel};
 use super::shaders;
 
 /// The constants of the pass's rules (the CPU mode's, passed in so that one
@@ -163,8 +163,9 @@ impl PassTables<'_> {
     }
 }
 
-/// The pass's kernels: the integrator's module with `adaptive_pass.wgsl`, its bindings
-/// and two of its own (the tables, the frames' inputs).
+/// The pass's kernels: the integrator's module with `adaptive_pass.wgsl`, bound as
+/// the integrator's kernels are (`mode.rs` `SLOTS`), with `frame` bound to the pass's
+/// own buffer and `aux` to the frames' inputs.
 pub(super) struct PassKernels {
     gbuffer: Kernel,
     analyse: Kernel,
@@ -173,26 +174,10 @@ pub(super) struct PassKernels {
     finish: Kernel,
 }
 
-/// The integrator's bindings (`mode.rs` `SLOTS`), `frame` bound to the pass's
-/// scratch, then the tables and the frames' inputs.
-const SLOTS: [Slot; 11] = [
-    Slot::Uniform,
-    Slot::Read,
-    Slot::Read,
-    Slot::Read,
-    Slot::Read,
-    Slot::ReadWrite,
-    Slot::ReadWrite,
-    Slot::ReadWrite,
-    Slot::Read,
-    Slot::Read,
-    Slot::ReadWrite,
-];
-
 impl PassKernels {
     pub fn new(ctx: &GpuContext) -> Self {
         let source = shaders::adaptive_pass();
-        let kernel = |entry| Kernel::new(ctx, &source, entry, &SLOTS);
+        let kernel = |entry| Kernel::new(ctx, &source, entry, &super::mode::SLOTS);
         Self {
             gbuffer: kernel("pass_gbuffer"),
             analyse: kernel("pass_analyse"),
@@ -203,40 +188,41 @@ impl PassKernels {
     }
 }
 
-/// A bandwidth pass under way on the device: its tables and scratch, bound with the
-/// scene's buffers, and the first pixel not yet analysed.
+/// A bandwidth pass under way on the device: its buffer (scratch, then tables), bound
+/// with the scene's buffers, and the first pixel not yet analysed.
 pub(super) struct DevicePass {
-    tables: wgpu::Buffer,
+    buffer: wgpu::Buffer,
+    /// Byte offset of the tables' `H_FIRST` word in `buffer`.
+    first_at: u64,
     bind: [wgpu::BindGroup; 5],
     pixels: u32,
     next: u32,
-    /// Kept alive while the bind groups use it.
-    _scratch: wgpu::Buffer,
 }
 
 impl DevicePass {
-    /// Uploads `tables` and records the G-buffer; `scene` are the integrator's nine
-    /// buffers but `frame` (its slot is the pass's scratch), `inputs` the frames'.
+    /// Uploads `tables` and records the G-buffer; `scene` are the integrator's
+    /// buffers but `frame` and `aux` (the pass's buffer and `inputs`, the frames').
     pub fn begin(
         ctx: &GpuContext,
         kernels: &PassKernels,
         tables: &PassTables,
         (materials, lights): (usize, usize),
-        scene: [&wgpu::Buffer; 8],
+        scene: [&wgpu::Buffer; 7],
         inputs: &wgpu::Buffer,
         pixels: u32,
     ) -> Result<Self, String> {
         let words = tables.words(materials, lights)?;
-        let tables = kernel::storage(ctx, "adaptive pass tables", bytemuck::cast_slice(&words));
-        let partials = u64::from(pixels.div_ceil(kernel::WORKGROUP)) + 1;
-        let scratch = kernel::zeroed(
-            ctx,
-            "adaptive pass scratch",
-            (u64::from(pixels) * SCRATCH_FLOATS + partials) * 4,
-        );
-        let [params, nodes, tris, shade, data, aux, counters, env] = scene;
+        // The shader's `tables_at`: after the scratch, the partials and their total.
+        let tables_at = (u64::from(pixels) * SCRATCH_FLOATS
+            + u64::from(pixels.div_ceil(kernel::WORKGROUP))
+            + 1)
+            * 4;
+        let buffer = kernel::zeroed(ctx, "adaptive pass", tables_at + words.len() as u64 * 4);
+        ctx.queue
+            .write_buffer(&buffer, tables_at, bytemuck::cast_slice(&words));
+        let [params, nodes, tris, shade, data, counters, env] = scene;
         let buffers = [
-            params, nodes, tris, shade, data, &scratch, aux, counters, env, &tables, inputs,
+            params, nodes, tris, shade, data, &buffer, inputs, counters, env,
         ];
         let bind = [
             &kernels.gbuffer,
@@ -250,11 +236,11 @@ impl DevicePass {
         kernels.gbuffer.record(&mut enc, &bind[0], pixels);
         ctx.queue.submit([enc.finish()]);
         Ok(Self {
-            tables,
+            buffer,
+            first_at: tables_at + H_FIRST * 4,
             bind,
             pixels,
             next: 0,
-            _scratch: scratch,
         })
     }
 
@@ -264,7 +250,7 @@ impl DevicePass {
         let n = count.max(1).min(self.pixels - self.next);
         if n > 0 {
             ctx.queue
-                .write_buffer(&self.tables, H_FIRST * 4, bytemuck::bytes_of(&self.next));
+                .write_buffer(&self.buffer, self.first_at, bytemuck::bytes_of(&self.next));
             let mut enc = kernel::encoder(ctx);
             kernels.analyse.record(&mut enc, &self.bind[1], n);
             ctx.queue.submit([enc.finish()]);

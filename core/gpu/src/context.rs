@@ -89,7 +89,8 @@ impl std::fmt::Debug for GpuContext {
 
 impl GpuContext {
     /// The first adapter of the backends `WGPU_BACKEND` names (all by default),
-    /// preferring a high-performance one, with a device of the adapter's own limits.
+    /// preferring a high-performance one, with a device of the limits the mode needs
+    /// (`needed_limits`).
     pub fn new() -> Result<Self, GpuError> {
         let desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
         let backends = desc.backends;
@@ -108,9 +109,10 @@ impl GpuContext {
     /// A device on `adapter` (the studio passes the one its window uses).
     pub fn from_adapter(adapter: &wgpu::Adapter) -> Result<Self, GpuError> {
         let info = adapter.get_info();
-        // Storage buffers and their sizes are what the mode needs beyond the defaults;
-        // the adapter's own limits allow whatever it offers.
-        let limits = adapter.limits();
+        // The limits the studio's shared device has (`needed_limits`), not the
+        // adapter's own: a kernel that needs more (a ninth storage buffer) fails here,
+        // in every test, as it would in the studio.
+        let limits = Self::needed_limits(adapter);
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("meso gpu"),
             required_limits: limits.clone(),

@@ -165,7 +165,9 @@ enum Frames {
     Adaptive(super::adaptive::AdaptiveKnobs),
 }
 
-const SLOTS: [Slot; 9] = [
+/// The integrator's bindings (`shaders/integrator.wgsl`), which every kernel of its
+/// module binds: eight storage buffers, the most a device must allow a kernel.
+pub(super) const SLOTS: [Slot; 9] = [
     Slot::Uniform,
     Slot::Read,
     Slot::Read,

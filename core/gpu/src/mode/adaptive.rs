@@ -83,7 +83,6 @@ impl GpuSpmmMode {
             &g.tris,
             &g.shade,
             &self.res.data,
-            &self.core.film.aux,
             &self.res.counters,
             &self.res.env,
         ];

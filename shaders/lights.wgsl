@@ -234,9 +234,30 @@ fn cosine_hemisphere(u: vec2<f32>) -> vec3<f32> {
     return vec3<f32>(r * cos(phi), r * sin(phi), sqrt(max(1.0 - u.x, 0.0)));
 }
 
+// The share of ambient directions drawn from a glossy material's lobe
+// (`shading::AMBIENT_LOBE_SHARE`).
+const AMBIENT_LOBE_SHARE: f32 = 0.5;
+
+// Whether material record `at` is a glossy analytic BRDF or a MERL table, whose lobe
+// cosine directions sample poorly (`ShadedMaterial::glossy`).
+fn glossy_material(at: u32) -> bool {
+    let kind = data[at];
+    if kind == MATERIAL_MERL {
+        return true;
+    }
+    if kind != MATERIAL_BRDF {
+        return false;
+    }
+    let model = data[data[at + 1u]];
+    return model != LAMBERTIAN && model != OREN_NAYAR;
+}
+
 // The ambient term's direction for `u` (world) and its weight, f cos / pdf's 1 / pdf
-// (w <= 0: none): a pack draws from its texel's bases (and a defensive share), a table
-// from the defensive mixture, as the CPU; other materials a cosine direction.
+// (w <= 0: none), as the CPU's `ambient_sample`: a pack draws from its texel's bases
+// (and a defensive share), a table from the defensive mixture; a glossy BRDF or MERL
+// table one sample of the even mixture of its lobe and cosine directions (the first
+// number picks the strategy and, rescaled, drives it); other materials a cosine
+// direction.
 fn ambient_direction(s: Shading, wo: vec3<f32>, u: vec2<f32>) -> vec4<f32> {
     let kind = material_kind(s.material);
     if kind == MATERIAL_SPMM || kind == MATERIAL_BTF {
@@ -245,6 +266,28 @@ fn ambient_direction(s: Shading, wo: vec3<f32>, u: vec2<f32>) -> vec4<f32> {
             return vec4<f32>(0.0);
         }
         return vec4<f32>(m.xyz, 1.0 / m.w);
+    }
+    if glossy_material(params.material_table + s.material * MATERIAL_WORDS) {
+        var wi: vec3<f32>;
+        if u.x < AMBIENT_LOBE_SHARE {
+            let m = material_sample(s, wo, vec2<f32>(u.x / AMBIENT_LOBE_SHARE, u.y));
+            if !(m.w > 0.0) {
+                return vec4<f32>(0.0);
+            }
+            wi = m.xyz;
+        } else {
+            let c = cosine_hemisphere(vec2<f32>((u.x - AMBIENT_LOBE_SHARE) / (1.0 - AMBIENT_LOBE_SHARE), u.y));
+            wi = s.t * c.x + s.b * c.y + s.n * c.z;
+        }
+        let cos_i = dot(wi, s.n);
+        if cos_i <= 0.0 {
+            return vec4<f32>(0.0);
+        }
+        let pdf = AMBIENT_LOBE_SHARE * material_pdf(s, wi, wo) + (1.0 - AMBIENT_LOBE_SHARE) * cos_i * INV_PI;
+        if !(pdf > 0.0 && pdf < F32_MAX) {
+            return vec4<f32>(0.0);
+        }
+        return vec4<f32>(wi, 1.0 / pdf);
     }
     let local = cosine_hemisphere(u);
     if local.z <= 0.0 {

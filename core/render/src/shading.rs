@@ -177,6 +177,10 @@ impl Shaders {
 /// One material ready to shade: its response, its sampler and its pdf, in the
 /// shading frame's local coordinates (`*_local`, z along the normal) or in world
 /// space at a `Shading`.
+/// The share of ambient directions drawn from a glossy material's lobe
+/// (`ShadedMaterial::ambient_sample`); the rest are cosine-distributed.
+pub const AMBIENT_LOBE_SHARE: f64 = 0.5;
+
 #[derive(Clone, Copy)]
 pub struct ShadedMaterial<'a> {
     material: &'a Material,
@@ -269,11 +273,33 @@ impl ShadedMaterial<'_> {
     }
 
     /// A world direction of the upper hemisphere at `s` for ambient occlusion and its
-    /// weight 1 / pdf: cosine-distributed where the response carries cos_i (written
-    /// pi / cos, as it always was, to keep its bits), the material's own sampling for
-    /// packs and BTFs, whose response does not vanish with the cosine.
+    /// weight 1 / pdf: cosine-distributed where the response carries cos_i and little
+    /// else (Lambertian and Oren-Nayar BRDFs; written pi / cos, as it always was, to
+    /// keep its bits); for glossy analytic BRDFs and MERL tables, whose lobes a cosine
+    /// direction rarely meets (its estimate is heavy-tailed), one sample of the even
+    /// mixture of cosine and material directions (`AMBIENT_LOBE_SHARE`: the first number
+    /// picks the strategy and, rescaled, drives it), weighted by the mixture's pdf; the
+    /// material's own sampling for packs and BTFs, whose response does not vanish with
+    /// the cosine.
     pub fn ambient_sample(&self, s: &Shading, wo: DVec3, u: DVec2) -> Option<(DVec3, f64)> {
         match self.shader {
+            Shader::Scene if self.glossy() => {
+                let lo = s.to_local(wo);
+                let local = if u.x < AMBIENT_LOBE_SHARE {
+                    let u = DVec2::new(u.x / AMBIENT_LOBE_SHARE, u.y);
+                    self.sample_local(s.uv, lo, u)?.0
+                } else {
+                    let u =
+                        DVec2::new((u.x - AMBIENT_LOBE_SHARE) / (1.0 - AMBIENT_LOBE_SHARE), u.y);
+                    self.shader.hemisphere_sample(u).0
+                };
+                if local.z <= 0.0 {
+                    return None;
+                }
+                let pdf = AMBIENT_LOBE_SHARE * self.pdf_local(s.uv, local, lo)
+                    + (1.0 - AMBIENT_LOBE_SHARE) * local.z / PI;
+                (pdf > 0.0 && pdf.is_finite()).then(|| (s.to_world(local), 1.0 / pdf))
+            }
             Shader::Scene => {
                 let (local, _) = self.shader.hemisphere_sample(u);
                 (local.z > 0.0).then(|| (s.to_world(local), PI / local.z))
@@ -282,6 +308,19 @@ impl ShadedMaterial<'_> {
                 Some((wi, pdf)) if wi.dot(s.n) > 0.0 => Some((wi, 1.0 / pdf)),
                 _ => None,
             },
+        }
+    }
+
+    /// Whether the material is a glossy analytic BRDF or a MERL table: a lobe that
+    /// cosine directions sample poorly (`ambient_sample`).
+    fn glossy(&self) -> bool {
+        use meso_materials::brdf::BrdfModel;
+        match self.material {
+            Material::Brdf { brdf, .. } => {
+                !matches!(brdf.model(), BrdfModel::Lambertian | BrdfModel::OrenNayar)
+            }
+            Material::Merl { .. } => true,
+            _ => false,
         }
     }
 

@@ -169,6 +169,105 @@ fn ambient_directions_weigh_the_response_by_their_inverse_pdf() {
     }
 }
 
+/// Per-sample mean and variance of `response x weight` over `n` ambient directions of
+/// `m` at the frame of `ambient_directions_weigh_the_response_by_their_inverse_pdf`,
+/// drawn by `draw`.
+fn ambient_moments(
+    m: &ShadedMaterial,
+    n: u64,
+    draw: impl Fn(&Shading, DVec3, DVec2) -> Option<(DVec3, f64)>,
+) -> (f64, f64) {
+    let frame = Shading {
+        p: DVec3::ZERO,
+        t: DVec3::X,
+        b: DVec3::Z.cross(DVec3::X),
+        n: DVec3::Z,
+        uv: UV,
+        material: 0,
+    };
+    let wo = VIEW.normalize();
+    let rng = SampleStream::new(&[17, 0xA3B]);
+    let (mut s1, mut s2) = (0.0, 0.0);
+    for i in 0..n {
+        let u = DVec2::new(rng.at(2 * i), rng.at(2 * i + 1));
+        if let Some((wi, weight)) = draw(&frame, wo, u) {
+            let v = sum(m.response(&frame, wi, wo)) * weight;
+            s1 += v;
+            s2 += v * v;
+        }
+    }
+    let mean = s1 / n as f64;
+    (mean, s2 / n as f64 - mean * mean)
+}
+
+/// A glossy lobe's ambient estimate draws half its directions from the lobe: against
+/// cosine directions alone (what glossy BRDFs and MERL tables drew before), the same
+/// mean with a fraction of the variance; a Lambertian keeps its cosine directions, bit
+/// for bit.
+#[test]
+fn glossy_lobes_draw_ambient_directions_from_the_lobe_too() {
+    let sharp = AnalyticBrdf::with_defaults(BrdfModel::CookTorrance)
+        .with_param("m", 0.1)
+        .expect("valid");
+    let albedo = DVec3::new(0.7, 0.5, 0.3);
+    let cases = [
+        (
+            "cook-torrance m = 0.1",
+            Material::Brdf {
+                brdf: sharp.clone(),
+                albedo,
+            },
+        ),
+        (
+            "its merl table",
+            Material::Merl {
+                brdf: Arc::new(meso_materials::merl::tabulate(&sharp, albedo).expect("table")),
+                tint: DVec3::ONE,
+            },
+        ),
+    ];
+    let cosine = |s: &Shading, _: DVec3, u: DVec2| {
+        let local = warp::cosine_hemisphere(u);
+        (local.z > 0.0).then(|| (s.to_world(local), PI / local.z))
+    };
+    for (name, material) in cases {
+        let scene = scene_of(vec![material]);
+        let shaders = Shaders::new(&scene.materials);
+        let m = shaders.material(&scene, 0, false);
+        let n = 200_000;
+        let (mean, var) = ambient_moments(&m, n, |s, wo, u| m.ambient_sample(s, wo, u));
+        let (cos_mean, cos_var) = ambient_moments(&m, n, cosine);
+        eprintln!(
+            "{name}: mean {mean:.5} (cosine {cos_mean:.5}), variance {var:.4e} (cosine {cos_var:.4e}, ratio {:.3})",
+            var / cos_var
+        );
+        assert!((mean - cos_mean).abs() <= 0.03 * cos_mean, "{name}: means");
+        assert!(var <= 0.25 * cos_var, "{name}: variance");
+    }
+    let scene = scene_of(vec![Material::Brdf {
+        brdf: AnalyticBrdf::with_defaults(BrdfModel::Lambertian),
+        albedo,
+    }]);
+    let shaders = Shaders::new(&scene.materials);
+    let m = shaders.material(&scene, 0, false);
+    let frame = Shading {
+        p: DVec3::ZERO,
+        t: DVec3::X,
+        b: DVec3::Z.cross(DVec3::X),
+        n: DVec3::Z,
+        uv: UV,
+        material: 0,
+    };
+    for u in [DVec2::new(0.1, 0.2), DVec2::new(0.7, 0.9)] {
+        let got = m.ambient_sample(&frame, VIEW.normalize(), u);
+        assert_eq!(
+            got,
+            cosine(&frame, VIEW, u),
+            "a Lambertian's cosine direction"
+        );
+    }
+}
+
 #[test]
 fn a_mirror_is_a_delta_lobe_the_caller_follows() {
     let reflectance = DVec3::new(0.9, 0.8, 0.7);

@@ -516,14 +516,8 @@ fn pass_analyse(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workg
 
 var<workgroup> wg_dark: array<f32, 64>;
 
-// Per workgroup of pixels, the sum of |mean| (the dark floor of the radiance guard).
-@compute @workgroup_size(64)
-fn pass_partials(@builtin(global_invocation_id) id: vec3<u32>, @builtin(local_invocation_index) li: u32, @builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
-    let pixel = pixel_of_invocation(id, groups);
-    var v = 0.0;
-    if pixel < n_pixels() {
-        v = abs(frame[results_at(pixel) + 2u]);
-    }
+// The sum of the workgroup's `v`s (every invocation calls it: it holds barriers).
+fn workgroup_sum(li: u32, v: f32) -> f32 {
     wg_dark[li] = v;
     workgroupBarrier();
     for (var stride = 32u; stride > 0u; stride /= 2u) {
@@ -532,10 +526,22 @@ fn pass_partials(@builtin(global_invocation_id) id: vec3<u32>, @builtin(local_in
         }
         workgroupBarrier();
     }
+    return wg_dark[0];
+}
+
+// Per workgroup of pixels, the sum of |mean| (the dark floor of the radiance guard).
+@compute @workgroup_size(64)
+fn pass_partials(@builtin(global_invocation_id) id: vec3<u32>, @builtin(local_invocation_index) li: u32, @builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    let pixel = pixel_of_invocation(id, groups);
+    var v = 0.0;
+    if pixel < n_pixels() {
+        v = abs(frame[results_at(pixel) + 2u]);
+    }
+    let total = workgroup_sum(li, v);
     // A 2D dispatch's last row may hold workgroups past the pixels: no partial.
     let group = wg.x + wg.y * groups.x;
     if li == 0u && group < (n_pixels() + 63u) / 64u {
-        frame[partials_at() + group] = wg_dark[0];
+        frame[partials_at() + group] = total;
     }
 }
 
@@ -547,16 +553,9 @@ fn pass_total(@builtin(local_invocation_index) li: u32) {
     for (var i = li; i < count; i += 64u) {
         v += frame[partials_at() + i];
     }
-    wg_dark[li] = v;
-    workgroupBarrier();
-    for (var stride = 32u; stride > 0u; stride /= 2u) {
-        if li < stride {
-            wg_dark[li] += wg_dark[li + stride];
-        }
-        workgroupBarrier();
-    }
+    let total = workgroup_sum(li, v);
     if li == 0u {
-        frame[partials_at() + count] = wg_dark[0];
+        frame[partials_at() + count] = total;
     }
 }
 

@@ -67,6 +67,18 @@ fn every_kind() -> Vec<(&'static str, Material)> {
 const VIEW: DVec3 = DVec3::new(0.42, -0.18, 0.889);
 const UV: DVec2 = DVec2::new(0.37, 0.61);
 
+/// A surface frame with the normal along +z at `UV`, material 0.
+fn flat_frame() -> Shading {
+    Shading {
+        p: DVec3::ZERO,
+        t: DVec3::X,
+        b: DVec3::Z.cross(DVec3::X),
+        n: DVec3::Z,
+        uv: UV,
+        material: 0,
+    }
+}
+
 /// The luminance-like sum of a response, for comparing integrals.
 fn sum(v: DVec3) -> f64 {
     v.x + v.y + v.z
@@ -133,14 +145,7 @@ fn ambient_directions_weigh_the_response_by_their_inverse_pdf() {
     // E[weight x response] over the ambient samples is the response's integral over
     // the hemisphere, whichever strategy the material uses.
     let n = 200_000u64;
-    let frame = Shading {
-        p: DVec3::ZERO,
-        t: DVec3::X,
-        b: DVec3::Z.cross(DVec3::X),
-        n: DVec3::Z,
-        uv: UV,
-        material: 0,
-    };
+    let frame = flat_frame();
     for (name, material) in every_kind() {
         let scene = scene_of(vec![material]);
         let shaders = Shaders::new(&scene.materials);
@@ -177,14 +182,7 @@ fn ambient_moments(
     n: u64,
     draw: impl Fn(&Shading, DVec3, DVec2) -> Option<(DVec3, f64)>,
 ) -> (f64, f64) {
-    let frame = Shading {
-        p: DVec3::ZERO,
-        t: DVec3::X,
-        b: DVec3::Z.cross(DVec3::X),
-        n: DVec3::Z,
-        uv: UV,
-        material: 0,
-    };
+    let frame = flat_frame();
     let wo = VIEW.normalize();
     let rng = SampleStream::new(&[17, 0xA3B]);
     let (mut s1, mut s2) = (0.0, 0.0);
@@ -250,14 +248,7 @@ fn glossy_lobes_draw_ambient_directions_from_the_lobe_too() {
     }]);
     let shaders = Shaders::new(&scene.materials);
     let m = shaders.material(&scene, 0, false);
-    let frame = Shading {
-        p: DVec3::ZERO,
-        t: DVec3::X,
-        b: DVec3::Z.cross(DVec3::X),
-        n: DVec3::Z,
-        uv: UV,
-        material: 0,
-    };
+    let frame = flat_frame();
     for u in [DVec2::new(0.1, 0.2), DVec2::new(0.7, 0.9)] {
         let got = m.ambient_sample(&frame, VIEW.normalize(), u);
         assert_eq!(

@@ -212,7 +212,7 @@ fn glossy_lobes_draw_ambient_directions_from_the_lobe_too() {
         (
             "cook-torrance m = 0.1",
             Material::Brdf {
-                brdf: sharp.clone(),
+                brdf: sharp,
                 albedo,
             },
         ),

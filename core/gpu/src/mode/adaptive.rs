@@ -99,7 +99,8 @@ impl GpuSpmmMode {
 
     /// Analyses up to `pixels` more pixels of the pass under way and waits for the
     /// device; once every pixel is done, the pass is the frames' (its pyramids built,
-    /// every sample restarted) and this returns true. False with no pass under way.
+    /// every sample restarted) and this returns true. False with no pass under way. A
+    /// device lost meanwhile is the mode's failure (`RenderMode::failure`).
     pub fn continue_adaptive_pass(&mut self, pixels: u32) -> Result<bool, GpuError> {
         let ctx = self.ctx.clone();
         let aux = &self.core.film.aux;
@@ -115,7 +116,11 @@ impl GpuSpmmMode {
             a.take_inputs(aux);
             self.restart_all();
         }
-        kernel::wait(&ctx)?;
+        // A device lost during the pass is this mode's failure, as in a frame.
+        if let Err(e) = kernel::wait(&ctx) {
+            self.failure = Some(e.clone());
+            return Err(e);
+        }
         Ok(done)
     }
 

@@ -439,6 +439,40 @@ fn view_edits_run_a_new_pass_and_emission_edits_keep_the_samples() {
     assert!(own.iter().sum::<u32>() > 0, "the new size renders");
 }
 
+/// A device lost during the bandwidth pass (destroyed on purpose, as a driver reset
+/// would) is the mode's failure, reported as in a frame: no panic, no samples, and no
+/// pass asked for ever.
+#[test]
+fn a_device_lost_during_the_pass_is_the_modes_failure() {
+    // A device of its own: the other tests share `context()`.
+    let ctx = meso_gpu::GpuContext::new().expect("an adapter");
+    let size = 16;
+    let scene = scene("merl_bunny.toml", size);
+    let mut g = GpuAdaptiveMode::prepare(
+        ctx.clone(),
+        scene.clone(),
+        (size, size),
+        AdaptiveOptions::default(),
+        Prepare::quietly(),
+    )
+    .expect("prepares");
+    run_frames(&mut g, 1, |_, _| {});
+    assert!(g.failure().is_none());
+    let mut camera = scene.camera;
+    camera.position.x += 0.1;
+    g.apply(SceneEdit::Camera(camera)).expect("a camera edit");
+    ctx.device.destroy();
+    let stats = g
+        .render(meso_render::Pass::Frame, None)
+        .expect("a frame's stats");
+    assert_eq!(stats.counters.samples, 0);
+    assert!(
+        matches!(g.failure(), Some(meso_render::ModeError::DeviceFailed(_))),
+        "{:?}",
+        g.failure()
+    );
+}
+
 /// Before the first frame after a restart, a preview (the CPU mode's, one sample at
 /// each previewed pixel) stands for the image, on the host; the first frame replaces
 /// it with the device's.

@@ -172,7 +172,10 @@ impl GpuAdaptiveMode {
             }
             match self.device.continue_adaptive_pass(pixels) {
                 Ok(true) => break true,
-                Ok(false) => stepped = true,
+                Ok(false) if self.device.adaptive_pass_pending() => stepped = true,
+                // Never left by a step; refused rather than asked again for ever.
+                Ok(false) => return Err(EditError::Size("no bandwidth pass under way".into())),
+                // The device half records its failure (`RenderMode::failure`).
                 Err(e) => return Err(EditError::Size(e.to_string())),
             }
         };
@@ -233,8 +236,9 @@ impl RenderMode for GpuAdaptiveMode {
                     ..FrameStats::default()
                 });
             }
-            // Only a pass of the wrong size is refused, which `ensure_pass` never
-            // makes: nothing is rendered rather than a wrong frame.
+            // Tables that do not fit the scene (never made here) or a lost device,
+            // which the device half reports as its failure: nothing is rendered
+            // rather than a wrong frame.
             Err(_) => return Some(FrameStats::default()),
         }
         // A frame is one plan and its samples' dispatches: it does not stop.

@@ -46,8 +46,6 @@ const RESULT_FLOATS: u32 = 4u;
 const PASS_INPUT_WORDS: u32 = 6u;
 // The most light directions per emitter (`PassTables::MAX_N_B`).
 const MAX_N_B: u32 = 64u;
-const PASS_LUMINANCE: vec3<f32> = vec3<f32>(0.2126, 0.7152, 0.0722);
-const PASS_INFINITY: u32 = 0x7f800000u;
 
 // Where the tables start in the pass's buffer: after the partials and their total.
 fn tables_at() -> u32 {
@@ -109,7 +107,7 @@ fn pass_gbuffer(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workg
     let at = pixel * G_FLOATS;
     frame[at] = bitcast<f32>(hit.prim);
     if hit.prim == NO_HIT {
-        frame[at + 1u] = bitcast<f32>(PASS_INFINITY);
+        frame[at + 1u] = bitcast<f32>(F32_INFINITY_BITS);
         return;
     }
     let s = shading_at(hit.prim, origin, dir, hit.t);
@@ -125,29 +123,15 @@ fn pass_gbuffer(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workg
 // `GBuffer::build`'s curvature: the normal's largest change per metre towards a
 // 4-neighbour on the same mesh at a close depth.
 fn curvature(pixel: u32) -> f32 {
-    let x = pixel % params.width;
-    let y = pixel / params.width;
     let me = g_prim(pixel);
     let depth = g_depth(pixel);
     let n = g_vec(pixel, 2u);
     let p = g_vec(pixel, 5u);
     var c = 0.0;
     for (var i = 0u; i < 4u; i++) {
-        var nx = x;
-        var ny = y;
-        switch i {
-            case 0u: { nx = x + 1u; }
-            case 1u: { ny = y + 1u; }
-            case 2u: { nx = x - 1u; }
-            default: { ny = y - 1u; }
-        }
-        // Below zero wraps past the width and height, as the CPU's wrapping_sub.
-        if nx >= params.width || ny >= params.height {
-            continue;
-        }
-        let o = ny * params.width + nx;
+        let o = neighbour(pixel, i);
         let prim = g_prim(o);
-        if prim == NO_HIT || g_mesh(prim) != g_mesh(me) || abs(g_depth(o) - depth) > tf(H_DEPTH_SIGMA) * depth {
+        if o == pixel || prim == NO_HIT || g_mesh(prim) != g_mesh(me) || abs(g_depth(o) - depth) > tf(H_DEPTH_SIGMA) * depth {
             continue;
         }
         let dp = length(g_vec(o, 5u) - p);
@@ -236,7 +220,7 @@ fn to_local(s: Shading, w: vec3<f32>) -> vec3<f32> {
 }
 
 fn lum(v: vec3<f32>) -> f32 {
-    return dot(v, PASS_LUMINANCE);
+    return dot(v, LUMINANCE);
 }
 
 // The centre of stratum `k` of the n_b strata, shifted (`pass.rs` `Strata`).
@@ -621,7 +605,7 @@ fn pass_finish(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgr
         level = pass_level(result(pixel, 0u));
     }
     let sigma = sqrt(max(result(pixel, 3u), 0.0) + dot(step, step) / 12.0);
-    var depth = bitcast<f32>(PASS_INFINITY);
+    var depth = bitcast<f32>(F32_INFINITY_BITS);
     var normal_dir = vec2<f32>(0.0);
     var cos_x = 1.0;
     if g_prim(pixel) != NO_HIT {

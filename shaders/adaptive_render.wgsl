@@ -15,7 +15,6 @@ const AUX_PLANNED: u32 = 12u;
 // hold their workgroup up; `core/gpu/src/mode/adaptive.rs` mirrors it.
 const ADAPTIVE_CHUNK: u32 = 8u;
 const COUNT_DROPPED: u32 = 8u;
-const LUMINANCE: vec3<f32> = vec3<f32>(0.2126, 0.7152, 0.0722);
 
 fn finite3(v: vec3<f32>) -> bool {
     let m = vec3<u32>(0x7f800000u);

@@ -9,8 +9,6 @@
 // scene gets a zero normal and albedo and an infinite distance.
 
 const GUIDE_FLOATS: u32 = 8u;
-// f32 infinity as bits (WGSL has no infinity literal).
-const GUIDE_INFINITY: u32 = 0x7f800000u;
 // Words of a MERL record before its albedo at normal view (core/gpu/src/data.rs).
 const MERL_ALBEDO_WORD: u32 = 4u;
 
@@ -37,7 +35,7 @@ fn guides(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups)
     let hit = traverse(make_ray(origin, dir, 0.0, FAR), false);
     let at = pixel * GUIDE_FLOATS;
     var normal = vec3<f32>(0.0);
-    var depth = bitcast<f32>(GUIDE_INFINITY);
+    var depth = bitcast<f32>(F32_INFINITY_BITS);
     var albedo = vec3<f32>(0.0);
     if hit.prim != NO_HIT {
         let s = shading_at(hit.prim, origin, dir, hit.t);

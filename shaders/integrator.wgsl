@@ -79,6 +79,10 @@ const COUNT_AMBIENT: u32 = 4u;
 const COUNT_SPECULAR: u32 = 5u;
 const COUNT_SHADING: u32 = 6u;
 const EPSILON_REL: f32 = 1e-5;
+// Rec. 709 luminance (the adaptive mode's moments and bandwidth pass).
+const LUMINANCE: vec3<f32> = vec3<f32>(0.2126, 0.7152, 0.0722);
+// f32 infinity as bits (WGSL has no infinity literal): a ray's depth where it missed.
+const F32_INFINITY_BITS: u32 = 0x7f800000u;
 
 struct Counts {
     shadow: u32,

@@ -72,7 +72,7 @@ impl PassTables<'_> {
 
     /// The tables as the shader reads them, for a scene of `materials` materials and
     /// `lights` lights; an error names what does not fit.
-    fn words(&self, materials: usize, lights: usize) -> Result<Vec<u32>, String> {
+    pub(super) fn words(&self, materials: usize, lights: usize) -> Result<Vec<u32>, String> {
         let n_b = self.n_b;
         if !(1..=Self::MAX_N_B).contains(&n_b) {
             return Err(format!(
@@ -200,26 +200,27 @@ pub(super) struct DevicePass {
 }
 
 impl DevicePass {
-    /// Uploads `tables` and records the G-buffer; `scene` are the integrator's
-    /// buffers but `frame` and `aux` (the pass's buffer and `inputs`, the frames').
+    /// Where the tables start in the pass's buffer for `pixels` pixels, in words (the
+    /// shader's `tables_at`: after the scratch, the partials and their total).
+    pub fn tables_at(pixels: u32) -> u64 {
+        u64::from(pixels) * SCRATCH_FLOATS + u64::from(pixels.div_ceil(kernel::WORKGROUP)) + 1
+    }
+
+    /// Uploads `words` (the tables, `PassTables::words`) and records the G-buffer;
+    /// `scene` are the integrator's buffers but `frame` and `aux` (the pass's buffer
+    /// and `inputs`, the frames'). The caller has checked the buffer's size.
     pub fn begin(
         ctx: &GpuContext,
         kernels: &PassKernels,
-        tables: &PassTables,
-        (materials, lights): (usize, usize),
+        words: &[u32],
         scene: [&wgpu::Buffer; 7],
         inputs: &wgpu::Buffer,
         pixels: u32,
-    ) -> Result<Self, String> {
-        let words = tables.words(materials, lights)?;
-        // The shader's `tables_at`: after the scratch, the partials and their total.
-        let tables_at = (u64::from(pixels) * SCRATCH_FLOATS
-            + u64::from(pixels.div_ceil(kernel::WORKGROUP))
-            + 1)
-            * 4;
+    ) -> Self {
+        let tables_at = Self::tables_at(pixels) * 4;
         let buffer = kernel::zeroed(ctx, "adaptive pass", tables_at + words.len() as u64 * 4);
         ctx.queue
-            .write_buffer(&buffer, tables_at, bytemuck::cast_slice(&words));
+            .write_buffer(&buffer, tables_at, bytemuck::cast_slice(words));
         let [params, nodes, tris, shade, data, counters, env] = scene;
         let buffers = [
             params, nodes, tris, shade, data, &buffer, inputs, counters, env,
@@ -235,13 +236,13 @@ impl DevicePass {
         let mut enc = kernel::encoder(ctx);
         kernels.gbuffer.record(&mut enc, &bind[0], pixels);
         ctx.queue.submit([enc.finish()]);
-        Ok(Self {
+        Self {
             buffer,
             first_at: tables_at + H_FIRST * 4,
             bind,
             pixels,
             next: 0,
-        })
+        }
     }
 
     /// Analyses up to `count` more pixels; true once every pixel is analysed, the

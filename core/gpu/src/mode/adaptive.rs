@@ -56,10 +56,15 @@ impl GpuSpmmMode {
     /// pass under way is dropped.
     pub fn begin_adaptive_pass(&mut self, tables: &PassTables) -> Result<(), EditError> {
         let (w, h) = (self.core.film.width(), self.core.film.height());
-        let counts = (
-            self.core.scene.materials.len(),
-            self.core.scene.lights.len(),
-        );
+        let scene = &self.core.scene;
+        let words = tables
+            .words(scene.materials.len(), scene.lights.len())
+            .map_err(EditError::Size)?;
+        // The pass's one buffer: its scratch (48 bytes a pixel), then the tables.
+        let total = DevicePass::tables_at(w * h) as usize + words.len();
+        if let Some(p) = words_size_problem(&self.ctx, "the adaptive bandwidth pass", total) {
+            return Err(EditError::Size(p));
+        }
         // The integrator's parameters of the view (the pass reads its camera,
         // lights, layers' weights).
         self.ctx.queue.write_buffer(
@@ -86,9 +91,14 @@ impl GpuSpmmMode {
             &self.res.counters,
             &self.res.env,
         ];
-        let pass = DevicePass::begin(&self.ctx, kernels, tables, counts, scene, &a.inputs, w * h)
-            .map_err(EditError::Size)?;
-        a.pass = Some(pass);
+        a.pass = Some(DevicePass::begin(
+            &self.ctx,
+            kernels,
+            &words,
+            scene,
+            &a.inputs,
+            w * h,
+        ));
         Ok(())
     }
 

@@ -137,8 +137,7 @@ fn material_pdf(s: Shading, wi: vec3<f32>, wo: vec3<f32>) -> f32 {
         return merl_pdf(data[at + 1u], lo, li);
     }
     if kind == MATERIAL_BTF {
-        // A table is drawn from by the defensive mixture alone, as on the CPU.
-        return defensive_pdf(li);
+        return btf_pdf(data[at + 1u], li, lo);
     }
     return 0.0;
 }
@@ -160,10 +159,8 @@ fn material_sample(s: Shading, wo: vec3<f32>, u: vec2<f32>) -> vec4<f32> {
         let lo = vec3<f32>(dot(wo, s.t), dot(wo, s.b), dot(wo, s.n));
         local = spmm_sample_texel(m, spmm_texel_at(m, s.uv), lo, u);
     } else if kind == MATERIAL_BTF {
-        let d = defensive_sample(u);
-        if d.z > 0.0 {
-            local = vec4<f32>(d, defensive_pdf(d));
-        }
+        let lo = vec3<f32>(dot(wo, s.t), dot(wo, s.b), dot(wo, s.n));
+        local = btf_sample(data[at + 1u], lo, u);
     }
     return vec4<f32>(s.t * local.x + s.b * local.y + s.n * local.z, local.w);
 }

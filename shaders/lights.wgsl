@@ -254,7 +254,7 @@ fn glossy_material(at: u32) -> bool {
 
 // The ambient term's direction for `u` (world) and its weight, f cos / pdf's 1 / pdf
 // (w <= 0: none), as the CPU's `ambient_sample`: a pack draws from its texel's bases
-// (and a defensive share), a table from the defensive mixture; a glossy BRDF or MERL
+// (and a defensive share), a table from its lobe (and a defensive share); a glossy BRDF or MERL
 // table one sample of the even mixture of its lobe and cosine directions (the first
 // number picks the strategy and, rescaled, drives it); other materials a cosine
 // direction.

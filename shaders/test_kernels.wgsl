@@ -5,7 +5,8 @@
 // eval_cases: per case 8 words: kind (0 BRDF, 1 basis, 2 SPMM texel, 3 BRDF sampling
 // pdf, 4 BRDF sample with the uniform numbers in wi.xy, 5 MERL value, 6 MERL sampling
 // pdf, 7 MERL sample, 8 SPMM texel sampling pdf, 9 SPMM texel sample with the uniform
-// numbers in wi.xy, 10 BTF texel, 11 SPMM texel with MOVING_NPCA components), record offset,
+// numbers in wi.xy, 10 BTF texel, 11 SPMM texel with MOVING_NPCA components, 12 BTF
+// sampling pdf, 13 BTF sample with the uniform numbers in wi.xy), record offset,
 // wi, wo (f32 bits); SPMM cases: texel in word 8, residual flag in word 9 (10 words).
 // trace_rays: per ray 8 words: origin, direction (f32 bits), tmin, tmax.
 @group(0) @binding(1) var<storage, read> cases: array<u32>;
@@ -55,6 +56,10 @@ fn eval_cases(@builtin(global_invocation_id) id: vec3<u32>) {
         v = spmm_sample_texel(record, cases[at + 8u], wo, wi.xy).xyz;
     } else if kind == 10u {
         v = btf_eval_texel(record, cases[at + 8u], wi, wo);
+    } else if kind == 12u {
+        v = vec3<f32>(btf_pdf(record, wi, wo));
+    } else if kind == 13u {
+        v = btf_sample(record, wo, wi.xy).xyz;
     } else if kind == 11u {
         v = spmm_eval_texel(record, cases[at + 8u], wi, wo, true, MOVING_NPCA);
     } else {

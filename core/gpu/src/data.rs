@@ -214,9 +214,10 @@ impl Words {
     }
 
     /// A `btf` material as `shaders/btf.wgsl` reads it: a header `[width, height,
-    /// lights, views, values_at, f16, light_table, view_table, uv_scale x, y]` (the
+    /// lights, views, values_at, f16, light_table, view_table, uv_scale x, y, lobe]` (the
     /// direction tables as the residual's), the values `[texel][light][view][rgb]`
-    /// as they are held: f16 two to a word (low half first) or f32. Returns the
+    /// as they are held: f16 two to a word (low half first) or f32, and the lobe
+    /// sampler's CDFs (`BtfTable::lobe`, f32 as the CPU holds them). Returns the
     /// header's offset, or `None` for a table read from disk block by block (it has
     /// no values in memory to upload; `GpuSpmmMode::supports` refuses those by name).
     pub fn push_btf(&mut self, table: &BtfTable, uv_scale: glam::DVec2) -> Option<u32> {
@@ -228,6 +229,7 @@ impl Words {
         };
         let lights_at = self.push_direction_table(p.lights);
         let views_at = self.push_direction_table(p.views);
+        let lobe_at = self.push_f32s(table.lobe().cdfs().iter().copied());
         let at = self.push_u32s([
             p.width,
             p.height,
@@ -239,6 +241,7 @@ impl Words {
             views_at,
             f(uv_scale.x),
             f(uv_scale.y),
+            lobe_at,
         ]);
         self.bytes.btf_tables += 4 * (self.words.len() - start) as u64;
         Some(at)

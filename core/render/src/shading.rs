@@ -8,7 +8,8 @@
 //!   up), the table's sampling;
 //! - SPMM packs: the BTF, with the residual cut to `MOVING_NPCA` components while the
 //!   camera moves, sampled from the texel's bases (`PackSampling`);
-//! - `btf` materials: the interpolated table, the defensive mixture;
+//! - `btf` materials: the interpolated table, sampled from its texel-mean lobe and a
+//!   defensive share (`BtfTable::sample`);
 //! - mirrors: a delta lobe (`ShadedMaterial::specular`): the caller follows the
 //!   reflected ray, since no finite response or pdf describes it.
 
@@ -229,12 +230,13 @@ impl ShadedMaterial<'_> {
         match (self.material, self.shader) {
             (Material::Brdf { brdf, .. }, _) => brdf.pdf(lo, li),
             (Material::Merl { brdf, .. }, _) => brdf.pdf(lo, li),
+            (Material::Btf { table, .. }, _) => table.pdf(li, lo),
             (_, shader @ Shader::Spmm { still, .. }) if self.sampling == PackSampling::Bases => {
                 shader
                     .prepared()
                     .map_or(0.0, |p| p.pdf_uv(uv, still.uv_scale, li, lo))
             }
-            (_, Shader::Spmm { .. } | Shader::Table) => defensive_pdf(li),
+            (_, Shader::Spmm { .. }) => defensive_pdf(li),
             _ => 0.0,
         }
     }
@@ -246,12 +248,11 @@ impl ShadedMaterial<'_> {
         match (self.material, self.shader) {
             (Material::Brdf { brdf, .. }, _) => brdf.sample(lo, u).map(|b| (b.wi, b.pdf)),
             (Material::Merl { brdf, .. }, _) => brdf.sample(lo, u).map(|b| (b.wi, b.pdf)),
+            (Material::Btf { table, .. }, _) => table.sample(lo, u),
             (_, shader @ Shader::Spmm { still, .. }) if self.sampling == PackSampling::Bases => {
                 shader.prepared()?.sample_uv(uv, still.uv_scale, lo, u)
             }
-            (_, shader @ (Shader::Spmm { .. } | Shader::Table)) => {
-                Some(shader.hemisphere_sample(u))
-            }
+            (_, shader @ Shader::Spmm { .. }) => Some(shader.hemisphere_sample(u)),
             _ => None,
         }
     }

@@ -89,6 +89,111 @@ fn btf_tables_match_the_cpu() {
     eprintln!("btf tables: worst {worst:.3} of the tolerance");
 }
 
+/// The lobe sampler of a `btf` table in WGSL against `BtfTable::pdf` and
+/// `BtfTable::sample` (a tabulated Cook-Torrance, m 0.3, on the Bonn 81 directions):
+/// pdfs within 1e-4 relative away from the lobe grid's cell edges, drawn directions
+/// within 1e-3 on all but 2% (f32 rescales the first number three times, so a draw
+/// next to a CDF step can land in the neighbouring cell).
+#[test]
+fn btf_lobe_sampling_matches_the_cpu() {
+    use glam::DVec2;
+    use meso_materials::btf::lobe::{RINGS, SECTORS};
+    use meso_materials::btf::table::BtfTable;
+    use meso_materials::rng::SampleStream;
+    let dirs = meso_materials::btf::directions::bonn81();
+    let brdf =
+        AnalyticBrdf::new(BrdfModel::CookTorrance, &[("m", 0.3), ("f0", 0.04)]).expect("valid");
+    let btf = meso_materials::btf::Btf::from_brdf(
+        &brdf,
+        DVec3::new(0.8, 0.5, 0.3),
+        1,
+        1,
+        dirs.clone(),
+        dirs,
+    )
+    .expect("valid BTF");
+    let table = BtfTable::new(&btf).expect("shadeable");
+    let mut words = Words::default();
+    let record = words
+        .push_btf(&table, glam::DVec2::ONE)
+        .expect("a table held in memory");
+    let pairs = direction_pairs(23, 600);
+    let mut stream = SampleStream::new(&[31]);
+    let us: Vec<DVec2> = pairs
+        .iter()
+        .map(|_| {
+            DVec2::new(stream.next(), stream.next())
+                .as_vec2()
+                .as_dvec2()
+        })
+        .collect();
+    let mut cases = Vec::new();
+    for (&(wi, wo), &u) in pairs.iter().zip(&us) {
+        let case = Case {
+            kind: 12,
+            record,
+            wi,
+            wo,
+            texel: 0,
+            residual: false,
+        };
+        cases.push(case);
+        cases.push(Case {
+            kind: 13,
+            wi: DVec3::new(u.x, u.y, 0.0),
+            ..case
+        });
+    }
+    let got = evaluate(&words.words, &cases);
+    // Distance of `wi` to the nearest edge of the lobe grid's cells, in grid units.
+    let edge_distance = |wi: DVec3| {
+        let ring = (1.0 - wi.z).max(0.0).sqrt() * RINGS as f64;
+        let sector = wi.y.atan2(wi.x).rem_euclid(std::f64::consts::TAU) / std::f64::consts::TAU
+            * SECTORS as f64;
+        let off = |x: f64| (x - x.round()).abs();
+        // The horizon is no edge: both clamp into the outermost ring.
+        let ring_off = if ring > RINGS as f64 - 0.5 {
+            1.0
+        } else {
+            off(ring)
+        };
+        ring_off.min(off(sector))
+    };
+    let (mut compared, mut drawn, mut dir_off) = (0, 0, 0);
+    for (k, (&(wi, wo), &u)) in pairs.iter().zip(&us).enumerate() {
+        let gp = got[2 * k][0] as f64;
+        let cp = table.pdf(wi, wo);
+        assert!(gp.is_finite() && gp >= 0.0, "pdf at {wi} {wo}: {gp}");
+        if edge_distance(wi) > 1e-4 {
+            compared += 1;
+            assert!(
+                (gp - cp).abs() <= 1e-4 * cp,
+                "pdf at wi {wi} wo {wo}: gpu {gp}, f64 {cp}"
+            );
+        }
+        let g = got[2 * k + 1];
+        let g = DVec3::new(g[0] as f64, g[1] as f64, g[2] as f64);
+        match table.sample(wo, u) {
+            Some((c, _)) => {
+                drawn += 1;
+                if (g - c).abs().max_element() > 1e-3 {
+                    dir_off += 1;
+                }
+            }
+            None => assert!(g.z <= 1e-6, "only the GPU draws at wo {wo}: {g}"),
+        }
+    }
+    eprintln!(
+        "btf lobe: {compared} of {} pdfs compared, direction off on {dir_off} of {drawn}",
+        pairs.len()
+    );
+    assert!(compared * 10 >= pairs.len() * 9, "{compared} compared");
+    assert!(
+        drawn * 2 > pairs.len() && dir_off * 50 <= drawn,
+        "off on {dir_off}"
+    );
+}
+
 /// A scene with a `btf` material (the residual panel's pack replaced by a tabulated
 /// anisotropic Ward table, tiled 2 x 2) on the GPU against the CPU: the image rule.
 #[test]

@@ -4,7 +4,8 @@
 //! docs/brdf.md). `synth.rs` makes BTFs by ray tracing a height-field mesostructure
 //! (Sloan et al. 2003, section 4.2), `import.rs` reads measured image sets, `file.rs`
 //! is the `.btf` container (docs/formats/btf.md), `table.rs` the BTF as the spmm mode
-//! shades it (the scene's `btf` material). `ubo2003.rs` and `ubo2014.rs` read the
+//! shades it (the scene's `btf` material), `lobe.rs` how light directions are drawn
+//! for it. `ubo2003.rs` and `ubo2014.rs` read the
 //! University of Bonn's database formats (zips of JPEGs, factorised binaries) and
 //! `crop.rs` keeps an import within memory. `texels.rs` is where a fit reads texels
 //! from, `on_disk.rs` a `.btf` read block by block (BTFs larger than memory) and
@@ -16,6 +17,7 @@ pub mod crop;
 pub mod directions;
 pub mod file;
 pub mod import;
+pub mod lobe;
 pub mod on_disk;
 pub mod synth;
 pub mod table;

@@ -25,10 +25,11 @@ use half::f16;
 use super::Btf;
 use super::cache::{BLOCK_BYTES, Block, BlockCache, BlockSource, CacheShape};
 use super::file::BtfFileError;
+use super::lobe::{LobeSampler, PairSums};
 use super::on_disk::OnDiskBtf;
 use super::texels::TexelSource;
-use crate::spmm::TexelGrid;
 use crate::spmm::directions::{DirectionTable, DirectionTableError};
+use crate::spmm::{DEFENSIVE_SHARE, TexelGrid, defensive_pdf, defensive_sample};
 
 /// Precision the values are held in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -163,6 +164,8 @@ pub struct BtfTable {
     light_dirs: Vec<DVec3>,
     view_dirs: Vec<DVec3>,
     values: Values,
+    /// Draws light directions from the texel-mean lobe (`lobe.rs`).
+    lobe: LobeSampler,
 }
 
 impl BtfTable {
@@ -175,6 +178,9 @@ impl BtfTable {
         let lights = table("light_dirs", btf.light_dirs())?;
         let views = table("view_dirs", btf.view_dirs())?;
         let lossless = btf.data().iter().all(|&x| f16::from_f32(x).to_f32() == x);
+        let mut sums = PairSums::new(btf.light_dirs().len() * btf.view_dirs().len());
+        sums.add(btf.data());
+        let lobe = LobeSampler::new(&lights, btf.view_dirs().len(), &sums);
         let values = if lossless {
             Values::F16(btf.data().iter().map(|&x| f16::from_f32(x)).collect())
         } else {
@@ -192,6 +198,7 @@ impl BtfTable {
             light_dirs: btf.light_dirs().to_vec(),
             view_dirs: btf.view_dirs().to_vec(),
             values,
+            lobe,
         })
     }
 
@@ -235,10 +242,13 @@ impl BtfTable {
         let count = source.texels() * per_texel;
         let chunk = (SCAN_BYTES / (per_texel * 4)).max(1);
         let f32_bytes = count as u64 * 4;
+        // The texel-mean lobe, summed in each branch's first read.
+        let mut sums = PairSums::new(source.pairs());
         let values = if source.values_are_f16() && count as u64 * 2 <= bound.max_bytes {
             // Values that are f16 already (an F16 file): held as f16, read once.
             let mut halves: Vec<f16> = Vec::with_capacity(count);
             Self::for_blocks(&*source, chunk, |block| {
+                sums.add(block);
                 halves.extend(block.iter().map(|&x| f16::from_f32(x)));
             })?;
             Values::F16(halves)
@@ -247,7 +257,10 @@ impl BtfTable {
             // is an f16 the f32 copy briefly sits beside the f16 one (1.5 times the
             // values, within 1.5 times the bound).
             let mut values = Vec::with_capacity(count);
-            Self::for_blocks(&*source, chunk, |block| values.extend_from_slice(block))?;
+            Self::for_blocks(&*source, chunk, |block| {
+                sums.add(block);
+                values.extend_from_slice(block);
+            })?;
             if values.iter().all(|&x| f16::from_f32(x).to_f32() == x) {
                 Values::F16(values.iter().map(|&x| f16::from_f32(x)).collect())
             } else {
@@ -258,6 +271,7 @@ impl BtfTable {
             // finite) and, unless they are known f16, finds whether all are.
             let mut lossless = true;
             Self::for_blocks(&*source, chunk, |block| {
+                sums.add(block);
                 if lossless && !source.values_are_f16() {
                     lossless = block.iter().all(|&x| f16::from_f32(x).to_f32() == x);
                 }
@@ -304,6 +318,7 @@ impl BtfTable {
                 )))
             }
         };
+        let lobe = LobeSampler::new(&lights, view_dirs.len(), &sums);
         Ok(Self {
             name,
             path: None,
@@ -313,6 +328,7 @@ impl BtfTable {
             light_dirs,
             view_dirs,
             values,
+            lobe,
         })
     }
 
@@ -438,6 +454,40 @@ impl BtfTable {
             }
         }
         rgb
+    }
+
+    /// A light direction drawn for view `wo` (tangent frame) from two uniform numbers,
+    /// and its solid-angle pdf (`pdf`): with `DEFENSIVE_SHARE` the defensive mixture,
+    /// else the texel-mean lobe of `wo` (`lobe.rs`); the first number picks and,
+    /// rescaled, drives the strategy. `None` for a view below the surface (the BTF is 0
+    /// there) or a direction on the horizon.
+    pub fn sample(&self, wo: DVec3, u: DVec2) -> Option<(DVec3, f64)> {
+        if !(wo.z > 0.0) {
+            return None;
+        }
+        let wi = if u.x < DEFENSIVE_SHARE {
+            defensive_sample(DVec2::new(u.x / DEFENSIVE_SHARE, u.y))
+        } else {
+            let x = (u.x - DEFENSIVE_SHARE) / (1.0 - DEFENSIVE_SHARE);
+            self.lobe
+                .sample(self.views.weights(wo), DVec2::new(x, u.y))?
+        };
+        let pdf = self.pdf(wi, wo);
+        (wi.z > 0.0 && pdf > 0.0).then_some((wi, pdf))
+    }
+
+    /// The pdf with which `sample` draws `wi` for `wo` (0 below the surface).
+    pub fn pdf(&self, wi: DVec3, wo: DVec3) -> f64 {
+        if !(wo.z > 0.0) {
+            return 0.0;
+        }
+        DEFENSIVE_SHARE * defensive_pdf(wi)
+            + (1.0 - DEFENSIVE_SHARE) * self.lobe.pdf(self.views.weights(wo), wi)
+    }
+
+    /// The lobe sampler (for a device that uploads it).
+    pub fn lobe(&self) -> &LobeSampler {
+        &self.lobe
     }
 
     /// BTF at a surface UV position: nearest texel after tiling by `uv_scale`

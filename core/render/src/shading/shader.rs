@@ -190,12 +190,14 @@ impl Shader {
     }
 
     /// A direction of the upper hemisphere (shading frame) for sampling light over it,
-    /// and its pdf, where the material has no view-dependent sampler. Analytic BRDFs use
-    /// cosine-distributed directions: their response carries cos_i. A BTF (a `btf`
-    /// material's) does not vanish with the shading cosine (a pack's bases each have
-    /// their own normal), and dividing it by a cosine pdf has infinite variance; it
-    /// gets the defensive half-cosine, half-uniform mixture, whose pdf is at least
-    /// 1 / 4 pi. Packs draw from their bases (`PreparedSpmm::sample_texel`).
+    /// and its pdf, without a view-dependent sampler. Analytic BRDFs use
+    /// cosine-distributed directions: their response carries cos_i. A pack's BTF does
+    /// not vanish with the shading cosine (its bases each have their own normal), and
+    /// dividing it by a cosine pdf has infinite variance; packs sampled with
+    /// `PackSampling::Defensive` get the defensive half-cosine, half-uniform mixture,
+    /// whose pdf is at least 1 / 4 pi (by default they draw from their bases,
+    /// `PreparedSpmm::sample_texel`, and `btf` tables from their lobe,
+    /// `BtfTable::sample`).
     pub(super) fn hemisphere_sample(&self, u: DVec2) -> (DVec3, f64) {
         match self {
             Shader::Spmm { .. } | Shader::Table => {

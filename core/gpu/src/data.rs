@@ -27,8 +27,18 @@ pub struct DataBytes {
     pub materials: u64,
     /// MERL tables (f32, scaled as `MerlBrdf::cell_value`) and their sampling tables.
     pub merl_tables: u64,
-    /// `btf` materials: their values and direction tables.
+    /// `btf` materials: their values, direction tables and lobe CDFs (once per table).
     pub btf_tables: u64,
+}
+
+/// Where a `btf` table's shared words sit (`Words::push_btf_table`).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct BtfWords {
+    values_at: u32,
+    half: u32,
+    lights_at: u32,
+    views_at: u32,
+    lobe_at: u32,
 }
 
 /// A growing word buffer.
@@ -213,38 +223,63 @@ impl Words {
         at
     }
 
-    /// A `btf` material as `shaders/btf.wgsl` reads it: a header `[width, height,
-    /// lights, views, values_at, f16, light_table, view_table, uv_scale x, y, lobe]` (the
-    /// direction tables as the residual's), the values `[texel][light][view][rgb]`
-    /// as they are held: f16 two to a word (low half first) or f32, and the lobe
-    /// sampler's CDFs (`BtfTable::lobe`, f32 as the CPU holds them). Returns the
+    /// A `btf` material as `shaders/btf.wgsl` reads it: the table's words
+    /// (`push_btf_table`) and the material's header (`push_btf_header`). Returns the
     /// header's offset, or `None` for a table read from disk block by block (it has
     /// no values in memory to upload; `GpuSpmmMode::supports` refuses those by name).
+    #[cfg(test)]
     pub fn push_btf(&mut self, table: &BtfTable, uv_scale: glam::DVec2) -> Option<u32> {
+        let words = self.push_btf_table(table)?;
+        Some(self.push_btf_header(table, words, uv_scale))
+    }
+
+    /// What every material showing `table` shares, pushed once: the values
+    /// `[texel][light][view][rgb]` as they are held (f16 two to a word, low half
+    /// first, or f32), the light and view direction tables (as the residual's) and
+    /// the lobe sampler's CDFs (`BtfTable::lobe`, f32 as the CPU holds them). `None`
+    /// for a table without its values in memory.
+    pub fn push_btf_table(&mut self, table: &BtfTable) -> Option<BtfWords> {
         let p = table.parts()?;
         let start = self.words.len();
         let (values_at, half) = match p.values {
             BtfValues::F16(v) => (self.push_halves(v.iter().copied()), 1),
             BtfValues::F32(v) => (self.push_f32s(v.iter().copied()), 0),
         };
-        let lights_at = self.push_direction_table(p.lights);
-        let views_at = self.push_direction_table(p.views);
-        let lobe_at = self.push_f32s(table.lobe().cdfs().iter().copied());
-        let at = self.push_u32s([
-            p.width,
-            p.height,
-            p.lights.len() as u32,
-            p.views.len() as u32,
+        let words = BtfWords {
             values_at,
             half,
-            lights_at,
-            views_at,
+            lights_at: self.push_direction_table(p.lights),
+            views_at: self.push_direction_table(p.views),
+            lobe_at: self.push_f32s(table.lobe().cdfs().iter().copied()),
+        };
+        self.bytes.btf_tables += 4 * (self.words.len() - start) as u64;
+        Some(words)
+    }
+
+    /// One material's header over a table's words: `[width, height, lights, views,
+    /// values_at, f16, light_table, view_table, uv_scale x, y, lobe]`. Returns its
+    /// offset.
+    pub fn push_btf_header(
+        &mut self,
+        table: &BtfTable,
+        words: BtfWords,
+        uv_scale: glam::DVec2,
+    ) -> u32 {
+        let header = [
+            table.width(),
+            table.height(),
+            table.light_dirs().len() as u32,
+            table.view_dirs().len() as u32,
+            words.values_at,
+            words.half,
+            words.lights_at,
+            words.views_at,
             f(uv_scale.x),
             f(uv_scale.y),
-            lobe_at,
-        ]);
-        self.bytes.btf_tables += 4 * (self.words.len() - start) as u64;
-        Some(at)
+            words.lobe_at,
+        ];
+        self.bytes.btf_tables += 4 * header.len() as u64;
+        self.push_u32s(header)
     }
 
     /// A MERL table as `shaders/merl.wgsl` reads it: a header of offsets (the table,

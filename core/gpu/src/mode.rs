@@ -21,7 +21,7 @@ use std::time::Instant;
 use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
 
-use super::data::{DataBytes, Words};
+use super::data::{BtfWords, DataBytes, Words};
 use super::display::DeviceImage;
 use super::environment;
 use super::film::{self, DeviceFilm, MAX_LAYERS};

@@ -61,7 +61,8 @@ impl ProgressiveFilm for DeviceFilm {
 
 pub(super) const ENVIRONMENT_WORDS: &str =
     "the [environment] map with its sampling tables and the [background] image";
-pub(super) const MATERIAL_WORDS_NAME: &str = "the materials (SPMM packs, MERL tables) and lights";
+pub(super) const MATERIAL_WORDS_NAME: &str =
+    "the materials (SPMM packs, MERL and `btf` tables) and lights";
 
 /// Why `words` words of `what` would not fit in one buffer of the device (`None` if
 /// they fit).

@@ -109,6 +109,7 @@ impl SceneData {
         let mut table = Vec::with_capacity(scene.materials.len() * MATERIAL_WORDS);
         let mut moving_changes = Vec::with_capacity(scene.materials.len());
         let mut merl: Vec<(*const meso_materials::merl::MerlBrdf, u32)> = Vec::new();
+        let mut btf: Vec<(*const meso_materials::btf::table::BtfTable, BtfWords)> = Vec::new();
         for (i, m) in scene.materials.iter().enumerate() {
             let mut rec = [0u32; MATERIAL_WORDS];
             let mut changes_when_moving = false;
@@ -171,7 +172,24 @@ impl SceneData {
                     // (`supports` refuses an out-of-core table before this); else
                     // nothing is uploaded: a record of no kind.
                     let reached = reach[i].as_ref().is_some_and(|r| r.contains(&true));
-                    match reached.then(|| words.push_btf(table, *uv_scale)).flatten() {
+                    // A table shared by several materials goes up once; each has its
+                    // own header (its tiling).
+                    let key = std::sync::Arc::as_ptr(table);
+                    let shared = match btf.iter().find(|(k, _)| *k == key) {
+                        Some(&(_, w)) => Some(w),
+                        None if reached => {
+                            let pushed = words.push_btf_table(table);
+                            if let Some(w) = pushed {
+                                btf.push((key, w));
+                            }
+                            pushed
+                        }
+                        None => None,
+                    };
+                    match shared
+                        .filter(|_| reached)
+                        .map(|w| words.push_btf_header(table, w, *uv_scale))
+                    {
                         Some(at) => {
                             rec[0] = 4;
                             rec[1] = at;

@@ -194,17 +194,38 @@ fn btf_lobe_sampling_matches_the_cpu() {
     );
 }
 
-/// A scene with a `btf` material (the residual panel's pack replaced by a tabulated
-/// anisotropic Ward table, tiled 2 x 2) on the GPU against the CPU: the image rule.
+/// A scene with `btf` materials (the residual panel's pack replaced by a tabulated
+/// anisotropic Ward table, tiled 2 x 2, and the floor by the same table tiled 5 x 5)
+/// on the GPU against the CPU: the image rule. The two materials share one table,
+/// which goes up once: the device's `btf_tables` bytes are one material's plus one
+/// header.
 #[test]
 fn a_btf_scene_on_the_gpu_agrees_with_the_cpu() {
+    use meso_render::scene::Material;
     let mut scene = meso_render::scene::test_scenes::edit_test_scene();
     scene.materials[1] = meso_render::scene::test_scenes::tabulated_btf(
         &AnalyticBrdf::new(BrdfModel::Ward, &[("ax", 0.25), ("ay", 0.5)]).expect("valid"),
         DVec3::new(0.7, 0.5, 0.3),
         glam::DVec2::splat(2.0),
     );
-    image_of_scene_agrees_with_the_cpu("btf panel", scene, 24, 16);
+    let Material::Btf { table, .. } = &scene.materials[1] else {
+        unreachable!("a btf material")
+    };
+    let mut one = Words::default();
+    one.push_btf(table, glam::DVec2::ONE)
+        .expect("held in memory");
+    scene.materials[0] = Material::Btf {
+        table: std::sync::Arc::clone(table),
+        uv_scale: glam::DVec2::splat(5.0),
+    };
+    let header = 11 * 4;
+    let bytes = gpu_mode(scene.clone(), 8).device_bytes().btf_tables;
+    assert_eq!(
+        bytes,
+        one.bytes.btf_tables + header,
+        "the table uploaded once"
+    );
+    image_of_scene_agrees_with_the_cpu("btf panel and floor", scene, 24, 16);
 }
 
 /// The mode refuses by name what it does not render yet, and an edit that brings it.

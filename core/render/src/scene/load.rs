@@ -2,6 +2,7 @@
 //! into the `Scene`'s values, one function per table, every error naming the file, the
 //! line and the key (`Ctx`).
 
+use std::cell::RefCell;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -15,7 +16,7 @@ use super::{
     RenderSettings, Scene, TriangleMesh, extent_problem, file, mesh,
 };
 use crate::{Device, ModeKind};
-use meso_materials::btf::table::MemoryBound;
+use meso_materials::btf::table::{BtfTable, MemoryBound};
 use meso_materials::image::{self, Image};
 use meso_materials::rng::Sampler;
 
@@ -33,9 +34,15 @@ pub(super) struct Ctx<'a> {
     pub file: &'a Path,
     pub text: &'a str,
     /// How much of a `btf` material's values may be held in memory (the scene's
-    /// bound, then each material's share of it).
+    /// bound, then each file's share of it).
     pub btf_memory: MemoryBound,
+    /// The `.btf` files opened so far (by canonical path): materials naming one file
+    /// share its table.
+    pub btf_opened: &'a BtfOpened,
 }
+
+/// `.btf` tables opened while loading one scene, by canonical path.
+pub(super) type BtfOpened = RefCell<Vec<(PathBuf, Arc<BtfTable>)>>;
 
 impl Ctx<'_> {
     pub fn line_of(&self, span: &Range<usize>) -> Option<usize> {
@@ -102,10 +109,12 @@ pub fn load_scene_within(path: &Path, btf_memory: MemoryBound) -> Result<Scene, 
         key: None,
         message: format!("cannot read: {e}"),
     })?;
+    let opened = BtfOpened::default();
     let ctx = Ctx {
         file: path,
         text: &text,
         btf_memory,
+        btf_opened: &opened,
     };
     let parsed: file::SceneFile = toml::from_str(&text).map_err(|e| {
         let line = e.span().and_then(|s| ctx.line_of(&s));
@@ -267,15 +276,20 @@ fn materials(
     f: &file::SceneFile,
     folder: &Path,
 ) -> Result<(Vec<String>, Vec<Material>), SceneError> {
-    // The bound is the scene's: its `btf` materials share it equally, so together
-    // they hold at most the bound whatever their number (one smaller than its share
-    // is held whole and leaves the rest of its share unused).
-    let btfs = f
+    // The bound is the scene's: its `btf` files share it equally (materials naming
+    // one file share its table), so together they hold at most the bound whatever
+    // their number (one smaller than its share is held whole and leaves the rest of
+    // its share unused).
+    let mut files: Vec<PathBuf> = f
         .materials
         .values()
         .filter(|m| m.get_ref().kind.get_ref() == "btf")
-        .count()
-        .max(1) as u64;
+        .filter_map(|m| m.get_ref().path.as_ref())
+        .map(|p| btf_key(&folder.join(p.get_ref())))
+        .collect();
+    files.sort();
+    files.dedup();
+    let btfs = files.len().max(1) as u64;
     let ctx = &Ctx {
         btf_memory: MemoryBound {
             max_bytes: ctx.btf_memory.max_bytes / btfs,
@@ -579,4 +593,10 @@ fn background(
             None => Background::Color(ctx.non_negative3(&b.color, "background.color")?),
         },
     })
+}
+
+/// The key a `.btf` file is shared by: its canonical path, or the path as written
+/// when it cannot be resolved (opening it then reports why).
+pub(super) fn btf_key(path: &Path) -> PathBuf {
+    std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf())
 }

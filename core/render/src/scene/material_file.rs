@@ -10,7 +10,7 @@ use std::sync::Arc;
 use glam::{DVec2, DVec3};
 use toml::Spanned;
 
-use super::load::{Ctx, SceneError};
+use super::load::{BtfOpened, Ctx, SceneError, btf_key};
 use super::{Material, file};
 use meso_materials::brdf::{AnalyticBrdf, BrdfModel};
 use meso_materials::btf::table::{BtfTable, MemoryBound};
@@ -50,10 +50,12 @@ pub fn material_from_table(
     table: &MaterialTable,
     folder: &Path,
 ) -> Result<Material, SceneError> {
+    let opened = BtfOpened::default();
     let ctx = Ctx {
         file,
         text,
         btf_memory: MemoryBound::default(),
+        btf_opened: &opened,
     };
     build_material(&ctx, table_key, &table.0, folder)
 }
@@ -137,10 +139,23 @@ pub(super) fn build_material(
             let Some(path) = &m.path else {
                 return ctx.err(&span, key("path"), "a `btf` material needs `path`");
             };
-            let table = BtfTable::open(&folder.join(path.get_ref()), ctx.btf_memory)
-                .or_else(|e| ctx.err(&path.span(), key("path"), e.to_string()))?;
+            let full = folder.join(path.get_ref());
+            let file = btf_key(&full);
+            let shared = (ctx.btf_opened.borrow().iter())
+                .find(|(k, _)| *k == file)
+                .map(|(_, t)| Arc::clone(t));
+            let table = match shared {
+                Some(t) => t,
+                None => {
+                    let t = BtfTable::open(&full, ctx.btf_memory)
+                        .or_else(|e| ctx.err(&path.span(), key("path"), e.to_string()))?;
+                    let t = Arc::new(t);
+                    ctx.btf_opened.borrow_mut().push((file, Arc::clone(&t)));
+                    t
+                }
+            };
             Ok(Material::Btf {
-                table: Arc::new(table),
+                table,
                 uv_scale: uv_scale_of(ctx, &key("uv_scale"), m.uv_scale.as_ref())?,
             })
         }

@@ -677,13 +677,23 @@ fn btf_materials_load_tiled_and_bad_ones_name_the_material() {
 fn btf_materials_share_the_scenes_memory_bound() {
     let dir = setup();
     write_lambert_btf(dir.path(), 4);
+    std::fs::copy(dir.path().join("lambert.btf"), dir.path().join("copy.btf")).expect("copied");
     let velvet = "[materials.velvet]\nkind = \"btf\"\npath = \"lambert.btf\"\n";
     let one = EXAMPLE.replace("[materials.chrome]", &format!("{velvet}[materials.chrome]"));
+    let suede = velvet.replace("velvet", "suede");
     let two = EXAMPLE.replace(
         "[materials.chrome]",
         &format!(
             "{velvet}{}[materials.chrome]",
-            velvet.replace("velvet", "suede")
+            suede.replace("lambert.btf", "copy.btf")
+        ),
+    );
+    // Two materials of one file (written two ways) share its table, held whole.
+    let same = EXAMPLE.replace(
+        "[materials.chrome]",
+        &format!(
+            "{velvet}{}[materials.chrome]",
+            suede.replace("lambert.btf", "./lambert.btf")
         ),
     );
     let bytes = 16 * 81 * 81 * 3 * 4;
@@ -703,4 +713,13 @@ fn btf_materials_share_the_scenes_memory_bound() {
     };
     assert_eq!(held_whole(&one), [true]);
     assert_eq!(held_whole(&two), [false, false]);
+    assert_eq!(held_whole(&same), [true, true]);
+    let s = load_scene_within(&write(dir.path(), &same), bound).expect("valid scene");
+    let tables: Vec<_> = (s.materials.iter())
+        .filter_map(|m| match m {
+            Material::Btf { table, .. } => Some(table),
+            _ => None,
+        })
+        .collect();
+    assert!(Arc::ptr_eq(tables[0], tables[1]), "one table for one file");
 }

@@ -160,7 +160,7 @@ impl LobeSampler {
     /// The solid-angle pdf of light direction `li` for a view with interpolation
     /// weights `view_weights` (0 below the surface).
     pub fn pdf(&self, view_weights: [(u32, f64); 3], li: DVec3) -> f64 {
-        if !(li.z > 0.0) {
+        if li.z.is_nan() || li.z <= 0.0 {
             return 0.0;
         }
         let cell = cell_of(li);

@@ -462,7 +462,7 @@ impl BtfTable {
     /// rescaled, drives the strategy. `None` for a view below the surface (the BTF is 0
     /// there) or a direction on the horizon.
     pub fn sample(&self, wo: DVec3, u: DVec2) -> Option<(DVec3, f64)> {
-        if !(wo.z > 0.0) {
+        if wo.z.is_nan() || wo.z <= 0.0 {
             return None;
         }
         let wi = if u.x < DEFENSIVE_SHARE {
@@ -478,7 +478,7 @@ impl BtfTable {
 
     /// The pdf with which `sample` draws `wi` for `wo` (0 below the surface).
     pub fn pdf(&self, wi: DVec3, wo: DVec3) -> f64 {
-        if !(wo.z > 0.0) {
+        if wo.z.is_nan() || wo.z <= 0.0 {
             return 0.0;
         }
         DEFENSIVE_SHARE * defensive_pdf(wi)

@@ -136,29 +136,55 @@ struct Parents {
     n: u32,
 }
 
-// The level-(k+1) parents of pixel (x, y) (`upsample::parents`).
-fn parents(x: u32, y: u32, k: u32) -> Parents {
+// Along one axis of size `size` (`upsample::far_parent`): the far parent of `c` whose
+// near parent is `c0` on a grid of spacing `s` (x), the fraction of the way to it
+// (bitcast in y), and 1 in z where the image's last column (row) stands in for a grid
+// point past the image.
+fn far_parent(c: u32, c0: u32, s: u32, size: u32) -> vec3<u32> {
+    let last = size - 1u;
+    if c0 + s > last && c < last && c > c0 {
+        return vec3<u32>(last, bitcast<u32>(f32(c - c0) / f32(last - c0)), 1u);
+    }
+    return vec3<u32>(c0 + s, bitcast<u32>(f32(c - c0) / f32(s)), 0u);
+}
+
+// `upsample::is_edge`: the last column and row, shaded at every frame.
+fn is_edge(x: u32, y: u32) -> bool {
+    return x + 1u == ap.width || y + 1u == ap.height;
+}
+
+// The level-(k+1) parents of pixel (x, y) (`upsample::parents`); with `check_edges`,
+// an edge pixel standing in for a parent past the image counts only once it has
+// samples of its own (the frames shade the edges from the first frame, so it is
+// trusted then, as the CPU's `has_value`).
+fn parents(x: u32, y: u32, k: u32, check_edges: bool) -> Parents {
     var out: Parents;
     out.n = 0u;
     let s = 1u << (k + 1u);
     let x0 = x / s * s;
     let y0 = y / s * s;
-    let fx = f32(x - x0) / f32(s);
-    let fy = f32(y - y0) / f32(s);
+    let fx_far = far_parent(x, x0, s, ap.width);
+    let fy_far = far_parent(y, y0, s, ap.height);
+    let fx = bitcast<f32>(fx_far.y);
+    let fy = bitcast<f32>(fy_far.y);
     let i = y * ap.width + x;
     let at = i * INPUT_WORDS;
     let nd = vec2<f32>(bitcast<f32>(inputs[at + 3u]), bitcast<f32>(inputs[at + 4u]));
     let cos_x = bitcast<f32>(inputs[at + 5u]);
     for (var c = 0u; c < 4u; c++) {
-        let dx = (c & 1u) * s;
-        let dy = (c >> 1u) * s;
-        let alpha = select(1.0 - fx, fx, dx != 0u) * select(1.0 - fy, fy, dy != 0u);
-        let px = x0 + dx;
-        let py = y0 + dy;
+        let far_x = (c & 1u) != 0u;
+        let far_y = (c >> 1u) != 0u;
+        let alpha = select(1.0 - fx, fx, far_x) * select(1.0 - fy, fy, far_y);
+        let px = select(x0, fx_far.x, far_x);
+        let py = select(y0, fy_far.x, far_y);
         if alpha == 0.0 || px >= ap.width || py >= ap.height {
             continue;
         }
         let j = py * ap.width + px;
+        let edge = (far_x && fx_far.z != 0u) || (far_y && fy_far.z != 0u);
+        if check_edges && edge && state[j * STATE_WORDS] == 0u {
+            continue;
+        }
         let gz = depth_weight(depth_of(i), depth_of(j));
         let v = vec2<f32>(f32(px) - f32(x), f32(py) - f32(y)) / f32(s);
         let ga = screen_weight(v, nd, cos_x);
@@ -171,7 +197,7 @@ fn parents(x: u32, y: u32, k: u32) -> Parents {
 }
 
 fn has_parents(x: u32, y: u32, k: u32) -> bool {
-    let p = parents(x, y, k);
+    let p = parents(x, y, k, false);
     var sum = 0.0;
     for (var c = 0u; c < p.n; c++) {
         sum += p.alpha_gz[c];
@@ -256,7 +282,7 @@ fn plan(@builtin(global_invocation_id) id: vec3<u32>, @builtin(local_invocation_
         var site = -1;
         if (x & corner) == 0u && (y & corner) == 0u {
             site = i32(leaf);
-        } else if !has_parents(x, y, level_of_pixel(x, y)) {
+        } else if is_edge(x, y) || !has_parents(x, y, level_of_pixel(x, y)) {
             site = 0;
         }
         if site >= 0 {
@@ -444,7 +470,7 @@ fn upsample(@builtin(global_invocation_id) id: vec3<u32>) {
     if level_of_pixel(x, y) != k || k >= ap.top || trusted(i, x, y) {
         return;
     }
-    let p = parents(x, y, k);
+    let p = parents(x, y, k, true);
     var total = 0.0;
     var sum = vec3<f32>(0.0);
     for (var c = 0u; c < p.n; c++) {

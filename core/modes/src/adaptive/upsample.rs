@@ -45,28 +45,60 @@ pub fn screen_weight(v: DVec2, normal_dir: DVec2, cos_x: f64) -> f64 {
     (-(across2 + along * along / (c * c))).exp()
 }
 
-/// The level-(k+1) parents of pixel (x, y) with their alpha g_z and full weights.
-fn parents(guide: &Guide, x: u32, y: u32, k: u32) -> ([(usize, f64, f64); 4], usize) {
+/// Along one axis of size `size`: the far parent of coordinate `c` whose near parent
+/// is `c0` on a grid of spacing `s`, the fraction of the way from `c0` to it, and
+/// whether it is the image's last column (row) standing in for a grid point past the
+/// image. That edge is shaded at every frame (`is_edge`), so pixels near it are
+/// interpolated between two parents instead of extrapolated from one (extrapolation
+/// over up to 2^top - 1 pixels made most of the default scene's error in its first
+/// frames; docs/rendering.md). A pixel on the edge itself keeps its one-sided parents.
+fn far_parent(c: u32, c0: u32, s: u32, size: u32) -> (u32, f64, bool) {
+    let last = size - 1;
+    if c0 + s > last && c < last && c > c0 {
+        (last, f64::from(c - c0) / f64::from(last - c0), true)
+    } else {
+        (c0 + s, f64::from(c - c0) / f64::from(s), false)
+    }
+}
+
+/// True for the image's last column and row: pixels the frames shade themselves, so
+/// that they can stand in for the parents past the image (`far_parent`).
+pub fn is_edge(x: u32, y: u32, w: u32, h: u32) -> bool {
+    x + 1 == w || y + 1 == h
+}
+
+/// The level-(k+1) parents of pixel (x, y) with their alpha g_z and full weights; an
+/// edge pixel standing in for a parent past the image counts only where `edge_valued`
+/// says it has a value.
+fn parents(
+    guide: &Guide,
+    x: u32,
+    y: u32,
+    k: u32,
+    edge_valued: impl Fn(usize) -> bool,
+) -> ([(usize, f64, f64); 4], usize) {
     let s = 1u32 << (k + 1);
     let (x0, y0) = (x / s * s, y / s * s);
-    let (fx, fy) = (
-        f64::from(x - x0) / f64::from(s),
-        f64::from(y - y0) / f64::from(s),
-    );
+    let (x1, fx, x_edge) = far_parent(x, x0, s, guide.width);
+    let (y1, fy, y_edge) = far_parent(y, y0, s, guide.height);
     let i = (y * guide.width + x) as usize;
     let mut out = [(0usize, 0.0, 0.0); 4];
     let mut n = 0;
-    for (dx, dy, alpha) in [
-        (0, 0, (1.0 - fx) * (1.0 - fy)),
-        (s, 0, fx * (1.0 - fy)),
-        (0, s, (1.0 - fx) * fy),
-        (s, s, fx * fy),
+    for (far_x, far_y, alpha) in [
+        (false, false, (1.0 - fx) * (1.0 - fy)),
+        (true, false, fx * (1.0 - fy)),
+        (false, true, (1.0 - fx) * fy),
+        (true, true, fx * fy),
     ] {
-        let (px, py) = (x0 + dx, y0 + dy);
+        let px = if far_x { x1 } else { x0 };
+        let py = if far_y { y1 } else { y0 };
         if alpha == 0.0 || px >= guide.width || py >= guide.height {
             continue;
         }
         let j = (py * guide.width + px) as usize;
+        if ((far_x && x_edge) || (far_y && y_edge)) && !edge_valued(j) {
+            continue;
+        }
         let gz = depth_weight(guide.depth[i], guide.depth[j]);
         let v =
             DVec2::new(f64::from(px) - f64::from(x), f64::from(py) - f64::from(y)) / f64::from(s);
@@ -83,9 +115,9 @@ pub fn level_of_pixel(x: u32, y: u32, top: u32) -> u32 {
 }
 
 /// True if pixel (x, y), on level k < top and not on level k + 1, has parents at its
-/// depth (else it must be shaded itself).
+/// depth (else it must be shaded itself), counting the edge pixels the frames shade.
 pub fn has_parents(guide: &Guide, x: u32, y: u32, k: u32) -> bool {
-    let (p, n) = parents(guide, x, y, k);
+    let (p, n) = parents(guide, x, y, k, |_| true);
     p[..n].iter().map(|q| q.1).sum::<f64>() >= MIN_WEIGHT
 }
 
@@ -135,7 +167,7 @@ pub fn upsample(guide: &Guide, has_value: &[bool], values: &mut [DVec3], top: u3
                 if level_of_pixel(x, y, top) != k || has_value[i] {
                     continue;
                 }
-                let (p, n) = parents(guide, x, y, k);
+                let (p, n) = parents(guide, x, y, k, |j| has_value[j]);
                 let total: f64 = p[..n].iter().map(|q| q.2).sum();
                 values[i] = if total > 0.0 {
                     p[..n].iter().map(|q| values[q.0] * q.2).sum::<DVec3>() / total
@@ -189,6 +221,40 @@ mod tests {
         for (i, p) in v.iter().enumerate() {
             assert!((*p - c).abs().max_element() < 1e-12, "pixel {i}: {p}");
         }
+    }
+
+    /// Past the last grid point, a pixel is interpolated towards the image's last
+    /// column and row where they have values (the frames shade them), not held at
+    /// the last grid point's value; without values there it keeps its one parent.
+    #[test]
+    fn pixels_past_the_last_grid_point_are_interpolated_towards_a_valued_edge() {
+        let (w, h, top) = (15, 15, 2);
+        let guide = flat_guide(w, h, |_, _| 1.0);
+        let ramp = |i: usize| DVec3::splat((i as u32 % w) as f64 + 0.5 * (i as u32 / w) as f64);
+        let run = |has: &[bool]| {
+            let mut v: Vec<DVec3> = (0..(w * h) as usize)
+                .map(|i| if has[i] { ramp(i) } else { DVec3::splat(-1.0) })
+                .collect();
+            upsample(&guide, has, &mut v, top);
+            v
+        };
+        let with_edges: Vec<bool> = top_only(w, h, top)
+            .iter()
+            .enumerate()
+            .map(|(i, &b)| b || is_edge(i as u32 % w, i as u32 / w, w, h))
+            .collect();
+        let v = run(&with_edges);
+        // (13, 0) lies halfway between the grid point (12, 0) and the edge (14, 0);
+        // (0, 13) between (0, 12) and (0, 14); (13, 13) amid four parents.
+        for (x, y) in [(13u32, 0u32), (0, 13), (13, 13), (13, 4)] {
+            let i = (y * w + x) as usize;
+            assert!((v[i] - ramp(i)).abs().max_element() < 1e-12, "({x}, {y}): {}", v[i]);
+        }
+        // Edges without values are not read: the one parent's value, never the -1
+        // that stands for no value.
+        let v = run(&top_only(w, h, top));
+        assert!((v[13].x - 12.0).abs() < 1e-12, "{}", v[13]);
+        assert!(v.iter().all(|p| p.x >= 0.0));
     }
 
     #[test]

@@ -42,6 +42,9 @@ impl AdaptiveMode {
                 let i = (y * w + x) as usize;
                 if x % (1 << leaf) == 0 && y % (1 << leaf) == 0 {
                     site_level[i] = Some(leaf);
+                } else if upsample::is_edge(x, y, w, h) {
+                    // Parents for the pixels near the far edges (`upsample::far_parent`).
+                    site_level[i] = Some(0);
                 } else {
                     let k = upsample::level_of_pixel(x, y, top);
                     if !upsample::has_parents(&b.guide, x, y, k) {

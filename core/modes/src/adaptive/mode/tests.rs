@@ -66,6 +66,32 @@ fn a_pixel_whose_samples_vary_more_than_predicted_takes_more_samples() {
     assert!(mode.moments.iter().all(|m| m.count() == 0));
 }
 
+/// The last column and row are sites of every frame's plan, from the first frame on
+/// (the parents of the pixels next to them, `upsample::far_parent`), and each takes
+/// at least a sample in the first frame.
+#[test]
+fn the_last_row_and_column_are_shaded_in_every_frame() {
+    let scene = super::super::tests::merl_test_scene();
+    let (w, h) = (30, 21);
+    let mut mode = AdaptiveMode::prepare(scene, w, h, Prepare::quietly()).expect("adaptive");
+    mode.render_frame();
+    let b = mode.buffers.as_ref().expect("pass done");
+    for f in [0, 1, 5] {
+        let plan = mode.plan_frame(b, f);
+        for y in 0..h {
+            for x in 0..w {
+                let i = (y * w + x) as usize;
+                if upsample::is_edge(x, y, w, h) {
+                    assert!(plan.site_level[i].is_some(), "frame {f}: ({x}, {y})");
+                }
+            }
+        }
+    }
+    assert!((0..w * h)
+        .filter(|&i| upsample::is_edge(i % w, i / w, w, h))
+        .all(|i| mode.own[i as usize] > 0));
+}
+
 #[test]
 fn mip_reduces_blocks_of_odd_images_by_min_and_max() {
     let v = [3.0, 1.0, 4.0, 1.0, 5.0, 9.0, 2.0, 6.0, 5.0];

@@ -192,12 +192,7 @@ fn adaptive(args: &AdaptiveArgs) -> Result<(), CliError> {
     let a = &report.allocation;
     println!(
         "allocation gain at equal samples ({} spp measured): oracle {:.2}x (scored on a second measurement {:.2}x), eq. 9 bound {:.2}x, sqrt(eq. 9) {:.2}x, predicted sigma {:.2}x",
-        a.samples_per_pixel,
-        a.oracle,
-        a.oracle_held_out,
-        a.eq9_bound,
-        a.eq9_sqrt,
-        a.predicted
+        a.samples_per_pixel, a.oracle, a.oracle_held_out, a.eq9_bound, a.eq9_sqrt, a.predicted
     );
     println!("wrote {}", args.output.display());
     Ok(())

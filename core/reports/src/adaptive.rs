@@ -269,11 +269,7 @@ pub fn allocation_study(
     Ok(AllocationStudy {
         samples_per_pixel: spp,
         oracle: gain(&sqrt(&measured)),
-        oracle_held_out: meso_modes::adaptive::allocation::gain(
-            &held_out,
-            &sqrt(&measured),
-            floor,
-        ),
+        oracle_held_out: meso_modes::adaptive::allocation::gain(&held_out, &sqrt(&measured), floor),
         eq9_bound: gain(&b.variance),
         eq9_sqrt: gain(&sqrt(&b.variance)),
         predicted: gain(&b.sigma),

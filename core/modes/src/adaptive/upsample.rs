@@ -248,7 +248,11 @@ mod tests {
         // (0, 13) between (0, 12) and (0, 14); (13, 13) amid four parents.
         for (x, y) in [(13u32, 0u32), (0, 13), (13, 13), (13, 4)] {
             let i = (y * w + x) as usize;
-            assert!((v[i] - ramp(i)).abs().max_element() < 1e-12, "({x}, {y}): {}", v[i]);
+            assert!(
+                (v[i] - ramp(i)).abs().max_element() < 1e-12,
+                "({x}, {y}): {}",
+                v[i]
+            );
         }
         // Edges without values are not read: the one parent's value, never the -1
         // that stands for no value.

@@ -87,9 +87,11 @@ fn the_last_row_and_column_are_shaded_in_every_frame() {
             }
         }
     }
-    assert!((0..w * h)
-        .filter(|&i| upsample::is_edge(i % w, i / w, w, h))
-        .all(|i| mode.own[i as usize] > 0));
+    assert!(
+        (0..w * h)
+            .filter(|&i| upsample::is_edge(i % w, i / w, w, h))
+            .all(|i| mode.own[i as usize] > 0)
+    );
 }
 
 #[test]

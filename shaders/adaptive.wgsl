@@ -136,16 +136,23 @@ struct Parents {
     n: u32,
 }
 
-// Along one axis of size `size` (`upsample::far_parent`): the far parent of `c` whose
-// near parent is `c0` on a grid of spacing `s` (x), the fraction of the way to it
-// (bitcast in y), and 1 in z where the image's last column (row) stands in for a grid
+// Along one axis (`upsample::far_parent`): the far parent's coordinate, the fraction
+// of the way to it, and whether the image's last column (row) stands in for a grid
 // point past the image.
-fn far_parent(c: u32, c0: u32, s: u32, size: u32) -> vec3<u32> {
+struct FarParent {
+    at: u32,
+    t: f32,
+    edge: bool,
+}
+
+// The far parent of `c` whose near parent is `c0` on a grid of spacing `s`, along an
+// axis of `size` pixels.
+fn far_parent(c: u32, c0: u32, s: u32, size: u32) -> FarParent {
     let last = size - 1u;
     if c0 + s > last && c < last && c > c0 {
-        return vec3<u32>(last, bitcast<u32>(f32(c - c0) / f32(last - c0)), 1u);
+        return FarParent(last, f32(c - c0) / f32(last - c0), true);
     }
-    return vec3<u32>(c0 + s, bitcast<u32>(f32(c - c0) / f32(s)), 0u);
+    return FarParent(c0 + s, f32(c - c0) / f32(s), false);
 }
 
 // `upsample::is_edge`: the last column and row, shaded at every frame.
@@ -165,8 +172,8 @@ fn parents(x: u32, y: u32, k: u32, check_edges: bool) -> Parents {
     let y0 = y / s * s;
     let fx_far = far_parent(x, x0, s, ap.width);
     let fy_far = far_parent(y, y0, s, ap.height);
-    let fx = bitcast<f32>(fx_far.y);
-    let fy = bitcast<f32>(fy_far.y);
+    let fx = fx_far.t;
+    let fy = fy_far.t;
     let i = y * ap.width + x;
     let at = i * INPUT_WORDS;
     let nd = vec2<f32>(bitcast<f32>(inputs[at + 3u]), bitcast<f32>(inputs[at + 4u]));
@@ -175,13 +182,13 @@ fn parents(x: u32, y: u32, k: u32, check_edges: bool) -> Parents {
         let far_x = (c & 1u) != 0u;
         let far_y = (c >> 1u) != 0u;
         let alpha = select(1.0 - fx, fx, far_x) * select(1.0 - fy, fy, far_y);
-        let px = select(x0, fx_far.x, far_x);
-        let py = select(y0, fy_far.x, far_y);
+        let px = select(x0, fx_far.at, far_x);
+        let py = select(y0, fy_far.at, far_y);
         if alpha == 0.0 || px >= ap.width || py >= ap.height {
             continue;
         }
         let j = py * ap.width + px;
-        let edge = (far_x && fx_far.z != 0u) || (far_y && fy_far.z != 0u);
+        let edge = (far_x && fx_far.edge) || (far_y && fy_far.edge);
         if check_edges && edge && state[j * STATE_WORDS] == 0u {
             continue;
         }

@@ -111,7 +111,11 @@ fn btf_pdf(m: u32, wi: vec3<f32>, wo: vec3<f32>) -> f32 {
     if wo.z <= 0.0 {
         return 0.0;
     }
-    let vw = direction_weights(data[m + BTF_VIEW_TABLE], wo);
+    return btf_mixture_pdf(m, direction_weights(data[m + BTF_VIEW_TABLE], wo), wi);
+}
+
+// `btf_pdf` for a view with interpolation weights `vw`.
+fn btf_mixture_pdf(m: u32, vw: DirectionWeights, wi: vec3<f32>) -> f32 {
     return DEFENSIVE_SHARE * defensive_pdf(wi) + (1.0 - DEFENSIVE_SHARE) * btf_lobe_pdf(m, vw, wi);
 }
 
@@ -122,11 +126,11 @@ fn btf_sample(m: u32, wo: vec3<f32>, u: vec2<f32>) -> vec4<f32> {
     if wo.z <= 0.0 {
         return vec4<f32>(0.0);
     }
+    let vw = direction_weights(data[m + BTF_VIEW_TABLE], wo);
     var wi: vec3<f32>;
     if u.x < DEFENSIVE_SHARE {
         wi = defensive_sample(vec2<f32>(u.x / DEFENSIVE_SHARE, u.y));
     } else {
-        let vw = direction_weights(data[m + BTF_VIEW_TABLE], wo);
         var x = (u.x - DEFENSIVE_SHARE) / (1.0 - DEFENSIVE_SHARE);
         var view = 0u;
         var found = false;
@@ -154,7 +158,7 @@ fn btf_sample(m: u32, wo: vec3<f32>, u: vec2<f32>) -> vec4<f32> {
         let phi = (f32(sector) + u.y) * 2.0 * PI / f32(BTF_SECTORS);
         wi = spherical_dir(cos_theta, sqrt(max(1.0 - cos_theta * cos_theta, 0.0)), phi);
     }
-    let pdf = btf_pdf(m, wi, wo);
+    let pdf = btf_mixture_pdf(m, vw, wi);
     if wi.z <= 0.0 || !(pdf > 0.0) {
         return vec4<f32>(0.0);
     }

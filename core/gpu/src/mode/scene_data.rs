@@ -177,19 +177,13 @@ impl SceneData {
                     let key = std::sync::Arc::as_ptr(table);
                     let shared = match btf.iter().find(|(k, _)| *k == key) {
                         Some(&(_, w)) => Some(w),
-                        None if reached => {
-                            let pushed = words.push_btf_table(table);
-                            if let Some(w) = pushed {
-                                btf.push((key, w));
-                            }
-                            pushed
-                        }
+                        None if reached => words.push_btf_table(table).inspect(|&w| {
+                            btf.push((key, w));
+                        }),
                         None => None,
                     };
-                    match shared
-                        .filter(|_| reached)
-                        .map(|w| words.push_btf_header(table, w, *uv_scale))
-                    {
+                    let header = reached.then_some(shared).flatten();
+                    match header.map(|w| words.push_btf_header(table, w, *uv_scale)) {
                         Some(at) => {
                             rec[0] = 4;
                             rec[1] = at;

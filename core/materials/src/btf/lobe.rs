@@ -21,6 +21,7 @@ use std::f64::consts::TAU;
 
 use glam::{DVec2, DVec3};
 
+use crate::image::luminance;
 use crate::spmm::directions::DirectionTable;
 
 /// Rings of the grid, uniform in r = sqrt(1 - cos theta).
@@ -48,9 +49,7 @@ impl PairSums {
         let per_texel = self.sums.len() * 3;
         for texel in texels.chunks_exact(per_texel) {
             for (sum, rgb) in self.sums.iter_mut().zip(texel.chunks_exact(3)) {
-                *sum += 0.2126 * f64::from(rgb[0])
-                    + 0.7152 * f64::from(rgb[1])
-                    + 0.0722 * f64::from(rgb[2]);
+                *sum += f64::from(luminance([rgb[0], rgb[1], rgb[2]]));
             }
         }
     }

@@ -465,14 +465,14 @@ impl BtfTable {
         if wo.z.is_nan() || wo.z <= 0.0 {
             return None;
         }
+        let view = self.views.weights(wo);
         let wi = if u.x < DEFENSIVE_SHARE {
             defensive_sample(DVec2::new(u.x / DEFENSIVE_SHARE, u.y))
         } else {
             let x = (u.x - DEFENSIVE_SHARE) / (1.0 - DEFENSIVE_SHARE);
-            self.lobe
-                .sample(self.views.weights(wo), DVec2::new(x, u.y))?
+            self.lobe.sample(view, DVec2::new(x, u.y))?
         };
-        let pdf = self.pdf(wi, wo);
+        let pdf = self.mixture_pdf(wi, view);
         (wi.z > 0.0 && pdf > 0.0).then_some((wi, pdf))
     }
 
@@ -481,8 +481,12 @@ impl BtfTable {
         if wo.z.is_nan() || wo.z <= 0.0 {
             return 0.0;
         }
-        DEFENSIVE_SHARE * defensive_pdf(wi)
-            + (1.0 - DEFENSIVE_SHARE) * self.lobe.pdf(self.views.weights(wo), wi)
+        self.mixture_pdf(wi, self.views.weights(wo))
+    }
+
+    /// `pdf` for a view with interpolation weights `view`.
+    fn mixture_pdf(&self, wi: DVec3, view: [(u32, f64); 3]) -> f64 {
+        DEFENSIVE_SHARE * defensive_pdf(wi) + (1.0 - DEFENSIVE_SHARE) * self.lobe.pdf(view, wi)
     }
 
     /// The lobe sampler (for a device that uploads it).

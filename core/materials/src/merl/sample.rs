@@ -10,6 +10,7 @@ use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
 use super::MerlBrdf;
+use crate::angle::atan2;
 use crate::brdf::BrdfSample;
 
 /// Bands of theta_o, uniform in angle (2 degrees each).
@@ -36,6 +37,10 @@ pub struct MerlSampler {
     row_cdf: Vec<f64>,
     /// Cumulative column probabilities within each row, [band][row][PHI_BINS + 1].
     col_cdf: Vec<f64>,
+    /// Guide tables of the row CDFs ([band][Z_BINS]) and the column CDFs
+    /// ([band][row][PHI_BINS]): `crate::cdf`.
+    row_guide: Vec<u32>,
+    col_guide: Vec<u32>,
 }
 
 /// Normalised cumulative sums of `w`, length w.len() + 1, ending at exactly 1;
@@ -57,11 +62,10 @@ fn cdf(w: &[f64]) -> Vec<f64> {
     out
 }
 
-/// The bin of `cdf` holding `u` in [0, 1) and `u` rescaled to [0, 1) inside it.
-/// Bins of zero mass are never chosen.
-fn pick(cdf: &[f64], u: f64) -> (usize, f64) {
-    let bins = cdf.len() - 1;
-    let k = (cdf.partition_point(|&c| c <= u).max(1) - 1).min(bins - 1);
+/// The bin of `cdf` holding `u` in [0, 1), found through its `guide`, and `u` rescaled
+/// to [0, 1) inside it. Bins of zero mass are never chosen.
+fn pick(cdf: &[f64], guide: &[u32], u: f64) -> (usize, f64) {
+    let k = crate::cdf::find(cdf, guide, u);
     let width = cdf[k + 1] - cdf[k];
     let t = if width > 0.0 {
         ((u - cdf[k]) / width).clamp(0.0, 1.0)
@@ -72,12 +76,12 @@ fn pick(cdf: &[f64], u: f64) -> (usize, f64) {
 }
 
 fn band_of(wo: DVec3) -> usize {
-    let theta_o = wo.x.hypot(wo.y).atan2(wo.z);
+    let theta_o = atan2((wo.x * wo.x + wo.y * wo.y).sqrt(), wo.z);
     ((theta_o / FRAC_PI_2 * WO_BANDS as f64) as usize).min(WO_BANDS - 1)
 }
 
 fn azimuth(w: DVec3) -> f64 {
-    w.y.atan2(w.x)
+    atan2(w.y, w.x)
 }
 
 const CELL_SOLID_ANGLE: f64 = 2.0 * PI / (Z_BINS * PHI_BINS) as f64;
@@ -89,11 +93,13 @@ impl MerlSampler {
             + WO_BANDS * (Z_BINS + 1)
             + WO_BANDS * Z_BINS * (PHI_BINS + 1))
             * size_of::<f64>()
+            + (WO_BANDS * Z_BINS + WO_BANDS * Z_BINS * PHI_BINS) * size_of::<u32>()
     }
 
     /// Bytes held.
     pub fn bytes(&self) -> usize {
         (self.cell_prob.len() + self.row_cdf.len() + self.col_cdf.len()) * size_of::<f64>()
+            + (self.row_guide.len() + self.col_guide.len()) * size_of::<u32>()
     }
 
     pub fn new(brdf: &MerlBrdf) -> Self {
@@ -144,8 +150,14 @@ impl MerlSampler {
             cell_prob: Vec::with_capacity(WO_BANDS * cells),
             row_cdf: Vec::with_capacity(WO_BANDS * (Z_BINS + 1)),
             col_cdf: Vec::with_capacity(WO_BANDS * Z_BINS * (PHI_BINS + 1)),
+            row_guide: Vec::with_capacity(WO_BANDS * Z_BINS),
+            col_guide: Vec::with_capacity(WO_BANDS * Z_BINS * PHI_BINS),
         };
         for (prob, rows, cols) in bands {
+            crate::cdf::build_guide(&rows, Z_BINS, &mut s.row_guide);
+            for row in cols.chunks_exact(PHI_BINS + 1) {
+                crate::cdf::build_guide(row, PHI_BINS, &mut s.col_guide);
+            }
             s.cell_prob.extend(prob);
             s.row_cdf.extend(rows);
             s.col_cdf.extend(cols);
@@ -161,9 +173,18 @@ impl MerlSampler {
         }
         let band = band_of(wo);
         let rows = &self.row_cdf[band * (Z_BINS + 1)..(band + 1) * (Z_BINS + 1)];
-        let (row, tz) = pick(rows, u.x);
-        let cols_at = (band * Z_BINS + row) * (PHI_BINS + 1);
-        let (col, tp) = pick(&self.col_cdf[cols_at..cols_at + PHI_BINS + 1], u.y);
+        let (row, tz) = pick(
+            rows,
+            &self.row_guide[band * Z_BINS..(band + 1) * Z_BINS],
+            u.x,
+        );
+        let line = band * Z_BINS + row;
+        let cols_at = line * (PHI_BINS + 1);
+        let (col, tp) = pick(
+            &self.col_cdf[cols_at..cols_at + PHI_BINS + 1],
+            &self.col_guide[line * PHI_BINS..(line + 1) * PHI_BINS],
+            u.y,
+        );
         let z = (row as f64 + tz) / Z_BINS as f64;
         if z <= 0.0 {
             return None;

@@ -9,7 +9,6 @@
 use glam::DVec3;
 
 use super::{Path, SpmmMode};
-use meso_render::environment::rotate_y;
 use meso_render::layers::ENVIRONMENT;
 use meso_render::shading::{Shading, power_heuristic};
 
@@ -30,8 +29,9 @@ impl SpmmMode {
         };
         let material = self.shaded(s);
         // Strategy 1: the map.
+        let turn = env.turn();
         let e = sampler.sample(&env.map, u_map);
-        let wi = rotate_y(e.dir, env.rotate_y_deg);
+        let wi = turn.apply(e.dir);
         if wi.dot(s.n) > 0.0 {
             path.counts.environment += 1;
             if !self.core.bvh.occluded(lift, wi, 0.0, f64::INFINITY) {
@@ -58,9 +58,9 @@ impl SpmmMode {
         if self.core.bvh.occluded(lift, wi, 0.0, f64::INFINITY) {
             return;
         }
-        let map_pdf = sampler.pdf(rotate_y(wi, -env.rotate_y_deg));
+        let (map_pdf, radiance) = sampler.pdf_and_radiance(&env.map, turn.undo(wi));
         let weight = power_heuristic(pdf, map_pdf);
         path.out[ENVIRONMENT] +=
-            throughput * material.response(s, wi, wo) * env.radiance_unit(wi) * (weight / pdf);
+            throughput * material.response(s, wi, wo) * radiance * (weight / pdf);
     }
 }

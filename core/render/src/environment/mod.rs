@@ -43,8 +43,39 @@ pub fn pixel_solid_angle(width: u32, height: u32, y: u32) -> f64 {
 
 /// The right-handed rotation about +y by `deg` degrees.
 pub fn rotate_y(dir: DVec3, deg: f64) -> DVec3 {
-    let (s, c) = deg.to_radians().sin_cos();
-    DVec3::new(c * dir.x + s * dir.z, dir.y, -s * dir.x + c * dir.z)
+    YTurn::degrees(deg).apply(dir)
+}
+
+/// A right-handed rotation about +y with its sine and cosine computed once: a shading
+/// point turns several directions by the environment's rotation and back.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct YTurn {
+    sin: f64,
+    cos: f64,
+}
+
+impl YTurn {
+    pub fn degrees(deg: f64) -> Self {
+        let (sin, cos) = deg.to_radians().sin_cos();
+        Self { sin, cos }
+    }
+
+    /// `dir` turned by the rotation (map space to world space for an environment).
+    #[inline]
+    pub fn apply(self, dir: DVec3) -> DVec3 {
+        let (s, c) = (self.sin, self.cos);
+        DVec3::new(c * dir.x + s * dir.z, dir.y, -s * dir.x + c * dir.z)
+    }
+
+    /// `dir` turned back: `rotate_y(dir, -deg)` bit for bit (sine is odd).
+    #[inline]
+    pub fn undo(self, dir: DVec3) -> DVec3 {
+        Self {
+            sin: -self.sin,
+            cos: self.cos,
+        }
+        .apply(dir)
+    }
 }
 
 /// Why an image cannot be an environment map: empty, or a pixel that is negative or

@@ -34,13 +34,19 @@ pub struct EnvironmentSampler {
     col_cdf: Vec<f64>,
     /// Sum over pixels of luminance x solid angle.
     total: f64,
+    /// Guide tables of `row_cdf` (`height` entries) and of each row's column CDF
+    /// (`width` entries per row): `meso_materials::cdf`.
+    row_guide: Vec<u32>,
+    col_guide: Vec<u32>,
+    /// cos(pi y / height) for y in 0..=height: the rows' edges.
+    row_cos: Vec<f64>,
 }
 
 /// The first interval of `cdf` (non-decreasing, cdf[0] = 0, last = 1) whose upper end
-/// exceeds `u`, and `u` remapped to [0, 1) inside it. Zero-width intervals are skipped.
-fn pick(cdf: &[f64], u: f64) -> (usize, f64) {
-    let n = cdf.len() - 1;
-    let i = cdf[1..].partition_point(|&c| c <= u).min(n - 1);
+/// exceeds `u`, found through its `guide`, and `u` remapped to [0, 1) inside it.
+/// Zero-width intervals are skipped.
+fn pick(cdf: &[f64], guide: &[u32], u: f64) -> (usize, f64) {
+    let i = meso_materials::cdf::find(cdf, guide, u);
     let width = cdf[i + 1] - cdf[i];
     let t = if width > 0.0 {
         ((u - cdf[i]) / width).clamp(0.0, 1.0 - f64::EPSILON)
@@ -82,27 +88,40 @@ impl EnvironmentSampler {
             row_cdf[y + 1] = row_cdf[y] + row_lum * pixel_solid_angle(w as u32, h as u32, y as u32);
         }
         let total = normalise(&mut row_cdf);
-        (total > 0.0 && total.is_finite()).then_some(Self {
+        if !(total > 0.0 && total.is_finite()) {
+            return None;
+        }
+        let mut row_guide = Vec::with_capacity(h);
+        meso_materials::cdf::build_guide(&row_cdf, h, &mut row_guide);
+        let mut col_guide = Vec::with_capacity(h * w);
+        for cdf in col_cdf.chunks_exact(w + 1) {
+            meso_materials::cdf::build_guide(cdf, w, &mut col_guide);
+        }
+        Some(Self {
             width: w as u32,
             height: h as u32,
             luminance,
             row_cdf,
             col_cdf,
             total,
+            row_guide,
+            col_guide,
+            row_cos: (0..=h).map(|y| (PI * y as f64 / h as f64).cos()).collect(),
         })
     }
 
     /// A direction drawn with probability proportional to luminance x solid angle.
     pub fn sample(&self, map: &Image, u: DVec2) -> EnvironmentSample {
-        let (w, h) = (self.width as usize, self.height as usize);
-        let (y, ty) = pick(&self.row_cdf, u.x);
-        let (x, tx) = pick(&self.col_cdf[y * (w + 1)..(y + 1) * (w + 1)], u.y);
+        let w = self.width as usize;
+        let (y, ty) = pick(&self.row_cdf, &self.row_guide, u.x);
+        let (x, tx) = pick(
+            &self.col_cdf[y * (w + 1)..(y + 1) * (w + 1)],
+            &self.col_guide[y * w..(y + 1) * w],
+            u.y,
+        );
         // Uniform in solid angle inside the pixel: phi uniform, cos(theta) uniform.
         let phi = TAU * ((x as f64 + tx) / w as f64 - 0.5);
-        let (c0, c1) = (
-            (PI * y as f64 / h as f64).cos(),
-            (PI * (y + 1) as f64 / h as f64).cos(),
-        );
+        let (c0, c1) = (self.row_cos[y], self.row_cos[y + 1]);
         let cos_t = c0 + (c1 - c0) * ty;
         let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
         let dir = DVec3::new(sin_t * phi.cos(), cos_t, sin_t * phi.sin());
@@ -129,5 +148,17 @@ impl EnvironmentSampler {
     pub fn pdf(&self, dir: DVec3) -> f64 {
         let (x, y) = pixel_of(self.width, self.height, dir);
         self.luminance[y as usize * self.width as usize + x as usize] / self.total
+    }
+
+    /// `pdf(dir)` and `map`'s radiance in map-space direction `dir` (the map this
+    /// sampler was built from), finding the pixel once: a material-drawn direction
+    /// needs both.
+    pub fn pdf_and_radiance(&self, map: &Image, dir: DVec3) -> (f64, DVec3) {
+        let (x, y) = pixel_of(self.width, self.height, dir);
+        let p = map.get(x, y);
+        (
+            self.luminance[y as usize * self.width as usize + x as usize] / self.total,
+            DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64),
+        )
     }
 }

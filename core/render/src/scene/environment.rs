@@ -6,7 +6,7 @@ use std::sync::Arc;
 use glam::DVec3;
 
 use super::Problem;
-use crate::environment::{check_map, pixel_of, rotate_y};
+use crate::environment::{YTurn, check_map, pixel_of, rotate_y};
 use meso_materials::image::Image;
 
 /// A lat-long environment as a scene holds it: the map, a radiance multiplier and a
@@ -24,6 +24,11 @@ pub struct Environment {
 }
 
 impl Environment {
+    /// Its rotation about +y (map space to world space).
+    pub fn turn(&self) -> YTurn {
+        YTurn::degrees(self.rotate_y_deg)
+    }
+
     /// The map's radiance seen in world direction `dir` (unit), before `strength`.
     pub fn radiance_unit(&self, dir: DVec3) -> DVec3 {
         let d = rotate_y(dir, -self.rotate_y_deg);

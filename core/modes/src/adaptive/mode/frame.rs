@@ -313,14 +313,9 @@ impl AdaptiveMode {
                 }
             }
         };
-        let radiance_of = |wi: DVec3| {
-            let d = rotate_y(wi, -env.rotate_y_deg);
-            let (x, y) = meso_render::environment::pixel_of(map.width(), map.height(), d);
-            let p = map.get(x, y);
-            DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
-        };
+        let turn = env.turn();
         let e = sampler.sample(map, u_map);
-        let wi = rotate_y(e.dir, env.rotate_y_deg);
+        let wi = turn.apply(e.dir);
         if wi.dot(s.n) > 0.0 {
             counts.environment += 1;
             if !self.core.bvh.occluded(lift, wi, 0.0, f64::INFINITY) {
@@ -348,10 +343,9 @@ impl AdaptiveMode {
         if self.core.bvh.occluded(lift, wi, 0.0, f64::INFINITY) {
             return;
         }
-        let map_pdf = sampler.pdf(rotate_y(wi, -env.rotate_y_deg));
+        let (map_pdf, radiance) = sampler.pdf_and_radiance(map, turn.undo(wi));
         let weight = power(pdf, map_pdf);
-        out[ENVIRONMENT] +=
-            material.response_local(s.uv, li, lo) * radiance_of(wi) * (weight / pdf);
+        out[ENVIRONMENT] += material.response_local(s.uv, li, lo) * radiance * (weight / pdf);
     }
 
     /// A frame, in steps of rows when `stop` is given: the rest of the bandwidth pass

@@ -12,6 +12,7 @@ use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
 use super::wavelet::{Pyramid, max_blocks};
+use meso_materials::angle::atan2;
 use meso_materials::brdf::BasisFunction;
 use meso_materials::image::{Image, luminance};
 use meso_materials::spmm::SpmmMaterial;
@@ -28,10 +29,24 @@ const LUMINANCE: DVec3 = DVec3::new(0.2126, 0.7152, 0.0722);
 /// Cluster lobes remembered (`MaterialBandwidth::of_cluster`): 256 KB each.
 const CLUSTER_CACHE: usize = 64;
 
+/// The polar angle of local direction `w` (0 at the normal, pi/2 at and below the
+/// horizon) and its azimuth's cosine and sine (1 and 0 at the pole). The fast
+/// `atan2` (within 2e-13 rad) and no sine or cosine: the bandwidth pass looks up
+/// several directions per stratum.
+fn polar(w: DVec3) -> (f64, f64, f64) {
+    let rho = (w.x * w.x + w.y * w.y).sqrt();
+    let theta = atan2(rho, w.z.max(0.0));
+    if rho > 0.0 {
+        (theta, w.x / rho, w.y / rho)
+    } else {
+        (theta, 1.0, 0.0)
+    }
+}
+
 /// The cell of the fixed-direction grid holding local direction `w` (upper hemisphere).
 fn grid_cell(w: DVec3) -> usize {
-    let theta = w.x.hypot(w.y).atan2(w.z.max(0.0));
-    let phi = w.y.atan2(w.x).rem_euclid(TAU);
+    let theta = polar(w).0;
+    let phi = atan2(w.y, w.x).rem_euclid(TAU);
     let t = ((theta / FRAC_PI_2 * GRID as f64) as usize).min(GRID - 1);
     let p = ((phi / TAU * GRID as f64) as usize).min(GRID - 1);
     t * GRID + p
@@ -50,10 +65,9 @@ fn grid_direction(t: usize, p: usize) -> DVec3 {
 
 /// The azimuthal equidistant image coordinates in [0, 1)^2 of local direction `w`.
 fn lobe_coords(w: DVec3) -> (f64, f64) {
-    let theta = w.x.hypot(w.y).atan2(w.z.max(0.0));
+    let (theta, cos_phi, sin_phi) = polar(w);
     let r = theta / FRAC_PI_2;
-    let phi = w.y.atan2(w.x);
-    (0.5 + 0.5 * r * phi.cos(), 0.5 + 0.5 * r * phi.sin())
+    (0.5 + 0.5 * r * cos_phi, 0.5 + 0.5 * r * sin_phi)
 }
 
 /// The lobe-image pixel (row-major on the `GRID`^2 grid) that local direction `w`
@@ -302,7 +316,12 @@ impl EnvironmentBandwidth {
 
     /// The rate seen in world direction `dir` (unit) under `env`'s rotation.
     pub fn rate(&self, env: &Environment, dir: DVec3) -> f64 {
-        let d = meso_render::environment::rotate_y(dir, -env.rotate_y_deg);
+        self.rate_in_map(meso_render::environment::rotate_y(dir, -env.rotate_y_deg))
+    }
+
+    /// The rate seen in map-space direction `d` (unit): `rate` once the caller has
+    /// turned the direction into the map.
+    pub fn rate_in_map(&self, d: DVec3) -> f64 {
         let (x, y) = pixel_of(self.width, self.height, d);
         f64::from(self.rates[(y * self.width + x) as usize])
     }

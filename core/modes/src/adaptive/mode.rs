@@ -24,7 +24,7 @@ use super::upsample::{self, Guide};
 use meso_materials::brdf::warp;
 use meso_materials::image::Image;
 use meso_materials::rng::SampleStream;
-use meso_render::environment::{EnvironmentSampler, rotate_y};
+use meso_render::environment::EnvironmentSampler;
 use meso_render::film::material_bit;
 use meso_render::layers::{self, AMBIENT, ENVIRONMENT, LightTarget};
 use meso_render::progressive::{Edited, Progressive};

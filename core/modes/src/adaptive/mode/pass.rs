@@ -415,18 +415,23 @@ impl AdaptiveMode {
             return;
         };
         let (s, material, lo) = (at.s, paths.material, paths.lo);
+        let turn = env.turn();
         for (k, d) in drawn.iter().enumerate() {
             let Some((li, pdf)) = *d else { continue };
             let wi = s.to_world(li);
-            let radiance = env.radiance_unit(wi).dot(LUMINANCE) * env.strength;
-            let nu_a = env_bw.rate(env, wi);
+            // One turn into the map, and one pixel lookup for both the radiance and
+            // the map's pdf.
+            let in_map = turn.undo(wi);
+            let (map_pdf, radiance) = match &self.env_sampler {
+                Some(sampler) => sampler.pdf_and_radiance(&env.map, in_map),
+                None => (0.0, env.radiance_unit(wi)),
+            };
+            let radiance = radiance.dot(LUMINANCE) * env.strength;
+            let nu_a = env_bw.rate_in_map(in_map);
             let seen = (k < GUARD_RAYS as usize)
                 .then(|| !self.core.bvh.occluded(at.lift, wi, 0.0, f64::INFINITY));
             let lambda = paths.bounce(li, DVec2::new(0.0, nu_a), 0.0, radiance, 1.0 / pdf, seen);
-            if env.mis
-                && let Some(sampler) = &self.env_sampler
-            {
-                let map_pdf = sampler.pdf(rotate_y(wi, -env.rotate_y_deg));
+            if env.mis && self.env_sampler.is_some() {
                 value[k] += lambda * power(pdf, map_pdf);
             }
         }
@@ -435,7 +440,7 @@ impl AdaptiveMode {
                 break;
             };
             let e = sampler.sample(&env.map, at.strata.at(orders.map[k]));
-            let wi = rotate_y(e.dir, env.rotate_y_deg);
+            let wi = turn.apply(e.dir);
             let li = s.to_local(wi);
             if li.z <= 0.0 || e.pdf <= 0.0 {
                 continue;

@@ -55,6 +55,10 @@ pub struct AdaptiveArgs {
     /// Mean samples per shaded pixel per frame of the adaptive mode.
     #[arg(long)]
     mean_samples: Option<f64>,
+    /// Runs of each curve; each checkpoint keeps its shortest time (the images are the
+    /// same in every run), so a busy machine disturbs the figures less.
+    #[arg(long, default_value_t = 1)]
+    repeats: u32,
     #[arg(long)]
     json: bool,
 }
@@ -109,6 +113,7 @@ fn adaptive(args: &AdaptiveArgs) -> Result<(), CliError> {
         ("--reference-frames", args.reference_frames),
         ("--spmm-frames", args.spmm_frames),
         ("--adaptive-frames", args.adaptive_frames),
+        ("--repeats", args.repeats),
     ] {
         if v == 0 {
             return Err(CliError::bad_input(anyhow!("{name} must be at least 1")));
@@ -125,6 +130,7 @@ fn adaptive(args: &AdaptiveArgs) -> Result<(), CliError> {
             reference_frames: args.reference_frames,
             spmm_frames: args.spmm_frames,
             adaptive_frames: args.adaptive_frames,
+            repeats: args.repeats,
             options: {
                 let d = meso_modes::adaptive::AdaptiveOptions::default();
                 meso_modes::adaptive::AdaptiveOptions {

@@ -1,4 +1,4 @@
-//! `meso report convergence` and `meso precompute`.
+//! `meso report convergence`, `meso report adaptive` and `meso precompute`.
 
 use crate::*;
 
@@ -69,6 +69,75 @@ fn report_convergence_writes_csv_json_charts_and_the_reference() {
     let mut bad = args.to_vec();
     bad[10] = "4";
     assert_bad_input(&meso(&bad, ""), &["--max-frames", "--reference-frames"]);
+}
+
+/// Repeated runs: every curve runs twice, each checkpoint keeps its shorter time, and
+/// the two runs must render the same images (the report asserts it in this debug
+/// build), so the PSNR matches a single run's.
+#[test]
+fn report_adaptive_repeats_each_curve_and_keeps_its_images() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../tests/scenes/merl_teapot.toml"
+    );
+    let run = |name: &str, repeats: &str| {
+        let out = dir.path().join(name);
+        let args = [
+            "report",
+            "adaptive",
+            scene,
+            "-o",
+            out.to_str().expect("utf-8"),
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--reference-frames",
+            "16",
+            "--spmm-frames",
+            "4",
+            "--adaptive-frames",
+            "4",
+            "--repeats",
+            repeats,
+            "--json",
+        ];
+        let o = meso(&args, "");
+        assert_ok(&o);
+        let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+        v["curves"]
+            .as_array()
+            .expect("curves")
+            .iter()
+            .flat_map(|c| c["checkpoints"].as_array().expect("checkpoints").clone())
+            .map(|k| {
+                assert!(k["seconds"].as_f64().expect("seconds") > 0.0);
+                k["psnr_db"].as_f64().expect("PSNR")
+            })
+            .collect::<Vec<f64>>()
+    };
+    let once = run("once", "1");
+    let twice = run("twice", "2");
+    assert_eq!(
+        once.len(),
+        3 + 3 * 3,
+        "1, 2, 4 frames of the brute force and three variants"
+    );
+    assert_eq!(once, twice);
+    let bad = meso(
+        &[
+            "report",
+            "adaptive",
+            scene,
+            "-o",
+            "unused",
+            "--repeats",
+            "0",
+        ],
+        "",
+    );
+    assert_bad_input(&bad, &["--repeats"]);
 }
 
 #[test]

@@ -29,8 +29,9 @@ struct AdaptiveParams {
 }
 
 @group(0) @binding(0) var<uniform> ap: AdaptiveParams;
-// Per pixel (INPUT_WORDS): eq. 11's level, the predicted deviation sigma, and the
-// guide: depth (f32 infinity on a miss), the projected normal's direction, |cos|.
+// Per pixel (INPUT_WORDS): eq. 11's level, the predicted deviation sigma, the guide:
+// depth (f32 infinity on a miss), the projected normal's direction, |cos|, and the
+// pass's mean of the estimator.
 @group(0) @binding(1) var<storage, read> inputs: array<u32>;
 // Per level k and block of 2^k pixels (MIP_WORDS): min level, max sigma.
 @group(0) @binding(2) var<storage, read_write> mips: array<u32>;
@@ -48,7 +49,7 @@ struct AdaptiveParams {
 // The resolved image (vec4 per pixel), up-sampled in place.
 @group(0) @binding(6) var<storage, read_write> image: array<vec4<f32>>;
 
-const INPUT_WORDS: u32 = 6u;
+const INPUT_WORDS: u32 = 7u;
 const MIP_WORDS: u32 = 2u;
 const STATE_WORDS: u32 = 5u;
 const AUX_SAMPLES: u32 = 6u;
@@ -254,14 +255,20 @@ fn mip_level(@builtin(global_invocation_id) id: vec3<u32>) {
 }
 
 // `allocation::corrected_sigma`: the prediction pooled with the pixel's own samples'
-// variance, the prediction counted as PREDICTION_WEIGHT samples.
+// variance, the prediction counted as PREDICTION_WEIGHT samples; a single sample
+// measures its squared distance from the pass's mean on one degree of freedom.
 fn corrected_sigma(predicted: f32, i: u32) -> f32 {
     let n = state[i * STATE_WORDS + 2u];
-    if n < 2u {
+    if n == 0u {
         return predicted;
     }
-    let m2 = bitcast<f32>(state[i * STATE_WORDS + 4u]);
-    let dof = f32(n - 1u);
+    var m2 = bitcast<f32>(state[i * STATE_WORDS + 4u]);
+    var dof = f32(n - 1u);
+    if n == 1u {
+        let d = bitcast<f32>(state[i * STATE_WORDS + 3u]) - bitcast<f32>(inputs[i * INPUT_WORDS + 6u]);
+        m2 = d * d;
+        dof = 1.0;
+    }
     return sqrt(max((PREDICTION_WEIGHT * predicted * predicted + m2) / (PREDICTION_WEIGHT + dof), 0.0));
 }
 

@@ -43,7 +43,7 @@ const NO_TABLE: u32 = 0xffffffffu;
 
 const G_FLOATS: u32 = 8u;
 const RESULT_FLOATS: u32 = 4u;
-const PASS_INPUT_WORDS: u32 = 6u;
+const PASS_INPUT_WORDS: u32 = 7u;
 // The most light directions per emitter (`PassTables::MAX_N_B`).
 const MAX_N_B: u32 = 64u;
 
@@ -625,4 +625,5 @@ fn pass_finish(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgr
     aux[out + 3u] = bitcast<u32>(normal_dir.x);
     aux[out + 4u] = bitcast<u32>(normal_dir.y);
     aux[out + 5u] = bitcast<u32>(cos_x);
+    aux[out + 6u] = bitcast<u32>(mean);
 }

@@ -25,6 +25,8 @@ pub struct PassPixel {
     pub normal_dir: [f32; 2],
     /// |cos| between the normal and the view direction.
     pub cos_x: f32,
+    /// The pass's mean of the frames' estimator (luminance; `Buffers::mean`).
+    pub mean: f32,
 }
 
 /// The adaptive mode's knobs the frames read (`AdaptiveOptions`).
@@ -54,7 +56,7 @@ struct AdaptiveParams {
     pad1: f32,
 }
 
-const INPUT_WORDS: u64 = 6;
+const INPUT_WORDS: u64 = 7;
 const MIP_WORDS: u64 = 2;
 const STATE_WORDS: u64 = 5;
 
@@ -264,6 +266,7 @@ impl AdaptiveDevice {
                     p.normal_dir[0].to_bits(),
                     p.normal_dir[1].to_bits(),
                     p.cos_x.to_bits(),
+                    p.mean.to_bits(),
                 ]
             })
             .collect();
@@ -395,6 +398,7 @@ impl AdaptiveDevice {
                 depth: f32::from_bits(w[2]),
                 normal_dir: [f32::from_bits(w[3]), f32::from_bits(w[4])],
                 cos_x: f32::from_bits(w[5]),
+                mean: f32::from_bits(w[6]),
             })
             .collect())
     }

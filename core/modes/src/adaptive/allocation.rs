@@ -71,13 +71,17 @@ pub const PREDICTION_WEIGHT: f64 = 16.0;
 /// its own samples show, pooled with the prediction counted as `PREDICTION_WEIGHT`
 /// samples: the prediction leads while a pixel has few samples, its measurement once
 /// it has many (the prediction misses what the pass does not model, e.g. shadows, and
-/// a lobe that 16 directions barely sample).
-pub fn corrected_sigma(predicted: f64, own: &Moments) -> f64 {
-    if own.n < 2 {
-        return predicted;
-    }
-    let dof = f64::from(own.n - 1);
-    ((PREDICTION_WEIGHT * predicted * predicted + dof * own.variance()) / (PREDICTION_WEIGHT + dof))
+/// a lobe that 16 directions barely sample). A single sample measures its squared
+/// distance from the pass's mean (`predicted_mean`) on one degree of freedom: a first
+/// sample far from what the pass expects (a highlight's rare hit) draws samples in the
+/// next frame instead of standing alone until the dithering gives the pixel another.
+pub fn corrected_sigma(predicted: f64, predicted_mean: f64, own: &Moments) -> f64 {
+    let (dof, variance) = match own.n {
+        0 => return predicted,
+        1 => (1.0, (own.mean() - predicted_mean).powi(2)),
+        n => (f64::from(n - 1), own.variance()),
+    };
+    ((PREDICTION_WEIGHT * predicted * predicted + dof * variance) / (PREDICTION_WEIGHT + dof))
         .sqrt()
 }
 
@@ -183,17 +187,23 @@ mod tests {
     #[test]
     fn the_corrected_deviation_pools_the_prediction_with_the_measured_variance() {
         let predicted = 0.5;
-        // Fewer than two samples measure no variance: the prediction alone.
+        // No sample: the prediction alone. One sample: its squared distance from the
+        // predicted mean 1 on one degree of freedom, (16 * 0.25 + 1 * 4) / 17.
         let mut m = Moments::default();
-        assert_eq!(corrected_sigma(predicted, &m), predicted);
+        assert_eq!(corrected_sigma(predicted, 1.0, &m), predicted);
         m.add(3.0);
-        assert_eq!(corrected_sigma(predicted, &m), predicted);
+        let s = corrected_sigma(predicted, 1.0, &m);
+        assert!((s * s - 8.0 / 17.0).abs() < 1e-12, "{s}");
+        // A first sample where the pass expects it keeps the deviation below the
+        // prediction's: (16 * 0.25 + 0) / 17.
+        let s = corrected_sigma(predicted, 3.0, &m);
+        assert!((s * s - 4.0 / 17.0).abs() < 1e-12, "{s}");
         // Draws 3, 1, 5, 7: variance 20 / 3 on 3 degrees of freedom, pooled with the
         // prediction's 0.25 on 16: (16 * 0.25 + 3 * 20 / 3) / 19 = 24 / 19.
         for v in [1.0, 5.0, 7.0] {
             m.add(v);
         }
-        let s = corrected_sigma(predicted, &m);
+        let s = corrected_sigma(predicted, 1.0, &m);
         assert!((s * s - 24.0 / 19.0).abs() < 1e-12, "{s}");
         // Many draws: the measurement leads. 4000 alternating 0 and 2 have variance
         // about 1; the pooled deviation is within 0.2% of 1.
@@ -201,10 +211,10 @@ mod tests {
         for k in 0..4000 {
             many.add(if k % 2 == 0 { 0.0 } else { 2.0 });
         }
-        let s = corrected_sigma(predicted, &many);
+        let s = corrected_sigma(predicted, 1.0, &many);
         assert!((s - 1.0).abs() < 2e-3, "{s}");
         // A predicted zero does not keep a pixel whose draws vary at zero.
-        assert!(corrected_sigma(0.0, &many) > 0.99);
+        assert!(corrected_sigma(0.0, 1.0, &many) > 0.99);
     }
 
     #[test]

@@ -91,6 +91,7 @@ fn pass_difference(what: &str, g: &GpuAdaptiveMode) -> PassDifference {
     assert_eq!(got.len(), want.level.len(), "{what}: pixels");
     let n = got.len() as f64;
     let mean_sigma = want.sigma.iter().sum::<f64>() / n;
+    let mean_level = want.mean.iter().map(|m| m.abs()).sum::<f64>() / n;
     let (mut levels, mut sigmas, mut guides) = (0, 0, 0);
     let mut rel: Vec<f64> = got
         .iter()
@@ -110,8 +111,13 @@ fn pass_difference(what: &str, g: &GpuAdaptiveMode) -> PassDifference {
     for (i, p) in got.iter().enumerate() {
         levels += usize::from(p.level != want.level[i]);
         let sigma = want.sigma[i];
-        sigmas +=
-            usize::from((f64::from(p.sigma) - sigma).abs() > 1e-2 * sigma.max(1e-3 * mean_sigma));
+        // The pass's mean, which a pixel's first sample is measured against, with the
+        // same tolerance.
+        let mean = want.mean[i];
+        sigmas += usize::from(
+            (f64::from(p.sigma) - sigma).abs() > 1e-2 * sigma.max(1e-3 * mean_sigma)
+                || (f64::from(p.mean) - mean).abs() > 1e-2 * mean.abs().max(1e-3 * mean_level),
+        );
         let guide = &want.guide;
         let depth = guide.depth[i];
         let depth_ok = if depth.is_finite() {

@@ -60,7 +60,7 @@ impl AdaptiveMode {
             let (x, y) = (i as u32 % w, i as u32 / w);
             let bw = w.div_ceil(1 << k);
             let predicted = b.sigma_mip[k as usize][((y >> k) * bw + (x >> k)) as usize];
-            allocation::corrected_sigma(predicted, &self.moments[i])
+            allocation::corrected_sigma(predicted, b.mean[i], &self.moments[i])
         };
         let (mut sum, mut count) = (0.0, 0usize);
         for (i, s) in site_level.iter().enumerate() {

@@ -52,6 +52,7 @@ fn pass_pixels(b: &Buffers) -> Vec<PassPixel> {
             depth: g.depth[i] as f32,
             normal_dir: [g.normal_dir[i].x as f32, g.normal_dir[i].y as f32],
             cos_x: g.cos_x[i] as f32,
+            mean: b.mean[i] as f32,
         })
         .collect()
 }

@@ -19,6 +19,10 @@ pub struct Buffers {
     pub sigma: Vec<f64>,
     /// Eq. 6 per pixel (samples per pixel).
     pub rate: Vec<f64>,
+    /// The mean of the frames' estimator over the pass's directions per pixel
+    /// (luminance, emissions applied; visibility left out but for the guard rays):
+    /// what a pixel's first sample is measured against (`allocation::corrected_sigma`).
+    pub mean: Vec<f64>,
     /// Max-filtered `sigma`, per level (level 0 = `sigma`).
     pub(super) sigma_mip: Vec<Vec<f64>>,
     /// Seconds of the G-buffer (part of `seconds`).
@@ -254,6 +258,7 @@ impl AdaptiveMode {
             variance,
             sigma,
             rate,
+            mean,
             sigma_mip,
             gbuffer_seconds,
             seconds: seconds + start.elapsed().as_secs_f64(),

@@ -45,7 +45,11 @@ fn polar(w: DVec3) -> (f64, f64, f64) {
 
 /// The cell of the fixed-direction grid holding local direction `w` (upper hemisphere).
 fn grid_cell(w: DVec3) -> usize {
-    let theta = polar(w).0;
+    grid_cell_at(w, polar(w).0)
+}
+
+/// `grid_cell` of `w` whose polar angle `theta` is known.
+fn grid_cell_at(w: DVec3, theta: f64) -> usize {
     let phi = atan2(w.y, w.x).rem_euclid(TAU);
     let t = ((theta / FRAC_PI_2 * GRID as f64) as usize).min(GRID - 1);
     let p = ((phi / TAU * GRID as f64) as usize).min(GRID - 1);
@@ -64,16 +68,15 @@ fn grid_direction(t: usize, p: usize) -> DVec3 {
 }
 
 /// The azimuthal equidistant image coordinates in [0, 1)^2 of local direction `w`.
-fn lobe_coords(w: DVec3) -> (f64, f64) {
-    let (theta, cos_phi, sin_phi) = polar(w);
+fn lobe_coords((theta, cos_phi, sin_phi): (f64, f64, f64)) -> (f64, f64) {
     let r = theta / FRAC_PI_2;
     (0.5 + 0.5 * r * cos_phi, 0.5 + 0.5 * r * sin_phi)
 }
 
-/// The lobe-image pixel (row-major on the `GRID`^2 grid) that local direction `w`
-/// falls in.
-fn lobe_pixel(w: DVec3) -> usize {
-    let (u, v) = lobe_coords(w);
+/// The lobe-image pixel (row-major on the `GRID`^2 grid) that a local direction falls
+/// in, from its `polar` angles.
+fn lobe_pixel_at(angles: (f64, f64, f64)) -> usize {
+    let (u, v) = lobe_coords(angles);
     let x = ((u * GRID as f64) as usize).min(GRID - 1);
     let y = ((v * GRID as f64) as usize).min(GRID - 1);
     y * GRID + x
@@ -90,9 +93,11 @@ pub struct LobeIndex {
 
 impl LobeIndex {
     pub fn of(w: DVec3) -> Self {
+        // One `polar` for both tables.
+        let angles = polar(w);
         Self {
-            cell: grid_cell(w),
-            pixel: lobe_pixel(w),
+            cell: grid_cell_at(w, angles.0),
+            pixel: lobe_pixel_at(angles),
         }
     }
 }
@@ -441,7 +446,7 @@ mod tests {
         .expect("brdf");
         // The plain definition: the fixed direction's cell, the lobe pixel of `at`.
         let rate = |fixed: DVec3, at: DVec3| {
-            f64::from(b.rates[grid_cell(fixed) * GRID * GRID + lobe_pixel(at)])
+            f64::from(b.rates[grid_cell(fixed) * GRID * GRID + lobe_pixel_at(polar(at))])
         };
         let wo = DVec3::new(0.5f64.sin(), 0.0, 0.5f64.cos());
         let mirror = DVec3::new(-wo.x, -wo.y, wo.z);

@@ -39,6 +39,7 @@ const H_ENV_HEIGHT: u32 = 18u;
 const H_LIGHT_RATES: u32 = 19u;   // offset of one word per scene light: its table or NO_TABLE
 const H_GRID: u32 = 20u;          // fixed directions per side of a material's table
 const H_LIGHT_RES: u32 = 21u;     // samples per side of a light's table
+const H_REMAINDER_ORDER: u32 = 22u; // offset of n_b words: a split map's second part
 const NO_TABLE: u32 = 0xffffffffu;
 
 const G_FLOATS: u32 = 8u;
@@ -277,8 +278,9 @@ fn env_rate(d: vec3<f32>) -> f32 {
     return tf(tw(H_ENV_RATES) + latlong_pixel(tw(H_ENV_WIDTH), tw(H_ENV_HEIGHT), m));
 }
 
-// `environment_paths`: the material's directions with the map's rates, and the map's
-// strategy at its own order of the strata.
+// `environment_paths`: the material's directions with the map's rates, and the
+// strategy of each part of the map at its own order of the strata, its first
+// directions guarded too.
 fn environment_paths(at: PassPoint) {
     if tw(H_ENV_RATES) == NO_TABLE || env[ENV_LIGHTS] == 0u {
         return;
@@ -286,32 +288,50 @@ fn environment_paths(at: PassPoint) {
     let n_b = strata_count();
     let mis = env[ENV_MIS] != 0u;
     let strength = params.weights[LAYER_ENVIRONMENT].xyz;
+    let parts = env_parts();
     for (var k = 0u; k < n_b; k++) {
         let m = drawn_direction(at, stratum(k));
         if !(m.w > 0.0) {
             continue;
         }
-        let radiance = lum(env_radiance(m.xyz) * strength);
+        let full = lum(env_radiance(m.xyz) * strength);
         var open = true;
         if k < tw(H_GUARD_RAYS) {
             open = !occluded(at.lift, m.xyz, FAR);
         }
-        let lambda = bounce(at, to_local(at.s, m.xyz), vec2<f32>(0.0, env_rate(m.xyz)), 0.0, radiance, 1.0 / m.w, guard_of(k, open));
-        if mis {
-            values[k] += lambda * power_heuristic(m.w, env_pdf(m.xyz));
+        let lambda = bounce(at, to_local(at.s, m.xyz), vec2<f32>(0.0, env_rate(m.xyz)), 0.0, full, 1.0 / m.w, guard_of(k, open));
+        if mis && full > 0.0 {
+            // Each part's share of lambda, weighted against its own strategy.
+            let p = env_pixel(m.xyz);
+            for (var j = 0u; j < parts; j++) {
+                let a = env_part_at(env_part(j), p);
+                values[k] += lambda * (lum(a.xyz * strength) / full) * power_heuristic(m.w, a.w);
+            }
         }
     }
-    for (var k = 0u; k < n_b; k++) {
-        let e = env_sample(stratum(tw(tw(H_MAP_ORDER) + k)));
-        if dot(e.dir, at.s.n) <= 0.0 || !(e.pdf > 0.0) {
-            continue;
+    for (var j = 0u; j < parts; j++) {
+        let order = select(tw(H_MAP_ORDER), tw(H_REMAINDER_ORDER), j == 1u);
+        for (var k = 0u; k < n_b; k++) {
+            let e = env_sample_part(env_part(j), stratum(tw(order + k)));
+            if dot(e.dir, at.s.n) <= 0.0 || !(e.pdf > 0.0) {
+                continue;
+            }
+            var weight = 1.0;
+            if mis {
+                weight = power_heuristic(e.pdf, material_pdf(at.s, e.dir, at.wo));
+            }
+            let f = lum(response(at.s, e.dir, at.wo));
+            let lambda = f * lum(e.radiance * strength) * weight / e.pdf;
+            values[k] += lambda;
+            // Guards along the map's own directions: they find the sun where the
+            // frames' map samples find it (`pass.rs`).
+            if k < tw(H_GUARD_RAYS) {
+                sums.guarded += lambda;
+                if !occluded(at.lift, e.dir, FAR) {
+                    sums.visible += lambda;
+                }
+            }
         }
-        var weight = 1.0;
-        if mis {
-            weight = power_heuristic(e.pdf, material_pdf(at.s, e.dir, at.wo));
-        }
-        let f = lum(response(at.s, e.dir, at.wo));
-        values[k] += f * lum(e.radiance * strength) * weight / e.pdf;
     }
 }
 

@@ -21,6 +21,15 @@ const ENV_RGB: u32 = 9u;         // width x height x 3, the map (0: no environme
 const BG_WIDTH: u32 = 10u;
 const BG_HEIGHT: u32 = 11u;
 const BG_RGB: u32 = 12u;         // the background image, width x height x 3
+// The map sampled in two parts, its peaks and its remainder, each by its own tables
+// (the adaptive mode's frames, `meso_render::environment::sampled_parts`): 2 here,
+// else the map is sampled whole by the tables above.
+const ENV_PARTS: u32 = 13u;
+const ENV_PEAKS_RGB: u32 = 14u;  // with two parts: the peaks' radiance (the first part)
+const ENV_REST_ROW_CDF: u32 = 16u; // the remainder's tables and radiance, as above
+const ENV_REST_COL_CDF: u32 = 17u;
+const ENV_REST_PDF: u32 = 18u;
+const ENV_REST_RGB: u32 = 19u;
 
 // params.background: what rays that leave the scene add.
 const ESCAPE_BLACK: u32 = 0u;
@@ -80,13 +89,36 @@ struct EnvSample {
     radiance: vec3<f32>,
 }
 
-// `EnvironmentSampler::sample`, rotated into the world.
-fn env_sample(u: vec2<f32>) -> EnvSample {
+// One part of the map as its sampler reads it: the offsets of its row CDF, column
+// CDFs, per-pixel pdf and radiance.
+struct EnvPart {
+    row_cdf: u32,
+    col_cdf: u32,
+    pdf: u32,
+    rgb: u32,
+}
+
+// The number of parts the map is sampled in (1: whole).
+fn env_parts() -> u32 {
+    return select(1u, 2u, env[ENV_PARTS] == 2u);
+}
+
+// Part `j` (0: the whole map, or its peaks; 1: its remainder).
+fn env_part(j: u32) -> EnvPart {
+    if j == 1u {
+        return EnvPart(env[ENV_REST_ROW_CDF], env[ENV_REST_COL_CDF], env[ENV_REST_PDF], env[ENV_REST_RGB]);
+    }
+    let rgb = select(env[ENV_RGB], env[ENV_PEAKS_RGB], env[ENV_PARTS] == 2u);
+    return EnvPart(env[ENV_ROW_CDF], env[ENV_COL_CDF], env[ENV_PDF], rgb);
+}
+
+// `EnvironmentSampler::sample` of `part`, rotated into the world.
+fn env_sample_part(part: EnvPart, u: vec2<f32>) -> EnvSample {
     let w = env[ENV_WIDTH];
     let h = env[ENV_HEIGHT];
-    let row = pick(env[ENV_ROW_CDF], h, u.x);
+    let row = pick(part.row_cdf, h, u.x);
     let y = row.index;
-    let col = pick(env[ENV_COL_CDF] + y * (w + 1u), w, u.y);
+    let col = pick(part.col_cdf + y * (w + 1u), w, u.y);
     let x = col.index;
     let phi = 2.0 * PI * ((f32(x) + col.t) / f32(w) - 0.5);
     let c0 = cos(PI * f32(y) / f32(h));
@@ -97,14 +129,29 @@ fn env_sample(u: vec2<f32>) -> EnvSample {
     let p = y * w + x;
     return EnvSample(
         rotate_about_y(m, env_f(ENV_COS), env_f(ENV_SIN)),
-        env_f(env[ENV_PDF] + p),
-        env_rgb(env[ENV_RGB] + p * 3u));
+        env_f(part.pdf + p),
+        env_rgb(part.rgb + p * 3u));
+}
+
+// `EnvironmentSampler::sample` of the first part.
+fn env_sample(u: vec2<f32>) -> EnvSample {
+    return env_sample_part(env_part(0u), u);
+}
+
+// The map's pixel seen in world direction `d`.
+fn env_pixel(d: vec3<f32>) -> u32 {
+    let m = rotate_about_y(d, env_f(ENV_COS), -env_f(ENV_SIN));
+    return latlong_pixel(env[ENV_WIDTH], env[ENV_HEIGHT], m);
+}
+
+// `EnvironmentSampler::pdf_and_radiance` of `part` at map pixel `p`: (rgb, pdf).
+fn env_part_at(part: EnvPart, p: u32) -> vec4<f32> {
+    return vec4<f32>(env_rgb(part.rgb + p * 3u), env_f(part.pdf + p));
 }
 
 // `EnvironmentSampler::pdf` of world direction `d`.
 fn env_pdf(d: vec3<f32>) -> f32 {
-    let m = rotate_about_y(d, env_f(ENV_COS), -env_f(ENV_SIN));
-    return env_f(env[ENV_PDF] + latlong_pixel(env[ENV_WIDTH], env[ENV_HEIGHT], m));
+    return env_f(env[ENV_PDF] + env_pixel(d));
 }
 
 fn power_heuristic(a: f32, b: f32) -> f32 {
@@ -165,7 +212,8 @@ fn material_sample(s: Shading, wo: vec3<f32>, u: vec2<f32>) -> vec4<f32> {
     return vec4<f32>(s.t * local.x + s.b * local.y + s.n * local.z, local.w);
 }
 
-// `SpmmMode::sample_environment`: always draws four numbers.
+// `SpmmMode::sample_environment`: always draws four numbers; a map sampled in two
+// parts (the adaptive mode's `sample_environment`) draws two more after them.
 fn sample_environment(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: vec3<f32>, pixel: u32, rng: ptr<function, Rng>) {
     let u_map = rand2(rng);
     let u_material = rand2(rng);
@@ -173,22 +221,29 @@ fn sample_environment(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: ve
         return;
     }
     let mis = env[ENV_MIS] != 0u;
-    // Strategy 1: the map.
-    let e = env_sample(u_map);
-    if dot(e.dir, s.n) > 0.0 && e.pdf > 0.0 {
-        counts.environment += 1u;
-        if !occluded(lift, e.dir, FAR) {
-            var weight = 1.0;
-            if mis {
-                weight = power_heuristic(e.pdf, material_pdf(s, e.dir, wo));
+    let parts = env_parts();
+    // Strategy 1: the map, one direction from each part.
+    for (var j = 0u; j < parts; j++) {
+        var u = u_map;
+        if j > 0u {
+            u = rand2(rng);
+        }
+        let e = env_sample_part(env_part(j), u);
+        if dot(e.dir, s.n) > 0.0 && e.pdf > 0.0 {
+            counts.environment += 1u;
+            if !occluded(lift, e.dir, FAR) {
+                var weight = 1.0;
+                if mis {
+                    weight = power_heuristic(e.pdf, material_pdf(s, e.dir, wo));
+                }
+                add_layer(pixel, LAYER_ENVIRONMENT, throughput * response(s, e.dir, wo) * e.radiance * (weight / e.pdf));
             }
-            add_layer(pixel, LAYER_ENVIRONMENT, throughput * response(s, e.dir, wo) * e.radiance * (weight / e.pdf));
         }
     }
     if !mis {
         return;
     }
-    // Strategy 2: the material.
+    // Strategy 2: the material, weighted against each part's own strategy.
     let m = material_sample(s, wo, u_material);
     if !(m.w > 0.0) || dot(m.xyz, s.n) <= 0.0 {
         return;
@@ -197,6 +252,10 @@ fn sample_environment(s: Shading, wo: vec3<f32>, lift: vec3<f32>, throughput: ve
     if occluded(lift, m.xyz, FAR) {
         return;
     }
-    let weight = power_heuristic(m.w, env_pdf(m.xyz));
-    add_layer(pixel, LAYER_ENVIRONMENT, throughput * response(s, m.xyz, wo) * env_radiance(m.xyz) * (weight / m.w));
+    let p = env_pixel(m.xyz);
+    let f = throughput * response(s, m.xyz, wo);
+    for (var j = 0u; j < parts; j++) {
+        let at = env_part_at(env_part(j), p);
+        add_layer(pixel, LAYER_ENVIRONMENT, f * at.xyz * (power_heuristic(m.w, at.w) / m.w));
+    }
 }

@@ -55,6 +55,10 @@ pub struct AdaptiveArgs {
     /// Mean samples per shaded pixel per frame of the adaptive mode.
     #[arg(long)]
     mean_samples: Option<f64>,
+    /// Sample the environment map whole with one sampler, as the spmm mode does,
+    /// instead of its peaks and its remainder each with its own (the split's baseline).
+    #[arg(long)]
+    whole_environment: bool,
     /// Runs of each curve; each checkpoint keeps its shortest time (the images are the
     /// same in every run), so a busy machine disturbs the figures less.
     #[arg(long, default_value_t = 1)]
@@ -136,6 +140,7 @@ fn adaptive(args: &AdaptiveArgs) -> Result<(), CliError> {
                 meso_modes::adaptive::AdaptiveOptions {
                     refine_frames: args.refine_frames.unwrap_or(d.refine_frames),
                     mean_samples: args.mean_samples.unwrap_or(d.mean_samples),
+                    split_environment: !args.whole_environment,
                     ..d
                 }
             },

@@ -36,6 +36,9 @@ pub struct AdaptiveKnobs {
     pub max_samples: u32,
     pub min_share: f64,
     pub refine_frames: u32,
+    /// Sample the environment map's peaks and its remainder each with its own tables
+    /// (`AdaptiveOptions::split_environment`).
+    pub split_environment: bool,
 }
 
 /// The uniform block of `shaders/adaptive.wgsl` (`AdaptiveParams`).

@@ -47,6 +47,9 @@ pub struct PassTables<'a> {
     pub rules: PassRules,
     /// The order in which the environment map's strategy visits the strata.
     pub map_order: &'a [u32],
+    /// The order in which a map sampled in two parts draws its second part (its
+    /// remainder) over the strata.
+    pub remainder_order: &'a [u32],
     /// Per scene light, the order in which its points visit the strata.
     pub light_orders: Vec<&'a [u32]>,
     /// Per scene material, its rate table (`grid`^4, row-major by fixed direction);
@@ -59,7 +62,7 @@ pub struct PassTables<'a> {
 }
 
 /// Words of the tables' header (`H_*` in the shader).
-const HEADER_WORDS: usize = 22;
+const HEADER_WORDS: usize = 23;
 /// The shader's `H_FIRST`: the first pixel of an analysis dispatch.
 const H_FIRST: u64 = 5;
 const NO_TABLE: u32 = u32::MAX;
@@ -82,7 +85,10 @@ impl PassTables<'_> {
         }
         let r = self.rules;
         let order_ok = |o: &[u32]| o.len() == n_b as usize && o.iter().all(|&k| k < n_b);
-        if !order_ok(self.map_order) || self.light_orders.len() != lights {
+        if !order_ok(self.map_order)
+            || !order_ok(self.remainder_order)
+            || self.light_orders.len() != lights
+        {
             return Err("the pass's strata orders do not match its n_b and lights".into());
         }
         let table = |len: usize, want: u32| len == (want as usize).pow(2);
@@ -125,6 +131,8 @@ impl PassTables<'_> {
         w[21] = r.light_res;
         w[13] = w.len() as u32;
         w.extend_from_slice(self.map_order);
+        w[22] = w.len() as u32;
+        w.extend_from_slice(self.remainder_order);
         w[14] = w.len() as u32;
         for order in &self.light_orders {
             if !order_ok(order) {

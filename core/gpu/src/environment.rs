@@ -3,10 +3,17 @@
 //! background image, behind a header of offsets. What rays that leave the scene see
 //! is `Params::background` (`escape`).
 
+use std::sync::Arc;
+
+use meso_materials::image::Image;
 use meso_render::environment::EnvironmentSampler;
 use meso_render::scene::{Background, Environment, Scene};
 
-const HEADER_WORDS: usize = 16;
+const HEADER_WORDS: usize = 24;
+
+/// The map sampled in two parts, its peaks and its remainder, each with its own
+/// sampler (`meso_render::environment::sampled_parts`).
+pub(super) type MapParts = [(EnvironmentSampler, Arc<Image>); 2];
 
 /// `params.background` of `shaders/environment.wgsl` (`ESCAPE_*`).
 pub(super) fn escape(scene: &Scene) -> u32 {
@@ -33,9 +40,45 @@ fn push_rgb(words: &mut Vec<u32>, image: &meso_materials::image::Image) -> u32 {
     at
 }
 
+/// How the frames sample the environment map: whole, or in two parts where it has
+/// peaks and `split` asks for them (the adaptive mode's frames).
+pub(super) struct MapSampling {
+    pub split: bool,
+    /// The whole map's sampler (`None`: no environment, or black).
+    pub whole: Option<EnvironmentSampler>,
+    pub parts: Option<MapParts>,
+}
+
+impl MapSampling {
+    pub fn new(environment: Option<&Environment>, split: bool) -> Self {
+        let map = environment.map(|e| &e.map);
+        Self {
+            split,
+            whole: map.and_then(|m| EnvironmentSampler::new(m)),
+            parts: map
+                .filter(|_| split)
+                .and_then(meso_render::environment::sampled_parts),
+        }
+    }
+}
+
+/// A sampler's tables after `w`: the offsets of its row CDF, column CDFs and pdfs.
+fn push_tables(w: &mut Vec<u32>, sampler: &EnvironmentSampler) -> [u32; 3] {
+    let (rows, cols, pdfs) = sampler.tables();
+    let rows_at = w.len() as u32;
+    w.extend(rows.iter().map(|&v| f(v)));
+    let cols_at = w.len() as u32;
+    w.extend(cols.iter().map(|&v| f(v)));
+    let pdfs_at = w.len() as u32;
+    w.extend(pdfs.map(f));
+    [rows_at, cols_at, pdfs_at]
+}
+
 /// The words for `scene`'s environment and background (a bare header without
-/// either). `sampler` is the environment map's (`None`: no environment, or black).
-pub(super) fn words(scene: &Scene, sampler: Option<&EnvironmentSampler>) -> Vec<u32> {
+/// either). With `sampling.parts`, the frames draw the map's peaks and its remainder
+/// each with its own tables (`ENV_PARTS`) instead of the whole map's.
+pub(super) fn words(scene: &Scene, sampling: &MapSampling) -> Vec<u32> {
+    let (sampler, parts) = (sampling.whole.as_ref(), sampling.parts.as_ref());
     let mut w = vec![0u32; HEADER_WORDS];
     if let Some(env) = &scene.environment {
         let (s, c) = env.rotate_y_deg.to_radians().sin_cos();
@@ -44,15 +87,23 @@ pub(super) fn words(scene: &Scene, sampler: Option<&EnvironmentSampler>) -> Vec<
         w[3] = u32::from(env.mis);
         w[4] = f(c);
         w[5] = f(s);
-        if let Some(sampler) = sampler {
-            let (rows, cols, pdfs) = sampler.tables();
-            w[0] = 1;
-            w[6] = w.len() as u32;
-            w.extend(rows.iter().map(|&v| f(v)));
-            w[7] = w.len() as u32;
-            w.extend(cols.iter().map(|&v| f(v)));
-            w[8] = w.len() as u32;
-            w.extend(pdfs.map(f));
+        match (sampler, parts) {
+            (Some(_), Some([(peaks, peak_map), (rest, rest_map)])) => {
+                w[0] = 1;
+                w[13] = 2;
+                let at = push_tables(&mut w, peaks);
+                w[6..9].copy_from_slice(&at);
+                w[14] = push_rgb(&mut w, peak_map);
+                let at = push_tables(&mut w, rest);
+                w[16..19].copy_from_slice(&at);
+                w[19] = push_rgb(&mut w, rest_map);
+            }
+            (Some(sampler), _) => {
+                w[0] = 1;
+                let at = push_tables(&mut w, sampler);
+                w[6..9].copy_from_slice(&at);
+            }
+            (None, _) => {}
         }
         w[9] = push_rgb(&mut w, &env.map);
     }
@@ -65,13 +116,22 @@ pub(super) fn words(scene: &Scene, sampler: Option<&EnvironmentSampler>) -> Vec<
 }
 
 /// The words `words` makes for this environment and background at most (the
-/// sampling tables counted whether or not the map is black): checked against the
+/// sampling tables counted whether or not the map is black, and twice more with
+/// their radiance when the map is sampled in `split` parts): checked against the
 /// device's limits before anything is built.
-pub(super) fn word_count(environment: Option<&Environment>, background: &Background) -> usize {
+pub(super) fn word_count(
+    environment: Option<&Environment>,
+    background: &Background,
+    split: bool,
+) -> usize {
     let mut n = HEADER_WORDS;
     if let Some(e) = environment {
         let (w, h) = (e.map.width() as usize, e.map.height() as usize);
-        n += (h + 1) + h * (w + 1) + w * h * 4;
+        let tables = (h + 1) + h * (w + 1) + w * h;
+        n += tables + w * h * 3;
+        if split {
+            n += tables + 2 * w * h * 3;
+        }
     }
     if let Background::Environment(image) = background {
         n += image.width() as usize * image.height() as usize * 3;

@@ -35,7 +35,6 @@ use limits::{ENVIRONMENT_WORDS, MATERIAL_WORDS_NAME, device_size_problem, words_
 use meso_materials::image::Image;
 use meso_materials::rng::Sampler;
 use meso_materials::spmm::PrepareRequest;
-use meso_render::environment::EnvironmentSampler;
 use meso_render::film::{LayeredFilm, material_bit};
 use meso_render::geometry::SceneBvh;
 use meso_render::layers::{Layers, MANY_LIGHTS};
@@ -141,8 +140,8 @@ pub struct GpuSpmmMode {
     scene_data: SceneData,
     /// The viewport denoiser's guides and filter on the device.
     denoising: denoising::SharedDenoising,
-    /// The environment map's importance sampler (`None`: no environment, or black).
-    env_sampler: Option<EnvironmentSampler>,
+    /// The environment map's importance samplers: the whole map's, or its parts'.
+    env_sampling: environment::MapSampling,
     /// The `env` words (`environment::words`).
     env_words: Vec<u32>,
     /// Traversals that overflowed the stack or the step bound (should stay zero).
@@ -288,11 +287,9 @@ impl GpuSpmmMode {
         report.record_since("materials", start);
         prepare.report("environment", 0.0)?;
         let start = Instant::now();
-        let env_sampler = scene
-            .environment
-            .as_ref()
-            .and_then(|e| EnvironmentSampler::new(&e.map));
-        let env_words = env_words(&scene, env_sampler.as_ref(), biscale.as_ref());
+        let split = knobs.is_some_and(|k| k.split_environment);
+        let env_sampling = environment::MapSampling::new(scene.environment.as_ref(), split);
+        let env_words = env_words(&scene, &env_sampling, biscale.as_ref());
         if let Some(p) = words_size_problem(&ctx, ENVIRONMENT_WORDS, env_words.len()) {
             return Err(ModeError::Size(p));
         }
@@ -326,7 +323,7 @@ impl GpuSpmmMode {
             kernel,
             res,
             scene_data,
-            env_sampler,
+            env_sampling,
             env_words,
             overflows: [0; 2],
             failure: None,
@@ -587,18 +584,12 @@ impl GpuSpmmMode {
     /// `new_map`) and rebinds.
     fn reupload_environment(&mut self, new_map: bool) {
         if new_map {
-            self.env_sampler = self
-                .core
-                .scene
-                .environment
-                .as_ref()
-                .and_then(|e| EnvironmentSampler::new(&e.map));
+            self.env_sampling = environment::MapSampling::new(
+                self.core.scene.environment.as_ref(),
+                self.env_sampling.split,
+            );
         }
-        self.env_words = env_words(
-            &self.core.scene,
-            self.env_sampler.as_ref(),
-            self.biscale.as_ref(),
-        );
+        self.env_words = env_words(&self.core.scene, &self.env_sampling, self.biscale.as_ref());
         self.rebind();
     }
 

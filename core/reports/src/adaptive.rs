@@ -201,7 +201,7 @@ pub fn speedup_report(
         preconvolved: false,
         ..r.options
     };
-    let variants = [
+    let mut variants = vec![
         ("adaptive_nb16", base),
         ("adaptive_nb256", AdaptiveOptions { n_b: 256, ..base }),
         (
@@ -212,6 +212,15 @@ pub fn speedup_report(
             },
         ),
     ];
+    // What the split environment estimator adds: the same mode drawing the whole map
+    // with one sampler, as the brute force does.
+    if base.split_environment {
+        let whole = AdaptiveOptions {
+            split_environment: false,
+            ..base
+        };
+        variants.insert(1, ("adaptive_whole_map", whole));
+    }
     for (name, options) in variants {
         progress(&format!("adaptive: {name}"));
         let (mut checkpoints, mode) = measure_fastest(

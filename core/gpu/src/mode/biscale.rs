@@ -9,10 +9,10 @@ use crate::biscale::BiscaleBlock;
 /// The `env` words: the environment's and background's, then the biscale words.
 pub(super) fn env_words(
     scene: &Scene,
-    sampler: Option<&EnvironmentSampler>,
+    sampling: &environment::MapSampling,
     biscale: Option<&BiscaleBlock>,
 ) -> Vec<u32> {
-    let mut words = environment::words(scene, sampler);
+    let mut words = environment::words(scene, sampling);
     if let Some(b) = biscale {
         words.extend_from_slice(&b.words);
     }
@@ -50,7 +50,7 @@ impl GpuSpmmMode {
                 "this device mode renders spmm frames, not biscale ones".into(),
             ));
         }
-        let words = env_words(&self.core.scene, self.env_sampler.as_ref(), Some(&block));
+        let words = env_words(&self.core.scene, &self.env_sampling, Some(&block));
         if let Some(p) = words_size_problem(&self.ctx, ENVIRONMENT_WORDS, words.len()) {
             return Err(EditError::Size(p));
         }

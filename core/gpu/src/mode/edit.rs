@@ -11,12 +11,16 @@ impl GpuSpmmMode {
             Unsupported::check(ModeKind::Spmm, Device::Gpu, vec![part])?;
         }
         let env_words = match &edit {
-            SceneEdit::Environment(e) => {
-                environment::word_count(e.as_ref(), &self.core.scene.background)
-            }
-            SceneEdit::Background(b) => {
-                environment::word_count(self.core.scene.environment.as_ref(), b)
-            }
+            SceneEdit::Environment(e) => environment::word_count(
+                e.as_ref(),
+                &self.core.scene.background,
+                self.env_sampling.split,
+            ),
+            SceneEdit::Background(b) => environment::word_count(
+                self.core.scene.environment.as_ref(),
+                b,
+                self.env_sampling.split,
+            ),
             _ => 0,
         };
         if let Some(p) = words_size_problem(&self.ctx, ENVIRONMENT_WORDS, env_words) {

@@ -157,6 +157,7 @@ fn an_adaptive_film_past_the_buffer_limit_is_refused_by_size() {
         max_samples: 256,
         min_share: 0.125,
         refine_frames: 2,
+        split_environment: true,
     };
     // The film is checked first: the limit is met there, whatever the other buffers.
     let limited = context().with_buffer_limit(sums);

@@ -24,7 +24,7 @@ use super::upsample::{self, Guide};
 use meso_materials::brdf::warp;
 use meso_materials::image::Image;
 use meso_materials::rng::SampleStream;
-use meso_render::environment::EnvironmentSampler;
+use meso_render::environment::{EnvironmentSampler, sampled_parts};
 use meso_render::film::material_bit;
 use meso_render::layers::{self, AMBIENT, ENVIRONMENT, LightTarget};
 use meso_render::progressive::{Edited, Progressive};
@@ -71,6 +71,9 @@ pub struct AdaptiveOptions {
     /// The lowest rate a shaded pixel takes, as a share of `mean_samples` (every
     /// pixel keeps converging however quiet it is predicted to be).
     pub min_share: f64,
+    /// Draw the environment map's peaks and its remainder each with a sampler of its
+    /// own (`map_parts`), rather than the whole map with one.
+    pub split_environment: bool,
 }
 
 impl Default for AdaptiveOptions {
@@ -82,8 +85,31 @@ impl Default for AdaptiveOptions {
             max_samples: 256,
             refine_frames: 2,
             min_share: 0.125,
+            split_environment: true,
         }
     }
+}
+
+/// The environment map as the adaptive mode samples it: the whole map by one sampler
+/// (the spmm mode's estimator), or, with `split`, its peaks and its remainder each by
+/// its own (`sampled_parts`), so that a small sun holding half of a sky's power is in
+/// every sample instead of in about every other one. A map without peaks stays whole;
+/// a black one has no parts.
+fn map_parts(map: &Arc<Image>, split: bool) -> Vec<(EnvironmentSampler, Arc<Image>)> {
+    if let Some(parts) = split.then(|| sampled_parts(map)).flatten() {
+        return parts.into();
+    }
+    EnvironmentSampler::new(map)
+        .map(|sampler| (sampler, Arc::clone(map)))
+        .into_iter()
+        .collect()
+}
+
+/// One part of the environment map and its sampler, as a sample draws it.
+#[derive(Clone, Copy)]
+pub(super) struct MapPart<'a> {
+    sampler: &'a EnvironmentSampler,
+    map: &'a Image,
 }
 
 /// Material bandwidths analysed in this process, by table (a MERL material is
@@ -128,7 +154,10 @@ use pass::PassProgress;
 pub struct AdaptiveMode {
     /// Scene, BVH, camera, film and layers, counters, preparation.
     core: Progressive<Film>,
-    env_sampler: Option<EnvironmentSampler>,
+    /// The environment map's parts as the frames and the pass draw them: the whole
+    /// map, or its peaks and its remainder (`AdaptiveOptions::split_environment`);
+    /// empty without an environment or with a black map.
+    env_parts: Vec<(EnvironmentSampler, Arc<Image>)>,
     env_bandwidth: Option<EnvironmentBandwidth>,
     prefiltered: Option<Prefiltered>,
     light_bandwidth: Vec<Option<LightBandwidth>>,
@@ -241,7 +270,7 @@ impl AdaptiveMode {
         prepare.report("environment", 0.0)?;
         let start = Instant::now();
         let mut mode = Self {
-            env_sampler: None,
+            env_parts: Vec::new(),
             env_bandwidth: None,
             prefiltered: None,
             light_bandwidth: Vec::new(),
@@ -274,7 +303,12 @@ impl AdaptiveMode {
     /// and film targets, after an emitter change.
     fn refresh_emitters(&mut self) {
         let env = self.core.scene.environment.as_ref();
-        self.env_sampler = env.and_then(|e| EnvironmentSampler::new(&e.map));
+        self.env_parts = env.map_or_else(Vec::new, |e| {
+            map_parts(
+                &e.map,
+                self.options.split_environment && !self.options.preconvolved,
+            )
+        });
         self.env_bandwidth = env.map(|e| EnvironmentBandwidth::analyse(&e.map));
         self.prefiltered = env
             .filter(|_| self.options.preconvolved)
@@ -287,6 +321,17 @@ impl AdaptiveMode {
             .map(LightBandwidth::analyse)
             .collect();
         self.light_targets = self.core.layers.light_targets(&self.core.scene);
+    }
+
+    /// The parts of the environment map a sample draws (at most two, the count
+    /// after them); `None` without one.
+    fn map_parts(&self) -> Option<([MapPart<'_>; 2], usize)> {
+        fn part((sampler, map): &(EnvironmentSampler, Arc<Image>)) -> MapPart<'_> {
+            MapPart { sampler, map }
+        }
+        let first = part(self.env_parts.first()?);
+        let second = self.env_parts.get(1).map_or(first, part);
+        Some(([first, second], self.env_parts.len()))
     }
 
     pub fn options(&self) -> AdaptiveOptions {

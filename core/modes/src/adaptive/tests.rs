@@ -457,6 +457,139 @@ fn the_predicted_variance_is_that_of_the_importance_sampled_estimator_on_a_hand_
     );
 }
 
+/// A 256 x 128 sky of radiance 0.5 with a sun of 2 x 2 pixels (about 1.4 degrees)
+/// that holds about 60% of its power, 35 degrees from the zenith towards +x.
+fn sun_and_sky() -> Image {
+    let (w, h) = (256, 128);
+    let mut map = Image::new(w, h);
+    for y in 0..h {
+        for x in 0..w {
+            let sun = (128..130).contains(&x) && (25..27).contains(&y);
+            map.set(x, y, if sun { [6000.0; 3] } else { [0.5; 3] });
+        }
+    }
+    map
+}
+
+/// `floor_under_uniform_sky` under `sun_and_sky`, with a thin bar (5 cm wide, 50 cm
+/// up, along z, above the centre of the view) whose shadow falls on the floor in
+/// view, about 12 pixels from it.
+fn floor_with_a_bar_under_a_sun() -> Scene {
+    let mut scene = floor_under_uniform_sky(0.6, true);
+    scene.environment.as_mut().expect("a sky").map = Arc::new(sun_and_sky());
+    scene.camera.position = DVec3::new(0.0, 1.5, 0.0);
+    scene.camera.fov_y_deg = 40.0;
+    scene.meshes.push(quad(
+        DVec3::new(-0.025, 0.5, -3.0),
+        DVec3::new(0.05, 0.0, 0.0),
+        DVec3::new(0.0, 0.0, 6.0),
+        0,
+    ));
+    scene
+}
+
+#[test]
+fn drawing_the_suns_part_of_the_map_apart_lowers_the_variance_and_the_pass_predicts_it() {
+    let scene = floor_under_uniform_sky(0.6, true);
+    let lit = |split: bool| {
+        let mut scene = scene.clone();
+        scene.environment.as_mut().expect("a sky").map = Arc::new(sun_and_sky());
+        let options = AdaptiveOptions {
+            split_environment: split,
+            n_b: 64,
+            ..AdaptiveOptions::default()
+        };
+        AdaptiveMode::prepare_with(scene, SIZE, SIZE, Prepare::quietly(), options)
+            .expect("adaptive")
+    };
+    let centre = (SIZE / 2, SIZE / 2);
+    let measured = |mode: &AdaptiveMode| {
+        let mut m = super::allocation::Moments::default();
+        for k in 0..4096 {
+            let v = mode.sample_value(centre.0, centre.1, k);
+            m.add(v.dot(DVec3::new(0.2126, 0.7152, 0.0722)));
+        }
+        m
+    };
+    let (whole, split) = (lit(false), lit(true));
+    let (w, s) = (measured(&whole), measured(&split));
+    eprintln!(
+        "whole map: mean {} variance {}; split: mean {} variance {}",
+        w.mean(),
+        w.variance(),
+        s.mean(),
+        s.variance()
+    );
+    // The same integral (within 4 standard errors of the two means' difference)...
+    let error = ((w.variance() + s.variance()) / 4096.0).sqrt();
+    assert!((w.mean() - s.mean()).abs() < 4.0 * error, "{error}");
+    // ...with the sun in every sample rather than in about 60% of them: the
+    // Bernoulli variance of "sun or sky" is gone, only the sky's remains.
+    assert!(s.variance() < 0.1 * w.variance());
+    // The pass evaluates the frames' estimator, split or whole: its prediction is the
+    // measured variance within 20% (64 strata of a sun that every strata sees).
+    let i = (centre.1 * SIZE + centre.0) as usize;
+    for (mode, m) in [(&whole, &w), (&split, &s)] {
+        let predicted = mode.bandwidth_pass().sigma[i].powi(2);
+        assert!(
+            (predicted - m.variance()).abs() < 0.2 * m.variance(),
+            "predicted {predicted}, measured {}",
+            m.variance()
+        );
+    }
+}
+
+/// The sun's shadow of a thin bar on a diffuse floor: the material's directions of
+/// the pass rarely meet the sun, so only guards along the map's own directions see
+/// the shadow's edges. Its pixels must be shaded, not up-sampled from lit sites.
+#[test]
+fn a_thin_shadow_of_the_sun_is_shaded_not_up_sampled() {
+    // The sun turned about the vertical: the shadow falls on either side of the bar,
+    // at distances the pass's fixed pattern of material directions may or may not
+    // happen to cross.
+    let mut failures = Vec::new();
+    for turn in [0.0, 25.0, 155.0, 180.0, 205.0, 335.0] {
+        let mut scene = floor_with_a_bar_under_a_sun();
+        scene.environment.as_mut().expect("a sky").rotate_y_deg = turn;
+        let reference = spmm(&scene, REFERENCE_SEED_XOR, 256);
+        for split in [false, true] {
+            let options = AdaptiveOptions {
+                split_environment: split,
+                ..AdaptiveOptions::default()
+            };
+            let mode =
+                AdaptiveMode::prepare_with(scene.clone(), SIZE, SIZE, Prepare::quietly(), options)
+                    .expect("adaptive");
+            let b = mode.bandwidth_pass();
+            let lum = |p: [f32; 3]| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2];
+            let floor: Vec<usize> = (0..(SIZE * SIZE) as usize)
+                .filter(|&i| b.g.pixels[i].surface.as_ref().is_some_and(|s| s.p.y < 0.01))
+                .collect();
+            let mut sorted: Vec<f32> = floor.iter().map(|&i| lum(reference.pixels()[i])).collect();
+            sorted.sort_by(f32::total_cmp);
+            let median = sorted[sorted.len() / 2];
+            let shadowed: Vec<usize> = floor
+                .iter()
+                .copied()
+                .filter(|&i| lum(reference.pixels()[i]) < 0.7 * median)
+                .collect();
+            assert!(
+                shadowed.len() >= 8,
+                "{turn}: {} shadowed pixels",
+                shadowed.len()
+            );
+            let up_sampled = shadowed.iter().filter(|&&i| b.level[i] > 0).count();
+            if up_sampled > 0 {
+                failures.push(format!(
+                    "sun turned {turn} degrees, split {split}: {up_sampled} of {} shadowed pixels up-sampled",
+                    shadowed.len()
+                ));
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
 /// Frames stopped at every step (the pass's rows, the shading's rows) and resumed,
 /// with a preview first and an emission edit between two steps, end with the image
 /// of frames rendered whole, bit for bit: the film never sees the preview's samples.

@@ -35,9 +35,9 @@ use meso_render::{
 use super::BiscaleSettings;
 use super::btf_table::{BtfTable, Tabulation};
 use super::mode::{per_vertex, precompute_and_tabulate, split_lighting};
-use super::peaks::EnvironmentSplit;
 use super::precompute::{Precomputed, precompute};
 use super::refine::FlatQuadtrees;
+use meso_render::environment::EnvironmentSplit;
 
 pub struct GpuBiscaleMode {
     /// The device half: skeleton, device film, geometry, lights, biscale words.

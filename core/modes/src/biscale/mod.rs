@@ -7,7 +7,7 @@
 //! precomputation (`precompute.rs`) is cached on disk (`cache.rs`); the SH bi-scale
 //! and CPCA baselines (`sh.rs`, `cpca.rs`) are computed from the same matrix for the
 //! reports. The environment is the precomputed part, but for its brightest pixels,
-//! which are traced per pixel like a light (`peaks.rs`); lights and the ambient term
+//! which are traced per pixel like a light (`meso_render::environment::EnvironmentSplit`); lights and the ambient term
 //! are traced exactly on top (`mode.rs`). With the `gpu` feature, `gpu.rs` renders
 //! the same frames on a wgpu device from the same preparation.
 
@@ -22,7 +22,6 @@ mod gpu;
 mod gpu_tests;
 pub mod hemisphere;
 mod mode;
-pub mod peaks;
 pub mod precompute;
 pub mod refine;
 pub mod sh;
@@ -56,7 +55,7 @@ pub struct BiscaleSettings {
     /// vertices only).
     pub refine_vertices: usize,
     /// Share of the sphere's solid angle whose brightest environment pixels are traced
-    /// per pixel instead of carried by the transfer (`peaks.rs`; 0: the transfer
+    /// per pixel instead of carried by the transfer (`meso_render::environment::EnvironmentSplit`; 0: the transfer
     /// carries the whole map, as in Sun et al.). Not part of the precomputation.
     pub traced_share: f64,
     /// Where precomputations are cached (`None`: never read or written).
@@ -78,7 +77,7 @@ impl Default for BiscaleSettings {
             rays_per_side: 2,
             seed: 1,
             refine_vertices: DEFAULT_REFINE_VERTICES,
-            traced_share: peaks::DEFAULT_TRACED_SHARE,
+            traced_share: meso_render::environment::DEFAULT_TRACED_SHARE,
             cache_dir: default_cache_dir(),
         }
     }

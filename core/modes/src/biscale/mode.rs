@@ -17,11 +17,11 @@ use glam::DVec3;
 use super::btf_table::{BtfTable, Tabulation, ViewLookup};
 use super::cubemap::CubeLayout;
 use super::hemisphere::HemisphereGrid;
-use super::peaks::EnvironmentSplit;
 use super::precompute::{Precomputed, precompute};
 use super::{BiscaleSettings, cpca::Cpca, sh::ShTransfer};
 use meso_materials::image::Image;
 use meso_materials::rng::SampleStream;
+use meso_render::environment::EnvironmentSplit;
 use meso_render::environment::rotate_y;
 use meso_render::film::{EMPTY_UV_BOX, material_bit};
 use meso_render::geometry::Hit;
@@ -539,7 +539,7 @@ impl BiscaleMode {
     }
 
     /// What is traced at `hit` rather than precomputed: the environment's brightest
-    /// pixels (one direction drawn from them, `peaks.rs`), and the lights and the
+    /// pixels (one direction drawn from them, `meso_render::environment::EnvironmentSplit`), and the lights and the
     /// ambient term as the spmm mode traces them (one shadow ray to each point light,
     /// `light_samples` to each area light, or above `MANY_LIGHTS` lights the spmm
     /// mode's stochastic selection; one ambient ray), through the shading core.

@@ -151,7 +151,10 @@ fn a_small_bright_source_is_traced_and_lights_a_lambertian_plane_exactly() {
         let got = centre_pixel(&mut mode, 64);
         ((got - exact) / exact).abs().max_element()
     };
-    let (traced, cells) = (error(super::peaks::DEFAULT_TRACED_SHARE), error(0.0));
+    let (traced, cells) = (
+        error(meso_render::environment::DEFAULT_TRACED_SHARE),
+        error(0.0),
+    );
     assert!(
         traced < 0.02 && cells > 0.03,
         "traced {traced}, cells {cells}"

@@ -6,6 +6,7 @@
 //! its pixels: lookup, sampling pdf and closed-form tests all read it that way.
 
 mod sampler;
+mod split;
 #[cfg(test)]
 mod tests;
 
@@ -14,6 +15,7 @@ use std::f64::consts::{PI, TAU};
 
 use meso_materials::image::Image;
 pub use sampler::{EnvironmentSample, EnvironmentSampler};
+pub use split::{DEFAULT_TRACED_SHARE, EnvironmentSplit, sampled_parts};
 
 /// The lat-long map's pixel seen in direction `dir` (unit, map space).
 pub fn pixel_of(width: u32, height: u32, dir: DVec3) -> (u32, u32) {

@@ -282,8 +282,10 @@ impl AdaptiveMode {
         }
     }
 
-    /// The environment's share: map and BRDF samples with MIS (the spmm mode's
-    /// estimator); pre-convolved, the same on a filtered level of the map.
+    /// The environment's share: one direction drawn from each part of the map
+    /// (`MapPart`: the whole map, or its peaks and its remainder) and one from the
+    /// material, with MIS per part; pre-convolved, the same on a filtered level of the
+    /// map.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn sample_environment(
         &self,
@@ -295,28 +297,38 @@ impl AdaptiveMode {
         out: &mut [DVec3],
         counts: &mut RayCounts,
     ) {
+        // The dimensions of the first part and of the material, as the spmm mode draws
+        // its map and material samples; a second part's come after them.
         let (u_map, u_material) = (rng.next_2d(), rng.next_2d());
-        let (Some(env), Some(sampler)) = (&self.core.scene.environment, &self.env_sampler) else {
+        let Some(env) = &self.core.scene.environment else {
             return;
         };
         // Pre-convolved: the level of the filtered map that the lobe's highest rate for
         // this view needs, with that level's own sampler (section 2.5).
-        let (map, sampler) = match &self.prefiltered {
-            None => (&*env.map, sampler),
+        let (parts, n) = match &self.prefiltered {
+            None => match self.map_parts() {
+                Some(parts) => parts,
+                None => return,
+            },
             Some(pre) => {
                 let rate = self.materials[s.material]
                     .as_ref()
                     .map_or(0.0, |b| b.peak(lo));
                 match pre.map(pre.level_for(rate)) {
-                    (map, Some(sampler)) => (map, sampler),
+                    (map, Some(sampler)) => ([MapPart { sampler, map }; 2], 1),
                     (_, None) => return,
                 }
             }
         };
+        let parts = &parts[..n];
         let turn = env.turn();
-        let e = sampler.sample(map, u_map);
-        let wi = turn.apply(e.dir);
-        if wi.dot(s.n) > 0.0 {
+        for (j, part) in parts.iter().enumerate() {
+            let u = if j == 0 { u_map } else { rng.next_2d() };
+            let e = part.sampler.sample(part.map, u);
+            let wi = turn.apply(e.dir);
+            if wi.dot(s.n) <= 0.0 {
+                continue;
+            }
             counts.environment += 1;
             if !self.core.bvh.occluded(lift, wi, 0.0, f64::INFINITY) {
                 let li = s.to_local(wi);
@@ -343,9 +355,14 @@ impl AdaptiveMode {
         if self.core.bvh.occluded(lift, wi, 0.0, f64::INFINITY) {
             return;
         }
-        let (map_pdf, radiance) = sampler.pdf_and_radiance(map, turn.undo(wi));
-        let weight = power(pdf, map_pdf);
-        out[ENVIRONMENT] += material.response_local(s.uv, li, lo) * radiance * (weight / pdf);
+        // The material's direction serves every part, weighted against each part's
+        // own strategy.
+        let in_map = turn.undo(wi);
+        let f = material.response_local(s.uv, li, lo);
+        for part in parts {
+            let (map_pdf, radiance) = part.sampler.pdf_and_radiance(part.map, in_map);
+            out[ENVIRONMENT] += f * radiance * (power(pdf, map_pdf) / pdf);
+        }
     }
 
     /// A frame, in steps of rows when `stop` is given: the rest of the bandwidth pass

@@ -110,6 +110,7 @@ impl GpuAdaptiveMode {
             max_samples: options.max_samples.max(1),
             min_share: options.min_share,
             refine_frames: options.refine_frames.max(1),
+            split_environment: options.split_environment,
         };
         let device =
             GpuSpmmMode::prepare_adaptive(ctx, scene.clone(), (width, height), prepare, knobs)?;

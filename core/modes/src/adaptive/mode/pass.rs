@@ -35,6 +35,8 @@ pub struct Buffers {
 /// pass's strata (`AdaptiveMode::strata_orders`).
 pub(super) struct StrataOrders {
     pub(super) map: Vec<u32>,
+    /// The second part of a split map (`map_parts`).
+    pub(super) remainder: Vec<u32>,
     /// Per scene light.
     pub(super) lights: Vec<Vec<u32>>,
 }
@@ -284,8 +286,10 @@ impl AdaptiveMode {
             }
             order
         };
+        let lights = self.core.scene.lights.len() as u64;
         StrataOrders {
             map: order(0),
+            remainder: order(1 + lights),
             lights: (0..self.core.scene.lights.len())
                 .map(|l| order(1 + l as u64))
                 .collect(),
@@ -406,8 +410,8 @@ impl AdaptiveMode {
     }
 
     /// The environment's paths: BRDF-importance-sampled directions (so a sharp lobe is
-    /// seen by a few of the n_b directions), and the estimator's map strategy at its
-    /// own stratum.
+    /// seen by a few of the n_b directions), and the estimator's strategy for each part
+    /// of the map at its own strata.
     fn environment_paths(
         &self,
         at: &SurfacePoint,
@@ -421,42 +425,75 @@ impl AdaptiveMode {
         };
         let (s, material, lo) = (at.s, paths.material, paths.lo);
         let turn = env.turn();
+        let map_parts = self.map_parts();
+        let parts: &[MapPart] = match &map_parts {
+            Some((parts, n)) => &parts[..*n],
+            None => &[],
+        };
         for (k, d) in drawn.iter().enumerate() {
             let Some((li, pdf)) = *d else { continue };
             let wi = s.to_world(li);
-            // One turn into the map, and one pixel lookup for both the radiance and
-            // the map's pdf.
+            // One turn into the map, and one pixel lookup per part for both its
+            // radiance and its pdf.
             let in_map = turn.undo(wi);
-            let (map_pdf, radiance) = match &self.env_sampler {
-                Some(sampler) => sampler.pdf_and_radiance(&env.map, in_map),
-                None => (0.0, env.radiance_unit(wi)),
+            let mut lookups = [(0.0, DVec3::ZERO); 2];
+            for (lookup, part) in lookups.iter_mut().zip(parts) {
+                *lookup = part.sampler.pdf_and_radiance(part.map, in_map);
+            }
+            let lookups = &lookups[..parts.len()];
+            let full = if parts.is_empty() {
+                env.radiance_unit(wi)
+            } else {
+                lookups.iter().map(|l| l.1).sum()
             };
-            let radiance = radiance.dot(LUMINANCE) * env.strength;
+            let luminance = full.dot(LUMINANCE);
+            let radiance = luminance * env.strength;
             let nu_a = env_bw.rate_in_map(in_map);
             let seen = (k < GUARD_RAYS as usize)
                 .then(|| !self.core.bvh.occluded(at.lift, wi, 0.0, f64::INFINITY));
             let lambda = paths.bounce(li, DVec2::new(0.0, nu_a), 0.0, radiance, 1.0 / pdf, seen);
-            if env.mis && self.env_sampler.is_some() {
-                value[k] += lambda * power(pdf, map_pdf);
+            if env.mis && luminance > 0.0 {
+                // Each part's share of lambda, weighted against its own strategy.
+                value[k] += lookups
+                    .iter()
+                    .map(|&(map_pdf, r)| {
+                        lambda * (r.dot(LUMINANCE) / luminance) * power(pdf, map_pdf)
+                    })
+                    .sum::<f64>();
             }
         }
-        for (k, v) in value.iter_mut().enumerate() {
-            let Some(sampler) = &self.env_sampler else {
-                break;
-            };
-            let e = sampler.sample(&env.map, at.strata.at(orders.map[k]));
-            let wi = turn.apply(e.dir);
-            let li = s.to_local(wi);
-            if li.z <= 0.0 || e.pdf <= 0.0 {
-                continue;
-            }
-            let weight = if env.mis {
-                power(e.pdf, material.pdf_local(s.uv, li, lo))
+        for (j, part) in parts.iter().enumerate() {
+            let order = if j == 0 {
+                &orders.map
             } else {
-                1.0
+                &orders.remainder
             };
-            let f = material.response_local(s.uv, li, lo).dot(LUMINANCE);
-            *v += f * e.radiance.dot(LUMINANCE) * env.strength * weight / e.pdf;
+            for (k, v) in value.iter_mut().enumerate() {
+                let e = part.sampler.sample(part.map, at.strata.at(order[k]));
+                let wi = turn.apply(e.dir);
+                let li = s.to_local(wi);
+                if li.z <= 0.0 || e.pdf <= 0.0 {
+                    continue;
+                }
+                let weight = if env.mis {
+                    power(e.pdf, material.pdf_local(s.uv, li, lo))
+                } else {
+                    1.0
+                };
+                let f = material.response_local(s.uv, li, lo).dot(LUMINANCE);
+                let lambda = f * e.radiance.dot(LUMINANCE) * env.strength * weight / e.pdf;
+                *v += lambda;
+                // Guards along the map's own directions too: they find the sun where
+                // the frames' map samples find it, so its shadow's edge on a diffuse
+                // floor (which the material's directions rarely reach) is not
+                // up-sampled over.
+                if k < GUARD_RAYS as usize {
+                    paths.guarded += lambda;
+                    if !self.core.bvh.occluded(at.lift, wi, 0.0, f64::INFINITY) {
+                        paths.visible += lambda;
+                    }
+                }
+            }
         }
     }
 
@@ -627,6 +664,7 @@ impl AdaptiveMode {
                 light_res: crate::adaptive::bandwidth::LIGHT_RES as u32,
             },
             map_order: &orders.map,
+            remainder_order: &orders.remainder,
             light_orders: orders.lights.iter().map(Vec::as_slice).collect(),
             material_rates: self
                 .materials

@@ -1,10 +1,8 @@
-//! The environment split in two: its brightest pixels (the sun, a studio's lamps), traced
-//! per pixel like a light, and the rest, which the precomputed transfer carries. The
-//! transfer bins light into M local cells of about 20 degrees (M = 64), so a source
-//! much smaller than a cell is shaded as if it lay anywhere in its cell: a Lambertian
-//! floor under the studio map came out 7-10% dark, a glossy one 0.6-3x off where the
-//! lamps reflect. Traced, those pixels are exact; what the cells carry is the smoother
-//! remainder, whose cell error is a share of a smaller whole.
+//! The environment split in two: its brightest pixels (the sun, a studio's lamps) and
+//! the rest. The biscale mode traces the peaks per pixel like a light and lets its
+//! precomputed transfer carry the smoother remainder (docs/rendering.md); the adaptive
+//! mode samples each part with its own sampler, so a shading point sees the sun in
+//! every sample instead of in about half of them.
 //!
 //! The rule: the pixels of highest luminance covering `share` of the sphere's solid
 //! angle set a threshold tau; a pixel brighter than tau keeps tau (its colour kept) in
@@ -14,8 +12,8 @@
 
 use std::sync::Arc;
 
+use super::{EnvironmentSampler, pixel_solid_angle};
 use meso_materials::image::{Image, luminance};
-use meso_render::environment::{EnvironmentSampler, pixel_solid_angle};
 
 /// Share of the sphere's solid angle traced by default.
 pub const DEFAULT_TRACED_SHARE: f64 = 0.01;
@@ -92,6 +90,20 @@ impl EnvironmentSplit {
     }
 }
 
+/// A map's peaks and its remainder (`EnvironmentSplit` at `DEFAULT_TRACED_SHARE`),
+/// each with an importance sampler of its own: an estimator that draws one direction
+/// from each sees a small bright source in every sample, not only in the share of
+/// samples its power earns (the adaptive mode's frames, on the CPU and the device).
+/// `None` when either part is black: a map without peaks stays whole.
+pub fn sampled_parts(map: &Arc<Image>) -> Option<[(EnvironmentSampler, Arc<Image>); 2]> {
+    let split = EnvironmentSplit::new(map, DEFAULT_TRACED_SHARE);
+    let remainder = EnvironmentSampler::new(&split.remainder)?;
+    Some([
+        (split.sampler?, Arc::new(split.peaks)),
+        (remainder, split.remainder),
+    ])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -160,6 +172,37 @@ mod tests {
             .sum();
         assert!(traced_area <= 0.01 * 4.0 * std::f64::consts::PI + 0.01);
         assert!(split.sampler.is_some());
+    }
+
+    #[test]
+    fn the_sampled_parts_add_up_to_the_map_and_each_samples_only_its_own_pixels() {
+        let map = spot_map();
+        let [(peaks, peak_map), (rest, rest_map)] = sampled_parts(&map).expect("a spot to split");
+        let (w, h) = (map.width(), map.height());
+        let mut spot_mass = 0.0;
+        for y in 0..h {
+            for x in 0..w {
+                let (m, p, r) = (map.get(x, y), peak_map.get(x, y), rest_map.get(x, y));
+                (0..3).for_each(|c| assert_eq!(p[c] + r[c], m[c], "({x}, {y})"));
+                // The pixel's centre: each part's sampler draws only where its own map
+                // is bright.
+                let u = (x as f64 + 0.5) / w as f64;
+                let v = (y as f64 + 0.5) / h as f64;
+                let dir = super::super::direction_at(u, v);
+                let bright = |q: [f32; 3]| q.iter().any(|&c| c > 0.0);
+                assert_eq!(peaks.pdf(dir) > 0.0, bright(p), "({x}, {y})");
+                assert_eq!(rest.pdf(dir) > 0.0, bright(r), "({x}, {y})");
+                if (30..32).contains(&x) && (10..12).contains(&y) {
+                    spot_mass += peaks.pdf(dir) * pixel_solid_angle(w, h, y);
+                }
+            }
+        }
+        // The spot's excess is most of the peaks' power: the peaks' sampler draws it
+        // almost always.
+        assert!(spot_mass > 0.9, "{spot_mass}");
+        let mut constant = Image::new(16, 8);
+        constant.pixels_mut().fill([0.7, 0.7, 0.7]);
+        assert!(sampled_parts(&Arc::new(constant)).is_none());
     }
 
     #[test]

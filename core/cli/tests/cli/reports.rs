@@ -81,9 +81,10 @@ fn report_adaptive_repeats_each_curve_and_keeps_its_images() {
         env!("CARGO_MANIFEST_DIR"),
         "/../../tests/scenes/merl_teapot.toml"
     );
-    let run = |name: &str, repeats: &str| {
+    // Each curve's name and its checkpoints' PSNRs.
+    let run = |name: &str, extra: &[&str]| {
         let out = dir.path().join(name);
-        let args = [
+        let mut args = vec![
             "report",
             "adaptive",
             scene,
@@ -99,10 +100,9 @@ fn report_adaptive_repeats_each_curve_and_keeps_its_images() {
             "4",
             "--adaptive-frames",
             "4",
-            "--repeats",
-            repeats,
             "--json",
         ];
+        args.extend_from_slice(extra);
         let o = meso(&args, "");
         assert_ok(&o);
         let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
@@ -110,21 +110,50 @@ fn report_adaptive_repeats_each_curve_and_keeps_its_images() {
             .as_array()
             .expect("curves")
             .iter()
-            .flat_map(|c| c["checkpoints"].as_array().expect("checkpoints").clone())
-            .map(|k| {
-                assert!(k["seconds"].as_f64().expect("seconds") > 0.0);
-                k["psnr_db"].as_f64().expect("PSNR")
+            .map(|c| {
+                let psnr = c["checkpoints"]
+                    .as_array()
+                    .expect("checkpoints")
+                    .iter()
+                    .map(|k| {
+                        assert!(k["seconds"].as_f64().expect("seconds") > 0.0);
+                        k["psnr_db"].as_f64().expect("PSNR")
+                    })
+                    .collect::<Vec<f64>>();
+                (c["name"].as_str().expect("name").to_owned(), psnr)
             })
-            .collect::<Vec<f64>>()
+            .collect::<Vec<_>>()
     };
-    let once = run("once", "1");
-    let twice = run("twice", "2");
+    let once = run("once", &["--repeats", "1"]);
+    let twice = run("twice", &["--repeats", "2"]);
+    let names: Vec<&str> = once.iter().map(|(n, _)| n.as_str()).collect();
     assert_eq!(
-        once.len(),
-        3 + 3 * 3,
-        "1, 2, 4 frames of the brute force and three variants"
+        names,
+        [
+            "spmm",
+            "adaptive_nb16",
+            "adaptive_whole_map",
+            "adaptive_nb256",
+            "preconvolved"
+        ]
+    );
+    assert!(
+        once.iter().all(|(_, psnr)| psnr.len() == 3),
+        "1, 2, 4 frames of each curve"
     );
     assert_eq!(once, twice);
+    // The teapot's sky has a sun: drawing it apart changes the images; the whole map
+    // drawn by every variant is the curve that measured it.
+    let whole = run("whole", &["--whole-environment"]);
+    let whole_names: Vec<&str> = whole.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(
+        whole_names,
+        ["spmm", "adaptive_nb16", "adaptive_nb256", "preconvolved"]
+    );
+    assert_eq!(whole[1].1, once[2].1);
+    assert_ne!(once[1].1, once[2].1);
+    // The pre-convolved variant draws its filtered level whole either way.
+    assert_eq!(whole[3].1, once[4].1);
     let bad = meso(
         &[
             "report",

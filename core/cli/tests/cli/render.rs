@@ -374,11 +374,11 @@ fn render_on_the_gpu_reports_device_memory_and_no_adapter_is_exit_2() {
         );
     }
     // The shipped leather has no residual: nothing of it is uploaded; no MERL table,
-    // and no environment or background image (the 16-word header alone).
+    // and no environment or background image (the 24-word header alone).
     assert_eq!(v["device_bytes"]["residual_tables"], 0);
     assert_eq!(v["device_bytes"]["merl_tables"], 0);
     assert_eq!(v["device_bytes"]["btf_tables"], 0);
-    assert_eq!(v["device_bytes"]["environment"], 64);
+    assert_eq!(v["device_bytes"]["environment"], 96);
     assert!(v["rays"]["shadow"].as_u64().expect("count") > 0);
     assert!(out.exists());
 }

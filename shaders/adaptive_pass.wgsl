@@ -294,7 +294,9 @@ fn environment_paths(at: PassPoint) {
         if !(m.w > 0.0) {
             continue;
         }
-        let full = lum(env_radiance(m.xyz) * strength);
+        // One pixel lookup for the whole map's radiance and each part's.
+        let p = env_pixel(m.xyz);
+        let full = lum(env_rgb(env[ENV_RGB] + p * 3u) * strength);
         var open = true;
         if k < tw(H_GUARD_RAYS) {
             open = !occluded(at.lift, m.xyz, FAR);
@@ -302,7 +304,6 @@ fn environment_paths(at: PassPoint) {
         let lambda = bounce(at, to_local(at.s, m.xyz), vec2<f32>(0.0, env_rate(m.xyz)), 0.0, full, 1.0 / m.w, guard_of(k, open));
         if mis && full > 0.0 {
             // Each part's share of lambda, weighted against its own strategy.
-            let p = env_pixel(m.xyz);
             for (var j = 0u; j < parts; j++) {
                 let a = env_part_at(env_part(j), p);
                 values[k] += lambda * (lum(a.xyz * strength) / full) * power_heuristic(m.w, a.w);

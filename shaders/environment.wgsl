@@ -66,9 +66,7 @@ fn latlong_pixel(w: u32, h: u32, d: vec3<f32>) -> u32 {
 
 // `Environment::radiance_unit`: the map seen in world direction `d`.
 fn env_radiance(d: vec3<f32>) -> vec3<f32> {
-    let m = rotate_about_y(d, env_f(ENV_COS), -env_f(ENV_SIN));
-    let p = latlong_pixel(env[ENV_WIDTH], env[ENV_HEIGHT], m);
-    return env_rgb(env[ENV_RGB] + p * 3u);
+    return env_rgb(env[ENV_RGB] + env_pixel(d) * 3u);
 }
 
 // The background image seen in direction `d` (`layers::escaped`).
@@ -133,11 +131,6 @@ fn env_sample_part(part: EnvPart, u: vec2<f32>) -> EnvSample {
         env_rgb(part.rgb + p * 3u));
 }
 
-// `EnvironmentSampler::sample` of the first part.
-fn env_sample(u: vec2<f32>) -> EnvSample {
-    return env_sample_part(env_part(0u), u);
-}
-
 // The map's pixel seen in world direction `d`.
 fn env_pixel(d: vec3<f32>) -> u32 {
     let m = rotate_about_y(d, env_f(ENV_COS), -env_f(ENV_SIN));
@@ -147,11 +140,6 @@ fn env_pixel(d: vec3<f32>) -> u32 {
 // `EnvironmentSampler::pdf_and_radiance` of `part` at map pixel `p`: (rgb, pdf).
 fn env_part_at(part: EnvPart, p: u32) -> vec4<f32> {
     return vec4<f32>(env_rgb(part.rgb + p * 3u), env_f(part.pdf + p));
-}
-
-// `EnvironmentSampler::pdf` of world direction `d`.
-fn env_pdf(d: vec3<f32>) -> f32 {
-    return env_f(env[ENV_PDF] + env_pixel(d));
 }
 
 fn power_heuristic(a: f32, b: f32) -> f32 {

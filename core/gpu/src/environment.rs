@@ -44,7 +44,7 @@ fn push_rgb(words: &mut Vec<u32>, image: &meso_materials::image::Image) -> u32 {
 /// peaks and `split` asks for them (the adaptive mode's frames).
 pub(super) struct MapSampling {
     pub split: bool,
-    /// The whole map's sampler (`None`: no environment, or black).
+    /// The whole map's sampler (`None`: no environment, a black map, or `parts`).
     pub whole: Option<EnvironmentSampler>,
     pub parts: Option<MapParts>,
 }
@@ -52,12 +52,15 @@ pub(super) struct MapSampling {
 impl MapSampling {
     pub fn new(environment: Option<&Environment>, split: bool) -> Self {
         let map = environment.map(|e| &e.map);
+        let parts = map
+            .filter(|_| split)
+            .and_then(meso_render::environment::sampled_parts);
         Self {
             split,
-            whole: map.and_then(|m| EnvironmentSampler::new(m)),
-            parts: map
-                .filter(|_| split)
-                .and_then(meso_render::environment::sampled_parts),
+            whole: map
+                .filter(|_| parts.is_none())
+                .and_then(|m| EnvironmentSampler::new(m)),
+            parts,
         }
     }
 }
@@ -88,7 +91,7 @@ pub(super) fn words(scene: &Scene, sampling: &MapSampling) -> Vec<u32> {
         w[4] = f(c);
         w[5] = f(s);
         match (sampler, parts) {
-            (Some(_), Some([(peaks, peak_map), (rest, rest_map)])) => {
+            (_, Some([(peaks, peak_map), (rest, rest_map)])) => {
                 w[0] = 1;
                 w[13] = 2;
                 let at = push_tables(&mut w, peaks);
@@ -98,12 +101,12 @@ pub(super) fn words(scene: &Scene, sampling: &MapSampling) -> Vec<u32> {
                 w[16..19].copy_from_slice(&at);
                 w[19] = push_rgb(&mut w, rest_map);
             }
-            (Some(sampler), _) => {
+            (Some(sampler), None) => {
                 w[0] = 1;
                 let at = push_tables(&mut w, sampler);
                 w[6..9].copy_from_slice(&at);
             }
-            (None, _) => {}
+            (None, None) => {}
         }
         w[9] = push_rgb(&mut w, &env.map);
     }
